@@ -1,0 +1,101 @@
+"""Immutable results: the thrust network and what a solve says about itself."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .evidence import distance_stats, relative_errors
+from .mesh import PolyMesh
+
+#: Statuses a method may report.
+STATUSES = ("converged", "stalled", "infeasible", "iteration_limit", "time_limit", "interrupted", "failed")
+
+
+@dataclass(frozen=True, eq=False)
+class Network:
+    """A thrust network: geometry, one weight per mesh edge, loads, supports.
+
+    ``weights[k]`` belongs to ``mesh.edges[k]``; edges between two supports carry no unknown
+    and have weight 0. ``loads`` are signed vertical nodal loads [N] for every vertex.
+    """
+
+    mesh: PolyMesh
+    weights: np.ndarray
+    loads: np.ndarray
+    supports: np.ndarray
+    reference: PolyMesh | None = None
+    handles: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("weights", "loads", "supports"):
+            a = np.array(getattr(self, name), dtype=bool if name == "supports" else float)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return self.mesh.vertices
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self.mesh.edges
+
+    def relative_errors(self) -> np.ndarray:
+        return relative_errors(vertices=self.vertices, edges=self.edges, weights=self.weights,
+                               loads=self.loads, supports=self.supports)
+
+    def max_relative_error(self) -> float:
+        r = self.relative_errors()
+        return float(r.max()) if r.size else 0.0
+
+    @property
+    def active_edges(self) -> np.ndarray:
+        e = self.edges
+        return ~(self.supports[e[:, 0]] & self.supports[e[:, 1]])
+
+    def min_weight(self) -> float:
+        w = self.weights[self.active_edges]
+        return float(w.min()) if w.size else 0.0
+
+    def distance_to_reference(self) -> tuple[float, float]:
+        """Mean and max distance to the reference surface / its bounding-box diagonal."""
+        if self.reference is None:
+            return float("nan"), float("nan")
+        return distance_stats(self.vertices, self.reference)
+
+
+@dataclass(frozen=True, eq=False)
+class SolveResult:
+    """What a method returns. ``history`` holds one dict per outer iteration."""
+
+    network: Network
+    status: str
+    method: str
+    backend: str
+    iterations: int
+    wall_time: float
+    history: tuple[dict[str, Any], ...] = ()
+    message: str = ""
+    parameters: dict[str, Any] = field(default_factory=dict)
+    max_relative_error: float = float("nan")
+    min_weight: float = float("nan")
+    distance_mean: float = float("nan")
+    distance_max: float = float("nan")
+
+    @classmethod
+    def build(cls, network: Network, **kw) -> "SolveResult":
+        """Fill the evidence fields from the network itself (never from the method's bookkeeping)."""
+        dm, dx = network.distance_to_reference()
+        return cls(network=network, max_relative_error=network.max_relative_error(),
+                   min_weight=network.min_weight(), distance_mean=dm, distance_max=dx, **kw)
+
+    @property
+    def converged(self) -> bool:
+        return self.status == "converged"
+
+    def summary(self) -> str:
+        return (f"{self.method}/{self.backend}: {self.status}, {self.iterations} it, {self.wall_time:.3f} s, "
+                f"max rel. error {self.max_relative_error:.2e}, min w {self.min_weight:.3e}, "
+                f"distance to reference mean {self.distance_mean:.2e} max {self.distance_max:.2e} (of bbox diagonal)")
