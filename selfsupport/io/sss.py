@@ -1,0 +1,165 @@
+"""The original tool's scene format ``.sss`` (evouga/SelfSupporting).
+
+One record per line (DESIGN.md §4)::
+
+    v x y z load pinned handled     pinned/handled are 0/1
+    f n i_1 ... i_n                 0-based vertex indices
+    e i j crease creaseval weight   a stored edge weight
+
+The vertical axis is y and points down (height = −y): file coordinates (X, Y, Z) become
+ours as (X, Z, −Y), the proper rotation ``axes.UP_AXES["-y"]``.
+
+``load`` is the old tool's cached nodal load, recomputed there on every solve; it is never
+used as a load here (the solver recomputes self-weight from the geometry) but kept in
+``meta["sss_loads"]``. The ``e`` records' weights are kept in ``meta["sss_edge_weights"]``
+as an ``(k, 3)`` array ``[i, j, w]``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..scene import Scene
+from .atomic import atomic_write_text
+from .axes import rotation
+from .meshfiles import LoadedMesh, RawMesh, Source, faces_to_csr, finish_mesh, strip_comment
+
+__all__ = ["SSS_UP", "read_sss", "write_scene_sss"]
+
+#: The .sss vertical axis (y pointing down); fixed by the format.
+SSS_UP = "-y"
+
+
+def read_sss(path: str | Path, up: str | None = None) -> LoadedMesh:
+    """Parse a ``.sss`` scene: mesh (z up), pins as supports, handles, cached loads, edge weights."""
+    src = Source(path)
+    if up not in (None, SSS_UP):
+        raise InputError(f"{src.path}: .sss files have height = -y by definition, got up={up!r}; "
+                         "leave --up out (or pass --up=-y)")
+    text = src.read_text()
+    vrows: list[list[str]] = []
+    vlines: list[int] = []
+    faces: list[list[int]] = []
+    flines: list[int] = []
+    erows: list[list[str]] = []
+    elines: list[int] = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        tok = strip_comment(line).split()
+        if not tok:
+            continue
+        kind = tok[0]
+        if kind == "v":
+            if len(tok) != 7:
+                raise src.error(f"vertex record has {len(tok) - 1} fields, expected 6",
+                                "write 'v x y z load pinned handled'", lineno)
+            vrows.append(tok[1:])
+            vlines.append(lineno)
+        elif kind == "f":
+            try:
+                n = int(tok[1])
+                face = [int(t) for t in tok[2:]]
+            except (ValueError, IndexError):
+                raise src.error(f"face record {line.strip()!r} has a non-integer or missing field",
+                                "write 'f n i_1 ... i_n' with 0-based indices", lineno) from None
+            if n != len(face):
+                raise src.error(f"face record says {n} corners but lists {len(face)} indices",
+                                "write 'f n i_1 ... i_n' with exactly n indices", lineno)
+            if n < 3:
+                raise src.error(f"face has {n} corners", "a face needs at least 3 vertex indices", lineno)
+            faces.append(face)
+            flines.append(lineno)
+        elif kind == "e":
+            if len(tok) != 6:
+                raise src.error(f"edge record has {len(tok) - 1} fields, expected 5",
+                                "write 'e i j crease creaseval weight'", lineno)
+            erows.append(tok[1:])
+            elines.append(lineno)
+        else:
+            raise src.error(f"unknown .sss record {kind!r}", "only v, f and e records exist; remove that line", lineno)
+    if not vrows:
+        raise src.error("contains no vertices ('v' records)", "give a .sss scene")
+    if not faces:
+        raise src.error("contains no faces ('f' records)", "give a .sss scene with faces")
+
+    vl = np.array(vlines, dtype=np.int64)
+    try:
+        vals = np.array(vrows, dtype=float)  # fast path; the loop below only runs to find a bad line
+    except ValueError:
+        for row, ln in zip(vrows, vlines):
+            try:
+                [float(t) for t in row]
+            except ValueError:
+                raise src.error(f"vertex record has a non-numeric field: {' '.join(row)!r}",
+                                "write 'v x y z load pinned handled' with numbers", ln) from None
+        raise  # pragma: no cover - numpy and float() disagree
+    flags = vals[:, 4:6]
+    bad = ~np.isin(flags, (0.0, 1.0)).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise src.error(f"pinned/handled flags {' '.join(vrows[k][4:6])!r} are not 0 or 1",
+                        "write 0 or 1 in the last two columns", int(vl[k]))
+
+    fv, fo = faces_to_csr(faces)
+    raw = RawMesh(vals[:, :3], fv, fo, vl, np.array(flines, dtype=np.int64))
+    mesh = finish_mesh(raw, src, SSS_UP)
+
+    n = mesh.n_vertices
+    if erows:
+        try:
+            ew = np.array(erows, dtype=float)
+        except ValueError:
+            for row, ln in zip(erows, elines):
+                try:
+                    [float(t) for t in row]
+                except ValueError:
+                    raise src.error(f"edge record has a non-numeric field: {' '.join(row)!r}",
+                                    "write 'e i j crease creaseval weight' with numbers", ln) from None
+            raise  # pragma: no cover
+        ij = ew[:, :2]
+        bad = (ij != np.round(ij)).any(axis=1) | (ij < 0).any(axis=1) | (ij >= n).any(axis=1) | ~np.isfinite(ew).all(axis=1)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise src.error(f"edge record {' '.join(erows[k])!r} has a vertex index outside 0..{n - 1} "
+                            "or a non-finite number", "fix or remove that record", elines[k])
+        edge_weights = np.column_stack([ij, ew[:, 4]])
+    else:
+        edge_weights = np.zeros((0, 3))
+    meta = {"format": "sss", "up": SSS_UP, "sss_loads": vals[:, 3].copy(), "sss_edge_weights": edge_weights}
+    return LoadedMesh(mesh, supports=flags[:, 0] == 1.0, handles=flags[:, 1] == 1.0, meta=meta)
+
+
+def write_scene_sss(path: str | Path, scene: Scene) -> None:
+    """Write ``scene`` as a ``.sss`` file that :func:`read_sss` reads back.
+
+    The ``load`` column is written as 0 (loads are recomputed on every solve). One ``e`` record
+    is written per mesh edge, with the weight from ``scene.meta["sss_edge_weights"]`` when the
+    scene carries one for that edge, else 0.
+    """
+    mesh = scene.mesh
+    v = mesh.vertices @ rotation(SSS_UP)
+    pinned = np.asarray(scene.supports, dtype=bool)
+    handled = np.zeros(mesh.n_vertices, dtype=bool) if scene.handles is None else np.asarray(scene.handles, bool)
+    edges = mesh.edges
+    w = np.zeros(len(edges))
+    stored = scene.meta.get("sss_edge_weights") if isinstance(scene.meta, dict) else None
+    if stored is not None and len(stored):
+        stored = np.asarray(stored, dtype=float).reshape(-1, 3)
+        n1 = mesh.n_vertices + 1
+        i, j = stored[:, 0].astype(np.int64), stored[:, 1].astype(np.int64)
+        key = np.minimum(i, j) * n1 + np.maximum(i, j)
+        ekey = edges[:, 0] * n1 + edges[:, 1]  # sorted: mesh.edges is lexicographic
+        pos = np.clip(np.searchsorted(ekey, key), 0, len(ekey) - 1)
+        hit = ekey[pos] == key
+        w[pos[hit]] = stored[hit, 2]
+
+    def chunks():
+        yield "".join(f"v {x!r} {y!r} {z!r} 0 {int(p)} {int(h)}\n"
+                      for (x, y, z), p, h in zip(v.tolist(), pinned.tolist(), handled.tolist()))
+        fv, fo = mesh.face_vertices.tolist(), mesh.face_offsets.tolist()
+        yield "".join(f"f {fo[f + 1] - fo[f]} " + " ".join(map(str, fv[fo[f]:fo[f + 1]])) + "\n"
+                      for f in range(mesh.n_faces))
+        yield "".join(f"e {a} {b} 0 0 {wt!r}\n" for (a, b), wt in zip(edges.tolist(), w.tolist()))
+
+    atomic_write_text(path, chunks())
