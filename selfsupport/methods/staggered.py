@@ -1,0 +1,314 @@
+"""The paper's staggered linearization (§3, Steps 0–4), in scale-free units.
+
+Step 1  loads from the current geometry.
+Step 2  weights with positions fixed: a box-constrained sparse least-squares fit of the
+        relative residual ``(A w − b)_i / |A_i F_i|`` (pluggable backend, warm-started).
+Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
+
+            Σ_i ‖r_i / d_i‖² + α Σ_i ( ⟨n_i, v_i − p_i⟩² + τ ‖T_i (v_i − p_i)‖² ) + β Σ_i ‖v_i − v_i^k‖²
+
+        where ``r_i / d_i`` (``d_i = Σ_j w_ij``) is the residual expressed as a length — how far
+        vertex i sits from where its neighbours' forces would hold it —, ``p_i`` and ``n_i``
+        are a point of the reference surface and its normal (tangent-plane linearization of
+        the distance to the reference, re-projected as the vertex slides), ``T_i`` the tangent
+        projector (a weak hold against sliding) and the β term a proximal step. All terms
+        are lengths relative to the bounding-box diagonal, so α, β, τ are dimensionless.
+Step 4  repeat; α and β shrink geometrically while the fit error falls (and β grows back
+        when a step fails to help), so that the iteration goes from "stay on the reference"
+        towards "satisfy equilibrium".
+Polish  once the fit's max relative error is below ``polish_tol``, the weights are frozen and
+        the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
+        re-estimated from the new geometry until they are consistent to round-off. The result
+        is in equilibrium to machine precision with loads of its own geometry.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, replace
+from typing import Any, Callable
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from ..errors import InputError
+from ..evidence import closest_points
+from ..geometry import vertex_normals
+from ..loads import LoadCase, SelfWeight
+from ..result import Network, SolveResult
+from ..scene import Scene
+from .assembly import Topology, load_vector, position_blocks, weight_matrix
+from .scaling import Scaling, default_eps
+from .weightfit import WeightFitBackend, make_backend
+
+
+@dataclass(frozen=True)
+class StaggeredOptions:
+    """Settings of the staggered method (general: no per-scene tuning)."""
+
+    alpha0: float = 1.0  # distance-to-reference penalty at the start
+    beta0: float = 0.1  # proximal penalty at the start
+    shrink: float = 0.5  # factor applied to α, β after an iteration that reduced the error
+    alpha_min: float = 1e-8
+    beta_min: float = 1e-8
+    max_rejections: int = 12  # consecutive rejected position steps before "stalled"
+    tangential: float = 0.05  # τ: tangential hold relative to the normal one
+    reproject_every: int = 1  # closest-point re-projection onto the reference (0: never)
+    prox_w: float = 1e-10  # proximal weight of the Step-2 fit relative to its diagonal
+    polish_tol: float = 1e-4  # fit error below which the weights are frozen and positions solved
+    tol: float = 1e-9  # required max relative error of the final network
+    max_iter: int = 200
+    time_limit: float = 600.0
+
+
+class StaggeredLinearization:
+    """The paper's method. ``backend`` names the Step-2 solver (see ``WEIGHT_FIT_BACKENDS``).
+
+    Example
+    -------
+    >>> from selfsupport.shapes import make_shape
+    >>> res = StaggeredLinearization().solve(make_shape("dome", n_vertices=300), SelfWeight())
+    >>> res.status, res.max_relative_error < 1e-9
+    ('converged', True)
+    """
+
+    name = "staggered"
+
+    def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
+        self.backend = make_backend(backend) if isinstance(backend, str) else backend
+        unknown = set(options) - set(StaggeredOptions.__dataclass_fields__)
+        if unknown:
+            raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: {sorted(StaggeredOptions.__dataclass_fields__)}")
+        self.options = StaggeredOptions(**options)
+
+    def solve(self, scene: Scene, loads: LoadCase | None = None, *, eps: float | None = None,
+              w_max: float | None = None, progress: Callable[[dict], None] | None = None,
+              **overrides: Any) -> SolveResult:
+        """Solve for the thrust network nearest to ``scene.mesh``.
+
+        Parameters
+        ----------
+        scene
+            Reference mesh and supports.
+        loads
+            Load case (default: :class:`SelfWeight` with its defaults), plus the scene's extras.
+        eps, w_max
+            Weight bounds in SI units [N/m]; ``eps`` defaults to a scale-free bound
+            (:func:`~selfsupport.methods.scaling.default_eps`).
+        progress
+            Called with the history record of each iteration.
+        overrides
+            Any :class:`StaggeredOptions` field, for this solve only.
+        """
+        opt = replace(self.options, **overrides) if overrides else self.options
+        t_start = time.perf_counter()
+        scene.mesh.validate()
+        scene.check_supports()
+        loads = _with_scene_extras(loads or SelfWeight(), scene)
+        mesh0 = scene.mesh
+        n = mesh0.n_vertices
+        active = scene.active_edges
+        top = Topology.build(n, mesh0.edges[active], scene.supports)
+        free = top.free
+
+        L0 = loads.nodal(mesh0, mesh0.vertices)
+        if np.any(L0[free] >= 0):
+            k = int(np.flatnonzero(free & (L0 >= 0))[0])
+            raise InputError(f"vertex {k} carries no downward load (zero area?); remove degenerate faces or add a load there")
+        sc = Scaling.of(mesh0.vertices, L0, free)
+        X = sc.pos(mesh0.vertices)
+        Xref_mesh = mesh0.with_vertices(X)
+        eps_s = default_eps(X, top.edges) if eps is None else sc.weight(float(eps))
+        wmax_s = np.inf if w_max is None else sc.weight(float(w_max))
+        if not eps_s < wmax_s:
+            raise InputError(f"w_max ({w_max}) must exceed the lower weight bound ({sc.weight_back(eps_s):.3g} N/m)")
+        lower = np.full(top.m, eps_s)
+        upper = np.full(top.m, wmax_s)
+        self.backend.reset()
+
+        P = X.copy()  # anchor points on the reference surface
+        Nrm = vertex_normals(Xref_mesh)  # and the normals there
+        alpha, beta = opt.alpha0, opt.beta0
+        history: list[dict[str, Any]] = []
+        status, message = "iteration_limit", ""
+
+        def refit(Xc: np.ndarray, w0: np.ndarray):
+            """Steps 1 and 2 at positions Xc: loads, then the weight fit."""
+            t0 = time.perf_counter()
+            Lc = sc.load(loads.nodal(mesh0, sc.pos_back(Xc)))
+            t1 = time.perf_counter()
+            if not np.all(Lc[free] < 0) or not np.all(np.isfinite(Xc)):
+                return None
+            A = weight_matrix(top, Xc)
+            b = load_vector(top, Lc)
+            s = np.repeat(1.0 / np.abs(Lc[free]), 3)
+            As = sp.diags(s) @ A
+            prox = opt.prox_w * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
+            fit = self.backend.fit(A=As, b=s * b, lower=lower, upper=upper, w0=w0, prox=prox)
+            rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
+            return {"L": Lc, "w": fit.w, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
+                    "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
+                    "n_at_upper": fit.n_upper, "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
+
+        cur = refit(X, np.full(top.m, eps_s))
+        if cur is None:
+            raise InputError("the reference mesh has vertices without downward load; check for degenerate faces")
+        it = 0
+        rejected = 0
+        for it in range(1, opt.max_iter + 1):
+            rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
+                                   **{k: v for k, v in cur.items() if k not in ("L", "w")}}
+            if cur["max_rel_error"] <= opt.polish_tol:
+                status = "converged"
+                history.append(rec)
+                break
+            if time.perf_counter() - t_start > opt.time_limit:
+                status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
+                history.append(rec)
+                break
+            # Step 3: positions, with the weights of the current fit
+            t0 = time.perf_counter()
+            if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
+                P, _, Nrm = closest_points(X, Xref_mesh)
+            Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential)
+            rec["t_positions"] = time.perf_counter() - t0
+            trial = refit(Xt, cur["w"])  # Steps 1-2 at the trial positions
+            accepted = trial is not None and trial["E"] < cur["E"]
+            rec["accepted"] = accepted
+            history.append(rec)
+            if progress:
+                progress(rec)
+            # Step 4: trust-region style schedule
+            if accepted:
+                ratio = trial["E"] / cur["E"]
+                X, cur = Xt, trial
+                beta = max(beta * opt.shrink, opt.beta_min)
+                alpha = max(alpha * min(1.0, ratio ** 0.5) * opt.shrink, opt.alpha_min)
+                rejected = 0
+            else:
+                beta *= 4.0
+                rejected += 1
+                if rejected > opt.max_rejections:
+                    status, message = "stalled", (f"no position step reduces the fit error any more "
+                                                  f"(max relative error {cur['max_rel_error']:.2e})")
+                    break
+        w = cur["w"]
+
+        # Polish: weights frozen, positions exact, loads consistent
+        t0 = time.perf_counter()
+        Xp, L, load_rounds = _polish(top, X, w, loads, mesh0, sc)
+        polish_move = float(np.linalg.norm(Xp - X, axis=1).max())
+        X = Xp
+        V = sc.pos_back(X)
+        weights = np.zeros(mesh0.n_edges)
+        weights[active] = sc.weight_back(w)
+        net = Network(mesh=mesh0.with_vertices(V), weights=weights, loads=loads.nodal(mesh0, V),
+                      supports=scene.supports, reference=mesh0, handles=scene.handles)
+        final = {"iteration": "polish", "t_polish": time.perf_counter() - t0, "load_rounds": load_rounds,
+                 "polish_max_move": polish_move, "max_rel_error": net.max_relative_error()}
+        history.append(final)
+        if progress:
+            progress(final)
+        if status == "converged" and not final["max_rel_error"] <= opt.tol:
+            status, message = "stalled", f"polished network has max relative error {final['max_rel_error']:.2e} > tol {opt.tol:g}"
+        return SolveResult.build(
+            net, status=status, method=self.name, backend=self.backend.name, iterations=it,
+            wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
+            parameters={**asdict(opt), "eps": sc.weight_back(eps_s), "w_max": w_max,
+                        "scaling": asdict(sc)})
+
+
+def _with_scene_extras(loads: LoadCase, scene: Scene) -> LoadCase:
+    from ..loads import ExtraMass, PointLoad
+
+    if scene.extra_mass is not None and np.any(scene.extra_mass):
+        loads = loads + ExtraMass(scene.extra_mass)
+    if scene.point_loads is not None and np.any(scene.point_loads):
+        loads = loads + PointLoad(scene.point_loads)
+    return loads
+
+
+def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P: np.ndarray,
+                   Nrm: np.ndarray, alpha: float, beta: float, tau: float) -> np.ndarray:
+    """Step 3: the SPD least-squares update of the free positions (see the module docstring).
+
+    The residual rows are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
+    very error the fit measures); the penalties are multiplied by the mean of
+    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that
+    α and β compare lengths with lengths whatever the mesh resolution.
+    """
+    free = top.free
+    Kff, Kfs = position_blocks(top, w)
+    d = -Kff.diagonal()
+    s = 1.0 / np.abs(L[free])
+    c = float(np.mean((d * s) ** 2))
+    S = sp.diags(s)
+    Kt = (S @ Kff).tocsr()
+    nf = top.n_free
+    B = np.zeros((nf, 3))
+    B[:, 2] = L[free]
+    target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
+    H = (Kt.T @ Kt).tocsr()
+    n = Nrm[free]
+    anchor = (c * alpha) * (tau * np.eye(3)[None] + (1 - tau) * n[:, :, None] * n[:, None, :])
+    M = (sp.kron(H, sp.identity(3), format="csr") + _block_diag(anchor + (c * beta) * np.eye(3)[None])).tocsc()
+    rhs = (Kt.T @ target).ravel()
+    rhs += np.einsum("kij,kj->ki", anchor, P[free]).ravel() + (c * beta) * X[free].ravel()
+    Xn = X.copy()
+    Xn[free] = splu(M, permc_spec="MMD_AT_PLUS_A").solve(rhs).reshape(-1, 3)
+    return Xn
+
+
+def _block_diag(blocks: np.ndarray) -> sp.csr_matrix:
+    k = blocks.shape[0]
+    rows = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    cols = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * k, 3 * k))
+
+
+def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling,
+            max_rounds: int = 60) -> tuple[np.ndarray, np.ndarray, int]:
+    """Solve (2)-(3) exactly for the free positions with the weights fixed; iterate the loads
+    (which depend on the geometry) to a fixed point. Returns positions, scaled loads, rounds.
+
+    x and y do not depend on the loads and are solved once. The heights are the fixed point
+    of ``z = G(z) = K⁻¹(K_fs z_s − L(z))``; on steep shells plain iteration contracts slowly
+    (areas grow with slope), so it is accelerated with Anderson mixing (depth 5).
+    """
+    free = top.free
+    Kff, Kfs = position_blocks(top, w)
+    lu = splu((-Kff).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    Xn = X.copy()
+    Xn[free, :2] = lu.solve(Kfs @ X[~free][:, :2])  # −K_ff X = K_fs X_s − B, B = 0 for x and y
+    zs = Kfs @ X[~free, 2]
+
+    def G(z: np.ndarray) -> np.ndarray:
+        Xn[free, 2] = z
+        L = sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))
+        return lu.solve(zs - L[free])
+
+    z = X[free, 2].copy()
+    dz_hist: list[np.ndarray] = []
+    df_hist: list[np.ndarray] = []
+    f_prev = z_prev = None
+    rounds = 0
+    for rounds in range(1, max_rounds + 1):
+        gz = G(z)
+        f = gz - z
+        if float(np.abs(f).max()) <= 1e-15 * max(float(np.abs(z).max()), 1.0):
+            z = gz
+            break
+        if f_prev is not None:
+            dz_hist.append(z - z_prev)
+            df_hist.append(f - f_prev)
+            dz_hist, df_hist = dz_hist[-5:], df_hist[-5:]
+        z_prev, f_prev = z, f
+        if df_hist:
+            dF = np.stack(df_hist, axis=1)
+            gamma = np.linalg.lstsq(dF, f, rcond=None)[0]
+            z = z + f - (np.stack(dz_hist, axis=1) + dF) @ gamma
+        else:
+            z = gz
+    Xn[free, 2] = z
+    L = sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))
+    return Xn, L, rounds
