@@ -7,15 +7,20 @@ Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
 
             Σ_i ‖r_i / d_i‖² + α Σ_i ( ⟨n_i, v_i − p_i⟩² + τ ‖T_i (v_i − p_i)‖² ) + β Σ_i ‖v_i − v_i^k‖²
 
-        where ``r_i / d_i`` (``d_i = Σ_j w_ij``) is the residual expressed as a length — how far
-        vertex i sits from where its neighbours' forces would hold it —, ``p_i`` and ``n_i``
+        (+ γ ‖U (v − v_ref)‖², U the umbrella Laplacian: the displacement must be smooth, which
+        keeps vertices whose weights sit at ε from being thrown far away — the original tool
+        smoothed the same way) where the residual rows are scaled by ``1 / |A_i F_i|`` (the error
+        the fit measures) and the penalties by the mean ``(d_i / |A_i F_i|)²``, ``d_i = Σ_j w_ij``,
+        which turns that relative residual into a length. ``p_i`` and ``n_i``
         are a point of the reference surface and its normal (tangent-plane linearization of
         the distance to the reference, re-projected as the vertex slides), ``T_i`` the tangent
         projector (a weak hold against sliding) and the β term a proximal step. All terms
         are lengths relative to the bounding-box diagonal, so α, β, τ are dimensionless.
-Step 4  repeat; α and β shrink geometrically while the fit error falls (and β grows back
-        when a step fails to help), so that the iteration goes from "stay on the reference"
-        towards "satisfy equilibrium".
+Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smaller fit error
+        (the merit is E(X) = min_w E(X, w), so the iteration is a descent method); otherwise β is
+        multiplied by 4 and the step retried (a trust region). After an accepted step α and β
+        shrink, α in proportion to the square root of the error reduction, so the iteration goes
+        from "stay on the reference" towards "satisfy equilibrium" as fast as the error allows.
 Polish  once the fit's max relative error is below ``polish_tol``, the weights are frozen and
         the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
         re-estimated from the new geometry until they are consistent to round-off. The result
@@ -29,7 +34,6 @@ from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from ..errors import InputError
 from ..evidence import closest_points
@@ -39,7 +43,7 @@ from ..result import Network, SolveResult
 from ..scene import Scene
 from .assembly import Topology, load_vector, position_blocks, weight_matrix
 from .scaling import Scaling, default_eps
-from .weightfit import WeightFitBackend, make_backend
+from .weightfit import WeightFitBackend, _factor, make_backend
 
 
 @dataclass(frozen=True)
@@ -53,9 +57,10 @@ class StaggeredOptions:
     beta_min: float = 1e-8
     max_rejections: int = 12  # consecutive rejected position steps before "stalled"
     tangential: float = 0.05  # τ: tangential hold relative to the normal one
+    fairness: float = 100.0  # γ/α: umbrella-Laplacian smoothness of the displacement (the original tool's smoothing)
     reproject_every: int = 1  # closest-point re-projection onto the reference (0: never)
     prox_w: float = 1e-10  # proximal weight of the Step-2 fit relative to its diagonal
-    polish_tol: float = 1e-4  # fit error below which the weights are frozen and positions solved
+    polish_tol: float = 1e-3  # fit error below which the weights are frozen and positions solved
     tol: float = 1e-9  # required max relative error of the final network
     max_iter: int = 200
     time_limit: float = 600.0
@@ -126,6 +131,8 @@ class StaggeredLinearization:
         upper = np.full(top.m, wmax_s)
         self.backend.reset()
 
+        X0 = X.copy()
+        U = _umbrella(top, mesh0)
         P = X.copy()  # anchor points on the reference surface
         Nrm = vertex_normals(Xref_mesh)  # and the normals there
         alpha, beta = opt.alpha0, opt.beta0
@@ -170,7 +177,8 @@ class StaggeredLinearization:
             t0 = time.perf_counter()
             if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
                 P, _, Nrm = closest_points(X, Xref_mesh)
-            Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential)
+            Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
+                                opt.fairness * alpha, Xref=X0, umbrella=U)
             rec["t_positions"] = time.perf_counter() - t0
             trial = refit(Xt, cur["w"])  # Steps 1-2 at the trial positions
             accepted = trial is not None and trial["E"] < cur["E"]
@@ -228,8 +236,20 @@ def _with_scene_extras(loads: LoadCase, scene: Scene) -> LoadCase:
     return loads
 
 
+def _umbrella(top: Topology, mesh) -> sp.csr_matrix:
+    """Umbrella Laplacian rows ``u_i − mean_j u_j`` at free interior vertices, over all vertices."""
+    n = top.n
+    e = mesh.edges
+    A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    deg = np.asarray(A.sum(axis=1)).ravel()
+    Lu = (sp.identity(n) - sp.diags(1.0 / deg) @ A).tocsr()
+    rows = top.free & ~mesh.boundary_vertex_mask
+    return Lu[rows]
+
+
 def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P: np.ndarray,
-                   Nrm: np.ndarray, alpha: float, beta: float, tau: float) -> np.ndarray:
+                   Nrm: np.ndarray, alpha: float, beta: float, tau: float, gamma: float = 0.0,
+                   Xref: np.ndarray | None = None, umbrella: sp.csr_matrix | None = None) -> np.ndarray:
     """Step 3: the SPD least-squares update of the free positions (see the module docstring).
 
     The residual rows are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
@@ -251,11 +271,20 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
     H = (Kt.T @ Kt).tocsr()
     n = Nrm[free]
     anchor = (c * alpha) * (tau * np.eye(3)[None] + (1 - tau) * n[:, :, None] * n[:, None, :])
+    if gamma > 0 and umbrella is not None and umbrella.shape[0]:
+        # smooth displacement: γ ‖U (X − X_ref)‖², U the umbrella Laplacian (supports as data)
+        Uf, Us = umbrella[:, free], umbrella[:, ~free]
+        H = H + (c * gamma) * (Uf.T @ Uf)
+        target_u = Uf @ Xref[free] + Us @ (Xref[~free] - X[~free])
+    else:
+        target_u = None
     M = (sp.kron(H, sp.identity(3), format="csr") + _block_diag(anchor + (c * beta) * np.eye(3)[None])).tocsc()
     rhs = (Kt.T @ target).ravel()
+    if target_u is not None:
+        rhs += (c * gamma) * (Uf.T @ target_u).ravel()
     rhs += np.einsum("kij,kj->ki", anchor, P[free]).ravel() + (c * beta) * X[free].ravel()
     Xn = X.copy()
-    Xn[free] = splu(M, permc_spec="MMD_AT_PLUS_A").solve(rhs).reshape(-1, 3)
+    Xn[free] = _factor(M).solve(rhs).reshape(-1, 3)
     return Xn
 
 
@@ -277,7 +306,7 @@ def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0,
     """
     free = top.free
     Kff, Kfs = position_blocks(top, w)
-    lu = splu((-Kff).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    lu = _factor(-Kff)
     Xn = X.copy()
     Xn[free, :2] = lu.solve(Kfs @ X[~free][:, :2])  # −K_ff X = K_fs X_s − B, B = 0 for x and y
     zs = Kfs @ X[~free, 2]

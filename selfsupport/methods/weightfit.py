@@ -148,7 +148,7 @@ class ActiveSetFit(WeightFitBackend):
     """
 
     name = "active-set"
-    defaults = {"max_pdas": 6, "max_ipm": 100, "tol": 1e-12}
+    defaults = {"max_pdas": 15, "max_ipm": 100, "tol": 1e-12}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
