@@ -41,13 +41,22 @@ def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
 def closest_points(points: np.ndarray, reference: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points on the reference surface, distances and the unit normals there.
 
-    Uses trimesh's proximity query (rtree) on a fan triangulation of the polygons.
+    Uses trimesh's proximity query (rtree) on a fan triangulation of the polygons. The normal
+    is interpolated from the reference's vertex normals with the barycentric coordinates of
+    the closest point, so that it varies continuously — a per-triangle normal would jump
+    across edges, where round-off decides which triangle is "closest".
     """
+    import trimesh
+
+    from .geometry import vertex_normals
+
     tm = _trimesh_of(reference)
     closest, dist, tri = tm.nearest.on_surface(np.asarray(points, float))
-    normals = tm.face_normals[tri]
-    if normals[:, 2].sum() < 0:
-        normals = -normals
+    corners = tm.faces[tri]
+    bary = trimesh.triangles.points_to_barycentric(tm.vertices[corners], closest)
+    vn = vertex_normals(reference)
+    normals = np.einsum("kc,kcj->kj", bary, vn[corners])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
     return closest, dist, normals
 
 

@@ -59,7 +59,9 @@ class StaggeredOptions:
     tangential: float = 0.05  # τ: tangential hold relative to the normal one
     fairness: float = 100.0  # γ/α: umbrella-Laplacian smoothness of the displacement (the original tool's smoothing)
     reproject_every: int = 1  # closest-point re-projection onto the reference (0: never)
-    prox_w: float = 1e-10  # proximal weight of the Step-2 fit relative to its diagonal
+    prox_w: float = 1e-8  # proximal weight of the Step-2 fit relative to its diagonal: makes the
+    # weights unique (A has more columns than rows) and reproducible during the iteration
+    prox_w_final: float = 1e-12  # ... and for the last fit before the polish
     polish_tol: float = 1e-3  # fit error below which the weights are frozen and positions solved
     tol: float = 1e-9  # required max relative error of the final network
     max_iter: int = 200
@@ -139,7 +141,7 @@ class StaggeredLinearization:
         history: list[dict[str, Any]] = []
         status, message = "iteration_limit", ""
 
-        def refit(Xc: np.ndarray, w0: np.ndarray):
+        def refit(Xc: np.ndarray, w0: np.ndarray, prox_rel: float = opt.prox_w):
             """Steps 1 and 2 at positions Xc: loads, then the weight fit."""
             t0 = time.perf_counter()
             Lc = sc.load(loads.nodal(mesh0, sc.pos_back(Xc)))
@@ -150,14 +152,18 @@ class StaggeredLinearization:
             b = load_vector(top, Lc)
             s = np.repeat(1.0 / np.abs(Lc[free]), 3)
             As = sp.diags(s) @ A
-            prox = opt.prox_w * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
+            prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             fit = self.backend.fit(A=As, b=s * b, lower=lower, upper=upper, w0=w0, prox=prox)
             rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
             return {"L": Lc, "w": fit.w, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
                     "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
                     "n_at_upper": fit.n_upper, "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
 
-        cur = refit(X, np.full(top.m, eps_s))
+        # proximal centre of the first fit: the best uniform weight (scale-free, deterministic)
+        A0 = weight_matrix(top, X) @ np.ones(top.m)
+        b0 = load_vector(top, sc.load(L0))
+        w_uniform = float(np.clip(A0 @ b0 / max(float(A0 @ A0), 1e-300), eps_s, wmax_s))
+        cur = refit(X, np.full(top.m, w_uniform))
         if cur is None:
             raise InputError("the reference mesh has vertices without downward load; check for degenerate faces")
         it = 0
@@ -200,7 +206,10 @@ class StaggeredLinearization:
                     status, message = "stalled", (f"no position step reduces the fit error any more "
                                                   f"(max relative error {cur['max_rel_error']:.2e})")
                     break
-        w = cur["w"]
+        # final fit with (almost) no proximal pull, so that the polish moves the geometry as
+        # little as the data allow (an input already in equilibrium comes back unchanged)
+        last = refit(X, cur["w"], opt.prox_w_final)
+        w = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
 
         # Polish: weights frozen, positions exact, loads consistent
         t0 = time.perf_counter()
@@ -208,6 +217,7 @@ class StaggeredLinearization:
         polish_move = float(np.linalg.norm(Xp - X, axis=1).max())
         X = Xp
         V = sc.pos_back(X)
+        V[scene.supports] = mesh0.vertices[scene.supports]  # exactly, not through the scaling round trip
         weights = np.zeros(mesh0.n_edges)
         weights[active] = sc.weight_back(w)
         net = Network(mesh=mesh0.with_vertices(V), weights=weights, loads=loads.nodal(mesh0, V),
