@@ -1,9 +1,19 @@
-"""The simultaneous problem with nlopt (SLSQP, or AUGLAG around L-BFGS) — small problems only.
+"""The simultaneous problem with nlopt — small problems only.
 
 Same problem, units, load rounds, polish and result as :class:`~selfsupport.methods.simultaneous.
-Simultaneous`; only the NLP solver differs. nlopt's SLSQP works on dense matrices (O(n³) per
-iteration in the number of unknowns), so scenes above :data:`MAX_FREE_VERTICES` free vertices are
-refused: use the IPOPT backend there.
+Simultaneous`; only the solver differs. Two formulations:
+
+* ``algorithm="LD_LBFGS"`` (default) — the *reduced* problem in the weights alone: for given
+  weights the positions follow from (2)-(3) by one sparse solve per coordinate (the force
+  density method), so equilibrium holds exactly and only the bounds ``eps ≤ w ≤ w_max``
+  remain; the gradient is the adjoint ``∇_w f − A(X)ᵀ (K_ff ⊗ I)⁻¹ ∇_X f``. First-order:
+  thousands of evaluations, ~20 s at 100 free vertices; refused above
+  ``MAX_FREE_VERTICES["reduced"]``.
+* ``algorithm="LD_SLSQP"`` or ``"AUGLAG"`` — the full problem (positions and weights, equilibrium
+  as equality constraints). nlopt's SLSQP is dense, O(n³) per iteration: ~5 s at 9 free
+  vertices, > 60 s at 70; refused above ``MAX_FREE_VERTICES["full"]``.
+
+Use :class:`~selfsupport.methods.simultaneous.Simultaneous` (IPOPT) for anything larger.
 """
 from __future__ import annotations
 
@@ -12,6 +22,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from scipy.sparse.linalg import splu
 
 from formulations import ThrustNetworkProblem
 
@@ -19,10 +30,11 @@ from ..errors import BackendUnavailable, InputError
 from ..loads import LoadCase
 from ..result import SolveResult
 from ..scene import Scene
+from .assembly import position_blocks, weight_matrix
 from .simultaneous import Simultaneous
 
-#: Largest number of free vertices accepted (dense SLSQP: ~(3·300 + edges)³ per iteration).
-MAX_FREE_VERTICES = 300
+#: Largest number of free vertices accepted, per formulation (see the module docstring).
+MAX_FREE_VERTICES = {"reduced": 300, "full": 50}
 
 #: nlopt result name -> our status (see selfsupport.result.STATUSES). Successful returns are
 #: only "converged" when the constraints really hold to ``tol`` (checked separately).
@@ -44,14 +56,18 @@ NLOPT_STATUS: dict[str, str] = {
 class NloptSimultaneous(Simultaneous):
     """Method object: the simultaneous problem solved by nlopt (backend ``"nlopt"``).
 
-    ``algorithm``: ``"LD_SLSQP"`` (default) or ``"AUGLAG"`` (augmented Lagrangian around
-    ``LD_LBFGS``, first-order: slow to reach tight tolerances).
+    Options: ``algorithm`` (``"LD_LBFGS"``: reduced problem, default; ``"LD_SLSQP"`` /
+    ``"AUGLAG"``: full problem), ``ftol_rel``, ``xtol_rel``, ``gtol`` (projected-gradient
+    tolerance of the reduced problem, scale-free units: below it a stop counts as converged).
     """
 
     name = "simultaneous"
     backend = "nlopt"
-    ALGORITHMS = ("LD_SLSQP", "AUGLAG")
-    defaults: dict[str, Any] = {"algorithm": "LD_SLSQP", "ftol_rel": 1e-14, "xtol_rel": 1e-12}
+    #: bound-constrained algorithms for the reduced (weights-only) problem (LD_MMA was tried:
+    #: it does not converge on a 5×5 grid in 13,000 evaluations)
+    REDUCED = ("LD_LBFGS",)
+    ALGORITHMS = REDUCED + ("LD_SLSQP", "AUGLAG")
+    defaults: dict[str, Any] = {"algorithm": "LD_LBFGS", "ftol_rel": 1e-15, "xtol_rel": 1e-13, "gtol": 1e-8}
 
     def __init__(self, **options: Any) -> None:
         unknown = set(options) - set(self.defaults)
@@ -68,16 +84,101 @@ class NloptSimultaneous(Simultaneous):
 
     def solve(self, scene: Scene, loads: LoadCase | None = None, **kw: Any) -> SolveResult:
         """Same arguments and result as :meth:`Simultaneous.solve` (``max_iter`` counts nlopt
-        evaluations). Raises :class:`BackendUnavailable` above :data:`MAX_FREE_VERTICES`."""
+        evaluations per load round). Raises :class:`BackendUnavailable` above
+        :data:`MAX_FREE_VERTICES`."""
         n_free = int(scene.free.sum())
-        if n_free > MAX_FREE_VERTICES:
+        kind = "reduced" if self.options["algorithm"] in self.REDUCED else "full"
+        if n_free > MAX_FREE_VERTICES[kind]:
             raise BackendUnavailable(
-                f"the nlopt simultaneous backend is for small problems ({n_free} free vertices > "
-                f"{MAX_FREE_VERTICES}; dense SLSQP would take hours): use Simultaneous() with IPOPT instead")
+                f"the nlopt simultaneous backend ({self.options['algorithm']}) is for small problems: "
+                f"{n_free} free vertices > {MAX_FREE_VERTICES[kind]}; use the IPOPT method "
+                "(Simultaneous, --method ipopt) instead")
         return super().solve(scene, loads, **kw)
 
     def _solve_round(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray, loads_scaled: np.ndarray,
                      warm: dict | None, *, tol: float, max_iter: int, remaining: float, verbose: bool) -> dict:
+        if self.options["algorithm"] in self.REDUCED:
+            return self._solve_round_reduced(problem, nlp, x, loads_scaled, tol=tol, max_iter=max_iter,
+                                             remaining=remaining)
+        return self._solve_round_full(problem, nlp, x, loads_scaled, tol=tol, max_iter=max_iter, remaining=remaining)
+
+    def _solve_round_reduced(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray,
+                             loads_scaled: np.ndarray, *, tol: float, max_iter: int, remaining: float) -> dict:
+        """Weights only: positions follow from (2)-(3) by a sparse solve per coordinate (force
+        density method), so equilibrium holds exactly and only the bounds remain; the gradient
+        of f(X(w), w) is the adjoint ``∇_w f − A(X)ᵀ (K_ff ⊗ I)⁻¹ ∇_X f``."""
+        import nlopt
+
+        top = problem.topology
+        free = top.free
+        nf3 = 3 * top.n_free
+        p = problem.parameters(loads_scaled)
+        F = self._functions(problem, nlp)["f"]
+        Vs = problem.vertices[~free]
+        Lf = np.asarray(loads_scaled, float)[free]
+        lower, upper = problem.lower, problem.upper
+        scale = problem.weight_scale
+        count = [0]
+        state: dict[str, Any] = {}
+
+        def positions(w):
+            Kff, Kfs = position_blocks(top, w)
+            lu = splu(Kff.tocsc())
+            X = np.empty((top.n_free, 3))
+            for c in range(3):
+                rhs = -(Kfs @ Vs[:, c]) + (Lf if c == 2 else 0.0)
+                X[:, c] = lu.solve(rhs)
+            return X, lu
+
+        def objective(u, grad):
+            count[0] += 1
+            w = u * scale
+            X, lu = positions(w)
+            xv = np.concatenate([X.ravel(), w])
+            f, g = F(xv, p)
+            g = np.asarray(g).ravel()
+            if grad.size:
+                V = problem.vertices.copy()
+                V[free] = X
+                lam = np.column_stack([lu.solve(g[:nf3].reshape(-1, 3)[:, c]) for c in range(3)]).ravel()
+                grad[:] = (g[nf3:] - weight_matrix(top, V).T @ lam) * scale
+                state["pg"] = float(np.abs(u - np.clip(u - grad, lower / scale, upper / scale)).max())
+            state["x"] = xv
+            return float(f)
+
+        o = self.options
+        opt = nlopt.opt(getattr(nlopt, o["algorithm"]), top.m)
+        opt.set_lower_bounds(lower / scale)
+        opt.set_upper_bounds(upper / scale)
+        opt.set_min_objective(objective)
+        opt.set_ftol_rel(o["ftol_rel"])
+        opt.set_xtol_rel(o["xtol_rel"])
+        opt.set_maxeval(int(max_iter))
+        opt.set_maxtime(float(max(remaining, 1e-3)))
+        u0 = np.clip(x[nf3:], lower, upper) / scale
+        t0 = time.perf_counter()
+        try:
+            us = opt.optimize(u0)
+            raw = _result_name(opt.last_optimize_result())
+        except nlopt.RoundoffLimited:
+            us, raw = None, "ROUNDOFF_LIMITED"
+        except nlopt.ForcedStop:
+            us, raw = None, "FORCED_STOP"
+        except (RuntimeError, ValueError, MemoryError):
+            us, raw = None, "FAILURE"
+        seconds = time.perf_counter() - t0
+        if us is not None:
+            objective(np.clip(us, lower / scale, upper / scale), np.zeros(top.m))
+        xs = state.get("x", x)
+        status = NLOPT_STATUS.get(raw, "failed")
+        pg = state.get("pg", np.inf)
+        if status in ("converged", "stalled"):
+            status = "converged" if pg <= o["gtol"] else "stalled"
+        return {"x": xs, "warm": None, "raw": f"{raw} (projected gradient {pg:.1e})", "status": status,
+                "iterations": int(count[0]), "objective": float(F(xs, p)[0]), "seconds": seconds}
+
+    def _solve_round_full(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray, loads_scaled: np.ndarray,
+                          *, tol: float, max_iter: int, remaining: float) -> dict:
         import nlopt
 
         p = problem.parameters(loads_scaled)

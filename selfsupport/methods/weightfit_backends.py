@@ -131,7 +131,7 @@ class OsqpFit(WeightFitBackend):
     """OSQP on the lifted QP (CasADi ``conic('osqp')`` or the ``osqp`` package)."""
 
     name = "osqp"
-    defaults: dict[str, Any] = {"eps_abs": 1e-10, "eps_rel": 1e-10, "max_iter": 200000, "polish": True,
+    defaults: dict[str, Any] = {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iter": 200000, "polish": True,
                                 "verbose": False}
     #: OSQP status -> WeightFit status (anything else: "failed").
     STATUS = {"solved": "optimal", "solved inaccurate": "max_iter", "maximum iterations reached": "max_iter",
@@ -253,7 +253,8 @@ class NloptFit(WeightFitBackend):
         try:
             import nlopt  # noqa: F401
         except ImportError:  # pragma: no cover
-            raise BackendUnavailable("the 'nlopt' weight-fit backend needs the nlopt package: `pip install nlopt`") from None
+            raise BackendUnavailable("the 'nlopt' weight-fit backend needs the nlopt package: "
+                                     "`pip install nlopt`") from None
 
     def fit(self, *, A, b, lower, upper, w0, prox=0.0) -> WeightFit:
         import nlopt

@@ -1,0 +1,196 @@
+"""Equilibrium constraints (paper eqs. 2, 3) stated symbolically in CasADi.
+
+At every free (non-support) vertex ``i``
+
+    r_i = Σ_j w_ij (v_j − v_i) − (0, 0, L_i) = 0,        L_i = A_i F_i (negative = down),
+
+with ``w_ij ≥ 0`` meaning compression. The unknowns are the free positions ``X`` (flattened,
+entry ``3 k + c`` is coordinate ``c`` of the ``k``-th free vertex) and the weights ``w`` of
+the active edges (``Topology.edges``); the support positions and the loads are parameters.
+The flattened residual uses the same row order as
+:func:`selfsupport.methods.assembly.weight_matrix`, so ``∂r/∂w = A(V)`` and
+``∂r/∂X = K_ff ⊗ I₃`` (``K_ff`` from :func:`~selfsupport.methods.assembly.position_blocks`).
+
+Example
+-------
+>>> import numpy as np
+>>> from selfsupport.methods.assembly import Topology
+>>> top = Topology.build(3, np.array([[0, 1], [1, 2]]), np.array([True, False, True]))
+>>> eq = Equilibrium(top, symbol="SX")
+>>> sorted(eq.groups)
+['equilibrium_x', 'equilibrium_y', 'equilibrium_z']
+>>> X, w, V_sup, L = [0.5, 0, -1.0], [1.0, 1.0], [0, 0, 0, 1, 0, 0.], [0.0]
+>>> eq.residual_function()(X, w, V_sup, L).full().ravel().tolist()
+[0.0, 0.0, 2.0]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from selfsupport.errors import InputError
+from selfsupport.methods.assembly import Topology
+
+#: Symbol types a formulation can be built with (MX: fast to build for large graphs; SX:
+#: scalar graphs, handy for small Jacobian checks).
+SYMBOLS = {"MX": ca.MX, "SX": ca.SX}
+
+#: Names of the constraint groups, one per coordinate; group ``c`` holds rows ``c::3``.
+GROUP_NAMES = ("equilibrium_x", "equilibrium_y", "equilibrium_z")
+
+
+def symbol_type(symbol: str | type) -> type:
+    """``"MX"``/``"SX"`` (or the class itself) -> the CasADi symbol class."""
+    if isinstance(symbol, str):
+        try:
+            return SYMBOLS[symbol.upper()]
+        except KeyError:
+            raise InputError(f"unknown CasADi symbol type {symbol!r}; use one of {sorted(SYMBOLS)}") from None
+    if symbol in SYMBOLS.values():
+        return symbol
+    raise InputError(f"unknown CasADi symbol type {symbol!r}; use one of {sorted(SYMBOLS)}")
+
+
+def to_dm(a: sp.spmatrix) -> ca.DM:
+    """Sparse scipy matrix -> sparse CasADi DM (keeps the sparsity pattern)."""
+    return ca.DM(sp.csc_matrix(a))
+
+
+def flat_selection(rows: np.ndarray, n: int) -> sp.csr_matrix:
+    """``(3 len(rows), 3 n)`` matrix picking the 3 coordinates of vertices ``rows`` from a flat vector."""
+    rows = np.asarray(rows, np.int64)
+    r = np.arange(3 * len(rows))
+    c = (3 * rows[:, None] + np.arange(3)).ravel()
+    return sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(3 * len(rows), 3 * n))
+
+
+@dataclass(frozen=True)
+class WeightBounds:
+    """``lower ≤ w ≤ upper`` for the active edges; scalars broadcast, ``upper=None`` is +∞."""
+
+    lower: float | np.ndarray
+    upper: float | np.ndarray | None = None
+
+    def arrays(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.broadcast_to(np.asarray(self.lower, float), (m,)).copy()
+        up = np.full(m, np.inf) if self.upper is None else np.broadcast_to(np.asarray(self.upper, float), (m,)).copy()
+        if np.any(~np.isfinite(lo)) or np.any(lo < 0):
+            raise InputError("the lower weight bound must be finite and >= 0 (w >= 0 means compression)")
+        if np.any(up < lo):
+            k = int(np.argmax(up < lo))
+            raise InputError(f"w_max ({up[k]:.3g}) is below the lower bound ({lo[k]:.3g}) on active edge {k}; "
+                             "raise w_max or lower eps")
+        return lo, up
+
+
+@dataclass(eq=False)
+class Equilibrium:
+    """Symbols and the residual of (2)-(3) for one topology.
+
+    Attributes (CasADi symbols of type ``symbol``):
+    ``X`` (3 n_free), ``w`` (m), ``V_sup`` (3 n_sup, support positions, flattened),
+    ``L`` (n_free loads at the free vertices).
+    """
+
+    topology: Topology
+    symbol: str | type = "MX"
+    X: object = field(init=False)
+    w: object = field(init=False)
+    V_sup: object = field(init=False)
+    L: object = field(init=False)
+
+    def __post_init__(self) -> None:
+        S = symbol_type(self.symbol)
+        top = self.topology
+        self.X = S.sym("X", 3 * top.n_free)
+        self.w = S.sym("w", top.m)
+        self.V_sup = S.sym("V_sup", 3 * (top.n - top.n_free))
+        self.L = S.sym("L", top.n_free)
+
+    # ---------------------------------------------------------------- constant matrices
+    @cached_property
+    def free_vertices(self) -> np.ndarray:
+        return np.flatnonzero(self.topology.free)
+
+    @cached_property
+    def support_vertices(self) -> np.ndarray:
+        return np.flatnonzero(~self.topology.free)
+
+    @cached_property
+    def _matrices(self) -> dict[str, sp.csr_matrix]:
+        top = self.topology
+        n, m = top.n, top.m
+        e = top.edges
+        Pf = flat_selection(self.free_vertices, n).T.tocsr()  # (3n, 3nf)
+        Ps = flat_selection(self.support_vertices, n).T.tocsr()
+        # edge differences d[3k + c] = v_j[c] − v_i[c]
+        k3 = (3 * np.arange(m)[:, None] + np.arange(3)).ravel()
+        ci = (3 * e[:, 0][:, None] + np.arange(3)).ravel()
+        cj = (3 * e[:, 1][:, None] + np.arange(3)).ravel()
+        D = sp.csr_matrix((np.r_[-np.ones(3 * m), np.ones(3 * m)], (np.r_[k3, k3], np.r_[ci, cj])),
+                          shape=(3 * m, 3 * n))
+        # assembly at free vertices: +f at end i, −f at end j
+        fi = top.free_index
+        rows, cols, vals = [], [], []
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            idx = fi[e[:, end]]
+            ok = idx >= 0
+            r = (3 * idx[ok][:, None] + np.arange(3)).ravel()
+            c = (3 * np.flatnonzero(ok)[:, None] + np.arange(3)).ravel()
+            rows.append(r)
+            cols.append(c)
+            vals.append(np.full(len(r), sign))
+        B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * top.n_free, 3 * m))
+        R = sp.csr_matrix((np.ones(3 * m), (np.arange(3 * m), np.repeat(np.arange(m), 3))), shape=(3 * m, m))
+        Z = sp.csr_matrix((np.ones(top.n_free), (3 * np.arange(top.n_free) + 2, np.arange(top.n_free))),
+                          shape=(3 * top.n_free, top.n_free))
+        return {"Pf": Pf, "Ps": Ps, "Df": (D @ Pf).tocsr(), "Ds": (D @ Ps).tocsr(), "B": B, "R": R, "Z": Z}
+
+    # ---------------------------------------------------------------- expressions
+    def all_positions(self, X=None, V_sup=None):
+        """Flattened positions of all vertices (3 n), free from ``X``, supports from ``V_sup``."""
+        M = self._matrices
+        X = self.X if X is None else X
+        V_sup = self.V_sup if V_sup is None else V_sup
+        return ca.mtimes(to_dm(M["Pf"]), X) + ca.mtimes(to_dm(M["Ps"]), V_sup)
+
+    def residual(self, X=None, w=None, V_sup=None, L=None):
+        """Flattened residual (3 n_free), row ``3 k + c`` = coordinate ``c`` at free vertex ``k``."""
+        M = self._matrices
+        X = self.X if X is None else X
+        w = self.w if w is None else w
+        V_sup = self.V_sup if V_sup is None else V_sup
+        L = self.L if L is None else L
+        d = ca.mtimes(to_dm(M["Df"]), X) + ca.mtimes(to_dm(M["Ds"]), V_sup)
+        f = ca.mtimes(to_dm(M["R"]), w) * d
+        return ca.mtimes(to_dm(M["B"]), f) - ca.mtimes(to_dm(M["Z"]), L)
+
+    @property
+    def groups(self) -> dict[str, np.ndarray]:
+        """Constraint group name -> row indices in the flattened residual."""
+        nf = self.topology.n_free
+        return {name: 3 * np.arange(nf) + c for c, name in enumerate(GROUP_NAMES)}
+
+    def split(self, values: np.ndarray) -> dict[str, np.ndarray]:
+        """Split a flattened per-row vector (residual, multipliers) into the named groups."""
+        v = np.asarray(values).ravel()
+        return {name: v[idx] for name, idx in self.groups.items()}
+
+    # ---------------------------------------------------------------- functions
+    def residual_function(self) -> ca.Function:
+        """``residual(X, w, V_sup, L) -> r``."""
+        return ca.Function("residual", [self.X, self.w, self.V_sup, self.L], [self.residual()],
+                           ["X", "w", "V_sup", "L"], ["r"])
+
+    def jacobian_functions(self) -> dict[str, ca.Function]:
+        """``{"X": dr/dX, "w": dr/dw, "V_sup": dr/dV_sup}``, each a function of ``(X, w, V_sup, L)``."""
+        r = self.residual()
+        args = [self.X, self.w, self.V_sup, self.L]
+        names = ["X", "w", "V_sup", "L"]
+        return {k: ca.Function(f"jac_r_{k}", args, [ca.jacobian(r, s)], names, [f"dr_d{k}"])
+                for k, s in (("X", self.X), ("w", self.w), ("V_sup", self.V_sup))}

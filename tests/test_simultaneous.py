@@ -1,0 +1,172 @@
+"""The simultaneous method (IPOPT, and nlopt for tiny problems) on small generated scenes.
+Evidence is recomputed here with numpy from the returned network, never read from the result."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from formulations import PointDistance
+from selfsupport.errors import BackendUnavailable, InputError
+from selfsupport.geometry import face_areas
+from selfsupport.loads import SelfWeight
+from selfsupport.mesh import PolyMesh
+from selfsupport.methods.nlopt_methods import NloptSimultaneous
+from selfsupport.methods.simultaneous import Simultaneous
+from selfsupport.result import STATUSES
+from selfsupport.scene import Scene
+
+LOADS = SelfWeight(density=2000.0, thickness=0.1)
+
+
+def dome_scene(n: int = 8, scale: float = 1.0, dent: float = 0.05) -> Scene:
+    """n×n paraboloid-like grid (quads and triangles mixed) with a dent, boundary supported."""
+    xs = np.linspace(-1.0, 1.0, n)
+    X, Y = np.meshgrid(xs, xs, indexing="ij")
+    x, y = X.ravel(), Y.ravel()
+    V = np.c_[x, y, 1.0 - 0.6 * (x ** 2 + y ** 2) + dent * np.sin(3 * x) * np.cos(2 * y)]
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 else [[a, b, c, d]]
+    mesh = PolyMesh.from_faces(scale * 3.0 * V, faces)  # ~8.5 m across at scale 1
+    return Scene(mesh, mesh.boundary_vertex_mask, name="dome")
+
+
+def max_relative_error(net) -> float:
+    """Paper's Table-1 metric, computed from scratch."""
+    V, E, w, L = net.vertices, net.edges, net.weights, net.loads
+    r = np.zeros_like(V)
+    for (i, j), wk in zip(E, w):
+        f = wk * (V[j] - V[i])
+        r[i] += f
+        r[j] -= f
+    r[:, 2] -= L
+    free = ~net.supports
+    return float((np.linalg.norm(r[free], axis=1) / np.abs(L[free])).max())
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return dome_scene(8)
+
+
+@pytest.fixture(scope="module")
+def result(scene):
+    return Simultaneous().solve(scene, LOADS)
+
+
+def test_converges_to_equilibrium(scene, result):
+    net = result.network
+    assert result.status == "converged", result.message
+    assert result.method == "simultaneous" and result.backend == "ipopt"
+    assert max_relative_error(net) <= 1e-8
+    active = ~(scene.supports[net.edges[:, 0]] & scene.supports[net.edges[:, 1]])
+    eps = result.parameters["eps"]
+    assert eps > 0 and net.weights[active].min() >= eps * (1 - 1e-9)
+    assert np.all(net.weights[~active] == 0.0)
+    assert net.weights.shape == (scene.mesh.n_edges,)
+    np.testing.assert_array_equal(net.vertices[scene.supports], scene.mesh.vertices[scene.supports])
+    assert net.reference is scene.mesh
+    assert result.iterations > 0 and result.wall_time > 0 and len(result.history) >= 1
+
+
+def test_loads_belong_to_the_final_geometry(result):
+    net = result.network
+    total = -LOADS.density * LOADS.thickness * LOADS.g * face_areas(net.mesh, net.vertices).sum()
+    assert net.loads.sum() == pytest.approx(total, rel=1e-9)
+    np.testing.assert_allclose(net.loads, LOADS.nodal(net.mesh, net.vertices), rtol=1e-12)
+    assert net.loads.shape == (net.mesh.n_vertices,)
+
+
+def test_stays_near_the_reference(scene, result):
+    d = np.linalg.norm(result.network.vertices - scene.mesh.vertices, axis=1)
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    assert 0 < d.max() < 0.05 * diag
+
+
+def test_scaled_scene_gives_scaled_network(result):
+    big = Simultaneous().solve(dome_scene(8, scale=10.0), LOADS)
+    assert big.status == "converged"
+    a, b = result.network, big.network
+    np.testing.assert_allclose(b.vertices, 10.0 * a.vertices, rtol=0, atol=1e-6 * np.abs(b.vertices).max())
+    # loads scale with area (×100), lengths ×10, so w = load / length scales ×10
+    np.testing.assert_allclose(b.loads, 100.0 * a.loads, rtol=1e-6)
+    np.testing.assert_allclose(b.weights, 10.0 * a.weights, rtol=0, atol=1e-6 * np.abs(b.weights).max())
+
+
+@pytest.mark.parametrize("limit", [0.01, 0.3])
+def test_time_limit_is_honoured(limit):
+    scene = dome_scene(30)  # ~3 s to solve
+    t0 = time.perf_counter()
+    res = Simultaneous().solve(scene, LOADS, time_limit=limit)
+    assert res.status == "time_limit", res.message
+    assert time.perf_counter() - t0 < limit + 3.0
+    assert res.network.weights.shape == (scene.mesh.n_edges,)  # a network is still returned
+    if res.history:  # IPOPT itself stopped (max_wall_time), not the check before a round
+        assert res.history[0]["solver_status"] == "Maximum_WallTime_Exceeded"
+
+
+def test_warm_start_reproduces_the_solution(scene, result):
+    again = Simultaneous().solve(scene, LOADS, warm_start=result.network)
+    assert again.status == "converged"
+    assert again.iterations < result.iterations
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    assert np.abs(again.network.vertices - result.network.vertices).max() < 1e-6 * diag
+
+
+def test_user_objective_in_si_units_equals_default(scene, result):
+    term = PointDistance(targets=scene.mesh.vertices, mask=scene.free) * 7.0
+    res = Simultaneous().solve(scene, LOADS, objective=term)
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    assert res.status == "converged"
+    assert np.abs(res.network.vertices - result.network.vertices).max() < 1e-5 * diag
+
+
+def test_statuses_and_errors(scene):
+    with pytest.raises(InputError, match="objective"):
+        Simultaneous().solve(scene, LOADS, objective="nonsense")
+    with pytest.raises(InputError, match="w_max"):
+        Simultaneous().solve(scene, LOADS, w_max=np.ones(3))
+    # a w_max far below what the dome needs: the method must say so, not claim convergence
+    res = Simultaneous().solve(scene, LOADS, w_max=1.0, eps=0.5, time_limit=2.0)
+    assert res.status in STATUSES and res.status != "converged"
+    assert res.message
+
+
+@pytest.mark.parametrize("algorithm", ["LD_LBFGS", "LD_SLSQP"])
+def test_nlopt_agrees_with_ipopt_on_a_tiny_scene(algorithm):
+    scene = dome_scene(5)
+    a = Simultaneous().solve(scene, LOADS)
+    b = NloptSimultaneous(algorithm=algorithm).solve(scene, LOADS, time_limit=30, max_iter=20000)
+    assert b.backend == "nlopt" and b.status == "converged", b.message
+    assert max_relative_error(b.network) <= 1e-8
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    assert np.abs(a.network.vertices - b.network.vertices).max() < 1e-5 * diag
+
+
+def test_nlopt_refuses_large_problems():
+    with pytest.raises(BackendUnavailable, match="IPOPT"):
+        NloptSimultaneous().solve(dome_scene(20), LOADS)  # 324 free vertices
+    with pytest.raises(BackendUnavailable, match="IPOPT"):
+        NloptSimultaneous(algorithm="LD_SLSQP").solve(dome_scene(10), LOADS)  # 64 free vertices > 50
+
+
+def test_scene_extras_are_added_once():
+    from selfsupport.loads import ExtraMass
+    from selfsupport.methods.simultaneous import with_scene_extras
+
+    base = dome_scene(5)
+    mass = np.zeros(base.mesh.n_vertices)
+    mass[12] = 50.0
+    scene = Scene(base.mesh, base.supports, extra_mass=mass)
+    V = scene.mesh.vertices
+    once = LOADS.nodal(scene.mesh, V) - 9.81 * mass
+    np.testing.assert_allclose(with_scene_extras(LOADS, scene).nodal(scene.mesh, V), once)
+    already = LOADS + ExtraMass(mass)
+    np.testing.assert_allclose(with_scene_extras(already, scene).nodal(scene.mesh, V), once)
+    res = Simultaneous().solve(scene, LOADS)
+    assert res.status == "converged" and max_relative_error(res.network) <= 1e-8
+    np.testing.assert_allclose(res.network.loads, LOADS.nodal(scene.mesh, res.network.vertices) - 9.81 * mass)
