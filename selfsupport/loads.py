@@ -94,3 +94,20 @@ class ExtraMass(LoadCase):
 
     def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
         return -self.g * np.asarray(self.mass, float)
+
+
+def with_scene_extras(loads: LoadCase, scene) -> LoadCase:
+    """The load case plus the scene's own extra masses and point loads — unless ``loads``
+    already holds them (e.g. built by ``api.scene_loads``), which must not count twice."""
+    cases = loads.cases if isinstance(loads, CombinedLoad) else (loads,)
+
+    def present(kind: type, attr: str, values: np.ndarray) -> bool:
+        return any(isinstance(c, kind) and np.shape(getattr(c, attr)) == values.shape
+                   and np.array_equal(np.asarray(getattr(c, attr), float), values) for c in cases)
+
+    if scene.extra_mass is not None and np.any(scene.extra_mass) and not present(ExtraMass, "mass", scene.extra_mass):
+        loads = loads + ExtraMass(scene.extra_mass)
+    if (scene.point_loads is not None and np.any(scene.point_loads)
+            and not present(PointLoad, "forces", scene.point_loads)):
+        loads = loads + PointLoad(scene.point_loads)
+    return loads

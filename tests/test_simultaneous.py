@@ -156,7 +156,7 @@ def test_nlopt_refuses_large_problems():
 
 def test_scene_extras_are_added_once():
     from selfsupport.loads import ExtraMass
-    from selfsupport.methods.simultaneous import with_scene_extras
+    from selfsupport.loads import with_scene_extras
 
     base = dome_scene(5)
     mass = np.zeros(base.mesh.n_vertices)

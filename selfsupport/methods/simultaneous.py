@@ -40,7 +40,7 @@ from scipy.sparse.linalg import splu
 from formulations import (PointDistance, ReferenceDistance, Scaled, Term, ThrustNetworkProblem, WeightBounds)
 
 from ..errors import InputError
-from ..loads import CombinedLoad, ExtraMass, LoadCase, PointLoad, SelfWeight
+from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .assembly import Topology, position_blocks, residual
@@ -120,23 +120,6 @@ OBJECTIVES: dict[str, Callable[[Scene, np.ndarray], Term]] = {
     "vertices": _vertices_objective,
     "surface": _surface_objective,
 }
-
-
-def with_scene_extras(loads: LoadCase, scene: Scene) -> LoadCase:
-    """The load case plus the scene's own extra masses and point loads — unless ``loads``
-    already holds them (e.g. built by ``api.scene_loads``), which must not count twice."""
-    cases = loads.cases if isinstance(loads, CombinedLoad) else (loads,)
-
-    def present(kind: type, attr: str, values: np.ndarray) -> bool:
-        return any(isinstance(c, kind) and np.shape(getattr(c, attr)) == values.shape
-                   and np.array_equal(np.asarray(getattr(c, attr), float), values) for c in cases)
-
-    if scene.extra_mass is not None and np.any(scene.extra_mass) and not present(ExtraMass, "mass", scene.extra_mass):
-        loads = loads + ExtraMass(scene.extra_mass)
-    if (scene.point_loads is not None and np.any(scene.point_loads)
-            and not present(PointLoad, "forces", scene.point_loads)):
-        loads = loads + PointLoad(scene.point_loads)
-    return loads
 
 
 def _per_active_edge(value, scene: Scene, m: int, what: str) -> np.ndarray | float | None:

@@ -35,10 +35,10 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
+from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
 from ..geometry import vertex_normals
-from ..loads import LoadCase, SelfWeight
+from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .assembly import Topology, load_vector, position_blocks, weight_matrix
@@ -111,7 +111,7 @@ class StaggeredLinearization:
         t_start = time.perf_counter()
         scene.mesh.validate()
         scene.check_supports()
-        loads = _with_scene_extras(loads or SelfWeight(), scene)
+        loads = with_scene_extras(loads if loads is not None else SelfWeight(), scene)
         mesh0 = scene.mesh
         n = mesh0.n_vertices
         active = scene.active_edges
@@ -153,7 +153,12 @@ class StaggeredLinearization:
             s = np.repeat(1.0 / np.abs(Lc[free]), 3)
             As = sp.diags(s) @ A
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
-            fit = self.backend.fit(A=As, b=s * b, lower=lower, upper=upper, w0=w0, prox=prox)
+            try:
+                fit = self.backend.fit(A=As, b=s * b, lower=lower, upper=upper, w0=w0, prox=prox)
+            except (ValueError, RuntimeError, ArithmeticError):  # singular systems of a degenerate geometry
+                return None
+            if not np.all(np.isfinite(fit.w)):
+                return None
             rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
             return {"L": Lc, "w": fit.w, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
                     "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
@@ -165,7 +170,8 @@ class StaggeredLinearization:
         w_uniform = float(np.clip(A0 @ b0 / max(float(A0 @ A0), 1e-300), eps_s, wmax_s))
         cur = refit(X, np.full(top.m, w_uniform))
         if cur is None:
-            raise InputError("the reference mesh has vertices without downward load; check for degenerate faces")
+            raise InfeasibleDesign("no weights can be fitted to the reference as it is (degenerate geometry, e.g. a flat "
+                                   "network cannot carry vertical loads); give the surface some rise or check the mesh")
         it = 0
         rejected = 0
         for it in range(1, opt.max_iter + 1):
@@ -234,16 +240,6 @@ class StaggeredLinearization:
             wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
             parameters={**asdict(opt), "eps": sc.weight_back(eps_s), "w_max": w_max,
                         "scaling": asdict(sc)})
-
-
-def _with_scene_extras(loads: LoadCase, scene: Scene) -> LoadCase:
-    from ..loads import ExtraMass, PointLoad
-
-    if scene.extra_mass is not None and np.any(scene.extra_mass):
-        loads = loads + ExtraMass(scene.extra_mass)
-    if scene.point_loads is not None and np.any(scene.point_loads):
-        loads = loads + PointLoad(scene.point_loads)
-    return loads
 
 
 def _umbrella(top: Topology, mesh) -> sp.csr_matrix:

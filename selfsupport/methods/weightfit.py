@@ -77,23 +77,38 @@ def _factor(M: sp.spmatrix):
 
 
 class _Factor:
+    """QDLDL factor with a SuperLU (partial pivoting) fallback when LDLᵀ without pivoting
+    breaks down on a nearly singular matrix."""
+
     def __init__(self, M: sp.csc_matrix) -> None:
         import qdldl
 
+        self._M = M
         self._f = qdldl.Solver(sp.triu(M, format="csc"))
+        self._lu = None
 
     def update(self, M: sp.spmatrix) -> None:
-        self._f.update(sp.triu(sp.csc_matrix(M), format="csc"))
+        self._M = sp.csc_matrix(M)
+        self._lu = None
+        self._f.update(sp.triu(self._M, format="csc"))
+
+    def _solve1(self, rhs: np.ndarray) -> np.ndarray:
+        if self._lu is None:
+            x = self._f.solve(rhs)
+            if np.all(np.isfinite(x)):
+                return x
+            from scipy.sparse.linalg import splu
+
+            d = self._M.diagonal()
+            shift = 1e-12 * max(float(np.abs(d).max()), 1e-300)
+            self._lu = splu(self._M + shift * sp.identity(self._M.shape[0], format="csc"))
+        return self._lu.solve(rhs)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         rhs = np.asarray(rhs, float)
         if rhs.ndim == 1:
-            x = self._f.solve(rhs)
-        else:
-            x = np.column_stack([self._f.solve(np.ascontiguousarray(rhs[:, k])) for k in range(rhs.shape[1])])
-        if not np.all(np.isfinite(x)):
-            raise ValueError("factorization produced non-finite values")
-        return x
+            return self._solve1(rhs)
+        return np.column_stack([self._solve1(np.ascontiguousarray(rhs[:, k])) for k in range(rhs.shape[1])])
 
 
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
@@ -127,7 +142,10 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         mu = (float(s_ @ z) + float(t_[fin] @ y[fin])) / n_con
         if np.abs(rd).max() <= tol * gs and mu <= tol * gs * scale_w:
             return w, z, y, it, "optimal"
-        D = z / s_ + np.where(fin, y / t_, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            D = z / s_ + np.where(fin, y / t_, 0.0)
+        if not (np.all(np.isfinite(D)) and np.all(s_ > 0)):
+            return w, z, y, it, "failed"  # the barrier broke down (degenerate problem)
         MD = (Q + sp.diags(D)).tocsc()
         if it == 1:
             lu = _factor(MD)

@@ -1,0 +1,42 @@
+# selfsupport — build, demo and tests. Needs only python3 (>= 3.11) and pip.
+#   make demo        create .venv, install the project, solve the built-in demo -> demo-out/
+#   make test        create .venv, install with the test extra, run the fast test suite
+#   make test-slow   run the tests marked slow
+#   make clean       remove .venv, stamps and demo output
+# Installs are stamp-file based: they rerun only when pyproject.toml changes.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP_RUN  := $(VENV)/.installed-run
+STAMP_TEST := $(VENV)/.installed-test
+
+.PHONY: demo test test-slow test-all clean venv
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP_RUN): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(STAMP_TEST): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $@ $(STAMP_RUN)
+
+venv: $(STAMP_RUN)
+
+demo: $(STAMP_RUN)
+	$(BIN)/selfsupport demo
+
+test: $(STAMP_TEST)
+	$(BIN)/pytest -q -m "not slow"
+
+test-slow: $(STAMP_TEST)
+	$(BIN)/pytest -q -m slow
+
+test-all: $(STAMP_TEST)
+	$(BIN)/pytest -q
+
+clean:
+	rm -rf $(VENV) demo-out .pytest_cache

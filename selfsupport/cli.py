@@ -1,0 +1,515 @@
+"""The ``selfsupport`` command line.
+
+::
+
+    selfsupport solve SCENE --out NET.json [--method staggered|ipopt|nlopt] [...]
+    selfsupport check MESH_OR_NET [--supports ...] [--tol 1e-6]
+    selfsupport demo [--out DIR] [--shape NAME] [--vertices N]
+
+``SCENE`` is a file (``.sss``, ``.obj``, ``.ply``, ``.off``, ``.json``) or a built-in shape
+written ``shape:NAME`` or ``shape:NAME:VERTICES`` (e.g. ``shape:pillar_vault:500``).
+
+Exit codes (:data:`EXIT_CODES`): 0 success (converged / self-supporting); 1 ``check`` found the
+surface is not self-supporting, or an unexpected internal error; 2 bad input or usage;
+3 solver backend unavailable; 4 no network in equilibrium (stalled, infeasible, failed);
+5 iteration or time limit reached; 130 interrupted (Ctrl-C). Every error is one line on
+stderr, ``selfsupport: error: ...``; ``--debug`` shows the traceback instead.
+
+Adding a subcommand
+-------------------
+Subcommands live in :data:`COMMANDS` (name -> :class:`Command`). Another module adds its own
+without touching this file: create ``selfsupport/cli_<anything>.py`` defining a module-level
+``COMMANDS: dict[str, Command]``; :func:`discover_commands` imports every ``selfsupport.cli_*``
+module when the parser is built. Keep such modules light at import time (import heavy
+libraries inside ``run``), return an exit code from ``run``, raise
+:class:`~selfsupport.errors.SelfSupportError` subclasses for errors the user can fix.
+Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func:`load_scene`,
+:func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, and the argparse types
+:func:`positive_float`, :func:`positive_int`.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import pkgutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from . import __version__
+from .errors import InputError, SelfSupportError
+
+__all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
+           "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
+           "positive_float", "positive_int", "summary_rows"]
+
+PROG = "selfsupport"
+
+#: Exit codes of the command line.
+EXIT_CODES: dict[str, int] = {
+    "ok": 0,
+    "not_self_supporting": 1,
+    "internal": 1,
+    "input": 2,
+    "backend": 3,
+    "not_converged": 4,
+    "limit": 5,
+    "interrupted": 130,
+}
+
+#: Solve status -> exit code. The network is written whatever the status (its ``status`` key says it).
+STATUS_EXIT: dict[str, int] = {
+    "converged": EXIT_CODES["ok"],
+    "stalled": EXIT_CODES["not_converged"],
+    "infeasible": EXIT_CODES["not_converged"],
+    "failed": EXIT_CODES["not_converged"],
+    "iteration_limit": EXIT_CODES["limit"],
+    "time_limit": EXIT_CODES["limit"],
+    "interrupted": EXIT_CODES["interrupted"],
+}
+
+#: Solve status -> what to try next (printed when the result is not in equilibrium).
+STATUS_HINT: dict[str, str] = {
+    "stalled": "try --method ipopt, more or other supports (--supports), a larger --wmax, or a smoother reference",
+    "infeasible": "no compressive network exists near this shape with these supports and bounds; "
+                  "add supports, raise --wmax or change the shape",
+    "failed": "try the other method (--method staggered / --method ipopt) or a smoother reference",
+    "iteration_limit": "raise --max-iter (or --time-limit), or try --method ipopt",
+    "time_limit": "raise --time-limit, or try the other method",
+    "interrupted": "rerun and let it finish",
+}
+
+
+# --------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class Command:
+    """A subcommand: its one-line help, an argument adder and a runner returning the exit code."""
+
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+
+
+class _UsageError(Exception):
+    """argparse's complaints, turned into our one-line error."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{message} (see '{self.prog} --help')")
+
+
+# ---------------------------------------------------------------------- shared helpers
+def positive_float(text: str) -> float:
+    """argparse ``type=``: a positive finite float."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (x > 0 and x < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
+    return x
+
+
+def positive_int(text: str) -> int:
+    """argparse ``type=``: an integer >= 1."""
+    try:
+        k = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
+    return k
+
+
+# the underscore names were used by the first plugin modules; keep them working
+_positive_float, _positive_int = positive_float, positive_int
+
+
+def add_scene_arguments(p: argparse.ArgumentParser, *, metavar: str = "SCENE") -> None:
+    """``SCENE`` (file or ``shape:NAME[:VERTICES]``), ``--supports``, ``--up``."""
+    p.add_argument("scene", metavar=metavar,
+                   help="scene or mesh file (.sss .obj .ply .off .json), or a built-in shape "
+                        "'shape:NAME[:VERTICES]' (e.g. shape:pillar_vault:500)")
+    p.add_argument("--supports", metavar="boundary|FILE", default=None,
+                   help="supported vertices for files without pins: 'boundary' or a file of 0-based "
+                        "vertex indices ('#' comments); replaces the file's own pins if given")
+    p.add_argument("--up", default=None, metavar="AXIS",
+                   help="the file's vertical axis: z, -z, y, -y, x, -x (default: z; .sss files and the "
+                        "paper's OBJ files are -y)")
+
+
+def add_load_arguments(p: argparse.ArgumentParser, *, default: bool = True) -> None:
+    """``--density`` and ``--thickness`` (self-weight ρ·t·g per unit area)."""
+    from .api import DEFAULT_DENSITY, DEFAULT_THICKNESS
+
+    p.add_argument("--density", type=positive_float, default=DEFAULT_DENSITY if default else None,
+                   metavar="RHO", help=f"material density [kg/m^3] (default {DEFAULT_DENSITY:g})")
+    p.add_argument("--thickness", type=positive_float, default=DEFAULT_THICKNESS if default else None,
+                   metavar="T", help=f"shell thickness [m] (default {DEFAULT_THICKNESS:g})")
+
+
+def load_scene(spec: str, *, supports: str | None = None, up: str | None = None):
+    """A :class:`~selfsupport.scene.Scene` from a ``SCENE`` argument (file or ``shape:NAME[:N]``)."""
+    from .api import as_scene
+
+    if spec.startswith("shape:"):
+        from .shapes import make_shape
+
+        parts = spec.split(":")
+        if len(parts) not in (2, 3) or not parts[1]:
+            raise InputError(f"{spec!r}: write a built-in shape as shape:NAME or shape:NAME:VERTICES")
+        n = None
+        if len(parts) == 3:
+            try:
+                n = positive_int(parts[2])
+            except argparse.ArgumentTypeError as e:
+                raise InputError(f"{spec!r}: vertex count {e}") from None
+        if up is not None:
+            raise InputError("--up applies to files only; built-in shapes are z up")
+        scene = make_shape(parts[1], n_vertices=n)
+        return as_scene(scene, supports=supports)
+    if not Path(spec).exists():
+        raise InputError(f"{spec}: no such file; give a scene/mesh file or shape:NAME[:VERTICES]")
+    return as_scene(spec, supports=supports, up=up)
+
+
+def stdout_console():
+    """A rich console on the *current* ``sys.stdout`` (so pytest's capture sees it)."""
+    from rich.console import Console
+
+    return Console(file=sys.stdout, highlight=False, soft_wrap=True)
+
+
+def print_table(title: str, rows: Sequence[tuple[str, str]]) -> None:
+    """A two-column summary table on stdout."""
+    from rich.table import Table
+
+    t = Table(title=title, show_header=False, title_justify="left", box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in rows:
+        t.add_row(k, v)
+    stdout_console().print(t)
+
+
+def _err(message: str) -> None:
+    print(f"{PROG}: {message}", file=sys.stderr)
+
+
+def _check_writable(path: Path) -> None:
+    """Fail before a long solve, not after it, when the output cannot be written."""
+    if path.is_dir():
+        raise InputError(f"--out {path} is a directory; give a file name such as {path / 'network.json'}")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise InputError(f"cannot write {path}: {parent} is not writable")
+
+
+def summary_rows(result, scene) -> list[tuple[str, str]]:
+    """Rows of the summary table of a solve."""
+    from .geometry import bbox_diagonal
+
+    net = result.network
+    diag = bbox_diagonal(scene.mesh.vertices)
+    rows = [("scene", scene.name), ("vertices", str(net.mesh.n_vertices)),
+            ("edges", f"{net.mesh.n_edges} ({int(net.active_edges.sum())} carrying a weight)"),
+            ("supports", str(int(net.supports.sum()))),
+            ("method", result.method), ("backend", result.backend), ("status", result.status),
+            ("iterations", str(result.iterations)), ("time", f"{result.wall_time:.2f} s"),
+            ("max relative error", f"{result.max_relative_error:.3e}"),
+            ("min weight", f"{result.min_weight:.4g} N/m"),
+            ("total load", f"{float(net.loads.sum()):.6g} N"),
+            ("distance to reference mean", f"{result.distance_mean:.3e} of bbox diagonal "
+                                           f"({result.distance_mean * diag:.3g} m)"),
+            ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
+                                          f"({result.distance_max * diag:.3g} m)")]
+    return rows
+
+
+def _not_converged_line(result) -> str:
+    """One line for a solve that did not converge, true to what was written.
+
+    A run stopped early (iteration or time limit) is still polished: weights frozen, positions
+    solved exactly. Its network can then be in equilibrium, only not the one nearest to the
+    reference, so the line says which of the two cases it is.
+    """
+    hint = STATUS_HINT.get(result.status, "try the other method")
+    msg = f" ({result.message})" if result.message else ""
+    tol = float(result.parameters.get("tol", 1e-9) or 1e-9)
+    if result.max_relative_error <= tol:
+        return (f"did NOT converge: status {result.status}{msg}; the written network is in equilibrium "
+                f"(max relative error {result.max_relative_error:.2e}) but is not the solution nearest to the "
+                f"reference (mean distance {result.distance_mean:.2e} of the bbox diagonal); {hint}")
+    return (f"the network is NOT in equilibrium: status {result.status}{msg}, max relative error "
+            f"{result.max_relative_error:.2e} > {tol:g}; {hint}")
+
+
+# ----------------------------------------------------------------------------- solve
+def _solve_args(p: argparse.ArgumentParser) -> None:
+    from .api import METHODS
+
+    add_scene_arguments(p)
+    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
+    p.add_argument("--method", choices=list(METHODS), default="staggered",
+                   help="solution method (default staggered)")
+    p.add_argument("--backend", default=None, metavar="NAME",
+                   help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
+                        "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")
+    add_load_arguments(p)
+    p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
+    p.add_argument("--eps", type=positive_float, default=None, metavar="E",
+                   help="lower weight bound [N/m] (default: scale-free, 1e-4 of the natural weight scale)")
+    p.add_argument("--tol", type=positive_float, default=None,
+                   help="required max relative error (default: the method's, 1e-9)")
+    p.add_argument("--max-iter", type=positive_int, default=None, metavar="N",
+                   help="iteration limit (staggered: outer iterations, default 200; ipopt: per load round)")
+    p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
+                   help="wall-clock limit in seconds (default: the method's, 600 s staggered / 120 s ipopt)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+
+
+def _run_solve(args: argparse.Namespace) -> int:
+    from . import api
+    from .io import write_network
+    from .progress import ProgressDisplay
+
+    out = Path(args.out)
+    _check_writable(out)
+    scene = load_scene(args.scene, supports=args.supports, up=args.up)
+    progress = ProgressDisplay(enabled=False if args.quiet else None)
+    result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
+                       thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
+                       max_iter=args.max_iter, time_limit=args.time_limit, progress=progress)
+    write_network(out, result, scene=_scene_info(scene, args))
+    print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
+    if not result.converged:
+        _err(_not_converged_line(result))
+    return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
+
+
+def _scene_info(scene, args: argparse.Namespace) -> dict[str, Any]:
+    info: dict[str, Any] = {"name": scene.name, "input": args.scene}
+    if getattr(args, "supports", None) is not None:
+        info["supports_from"] = args.supports
+    if getattr(args, "up", None) is not None:
+        info["up"] = args.up
+    return info
+
+
+# ----------------------------------------------------------------------------- check
+def _check_args(p: argparse.ArgumentParser) -> None:
+    from .api import DEFAULT_CHECK_TOL
+
+    add_scene_arguments(p, metavar="MESH_OR_NET")
+    add_load_arguments(p, default=False)
+    p.add_argument("--tol", type=positive_float, default=DEFAULT_CHECK_TOL,
+                   help=f"max relative error that counts as self-supporting (default {DEFAULT_CHECK_TOL:g})")
+    p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
+
+
+def _run_check(args: argparse.Namespace) -> int:
+    from . import api
+
+    spec = args.scene
+    if spec.startswith("shape:"):
+        target: Any = load_scene(spec, supports=args.supports, up=args.up)
+        supports, up = None, None
+    else:
+        if not Path(spec).exists():
+            raise InputError(f"{spec}: no such file; give a mesh, scene or network file")
+        target, supports, up = spec, args.supports, args.up
+    rep = api.check(target, supports=supports, up=up, density=args.density, thickness=args.thickness,
+                    tol=args.tol, w_max=args.wmax)
+    print_table(f"selfsupport check {spec}", rep.rows())
+    if rep.self_supporting:
+        print(f"self-supporting: compressive weights (min {rep.min_weight:.3g} N/m) balance the self-weight "
+              f"to a max relative error of {rep.max_relative_error:.2e} <= {rep.tol:g}")
+        return EXIT_CODES["ok"]
+    print(f"NOT self-supporting: the best compressive weights leave a max relative error of "
+          f"{rep.max_relative_error:.2e} > {rep.tol:g}; 'selfsupport solve' finds a nearby surface that is")
+    return EXIT_CODES["not_self_supporting"]
+
+
+# ------------------------------------------------------------------------------ demo
+#: The demo's default reference: a vault on four pillars, which has to move to stand.
+DEMO_SHAPE = "pillar_vault"
+DEMO_VERTICES = 676
+
+
+def _demo_args(p: argparse.ArgumentParser) -> None:
+    from .shapes import SHAPES
+
+    p.add_argument("--out", "-o", default="demo-out", metavar="DIR",
+                   help="output directory (default ./demo-out): network.json and report.md")
+    p.add_argument("--shape", choices=sorted(SHAPES), default=DEMO_SHAPE, help=f"built-in shape (default {DEMO_SHAPE})")
+    p.add_argument("--vertices", type=positive_int, default=DEMO_VERTICES, metavar="N",
+                   help=f"about this many vertices (default {DEMO_VERTICES})")
+    add_load_arguments(p)
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from . import api
+    from .io import read_network, write_network
+    from .progress import ProgressDisplay
+    from .shapes import make_shape
+    from .io.atomic import atomic_write_text
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file; give a directory")
+    scene = make_shape(args.shape, n_vertices=args.vertices)
+    progress = ProgressDisplay(enabled=False if args.quiet else None)
+    result = api.solve(scene, density=args.density, thickness=args.thickness, progress=progress)
+    net_path, report_path = out / "network.json", out / "report.md"
+    write_network(net_path, result, scene={"name": scene.name, "input": f"shape:{args.shape}:{args.vertices}"})
+    reread = read_network(net_path).max_relative_error()
+    rows = summary_rows(result, scene)
+    atomic_write_text(report_path, demo_report(result, rows, args, reread))
+    print_table(f"selfsupport demo -> {net_path}, {report_path}", rows)
+    if not result.converged:
+        _err(_not_converged_line(result))
+    return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
+
+
+def _fmt(x: Any) -> str:
+    if isinstance(x, bool) or x is None:
+        return "" if x is None else ("yes" if x else "no")
+    if isinstance(x, float):
+        return f"{x:.3e}"
+    return str(x)
+
+
+#: History columns of the demo report: (header, record key).
+REPORT_COLUMNS: tuple[tuple[str, str], ...] = (
+    ("iteration", "iteration"), ("max rel. error", "max_rel_error"), ("E", "E"), ("alpha", "alpha"),
+    ("beta", "beta"), ("accepted", "accepted"), ("weights at eps", "n_at_lower"),
+    ("fit [s]", "t_weights"), ("positions [s]", "t_positions"))
+
+
+def demo_report(result, rows: Sequence[tuple[str, str]], args: argparse.Namespace, reread: float) -> str:
+    """The demo's Markdown report: summary, per-iteration history, how to reproduce."""
+    lines = [f"# selfsupport demo: {rows[0][1]}", "",
+             f"Reference: built-in `{args.shape}` (~{args.vertices} vertices), self-weight "
+             f"{args.density:g} kg/m³ × {args.thickness:g} m, supports as built in; method "
+             f"`{result.method}` / `{result.backend}`.", "",
+             "## Summary", "", "| quantity | value |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in rows]
+    lines += ["", f"Max relative error recomputed from `network.json` as written: {reread:.3e}.", ""]
+    if result.message:
+        lines += [f"Solver message: {result.message}", ""]
+    lines += ["## Iterations", "", "| " + " | ".join(h for h, _ in REPORT_COLUMNS) + " |",
+              "|" + "---|" * len(REPORT_COLUMNS)]
+    for rec in result.history:
+        lines.append("| " + " | ".join(_fmt(rec.get(k)) for _, k in REPORT_COLUMNS) + " |")
+    lines += ["", "The `polish` row freezes the weights and solves the positions exactly, with loads "
+              "re-estimated from the geometry until consistent.", "",
+              "Reproduce: `selfsupport demo --shape {} --vertices {} --out {}`".format(args.shape, args.vertices, args.out),
+              ""]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- parser
+COMMANDS: dict[str, Command] = {
+    "solve": Command("find the thrust network nearest to a reference surface and write it as JSON",
+                     _solve_args, _run_solve),
+    "check": Command("is a mesh (or a network file) self-supporting as it is? (exit 0 yes, 1 no)",
+                     _check_args, _run_check),
+    "demo": Command("solve a built-in reference and write network.json and report.md", _demo_args, _run_demo),
+}
+
+#: Modules ``selfsupport.<PLUGIN_PREFIX>*`` contribute their ``COMMANDS`` dict.
+PLUGIN_PREFIX = "cli_"
+
+
+def discover_commands() -> dict[str, Command]:
+    """Built-in commands plus those of every ``selfsupport.cli_*`` module (see the module docstring)."""
+    import selfsupport
+
+    found = dict(COMMANDS)
+    for info in sorted(pkgutil.iter_modules(selfsupport.__path__), key=lambda i: i.name):
+        if not info.name.startswith(PLUGIN_PREFIX):
+            continue
+        mod = importlib.import_module(f"selfsupport.{info.name}")
+        extra = getattr(mod, "COMMANDS", None)
+        if not isinstance(extra, dict):
+            raise TypeError(f"selfsupport.{info.name} must define COMMANDS: dict[str, Command]")
+        clash = sorted(set(extra) & set(found))
+        if clash:
+            raise TypeError(f"selfsupport.{info.name} redefines command(s) {clash}")
+        found.update(extra)
+    return found
+
+
+def build_parser(commands: dict[str, Command] | None = None) -> argparse.ArgumentParser:
+    """The argument parser with one subparser per command."""
+    commands = discover_commands() if commands is None else commands
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show the full traceback on errors")
+    parser = _Parser(prog=PROG, parents=[common],
+                     description="Design of self-supporting surfaces (Vouga et al., SIGGRAPH 2012): "
+                                 "thrust networks in equilibrium near a reference mesh.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, cmd in commands.items():
+        sp = sub.add_parser(name, help=cmd.help, description=cmd.help, parents=[common])
+        cmd.add_arguments(sp)
+        sp.set_defaults(_run=cmd.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (the console script passes it to ``sys.exit``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    try:
+        args = build_parser().parse_args(argv)
+        return int(args._run(args))
+    except _UsageError as e:
+        if debug:
+            raise
+        _err(f"error: {e}")
+        return EXIT_CODES["input"]
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        _err("interrupted; nothing was written")
+        return EXIT_CODES["interrupted"]
+    except SelfSupportError as e:
+        if debug:
+            raise
+        _err(f"error: {_one_line(e)}")
+        return int(e.exit_code)
+    except OSError as e:
+        if debug:
+            raise
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        _err(f"error: {where}{e.strerror or e}")
+        return EXIT_CODES["input"]
+    except (ValueError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        if debug:
+            raise
+        _err(f"error: {_one_line(e)}")
+        return EXIT_CODES["input"]
+    except Exception as e:  # noqa: BLE001 - the last line of defence: one line, not a traceback
+        if debug:
+            raise
+        _err(f"internal error: {type(e).__name__}: {_one_line(e)} (rerun with --debug for the traceback "
+             "and report it)")
+        return EXIT_CODES["internal"]
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,420 @@
+"""The command line: solve / check / demo end to end, judged by recomputing equilibrium from the
+written JSON with plain numpy (and by the shared independent checker when present); exit codes
+and one-line errors for bad input, in-process and in a real subprocess; Ctrl-C; the subcommand
+registry; the progress display."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from selfsupport import cli
+from selfsupport.io import write_mesh
+from selfsupport.shapes import make_shape
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+CHECKER = SHARED / "tools" / "check_network.py"
+G = 9.81
+
+
+# ---------------------------------------------------------------------------- helpers
+def independent_check(d: dict) -> dict:
+    """Equilibrium of a network document recomputed from scratch (nothing from the project).
+
+    Returns the max relative error over non-supports, min weight, total load and the self-weight
+    of the written geometry per unit ρtg (faces triangulated as fans around their centroid, as the
+    shared checker does: non-planar quads have no other canonical area).
+    """
+    V = np.asarray(d["vertices"], float)
+    E = np.asarray(d["edges"], int)
+    w = np.asarray(d["weights"], float)
+    L = np.asarray(d["loads"], float)
+    sup = np.zeros(len(V), bool)
+    sup[np.asarray(d["supports"], int)] = True
+    r = np.zeros((len(V), 3))
+    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
+    np.add.at(r, E[:, 0], f)
+    np.add.at(r, E[:, 1], -f)
+    r[:, 2] -= L
+    rel = np.linalg.norm(r[~sup], axis=1) / np.abs(L[~sup])
+    area = 0.0
+    for face in d["faces"]:
+        P = V[face]
+        c = P.mean(axis=0)
+        area += 0.5 * np.linalg.norm(np.cross(P - c, np.roll(P, -1, axis=0) - c), axis=1).sum()
+    return {"max_rel": float(rel.max()), "min_w": float(w.min()), "total_load": float(L.sum()), "area": area,
+            "supports": sup}
+
+
+def boundary_vertices(faces: list[list[int]], n: int) -> np.ndarray:
+    """Vertices on edges used by exactly one face (computed here, not by the project)."""
+    count: dict[tuple[int, int], int] = {}
+    for f in faces:
+        for a, b in zip(f, f[1:] + f[:1]):
+            k = (min(a, b), max(a, b))
+            count[k] = count.get(k, 0) + 1
+    m = np.zeros(n, bool)
+    for (a, b), c in count.items():
+        if c == 1:
+            m[[a, b]] = True
+    return m
+
+
+def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``python -m selfsupport ARGS`` in a real process (exercises __main__ and the exit code)."""
+    return subprocess.run([sys.executable, "-m", "selfsupport", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def assert_one_line_error(err: str, code: int, expected_code: int, *, needle: str = "") -> None:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == expected_code, err
+    assert len(lines) == 1, err
+    assert lines[0].startswith("selfsupport: error: "), err
+    assert "Traceback" not in err
+    assert needle.lower() in lines[0].lower()
+
+
+@pytest.fixture(scope="module")
+def barrel_obj(tmp_path_factory) -> Path:
+    """A 300-vertex catenary barrel vault as OBJ; its supports are exactly its boundary."""
+    p = tmp_path_factory.mktemp("mesh") / "barrel.obj"
+    write_mesh(p, make_shape("barrel_vault", n_vertices=300).mesh)
+    return p
+
+
+@pytest.fixture(scope="module")
+def solved(barrel_obj, tmp_path_factory):
+    """``selfsupport solve barrel.obj --supports boundary`` run in-process once for the module."""
+    out = tmp_path_factory.mktemp("solve") / "net.json"
+    return out, cli.main(["solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), "--quiet"])
+
+
+# ------------------------------------------------------------------------------ solve
+def test_solve_writes_a_network_in_equilibrium_with_loads_of_its_geometry(solved, barrel_obj):
+    out, code = solved
+    assert code == 0
+    d = json.loads(out.read_text())
+    chk = independent_check(d)
+    assert d["status"] == "converged"
+    assert chk["max_rel"] <= 1e-8
+    assert chk["min_w"] >= 0.0
+    # loads are the self-weight ρ t g × area of the *final* geometry (default ρ = 2000, t = 0.1)
+    assert chk["total_load"] == pytest.approx(-2000 * 0.1 * G * chk["area"], rel=1e-9)
+    # supports: the OBJ's boundary, held at their reference positions
+    ref = np.asarray(d["reference_vertices"])
+    assert np.array_equal(chk["supports"], boundary_vertices(d["faces"], len(ref)))
+    diag = np.linalg.norm(ref.max(axis=0) - ref.min(axis=0))
+    assert np.abs(np.asarray(d["vertices"])[chk["supports"]] - ref[chk["supports"]]).max() <= 1e-13 * diag
+    # the file's own evidence agrees with the recomputation
+    assert d["max_relative_error"] == pytest.approx(chk["max_rel"], rel=1e-6, abs=1e-15)
+    assert d["parameters"]["loads"] == {"type": "self_weight", "density": 2000.0, "thickness": 0.1, "g": G}
+    assert d["scene"]["supports_from"] == "boundary"
+
+
+@pytest.mark.skipif(not CHECKER.exists(), reason="shared independent checker not present")
+def test_solve_output_passes_the_shared_checker(solved):
+    out, _ = solved
+    p = subprocess.run([sys.executable, str(CHECKER), str(out), "--tol", "1e-8", "--unit-weight", str(2000 * 0.1 * G),
+                        "--load-tol", "1e-9"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert p.stdout.strip().endswith("ok")
+
+
+def test_solve_summary_reports_the_written_numbers(barrel_obj, tmp_path, capsys):
+    out = tmp_path / "n.json"
+    assert cli.main(["solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), "-q",
+                     "--density", "2400", "--thickness", "0.2"]) == 0
+    text = capsys.readouterr().out
+    d = json.loads(out.read_text())
+    chk = independent_check(d)
+    assert chk["total_load"] == pytest.approx(-2400 * 0.2 * G * chk["area"], rel=1e-9)
+    row = next(ln for ln in text.splitlines() if ln.startswith("max relative error"))
+    assert float(row.split()[-1]) == pytest.approx(chk["max_rel"], rel=1e-3, abs=1e-15)
+    for key in ("vertices", "edges", "method", "backend", "status", "iterations", "min weight",
+                "distance to reference mean", "distance to reference max"):
+        assert any(ln.startswith(key) for ln in text.splitlines()), key
+    assert f"{len(d['vertices'])}" in next(ln for ln in text.splitlines() if ln.startswith("vertices"))
+
+
+def test_iteration_limit_still_writes_the_network_labelled_and_exits_5(tmp_path, capsys):
+    out = tmp_path / "limit.json"
+    code = cli.main(["solve", "shape:pillar_vault:300", "--out", str(out), "--max-iter", "2", "-q"])
+    err = capsys.readouterr().err
+    d = json.loads(out.read_text())
+    assert code == cli.EXIT_CODES["limit"] == 5
+    assert d["status"] == "iteration_limit"
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "NOT converge" in lines[0] and "--max-iter" in lines[0]
+    # the stopped run is polished (weights frozen, positions exact), so the line must not claim
+    # it is out of equilibrium when it is not
+    assert independent_check(d)["max_rel"] <= 1e-8
+    assert "in equilibrium" in lines[0] and "not the solution nearest" in lines[0]
+
+
+def test_a_network_out_of_equilibrium_is_written_labelled_and_exits_4(tmp_path, capsys, monkeypatch):
+    from selfsupport import api
+    from selfsupport.result import Network, SolveResult
+
+    scene = make_shape("dome", n_vertices=100)
+    net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
+                  supports=scene.supports, reference=scene.mesh)
+    fake = SolveResult.build(net, status="stalled", method="staggered", backend="active-set", iterations=7,
+                             wall_time=0.1, message="no step helps", parameters={"tol": 1e-9})
+    monkeypatch.setattr(api, "solve", lambda *a, **k: fake)
+    out = tmp_path / "stalled.json"
+    code = cli.main(["solve", "shape:dome:100", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4
+    d = json.loads(out.read_text())
+    assert d["status"] == "stalled"
+    assert independent_check(d)["max_rel"] == pytest.approx(fake.max_relative_error)
+    assert len(err) == 1 and "NOT in equilibrium" in err[0] and "try" in err[0]
+
+
+# ------------------------------------------------------------------------- bad input
+def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
+    (tmp / "garbage.obj").write_text("this is not a mesh\n\x00\x01 binary junk\n")
+    (tmp / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 2 4 3\n")
+    (tmp / "nosup.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 2 4 3\n")
+    return {
+        "missing file": ([str(tmp / "missing.obj"), "--supports", "boundary"], "no such file"),
+        "garbage file": ([str(tmp / "garbage.obj"), "--supports", "boundary"], "garbage.obj"),
+        "NaN coordinate": ([str(tmp / "nan.obj"), "--supports", "boundary"], "nan"),
+        "no supports": ([str(tmp / "nosup.obj")], "supports"),
+    }
+
+
+@pytest.mark.parametrize("case", ["missing file", "garbage file", "NaN coordinate", "no supports"])
+def test_bad_input_in_process_one_line_exit_2_output_kept(case, tmp_path, capsys):
+    args, needle = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "existing.json"
+    out.write_text("precious")
+    code = cli.main(["solve", *args, "--out", str(out)])
+    cap = capsys.readouterr()
+    assert_one_line_error(cap.err, code, 2, needle=needle)
+    assert out.read_text() == "precious"
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("case", ["NaN coordinate", "no supports"])
+def test_bad_input_in_a_real_process(case, tmp_path):
+    args, needle = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "existing.json"
+    out.write_text("precious")
+    p = run_cli("solve", *args, "--out", str(out))
+    assert_one_line_error(p.stderr, p.returncode, 2, needle=needle)
+    assert p.stdout == ""
+    assert out.read_text() == "precious"
+
+
+@pytest.mark.parametrize("argv, needle, code", [
+    (["solve", "shape:dome:100"], "--out", 2),                               # missing option
+    (["frobnicate"], "invalid choice", 2),                                   # unknown command
+    (["solve", "shape:dome:100", "--out", "x.json", "--density", "-1"], "positive", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--max-iter", "1.5"], "integer", 2),
+    (["solve", "shape:nope", "--out", "x.json"], "unknown shape", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--backend", "nope"], "unknown backend", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--up", "w"], "up", 2),
+    (["check", "missing.json"], "no such file", 2),
+])
+def test_usage_errors_are_one_line(argv, needle, code, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc = cli.main(argv)
+    assert_one_line_error(capsys.readouterr().err, rc, code, needle=needle)
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_out_that_is_a_directory_fails_before_solving(tmp_path, capsys, monkeypatch):
+    from selfsupport import api
+
+    monkeypatch.setattr(api, "solve", lambda *a, **k: pytest.fail("solved although the output is unwritable"))
+    rc = cli.main(["solve", "shape:dome:100", "--out", str(tmp_path)])
+    assert_one_line_error(capsys.readouterr().err, rc, 2, needle="directory")
+
+
+def test_unexpected_exception_one_line_exit_1_and_debug_reraises(capsys, monkeypatch, tmp_path):
+    from selfsupport import api
+
+    def boom(*a, **k):
+        raise RuntimeError("kaboom\nsecond line")
+
+    monkeypatch.setattr(api, "solve", boom)
+    out = tmp_path / "x.json"
+    rc = cli.main(["solve", "shape:dome:100", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "kaboom second line" in err[0] and "--debug" in err[0]
+    with pytest.raises(RuntimeError, match="kaboom"):
+        cli.main(["solve", "shape:dome:100", "--out", str(out), "--debug"])
+    assert not out.exists()
+
+
+def test_keyboard_interrupt_exit_130_nothing_written(capsys, monkeypatch, tmp_path):
+    from selfsupport import api
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "solve", interrupted)
+    out = tmp_path / "x.json"
+    out.write_text("precious")
+    assert cli.main(["solve", "shape:dome:100", "--out", str(out)]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted" in err[0]
+    assert out.read_text() == "precious"
+
+
+@pytest.mark.slow
+def test_sigint_in_a_real_process(tmp_path):
+    out = tmp_path / "x.json"
+    out.write_text("precious")
+    # Python keeps SIGINT ignored if its parent ignored it (background jobs of a non-interactive
+    # shell do): restore the default so the child gets KeyboardInterrupt as a terminal user would.
+    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:2000", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(8.0)  # imports done (even on a loaded machine), solve under way (it takes far longer)
+    assert p.poll() is None, "the solve finished before it could be interrupted; use a larger shape"
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, (p.returncode, err)
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert out.read_text() == "precious"
+    assert not [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")]
+
+
+# ------------------------------------------------------------------------------ check
+def test_check_says_self_supporting_for_a_solved_network(solved, capsys):
+    out, _ = solved
+    rc = cli.main(["check", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "self-supporting: compressive weights" in text
+    # the stored weights are evaluated as they are, too
+    stored = next(ln for ln in text.splitlines() if ln.startswith("stored weights: max relative error (stored"))
+    assert float(stored.split()[-1]) == pytest.approx(independent_check(json.loads(out.read_text()))["max_rel"],
+                                                      rel=1e-3, abs=1e-15)
+
+
+def test_check_says_not_self_supporting_when_a_vertex_sits_below_its_neighbours(solved, tmp_path, capsys):
+    """Compression can only push a vertex *up* toward neighbours above it: a vertex below all its
+    neighbours has Σ w (z_j − z_i) ≥ 0 > A_i F_i, so its relative error is at least 1."""
+    out, _ = solved
+    d = json.loads(out.read_text())
+    V = np.asarray(d["vertices"])
+    sup = np.zeros(len(V), bool)
+    sup[d["supports"]] = True
+    k = int(np.flatnonzero(~sup)[len(np.flatnonzero(~sup)) // 2])
+    nbrs = {b for a, b in d["edges"] if a == k} | {a for a, b in d["edges"] if b == k}
+    V[k, 2] = min(V[j, 2] for j in nbrs) - 0.05
+    bent = tmp_path / "bent.obj"
+    from selfsupport.mesh import PolyMesh
+
+    write_mesh(bent, PolyMesh.from_faces(V, d["faces"]))
+    (tmp_path / "sup.txt").write_text(" ".join(map(str, d["supports"])) + "\n")
+    rc = cli.main(["check", str(bent), "--supports", str(tmp_path / "sup.txt")])
+    text = capsys.readouterr().out
+    assert rc == 1
+    assert "NOT self-supporting" in text
+    row = next(ln for ln in text.splitlines() if ln.startswith("fitted weights: max relative error"))
+    assert float(row.split()[-1]) >= 1.0 - 1e-9
+
+
+def test_check_of_a_reference_that_must_move_fails(barrel_obj, capsys):
+    """The solve moved this vault's vertices (distance > 0), so as given it does not stand."""
+    rc = cli.main(["check", str(barrel_obj), "--supports", "boundary"])
+    text = capsys.readouterr().out
+    row = next(ln for ln in text.splitlines() if ln.startswith("fitted weights: max relative error"))
+    assert rc == 1 and float(row.split()[-1]) > 1e-6
+
+
+# ------------------------------------------------------------------------------- demo
+def test_demo_writes_network_and_report(tmp_path, capsys):
+    out = tmp_path / "demo"
+    rc = cli.main(["demo", "--out", str(out), "--vertices", "300", "-q"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    d = json.loads((out / "network.json").read_text())
+    chk = independent_check(d)
+    assert d["status"] == "converged" and chk["max_rel"] <= 1e-8 and chk["min_w"] >= 0
+    report = (out / "report.md").read_text()
+    # one history row per record, plus the summary with the written error
+    rows = [ln for ln in report.splitlines() if ln.startswith("| ") and ln.split("|")[1].strip().isdigit()]
+    assert len(rows) == sum(1 for h in d["history"] if isinstance(h["iteration"], int))
+    assert f"{d['max_relative_error']:.3e}" in report and "| polish |" in report
+    assert "pillar_vault" in text and "converged" in text
+
+
+@pytest.mark.slow
+def test_default_demo_is_fast_and_converges(tmp_path):
+    t0 = time.perf_counter()
+    p = run_cli("demo", "--out", str(tmp_path / "d"), timeout=120)
+    elapsed = time.perf_counter() - t0
+    assert p.returncode == 0, p.stderr
+    assert elapsed < 30
+    assert independent_check(json.loads((tmp_path / "d" / "network.json").read_text()))["max_rel"] <= 1e-8
+
+
+# ----------------------------------------------------------------- registry, progress
+def test_a_registered_command_is_parsed_and_run(monkeypatch, capsys):
+    seen = {}
+
+    def add(p):
+        p.add_argument("--n", type=int, default=1)
+
+    def run(args):
+        seen["n"] = args.n
+        print("ran")
+        return 3
+
+    monkeypatch.setitem(cli.COMMANDS, "hello", cli.Command("say hello", add, run))
+    assert cli.main(["hello", "--n", "7"]) == 3
+    assert seen == {"n": 7} and capsys.readouterr().out == "ran\n"
+
+
+def test_every_plugin_module_defines_commands():
+    cmds = cli.discover_commands()
+    assert {"solve", "check", "demo"} <= set(cmds)
+    assert all(isinstance(c, cli.Command) for c in cmds.values())
+
+
+def test_progress_prints_one_line_per_record_with_its_numbers():
+    import io
+
+    from rich.console import Console
+
+    from selfsupport.progress import ProgressDisplay
+
+    buf = io.StringIO()
+    p = ProgressDisplay(console=Console(file=buf, force_terminal=True, color_system=None, width=120))
+    recs = [{"iteration": 1, "max_rel_error": 0.25, "E": 3.0, "alpha": 1.0, "beta": 0.1, "accepted": True},
+            {"iteration": 2, "max_rel_error": 0.0125, "E": 0.5, "alpha": 0.5, "beta": 0.05, "accepted": False},
+            {"iteration": "polish", "max_rel_error": 1e-13}]
+    for r in recs:
+        p(r)
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 1 + len(recs)
+    assert lines[0].split()[:3] == ["iter", "max", "rel"]
+    assert lines[2].split()[:6] == ["2", "1.25e-02", "5.00e-01", "5.00e-01", "5.00e-02", "no"]
+    assert lines[3].split()[:2] == ["polish", "1.00e-13"]
+    quiet = io.StringIO()
+    q = ProgressDisplay(console=Console(file=quiet, force_terminal=False), enabled=None)
+    q(recs[0])
+    assert quiet.getvalue() == "" and q.records == 1
+
+
+@pytest.mark.skipif(not (SHARED / "paper-scenes" / "scenes" / "vault-pillar.sss").exists(),
+                    reason="paper scenes not present")
+def test_solve_a_paper_scene(tmp_path):
+    out = tmp_path / "vp.json"
+    p = run_cli("solve", str(SHARED / "paper-scenes" / "scenes" / "vault-pillar.sss"), "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    chk = independent_check(json.loads(out.read_text()))
+    assert chk["max_rel"] <= 1e-8 and chk["min_w"] >= 0
+    assert chk["total_load"] == pytest.approx(-2000 * 0.1 * G * chk["area"], rel=1e-9)
