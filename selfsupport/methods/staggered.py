@@ -160,7 +160,9 @@ class StaggeredLinearization:
             if not np.all(np.isfinite(fit.w)):
                 return None
             rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
+            worst = np.argsort(rel)[::-1][:10]
             return {"L": Lc, "w": fit.w, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
+                    "worst_vertices": [int(v) for v in free_idx[worst]],
                     "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
                     "n_at_upper": fit.n_upper, "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
 
@@ -168,50 +170,59 @@ class StaggeredLinearization:
         A0 = weight_matrix(top, X) @ np.ones(top.m)
         b0 = load_vector(top, sc.load(L0))
         w_uniform = float(np.clip(A0 @ b0 / max(float(A0 @ A0), 1e-300), eps_s, wmax_s))
+        free_idx = np.flatnonzero(free)
         cur = refit(X, np.full(top.m, w_uniform))
         if cur is None:
             raise InfeasibleDesign("no weights can be fitted to the reference as it is (degenerate geometry, e.g. a flat "
                                    "network cannot carry vertical loads); give the surface some rise or check the mesh")
         it = 0
         rejected = 0
-        for it in range(1, opt.max_iter + 1):
-            rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
-                                   **{k: v for k, v in cur.items() if k not in ("L", "w")}}
-            if cur["max_rel_error"] <= opt.polish_tol:
-                status = "converged"
-                history.append(rec)
-                break
-            if time.perf_counter() - t_start > opt.time_limit:
-                status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
-                history.append(rec)
-                break
-            # Step 3: positions, with the weights of the current fit
-            t0 = time.perf_counter()
-            if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
-                P, _, Nrm = closest_points(X, Xref_mesh)
-            Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
-                                opt.fairness * alpha, Xref=X0, umbrella=U)
-            rec["t_positions"] = time.perf_counter() - t0
-            trial = refit(Xt, cur["w"])  # Steps 1-2 at the trial positions
-            accepted = trial is not None and trial["E"] < cur["E"]
-            rec["accepted"] = accepted
-            history.append(rec)
-            if progress:
-                progress(rec)
-            # Step 4: trust-region style schedule
-            if accepted:
-                ratio = trial["E"] / cur["E"]
-                X, cur = Xt, trial
-                beta = max(beta * opt.shrink, opt.beta_min)
-                alpha = max(alpha * min(1.0, ratio ** 0.5) * opt.shrink, opt.alpha_min)
-                rejected = 0
-            else:
-                beta *= 4.0
-                rejected += 1
-                if rejected > opt.max_rejections:
-                    status, message = "stalled", (f"no position step reduces the fit error any more "
-                                                  f"(max relative error {cur['max_rel_error']:.2e})")
+        try:
+            for it in range(1, opt.max_iter + 1):
+                rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
+                                       **{k: v for k, v in cur.items() if k not in ("L", "w")}}
+                if cur["max_rel_error"] <= opt.polish_tol:
+                    status = "converged"
+                    history.append(rec)
                     break
+                if time.perf_counter() - t_start > opt.time_limit:
+                    status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
+                    history.append(rec)
+                    break
+                # Step 3: positions, with the weights of the current fit
+                t0 = time.perf_counter()
+                if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
+                    P, _, Nrm = closest_points(X, Xref_mesh)
+                Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
+                                    opt.fairness * alpha, Xref=X0, umbrella=U)
+                rec["t_positions"] = time.perf_counter() - t0
+                trial = refit(Xt, cur["w"])  # Steps 1-2 at the trial positions
+                accepted = trial is not None and trial["E"] < cur["E"]
+                rec["accepted"] = accepted
+                history.append(rec)
+                if progress:
+                    progress(rec)
+                # Step 4: trust-region style schedule
+                if accepted:
+                    ratio = trial["E"] / cur["E"]
+                    X, cur = Xt, trial
+                    beta = max(beta * opt.shrink, opt.beta_min)
+                    alpha = max(alpha * min(1.0, ratio ** 0.5) * opt.shrink, opt.alpha_min)
+                    rejected = 0
+                else:
+                    beta *= 4.0
+                    rejected += 1
+                    if rejected > opt.max_rejections:
+                        status, message = "stalled", (f"no position step reduces the fit error any more "
+                                                      f"(max relative error {cur['max_rel_error']:.2e})")
+                        break
+        except KeyboardInterrupt:  # Ctrl-C: stop cleanly with the best network so far
+            status, message = "interrupted", "interrupted by the user; the network is the best one so far"
+
+        if status not in ("converged", "interrupted"):
+            message = (f"{message or status}; vertices hardest to balance: {cur['worst_vertices'][:5]} "
+                       f"(max relative fit error {cur['max_rel_error']:.2e}); try more supports there, a larger "
+                       "w_max, a pillar, or more iterations").lstrip("; ")
         # final fit with (almost) no proximal pull, so that the polish moves the geometry as
         # little as the data allow (an input already in equilibrium comes back unchanged)
         last = refit(X, cur["w"], opt.prox_w_final)
