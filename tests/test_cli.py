@@ -276,7 +276,7 @@ def test_sigint_in_a_real_process(tmp_path):
     out.write_text("precious")
     # Python keeps SIGINT ignored if its parent ignored it (background jobs of a non-interactive
     # shell do): restore the default so the child gets KeyboardInterrupt as a terminal user would.
-    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:2000", "--out", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:5000", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(8.0)  # imports done (even on a loaded machine), solve under way (it takes far longer)
@@ -285,7 +285,13 @@ def test_sigint_in_a_real_process(tmp_path):
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130, (p.returncode, err)
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert out.read_text() == "precious"
+    # either interrupted before anything was written (old file intact) or the solver stopped
+    # cleanly and wrote its best network so far, labelled as such — never a half-written file
+    text = out.read_text()
+    if text != "precious":
+        net = json.loads(text)
+        assert net["status"] == "interrupted"
+        assert independent_check(net)["max_rel"] <= 1e-8
     assert not [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")]
 
 
