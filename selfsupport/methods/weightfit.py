@@ -112,7 +112,8 @@ class _Factor:
 
 
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
-                tol: float, max_iter: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
+                tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
     """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
 
     One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
@@ -120,19 +121,30 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
     """
     fin = np.isfinite(upper)
     span = np.where(fin, upper - lower, np.inf)
-    # Mehrotra-style start: the unconstrained minimiser, pushed well inside the box
-    w = _factor(Q).solve(c)
-    if not np.all(np.isfinite(w)):
-        w = np.asarray(w0, float).copy()
-    dist = np.abs(w - np.clip(w, lower, upper))
-    scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
-    push = np.minimum(0.1 * scale_w + dist, 0.25 * span)
-    w = np.clip(w, lower + push, np.where(fin, upper - push, np.inf))
-    g = Q @ w - c
     gs = max(float(np.abs(c).max()), 1e-300)
-    gm = max(float(np.median(np.abs(g))), 1e-3 * gs)
-    z = np.maximum(g, 0) + gm
-    y = np.where(fin, np.maximum(-g, 0) + gm, 0.0)
+    if warm is not None and warm[0].shape == c.shape:
+        # warm start near the previous solution and its multipliers, nudged off the bounds
+        w, z_prev = warm
+        scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
+        push = np.minimum(1e-2 * scale_w, 0.25 * span)
+        w = np.clip(w, lower + push, np.where(fin, upper - push, np.inf))
+        g = Q @ w - c
+        gm = max(float(np.median(np.abs(g))), 1e-3 * gs)
+        z = np.maximum(np.maximum(z_prev, g), 0) + 1e-2 * gm
+        y = np.where(fin, np.maximum(-g, 0) + 1e-2 * gm, 0.0)
+    else:
+        # Mehrotra-style start: the unconstrained minimiser, pushed well inside the box
+        w = _factor(Q).solve(c)
+        if not np.all(np.isfinite(w)):
+            w = np.asarray(w0, float).copy()
+        dist = np.abs(w - np.clip(w, lower, upper))
+        scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
+        push = np.minimum(0.1 * scale_w + dist, 0.25 * span)
+        w = np.clip(w, lower + push, np.where(fin, upper - push, np.inf))
+        g = Q @ w - c
+        gm = max(float(np.median(np.abs(g))), 1e-3 * gs)
+        z = np.maximum(g, 0) + gm
+        y = np.where(fin, np.maximum(-g, 0) + gm, 0.0)
     n_con = w.size + int(fin.sum())
     it = 0
     for it in range(1, max_iter + 1):
@@ -202,9 +214,11 @@ class ActiveSetFit(WeightFitBackend):
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         self._active: tuple[np.ndarray, np.ndarray] | None = None
+        self._ipm_warm: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._active = None
+        self._ipm_warm = None
 
     def fit(self, *, A, b, lower, upper, w0, prox=0.0):
         t0 = time.perf_counter()
@@ -217,7 +231,8 @@ class ActiveSetFit(WeightFitBackend):
         if self._active is not None and self._active[0].shape == w0.shape:
             w, it, status = self._pdas(Q, c, lower, upper, *self._active)
         if status != "optimal":
-            wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, self.options["tol"], self.options["max_ipm"])
+            wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, self.options["tol"],
+                                                   self.options["max_ipm"], warm=self._ipm_warm)
             # crossover: bounds whose multiplier dominates their slack start PDAS
             ws = max(float(np.median(np.abs(wi))), 1e-300)
             gs = max(float(np.abs(c).max()), 1e-300)
@@ -229,6 +244,7 @@ class ActiveSetFit(WeightFitBackend):
         w = np.clip(w, lower, upper)
         g = Q @ w - c
         self._active = ((w <= lower) & (g > 0), (w >= upper) & (g < 0))
+        self._ipm_warm = (w, np.maximum(g, 0.0))
         return WeightFit(w=w, objective=_objective(A, b, w), iterations=it, status=status,
                          seconds=time.perf_counter() - t0, n_lower=int(np.sum(w <= lower)),
                          n_upper=int(np.sum(w >= upper)))
