@@ -244,6 +244,9 @@ class StaggeredLinearization:
         history.append(final)
         if progress:
             progress(final)
+        if status not in ("converged",) and polish_move > opt.polish_tol:
+            message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
+                        "of the bounding-box diagonal, so this network may be far from the design")
         if status == "converged" and not final["max_rel_error"] <= opt.tol:
             status, message = "stalled", f"polished network has max relative error {final['max_rel_error']:.2e} > tol {opt.tol:g}"
         return SolveResult.build(
