@@ -2,6 +2,7 @@
 #   make demo        create .venv, install the project, solve the built-in demo -> demo-out/
 #   make test        create .venv, install with the test extra, run the fast test suite
 #   make test-slow   run the tests marked slow
+#   make fuzz        property-based fuzzing with the large hypothesis profile
 #   make clean       remove .venv, stamps and demo output
 # Installs are stamp-file based: they rerun only when pyproject.toml changes.
 
@@ -11,7 +12,7 @@ BIN    := $(VENV)/bin
 STAMP_RUN  := $(VENV)/.installed-run
 STAMP_TEST := $(VENV)/.installed-test
 
-.PHONY: demo test test-slow test-all clean venv
+.PHONY: demo test test-slow test-all fuzz clean venv
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +38,9 @@ test-slow: $(STAMP_TEST)
 
 test-all: $(STAMP_TEST)
 	$(BIN)/pytest -q
+
+fuzz: $(STAMP_TEST)
+	HYPOTHESIS_PROFILE=fuzz $(BIN)/pytest -q tests/test_fuzz.py --hypothesis-show-statistics
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache

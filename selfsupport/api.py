@@ -37,6 +37,7 @@ from .loads import G, LoadCase, SelfWeight, with_scene_extras
 from .mesh import PolyMesh
 from .result import Network, SolveResult
 from .scene import Scene
+from .validate import validate_scene
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport",
            "as_scene", "scene_loads", "fit_weights", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
@@ -227,15 +228,23 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     Returns
     -------
     SolveResult
-        Its ``parameters`` gain ``"loads"`` (the self-weight model) so the file can be re-checked.
+        Its ``parameters`` gain ``"loads"`` (the self-weight model) so the file can be re-checked,
+        and ``"input_issues"``: the warnings of :func:`~selfsupport.validate.validate_scene` as dicts.
+
+    Raises
+    ------
+    MeshError, SupportError, InputError
+        Unusable input (see :func:`~selfsupport.validate.validate_scene`), before any solving.
     """
     scene = as_scene(scene_or_path, supports=supports, up=up)
+    issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
     loads = scene_loads(scene, density=density, thickness=thickness)
     solver = make_method(method, backend)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     result = solver.solve(scene, loads, eps=eps, w_max=w_max, progress=progress, **stops)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
-    return replace(result, parameters={**result.parameters, "loads": load_model})
+    return replace(result, parameters={**result.parameters, "loads": load_model,
+                                       "input_issues": [i.as_dict() for i in issues]})
 
 
 # -------------------------------------------------------------------------------- check

@@ -41,8 +41,18 @@ def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     """
     import trimesh
 
-    tm = trimesh.Trimesh(reference.vertices, triangulate(reference), process=False)
-    return tm.nearest.on_surface(np.asarray(points, float))[1]
+    from .geometry import bbox_diagonal
+
+    # trimesh's proximity query has absolute tolerances: work in units of the diagonal
+    V = reference.vertices
+    c, D = V.mean(axis=0), max(bbox_diagonal(V), 1e-300)
+    tm = trimesh.Trimesh((V - c) / D, triangulate(reference), process=False)
+    P = (np.asarray(points, float) - c) / D
+    ok = np.all(np.isfinite(P), axis=1)
+    d = np.full(len(P), np.inf)
+    if ok.any():
+        d[ok] = tm.nearest.on_surface(P[ok])[1]
+    return d * D
 
 
 def closest_points(points: np.ndarray, reference: PolyMesh, *, candidates: int = 12

@@ -184,6 +184,10 @@ def _numbers(src: Source, d: dict, key: str, *, integer: bool, width: int | None
     shape = "a list of numbers" if width is None else f"a list of [{', '.join('xyz'[:width] if width == 3 else 'ij')}] lists"
     if not isinstance(value, list):
         raise src.error(f"key {key!r} is a JSON {type(value).__name__}, not a list", f"write {shape}")
+    if any(isinstance(x, bool) for x in (value if width is None else (y for row in value if isinstance(row, list) for y in row))):
+        # numpy would silently read true/false as 1/0 among numbers
+        raise src.error(f"key {key!r} contains true/false where {'integers' if integer else 'numbers'} are expected",
+                        f"write {shape}")
     try:
         a = np.asarray(value)
     except (ValueError, OverflowError):

@@ -231,29 +231,45 @@ class StaggeredLinearization:
         # Polish: weights frozen, positions exact, loads consistent
         t0 = time.perf_counter()
         Xp, L, load_rounds = _polish(top, X, w, loads, mesh0, sc)
-        polish_move = float(np.linalg.norm(Xp - X, axis=1).max())
-        X = Xp
-        V = sc.pos_back(X)
-        V[scene.supports] = mesh0.vertices[scene.supports]  # exactly, not through the scaling round trip
-        weights = np.zeros(mesh0.n_edges)
-        weights[active] = sc.weight_back(w)
-        net = Network(mesh=mesh0.with_vertices(V), weights=weights, loads=loads.nodal(mesh0, V),
-                      supports=scene.supports, reference=mesh0, handles=scene.handles)
+        polish_move = float(np.linalg.norm(Xp - X, axis=1).max()) if np.all(np.isfinite(Xp)) else np.inf
+        net = self._network(scene, sc, Xp, w, loads) if np.isfinite(polish_move) else None
+        err = net.max_relative_error() if net is not None else np.inf
         final = {"iteration": "polish", "t_polish": time.perf_counter() - t0, "load_rounds": load_rounds,
-                 "polish_max_move": polish_move, "max_rel_error": net.max_relative_error()}
+                 "polish_max_move": polish_move, "max_rel_error": err, "kept": True}
+        if status != "converged" and not (np.isfinite(err) and err <= min(cur["max_rel_error"], 1.0)):
+            # from a poor fit the exact solve can land anywhere (even collapse): keep the last
+            # iterate, labelled by its status, rather than a "polished" network that is worse
+            final["kept"] = False
+            net = self._network(scene, sc, X, w, loads)
+            message += "; the final polish did not improve the network, so the last iterate is returned (not in equilibrium)"
+        elif status != "converged" and polish_move > opt.polish_tol:
+            message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
+                        "of the bounding-box diagonal, so this network may be far from the design")
         history.append(final)
         if progress:
             progress(final)
-        if status not in ("converged",) and polish_move > opt.polish_tol:
-            message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
-                        "of the bounding-box diagonal, so this network may be far from the design")
-        if status == "converged" and not final["max_rel_error"] <= opt.tol:
-            status, message = "stalled", f"polished network has max relative error {final['max_rel_error']:.2e} > tol {opt.tol:g}"
+        if status == "converged" and not err <= opt.tol:
+            worst = np.argsort(net.relative_errors())[::-1][:5]
+            status, message = "stalled", (
+                f"the polished network has max relative error {err:.2e} > tol {opt.tol:g}; vertices hardest to "
+                f"balance: {[int(v) for v in free_idx[worst]]}; try more supports there, a larger w_max, or a pillar")
         return SolveResult.build(
             net, status=status, method=self.name, backend=self.backend.name, iterations=it,
             wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
             parameters={**asdict(opt), "eps": sc.weight_back(eps_s), "w_max": w_max,
                         "scaling": asdict(sc)})
+
+
+    @staticmethod
+    def _network(scene: Scene, sc: Scaling, X: np.ndarray, w: np.ndarray, loads: LoadCase) -> Network:
+        """The network in SI units: supports exactly where the design put them, loads of its geometry."""
+        mesh0 = scene.mesh
+        V = sc.pos_back(X)
+        V[scene.supports] = mesh0.vertices[scene.supports]  # exactly, not through the scaling round trip
+        weights = np.zeros(mesh0.n_edges)
+        weights[scene.active_edges] = sc.weight_back(w)
+        return Network(mesh=mesh0.with_vertices(V), weights=weights, loads=loads.nodal(mesh0, V),
+                       supports=scene.supports, reference=mesh0, handles=scene.handles)
 
 
 def _umbrella(top: Topology, mesh) -> sp.csr_matrix:

@@ -1,0 +1,456 @@
+"""Scene-level checks run before a solve: what makes an input unusable, and what is unusual.
+
+A design tool is fed meshes from modelling software. :func:`validate_scene` looks at a
+:class:`~selfsupport.scene.Scene` once, up front, and
+
+* **raises** a named exception (:class:`~selfsupport.errors.MeshError`,
+  :class:`~selfsupport.errors.SupportError`, :class:`~selfsupport.errors.InputError`) for a
+  problem no method can get past — the message says what is wrong, where, and what to do;
+* **returns** :class:`Issue` warnings for inputs that are legal but deserve a word: the solve
+  runs, the warning says what the result will look like and how to avoid it.
+
+The checks live in :data:`CHECKS` (code -> function ``(scene, ctx) -> list[Issue]``); they run in
+that order and stop at the first check that finds an error, because the later ones assume a
+usable mesh. What each code means:
+
+Errors (raised)
+    ``mesh``          :meth:`PolyMesh.problems`: no faces, NaN/inf, index out of range,
+                      non-manifold edge or vertex, inconsistent orientation, unreferenced vertices.
+    ``scale``         coordinates beyond ±1e100 m or all vertices in one point: areas and loads
+                      would overflow or vanish. Below that the methods are scale-free (scenes
+                      1e-6 m and 1e6 m across are tested).
+    ``supports``      no supports, every vertex a support, a component without supports
+                      (:meth:`Scene.check_supports`).
+    ``extra_loads``   NaN/inf in the scene's extra masses or point loads.
+    ``top_view``      the surface faces down on at least :data:`FOLD_FRACTION` of its top view:
+                      not a roof over the ground plane, almost always a wrong vertical axis.
+
+Warnings (returned)
+    ``duplicate_vertices``  vertices closer than :data:`COINCIDENT` × bbox diagonal (a crack, or a
+                            zero-length edge). The methods cope (they move them apart) but the
+                            mesh was probably meant to be welded.
+    ``zero_area_faces``     faces of (almost) zero area; they carry no load and their edges add
+                            weights that nothing determines.
+    ``non_planar_faces``    polygons whose corners are off their best-fit plane; the network lives
+                            on the edges and does not care, the loads use the centroid-fan area.
+    ``overhang``            faces facing down in the top view, or a top view that covers itself
+                            (layers); the staggered and IPOPT solves work in 3D, but the Airy stress
+                            surface, the reciprocal diagram and the §2.5 construction need a height field.
+    ``cannot_stand_as_is``  free vertices no compressive network can balance where they are (not
+                            higher than any neighbour, or all neighbours on one side in the top view):
+                            the solve has to move them, or they need a support.
+    ``precision``           coordinates far from the origin compared with the object's size.
+
+Example
+-------
+>>> from selfsupport.shapes import make_shape
+>>> [i.code for i in validate_scene(make_shape("dome", n_vertices=100))]
+[]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from .errors import InputError, MeshError, SelfSupportError, SupportError
+from .geometry import bbox_diagonal, face_areas
+from .mesh import PolyMesh
+from .scene import Scene
+
+__all__ = ["Issue", "CHECKS", "ISSUE_CODES", "validate_scene", "scene_issues", "top_view_areas", "top_view_winding",
+           "unbalanceable_vertices", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT"]
+
+#: Vertices closer than this fraction of the bounding-box diagonal coincide.
+COINCIDENT = 1e-10
+#: Faces with less than this fraction of the median face area have zero area.
+ZERO_AREA = 1e-10
+#: Polygon corners further than this fraction of the face's size from its best-fit plane make
+#: it non-planar (well above the 1e-15 round-off of CAD output, well below any visible warp).
+NON_PLANAR = 1e-8
+#: Share of the top-view area facing down from which a surface is no roof (error ``top_view``).
+#: A masonry surface carrying its weight in compression faces up almost everywhere: the paper's
+#: most overhanging scene (structural, Fig. 16) faces down on 1% of its top view, a mesh read
+#: with the wrong vertical axis on ~50% (its front and back halves cancel).
+FOLD_FRACTION = 0.25
+#: Largest coordinate magnitude [m]: squares of lengths (areas) must stay far from overflow.
+COORD_LIMIT = 1e100
+#: Size / coordinate magnitude below which too few significant digits describe the shape.
+PRECISION_LIMIT = 1e-8
+#: Top-view angular gap (radians) from which a vertex's neighbours all lie on one side.
+HALF_TURN_TOL = 1e-9
+#: At most this many indices are listed in a message.
+LIST_MAX = 8
+
+
+@dataclass(frozen=True)
+class Issue:
+    """One finding of :func:`scene_issues`.
+
+    Attributes
+    ----------
+    code
+        Key of :data:`CHECKS` that found it.
+    severity
+        ``"error"`` (the input is unusable; :func:`validate_scene` raises ``error``) or ``"warning"``.
+    message
+        What is wrong, where, and what to do.
+    vertices, faces
+        The vertices / faces concerned (all of them, not only those named in the message).
+    error
+        The exception class raised for an error; ``None`` for a warning.
+    """
+
+    code: str
+    severity: str
+    message: str
+    vertices: tuple[int, ...] = ()
+    faces: tuple[int, ...] = ()
+    error: type[SelfSupportError] | None = field(default=None, compare=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON types (for the network file's ``parameters``)."""
+        return {"code": self.code, "severity": self.severity, "message": self.message,
+                "vertices": list(self.vertices), "faces": list(self.faces)}
+
+    def raise_(self) -> None:
+        """Raise the error this issue stands for (only for ``severity == "error"``)."""
+        raise (self.error or InputError)(self.message)
+
+
+def _error(code: str, message: str, cls: type[SelfSupportError], **kw: Any) -> Issue:
+    return Issue(code, "error", message, error=cls, **kw)
+
+
+def _warning(code: str, message: str, **kw: Any) -> Issue:
+    return Issue(code, "warning", message, **kw)
+
+
+def _few(idx: np.ndarray) -> str:
+    idx = np.asarray(idx).ravel()
+    head = ", ".join(str(int(i)) for i in idx[:LIST_MAX])
+    return head + (f", ... ({idx.size} in all)" if idx.size > LIST_MAX else "")
+
+
+# ------------------------------------------------------------------------- geometry
+def top_view_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
+    """Signed area of each face's projection onto the ground plane (positive: counter-clockwise
+    seen from above, i.e. the face's normal points up). Shoelace formula, exact for polygons."""
+    v = mesh.vertices if vertices is None else np.asarray(vertices, float)
+    face_of, nxt, _ = mesh._corner_data
+    a, b = v[mesh.face_vertices], v[nxt]
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    out = np.zeros(mesh.n_faces)
+    np.add.at(out, face_of, 0.5 * cross)
+    return out
+
+
+def _face_inner_points(mesh: PolyMesh, v: np.ndarray) -> np.ndarray:
+    """A top-view point inside each face: the centroid of its largest centroid-fan triangle
+    (inside the polygon whenever the polygon is star-shaped about its centroid, e.g. convex)."""
+    face_of, nxt, _ = mesh._corner_data
+    sizes = mesh.face_sizes
+    c = np.zeros((mesh.n_faces, 2))
+    np.add.at(c, face_of, v[mesh.face_vertices, :2])
+    c /= sizes[:, None]
+    p, q = v[mesh.face_vertices, :2], v[nxt, :2]
+    cf = c[face_of]
+    area = np.abs((p[:, 0] - cf[:, 0]) * (q[:, 1] - cf[:, 1]) - (p[:, 1] - cf[:, 1]) * (q[:, 0] - cf[:, 0]))
+    # the corner with the largest fan triangle in each face
+    order = np.lexsort((-area, face_of))
+    first = order[mesh.face_offsets[:-1]]
+    return (cf[first] + p[first] + q[first]) / 3.0
+
+
+def top_view_winding(mesh: PolyMesh, points: np.ndarray, vertices: np.ndarray | None = None,
+                     chunk: int = 2_000_000) -> np.ndarray:
+    """Winding number of the mesh's oriented boundary around each top-view point.
+
+    For a consistently oriented surface this is, at each point, the number of faces above it
+    facing up minus the number facing down (Stokes): 1 on a height field, 2 or more where the
+    top view covers itself. Sunday's crossing rule over the boundary half-edges, evaluated as a
+    sweep in y so the cost is (points × boundary edges crossing a horizontal line), not
+    points × boundary edges.
+    """
+    v = mesh.vertices if vertices is None else np.asarray(vertices, float)
+    pts = np.asarray(points, float).reshape(-1, 2)
+    face_of, nxt, _ = mesh._corner_data
+    on_b = mesh.boundary_edge_mask[mesh._halfedge_data["halfedge_edge"]]
+    A, B = v[mesh.face_vertices[on_b], :2], v[nxt[on_b], :2]
+    order = np.argsort(pts[:, 1], kind="stable")
+    ys = pts[order, 1]
+    lo = np.searchsorted(ys, np.minimum(A[:, 1], B[:, 1]), side="left")
+    hi = np.searchsorted(ys, np.maximum(A[:, 1], B[:, 1]), side="left")
+    counts = hi - lo
+    wind = np.zeros(len(pts), dtype=np.int64)
+    ends = np.cumsum(counts)
+    start = 0
+    while start < len(A):
+        # edges [start, stop) whose point pairs fit into one chunk (at least one edge)
+        stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + chunk, side="right")))
+        c = counts[start:stop]
+        e = np.repeat(np.arange(start, stop), c)
+        offs = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        k = order[lo[e] + offs]
+        a, b, p = A[e], B[e], pts[k]
+        left = (b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (p[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        up = a[:, 1] < b[:, 1]
+        contrib = np.where(up & (left > 0), 1, 0) - np.where(~up & (left < 0), 1, 0)
+        np.add.at(wind, k, contrib)
+        start = stop
+    return wind
+
+
+def unbalanceable_vertices(scene: Scene, vertices: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Free vertices that no compressive network (all weights > 0) can balance where they are.
+
+    Returns two index arrays:
+
+    * ``low``: not higher than any neighbour. Equation (3), Σ_j w_ij (z_j − z_i) = A_i F_i < 0,
+      needs a lower neighbour when every w_ij > 0.
+    * ``one_sided``: the top-view directions to the neighbours (vertical edges left out) leave an
+      angular gap of at least π, so they lie in a closed half-plane and equation (2),
+      Σ_j w_ij (x_j − x_i) = 0, has no solution with every w_ij > 0 — a free vertex on a straight
+      or outward-bent free boundary, a free corner.
+    """
+    mesh = scene.mesh
+    v = mesh.vertices if vertices is None else np.asarray(vertices, float)
+    n = mesh.n_vertices
+    e = mesh.edges
+    i = np.r_[e[:, 0], e[:, 1]]
+    j = np.r_[e[:, 1], e[:, 0]]
+    free = ~scene.supports
+    zmin = np.full(n, np.inf)
+    np.minimum.at(zmin, i, v[j, 2])
+    low = np.flatnonzero(free & (v[:, 2] <= zmin))
+
+    d = v[j, :2] - v[i, :2]
+    diag = bbox_diagonal(v)
+    horiz = np.hypot(d[:, 0], d[:, 1]) > COINCIDENT * diag
+    i, d = i[horiz], d[horiz]
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    order = np.lexsort((ang, i))
+    i, ang = i[order], ang[order]
+    has = np.zeros(n, bool)
+    has[i] = True
+    starts = np.searchsorted(i, np.arange(n), side="left")
+    stops = np.searchsorted(i, np.arange(n), side="right")
+    gap = np.zeros(n)
+    if ang.size:
+        inner = np.diff(ang)
+        same = i[1:] == i[:-1]
+        g = np.where(same, inner, 0.0)
+        # largest gap between consecutive directions, and the wrap-around gap
+        big = np.zeros(n)
+        np.maximum.at(big, i[1:][same], g[same])
+        wrap = np.zeros(n)
+        wrap[has] = 2 * np.pi - (ang[stops[has] - 1] - ang[starts[has]])
+        gap = np.maximum(big, wrap)
+    one_sided = np.flatnonzero(free & has & (gap >= np.pi - HALF_TURN_TOL))
+    return low, one_sided
+
+
+# ------------------------------------------------------------------------- checks
+@dataclass
+class _Context:
+    """Quantities several checks share, computed once."""
+
+    scene: Scene
+    diag: float = 0.0
+
+
+def _check_mesh(scene: Scene, ctx: _Context) -> list[Issue]:
+    problems = scene.mesh.problems()
+    if problems:
+        return [_error("mesh", p + ("" if "; " in p else "; fix the mesh in your modelling tool"), MeshError)
+                for p in problems]
+    return []
+
+
+def _check_scale(scene: Scene, ctx: _Context) -> list[Issue]:
+    v = scene.mesh.vertices
+    big = float(np.abs(v).max())
+    if big > COORD_LIMIT:
+        k = int(np.argmax(np.abs(v).max(axis=1)))
+        return [_error("scale", f"vertex {k} has a coordinate of {big:.3g} m, beyond ±{COORD_LIMIT:.0e} m where "
+                       "areas and loads overflow; check the units and the file", InputError, vertices=(k,))]
+    ctx.diag = bbox_diagonal(v)
+    if not ctx.diag > 0:
+        return [_error("scale", "all vertices lie in one point; check the units and the file", InputError)]
+    out = []
+    if ctx.diag < PRECISION_LIMIT * big:
+        out.append(_warning("precision", f"the object is {ctx.diag:.3g} m across but {big:.3g} m from the origin: "
+                            f"only ~{16 + np.log10(ctx.diag / big):.0f} significant digits describe its shape; "
+                            "translate the mesh near the origin"))
+    return out
+
+
+def _check_supports(scene: Scene, ctx: _Context) -> list[Issue]:
+    try:
+        scene.check_supports()
+    except SupportError as e:
+        return [_error("supports", str(e), SupportError)]
+    return []
+
+
+def _check_extra_loads(scene: Scene, ctx: _Context) -> list[Issue]:
+    out = []
+    for name in ("extra_mass", "point_loads"):
+        a = getattr(scene, name)
+        if a is not None and not np.isfinite(a).all():
+            k = np.flatnonzero(~np.isfinite(a))
+            out.append(_error("extra_loads", f"{name} of vertices {_few(k)} is NaN or infinite; give finite values",
+                              InputError, vertices=tuple(k.tolist())))
+    return out
+
+
+def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
+    mesh = scene.mesh
+    a = top_view_areas(mesh)
+    total = float(np.abs(a).sum())
+    area3d = float(face_areas(mesh).sum())
+    if not total > 1e-12 * area3d:
+        return []  # a vertical surface (a wall in one plane): no top view to speak of
+    up = 1.0 if a.sum() >= 0 else -1.0
+    a = up * a
+    down = a < -ZERO_AREA * float(np.median(np.abs(a)))
+    frac = float(-a[down].sum()) / total
+    if frac >= FOLD_FRACTION:
+        f = np.flatnonzero(down)
+        return [_error("top_view", f"the surface is not a roof over the ground plane: {100 * frac:.0f}% of its top "
+                       f"view faces down (faces {_few(f)}); check the vertical axis (--up z|-z|y|-y|x|-x; the "
+                       "paper's files are -y up) or cut the surface into parts that face up", MeshError,
+                       faces=tuple(f.tolist()))]
+    out = []
+    layered = np.zeros(mesh.n_faces, bool)
+    if mesh.boundary_edge_mask.any():
+        wind = top_view_winding(mesh, _face_inner_points(mesh, mesh.vertices)) * int(up)
+        layered = (wind >= 2) & ~down
+    if down.any() or layered.any():
+        f = np.flatnonzero(down | layered)
+        what = []
+        if down.any():
+            what.append(f"{int(down.sum())} faces face down ({100 * frac:.1f}% of the top view)")
+        if layered.any():
+            what.append(f"{int(layered.sum())} faces lie above or below other parts of the surface")
+        out.append(_warning("overhang", f"the top view is not one-to-one: {' and '.join(what)} (faces {_few(f)}); "
+                            "the solve works in 3D, but the Airy stress surface, the reciprocal diagram and the "
+                            "§2.5 construction need a height field", faces=tuple(f.tolist())))
+    return out
+
+
+def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(scene.mesh.vertices).query_pairs(COINCIDENT * ctx.diag, output_type="ndarray")
+    if not len(pairs):
+        return []
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    free = ~scene.supports
+    pairs = pairs[free[pairs[:, 0]] | free[pairs[:, 1]]]  # two coincident supports hold each other: harmless
+    if not len(pairs):
+        return []
+    a, b = (int(x) for x in pairs[0])
+    verts = np.unique(pairs)
+    return [_warning("duplicate_vertices", f"{len(pairs)} pairs of vertices coincide (first: {a} and {b}); they are "
+                     "separate vertices (a crack, or a zero-length edge) which the solve will pull apart; weld them "
+                     "in your modelling tool if the surface should be continuous", vertices=tuple(verts.tolist()))]
+
+
+def _check_zero_area(scene: Scene, ctx: _Context) -> list[Issue]:
+    ar = face_areas(scene.mesh)
+    bad = np.flatnonzero(ar <= ZERO_AREA * float(np.median(ar)))
+    if not bad.size:
+        return []
+    return [_warning("zero_area_faces", f"{bad.size} faces have (almost) zero area (faces {_few(bad)}): they carry "
+                     "no load and their edges' weights are not determined; remove them or fix their corners",
+                     faces=tuple(bad.tolist()))]
+
+
+def _check_planarity(scene: Scene, ctx: _Context) -> list[Issue]:
+    mesh = scene.mesh
+    v = mesh.vertices
+    sizes = mesh.face_sizes
+    worst = np.zeros(mesh.n_faces)
+    for k in np.unique(sizes[sizes > 3]):
+        f = np.flatnonzero(sizes == k)
+        idx = mesh.face_vertices[mesh.face_offsets[f][:, None] + np.arange(k)]
+        P = v[idx] - v[idx].mean(axis=1, keepdims=True)
+        s = np.linalg.svd(P, compute_uv=False)  # smallest singular value: RMS distance to the plane × √k
+        size = np.linalg.norm(P, axis=2).max(axis=1)
+        worst[f] = s[:, -1] / np.maximum(size, 1e-300)
+    bad = np.flatnonzero(worst > NON_PLANAR)
+    if not bad.size:
+        return []
+    k = int(bad[np.argmax(worst[bad])])
+    return [_warning("non_planar_faces", f"{bad.size} polygons are not planar (worst: face {k}, corners "
+                     f"{worst[k]:.1e} of its size off its plane): fine for the thrust network, which lives on the "
+                     "edges; loads use the centroid-fan area; planar panels need a planarity step",
+                     faces=tuple(bad.tolist()))]
+
+
+def _check_stand(scene: Scene, ctx: _Context) -> list[Issue]:
+    low, one_sided = unbalanceable_vertices(scene)
+    if not (low.size or one_sided.size):
+        return []
+    what = []
+    if low.size:
+        what.append(f"not higher than any neighbour: {_few(low)}")
+    if one_sided.size:
+        what.append(f"with all neighbours on one side in the top view (a free straight or convex boundary, a "
+                    f"free corner): {_few(one_sided)}")
+    verts = np.union1d(low, one_sided)
+    return [_warning("cannot_stand_as_is", "no compressive network balances these free vertices where they are, "
+                     f"so the solve must move them: {'; '.join(what)}; to keep them, support them or add a pillar",
+                     vertices=tuple(verts.tolist()))]
+
+
+#: Checks in the order they run; a check that finds an error stops the rest.
+CHECKS: dict[str, Callable[[Scene, _Context], list[Issue]]] = {
+    "mesh": _check_mesh,
+    "scale": _check_scale,
+    "supports": _check_supports,
+    "extra_loads": _check_extra_loads,
+    "top_view": _check_top_view,
+    "duplicate_vertices": _check_duplicates,
+    "zero_area_faces": _check_zero_area,
+    "non_planar_faces": _check_planarity,
+    "cannot_stand_as_is": _check_stand,
+}
+
+
+#: Every code an :class:`Issue` may carry (a check may report under more than one code).
+ISSUE_CODES = frozenset({"mesh", "scale", "precision", "supports", "extra_loads", "top_view", "overhang",
+                         "duplicate_vertices", "zero_area_faces", "non_planar_faces", "cannot_stand_as_is"})
+
+
+def scene_issues(scene: Scene) -> list[Issue]:
+    """Every issue :data:`CHECKS` finds, errors first in check order; never raises for the input.
+
+    Stops after the first check that reports an error: later checks assume what earlier ones
+    establish (a valid mesh, a finite size, supports).
+    """
+    ctx = _Context(scene)
+    out: list[Issue] = []
+    for check in CHECKS.values():
+        found = check(scene, ctx)
+        out += found
+        if any(i.severity == "error" for i in found):
+            break
+    return out
+
+
+def validate_scene(scene: Scene) -> list[Issue]:
+    """Raise for the first fatal problem of ``scene``; return the warnings.
+
+    Raises
+    ------
+    MeshError, SupportError, InputError
+        The first error :func:`scene_issues` finds (message: what, where, what to do).
+    """
+    issues = scene_issues(scene)
+    for i in issues:
+        if i.severity == "error":
+            i.raise_()
+    return issues
