@@ -271,6 +271,8 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                    help="iteration limit (staggered: outer iterations, default 200; ipopt: per load round)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit in seconds (default: the method's, 600 s staggered / 120 s ipopt)")
+    p.add_argument("--report", metavar="DIR", default=None,
+                   help="also write the figures (network, deviation, airy, reciprocal, directions, history) and view.html into DIR")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
 
 
@@ -288,6 +290,8 @@ def _run_solve(args: argparse.Namespace) -> int:
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress)
     write_network(out, result, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
+    if args.report:
+        _write_figures(result, Path(args.report), scene.name)
     if not result.converged:
         _err(_not_converged_line(result))
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
@@ -346,7 +350,7 @@ def _demo_args(p: argparse.ArgumentParser) -> None:
     from .shapes import SHAPES
 
     p.add_argument("--out", "-o", default="demo-out", metavar="DIR",
-                   help="output directory (default ./demo-out): network.json and report.md")
+                   help="output directory (default ./demo-out): network.json, report.md, figures and view.html")
     p.add_argument("--shape", choices=sorted(SHAPES), default=DEMO_SHAPE, help=f"built-in shape (default {DEMO_SHAPE})")
     p.add_argument("--vertices", type=positive_int, default=DEMO_VERTICES, metavar="N",
                    help=f"about this many vertices (default {DEMO_VERTICES})")
@@ -371,11 +375,21 @@ def _run_demo(args: argparse.Namespace) -> int:
     write_network(net_path, result, scene={"name": scene.name, "input": f"shape:{args.shape}:{args.vertices}"})
     reread = read_network(net_path).max_relative_error()
     rows = summary_rows(result, scene)
-    atomic_write_text(report_path, demo_report(result, rows, args, reread))
+    figures = _write_figures(result, out, scene.name)
+    atomic_write_text(report_path, demo_report(result, rows, args, reread) + "\n" + figures.markdown() + "\n")
     print_table(f"selfsupport demo -> {net_path}, {report_path}", rows)
     if not result.converged:
         _err(_not_converged_line(result))
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
+
+
+def _write_figures(result, directory: Path, name: str):
+    """Figures and the HTML view next to a network (``solve --report``, the demo)."""
+    from .figures.report import write_report
+
+    files = write_report(result, directory, name=name)
+    print(f"figures -> {directory}/ ({files.markdown().count('.png')} PNG, view.html)")
+    return files
 
 
 def _fmt(x: Any) -> str:

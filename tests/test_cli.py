@@ -424,3 +424,16 @@ def test_solve_a_paper_scene(tmp_path):
     chk = independent_check(json.loads(out.read_text()))
     assert chk["max_rel"] <= 1e-8 and chk["min_w"] >= 0
     assert chk["total_load"] == pytest.approx(-2000 * 0.1 * G * chk["area"], rel=1e-9)
+
+
+def test_solve_report_writes_figures_and_view(tmp_path, capsys):
+    out, rep = tmp_path / "net.json", tmp_path / "report"
+    assert cli.main(["solve", "shape:dome:150", "--out", str(out), "--report", str(rep), "-q"]) == 0
+    import matplotlib.image as mpimg
+
+    for kind in ("network", "deviation", "history"):
+        img = mpimg.imread(rep / f"{kind}.png")
+        assert img.shape[0] > 400 and img.shape[1] > 400
+        assert img[..., :3].std() > 0.05  # not a blank canvas
+    html = (rep / "view.html").read_text()
+    assert "plotly" in html.lower() and "<script src=\"http" not in html  # self-contained
