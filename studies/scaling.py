@@ -1,0 +1,357 @@
+"""How the solvers scale with mesh size, and how close the staggered method is to its floor.
+
+    python -m studies.scaling --out DIR [--sizes 1000,4000,16000,64000]
+        [--shapes concave_disk,pillar_vault] [--methods staggered,ipopt]
+        [--time-limit S] [--ipopt-time-limit S] [--no-warmup]
+
+For each generated shape (:func:`selfsupport.shapes.make_shape`) and target size one row per
+method: solve time, iterations, max relative error (recomputed from the saved JSON), distance to
+the reference, peak RSS. Each row runs in its own spawned process (peak memory is per row;
+a row that hangs is terminated). IPOPT is run from the smallest size up and stops after the
+first size that does not converge within ``--ipopt-time-limit``.
+
+The floor
+---------
+For staggered rows the worker also measures one sparse factorization:
+
+* ``factor_K_s`` — :func:`selfsupport.methods.weightfit._factor` (the project's SPD
+  factorization) of ``−K_ff``, the free-vertex block of the stress Laplacian at the final
+  weights (:func:`selfsupport.methods.assembly.position_blocks`; ``n_free × n_free``, the
+  matrix of the polish and of one coordinate of Step 3), median of 3;
+* ``factor_step3_s`` — the median time of the factorizations the solve itself made of its
+  Step-3 matrix (``3 n_free × 3 n_free``), recorded by wrapping ``_factor`` in
+  ``selfsupport.methods.staggered`` during the timed solve (a few microseconds of overhead per
+  call). When the method does not call ``_factor`` there (the lead may change that), the
+  column stays empty and ``factor_step3_like_s`` — the factorization of
+  ``kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)`` (``K_t`` = ``K_ff`` with rows over
+  ``|A_i F_i|``; the per-vertex 3×3 blocks stand for Step 3's anchor terms, which couple a
+  vertex's coordinates: the same sparsity as Step 3's matrix) — stands in;
+* ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s`` (or the
+  stand-in): how many Step-3 factorizations one outer iteration costs; 1–3 would be the floor
+  of a method that factors once per step. ``factor_share`` is the fraction of the solve spent
+  in all recorded factorizations (Step 3, polish and the active-set Step-2 fits).
+
+Writes ``scaling.csv``, ``scaling.md`` and ``scaling.png`` (log-log time and memory vs
+vertices, with the fitted exponents of ``time ∝ n^k``) into ``--out`` and prints the table.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .common import (Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
+                     median_time, peak_rss_mib, run_isolated, safe_ratio, write_csv, write_markdown)
+
+DEFAULT_SIZES = (1000, 4000, 16000, 64000)
+DEFAULT_SHAPES = ("concave_disk", "pillar_vault")
+
+
+def _staggered() -> Any:
+    from selfsupport.methods.staggered import StaggeredLinearization
+
+    return StaggeredLinearization()
+
+
+def _ipopt() -> Any:
+    from selfsupport.methods.simultaneous import Simultaneous
+
+    return Simultaneous()
+
+
+#: method name -> (factory, default time limit [s])
+METHODS: dict[str, tuple[Callable[[], Any], float]] = {
+    "staggered": (_staggered, 1200.0),
+    "ipopt": (_ipopt, 180.0),
+}
+
+
+class _FactorRecorder:
+    """Wrap a module's ``_factor`` and record (matrix size, seconds) of every call."""
+
+    def __init__(self, module: Any) -> None:
+        self.module = module
+        self.calls: list[tuple[int, float]] = []
+        self._orig = getattr(module, "_factor", None)
+
+    def __enter__(self) -> "_FactorRecorder":
+        if self._orig is not None:
+            orig = self._orig
+
+            def timed(M, *a, **kw):
+                t = time.perf_counter()
+                out = orig(M, *a, **kw)
+                self.calls.append((int(M.shape[0]), time.perf_counter() - t))
+                return out
+
+            self.module._factor = timed
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._orig is not None:
+            self.module._factor = self._orig
+
+
+def _floor_measurements(result, scene) -> dict[str, float]:
+    """Factorization times at the final weights (see the module docstring)."""
+    import scipy.sparse as sp
+
+    from selfsupport.methods.assembly import Topology, position_blocks
+    from selfsupport.methods.scaling import Scaling
+    from selfsupport.methods.weightfit import _factor
+
+    net = result.network
+    active = scene.active_edges
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[active], scene.supports)
+    sc = Scaling.of(net.vertices, net.loads, top.free)
+    w = sc.weight(np.asarray(net.weights)[active])  # scaled units, as the solver factors them
+    Kff, _ = position_blocks(top, w)
+    negK = (-Kff).tocsc()
+    s = 1.0 / np.abs(sc.load(np.asarray(net.loads))[top.free])
+    Kt = sp.diags(s) @ Kff
+    H = (Kt.T @ Kt).tocsr()
+    c = float(np.mean((negK.diagonal() * s) ** 2))
+    # + c (I + 1 1ᵀ) per vertex: Step 3's normal/tangent anchors couple a vertex's x, y, z, which
+    # makes its matrix one coupled 3n system rather than three scalar ones (same sparsity here)
+    blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) + np.eye(3))
+    M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
+    return {"factor_K_s": median_time(lambda: _factor(negK), repeat=3, budget=60.0),
+            "factor_step3_like_s": median_time(lambda: _factor(M), repeat=3, budget=120.0),
+            "n_free": top.n_free}
+
+
+def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, out_json: str,
+                warmup: bool = True) -> dict[str, Any]:
+    """Worker (own process): generate the shape, solve it, save the network, return the numbers."""
+    import selfsupport.methods.staggered as stg
+    import selfsupport.methods.weightfit as wf
+    from selfsupport.api import scene_loads
+    from selfsupport.io import write_network
+    from selfsupport.shapes import make_shape
+
+    factory = METHODS[method][0]
+    scene = make_shape(shape, n_vertices=n_vertices)
+    loads = scene_loads(scene)
+    solver = factory()
+    if warmup:  # solver plug-ins and caches, untimed
+        tiny = make_shape("dome", n_vertices=60)
+        factory().solve(tiny, scene_loads(tiny), time_limit=30.0)
+    rss0 = current_rss_mib()
+    with _FactorRecorder(stg) as rec_s, _FactorRecorder(wf) as rec_w, Stopwatch() as sw:
+        res = solver.solve(scene, loads, time_limit=float(time_limit))
+    write_network(out_json, res, study={"shape": shape, "target_vertices": n_vertices, "method": method,
+                                        "solve_seconds": sw.seconds, "time_limit": time_limit})
+    row: dict[str, Any] = {
+        "vertices": scene.mesh.n_vertices, "edges": scene.mesh.n_edges, "status": res.status, "message": res.message,
+        "time_s": sw.seconds, "iterations": res.iterations, "reported_error": res.max_relative_error,
+        "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max, "rss_before_mib": rss0,
+        "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
+    if method == "staggered":
+        nf = int(scene.free.sum())
+        step3 = [t for n, t in rec_s.calls if n == 3 * nf]
+        all_calls = rec_s.calls + rec_w.calls
+        row.update(_floor_measurements(res, scene))
+        row["factor_step3_s"] = float(np.median(step3)) if step3 else float("nan")
+        row["n_factorizations"] = len(all_calls)
+        row["factor_share"] = sum(t for _, t in all_calls) / sw.seconds if all_calls else float("nan")
+        row["peak_rss_mib"] = peak_rss_mib()
+    return row
+
+
+COLUMNS: tuple[Column, ...] = (
+    Column("shape", "shape"), Column("target", "target n"), Column("vertices", "V"), Column("edges", "E"),
+    Column("method", "method"), Column("status", "status"), Column("time_s", "time [s]", "{:.2f}"),
+    Column("iterations", "iterations", "{:d}"), Column("max_rel_error", "max rel. error", "{:.1e}"),
+    Column("reported_error", "reported error", "{:.1e}"),
+    Column("dist_ref_mean", "dist. to ref. mean", "{:.2e}"), Column("dist_ref_max", "dist. to ref. max", "{:.2e}"),
+    Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("rss_before_mib", "RSS before solve [MiB]", "{:.0f}"),
+    Column("time_per_iter_s", "time / iteration [s]", "{:.3f}"),
+    Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"), Column("factor_step3_s", "factor Step 3 [s]", "{:.4f}"),
+    Column("factor_step3_like_s", "factor Step-3-like [s]", "{:.4f}"),
+    Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
+    Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
+    Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
+)
+_BY_KEY = {c.key: c for c in COLUMNS}
+MD_COLUMNS = ("shape", "vertices", "edges", "method", "status", "time_s", "iterations", "max_rel_error",
+              "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "factor_K_s", "factor_step3_s",
+              "factor_step3_like_s", "per_iter_over_factor", "n_factorizations", "factor_share")
+FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
+               Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
+               Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
+
+
+def fitted_exponent(n: Sequence[float], y: Sequence[float]) -> float:
+    """Slope of ``log y`` against ``log n`` (least squares, ``np.polyfit``); NaN with < 2 points."""
+    n, y = np.asarray(n, float), np.asarray(y, float)
+    ok = np.isfinite(n) & np.isfinite(y) & (n > 0) & (y > 0)
+    if ok.sum() < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(n[ok]), np.log(y[ok]), 1)[0])
+
+
+def exponents(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Fitted exponents of time and of the solve's memory (peak − RSS before the solve) per
+    (shape, method), over the converged rows."""
+    out = []
+    keys = dict.fromkeys((r["shape"], r["method"]) for r in rows)
+    for shape, method in keys:
+        sel = [r for r in rows if r["shape"] == shape and r["method"] == method and r.get("status") == "converged"]
+        n = [r["vertices"] for r in sel]
+        mem = [r.get("peak_rss_mib", np.nan) - r.get("rss_before_mib", np.nan) for r in sel]
+        out.append({"shape": shape, "method": method, "sizes": ", ".join(str(v) for v in n),
+                    "time_exponent": fitted_exponent(n, [r["time_s"] for r in sel]),
+                    "memory_exponent": fitted_exponent(n, mem)})
+    return out
+
+
+def plot(rows: Sequence[dict[str, Any]], fits: Sequence[dict[str, Any]], path: Path) -> None:
+    """Log-log time and peak RSS against vertices, one line per (shape, method)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_t, ax_m) = plt.subplots(1, 2, figsize=(11, 4.2))
+    k_of = {(f["shape"], f["method"]): f["time_exponent"] for f in fits}
+    for (shape, method) in dict.fromkeys((r["shape"], r["method"]) for r in rows):
+        sel = sorted((r for r in rows if r["shape"] == shape and r["method"] == method and r.get("time_s")),
+                     key=lambda r: r["vertices"])
+        if not sel:
+            continue
+        n = np.array([r["vertices"] for r in sel], float)
+        t = np.array([r["time_s"] for r in sel], float)
+        conv = np.array([r.get("status") == "converged" for r in sel])
+        k = k_of.get((shape, method), float("nan"))
+        line, = ax_t.loglog(n, t, "-", label=f"{shape} / {method} (k = {k:.2f})")
+        ax_t.loglog(n[conv], t[conv], "o", color=line.get_color())
+        ax_t.loglog(n[~conv], t[~conv], "x", color=line.get_color(), markersize=9)
+        ax_m.loglog(n, [r.get("peak_rss_mib", np.nan) for r in sel], "o-", color=line.get_color(),
+                    label=f"{shape} / {method}")
+    nn = np.array([1e3, 6.4e4])
+    ax_t.loglog(nn, 60.0 * (nn / 6.4e4) ** 1.2, "k:", label="n^1.2 through 60 s at 64k (target)")
+    ax_t.set_xlabel("vertices")
+    ax_t.set_ylabel("solve time [s]")
+    ax_t.set_title("time (o converged, x not)")
+    ax_m.axhline(2048, color="k", ls=":", label="2 GiB (target)")
+    ax_m.set_xlabel("vertices")
+    ax_m.set_ylabel("peak RSS of the row's process [MiB]")
+    ax_m.set_title("memory")
+    for ax in (ax_t, ax_m):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], methods: Sequence[str],
+                time_limits: dict[str, float], warmup: bool = True, echo: Callable[[str], None] = print,
+                on_row: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+    """Every (shape, size, method) row, each in its own process; ``on_row(rows)`` after each
+    (the CLI rewrites the outputs, so an interrupted run keeps its finished rows)."""
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    for shape in shapes:
+        for method in methods:
+            given_up: str | None = None
+            for n in sorted(sizes):
+                tl = time_limits[method]
+                base = {"shape": shape, "target": n, "method": method, "time_limit_s": tl}
+                if given_up:
+                    rows.append({**base, "status": "skipped", "message": given_up})
+                    continue
+                out_json = out / f"{shape}-{n}__{method}.json"
+                out_json.unlink(missing_ok=True)
+                echo(f"[{time.strftime('%H:%M:%S')}] {shape} n≈{n} {method} (time limit {tl:g} s) ...")
+                r = run_isolated("studies.scaling:scaling_row",
+                                 {"shape": shape, "n_vertices": n, "method": method, "time_limit": tl,
+                                  "out_json": str(out_json), "warmup": warmup},
+                                 hard_timeout=2.0 * tl + 300.0)
+                r.update(base)
+                if out_json.is_file():
+                    r["max_rel_error"] = json_max_relative_error(out_json)
+                r["time_per_iter_s"] = safe_ratio(r.get("time_s"), r.get("iterations"))
+                step3 = r.get("factor_step3_s")
+                if step3 is None or not np.isfinite(step3):
+                    step3 = r.get("factor_step3_like_s")
+                r["per_iter_over_factor"] = safe_ratio(r.get("time_per_iter_s"), step3)
+                echo(f"    {r.get('status')}: {r.get('vertices', '?')} V, time {r.get('time_s', float('nan')):.2f} s, "
+                     f"{r.get('iterations', '-')} it, error {r.get('max_rel_error', float('nan')):.2e}, "
+                     f"peak RSS {r.get('peak_rss_mib', float('nan')):.0f} MiB"
+                     + (f" — {r['message']}" if r.get("message") else ""))
+                rows.append(r)
+                if on_row is not None:
+                    on_row(rows)
+                if method != "staggered" and r.get("status") != "converged":
+                    given_up = f"{method} did not converge at n≈{n} ({r.get('status')}); larger sizes not tried"
+    return rows
+
+
+def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
+    fits = exponents(rows)
+    write_csv(out / "scaling.csv", rows, COLUMNS)
+    write_csv(out / "scaling_exponents.csv", fits, FIT_COLUMNS)
+    plot(rows, fits, out / "scaling.png")
+    notes = [
+        "Times are the `solve()` call alone (process start-up, imports, mesh generation and a warm-up solve of "
+        "a tiny dome excluded); each row runs in its own spawned process, so *peak RSS* is that row's "
+        "(interpreter and imports included; *RSS before solve* is the level the solve started from).",
+        "*max rel. error* recomputed with plain numpy from the saved JSON network.",
+        "Floor: *factor −K_ff* = one SPD factorization (`weightfit._factor`) of the free-vertex stress "
+        "Laplacian at the final weights; *factor Step 3* = median of the solve's own factorizations of its "
+        "3n_free×3n_free Step-3 matrix (recorded by wrapping `staggered._factor`); *Step-3-like* = "
+        "`kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)` (same sparsity) when that recording is empty; *iteration / Step-3 "
+        "factorization* = (time / iterations) / Step-3 factorization time; *share in factorizations* = time "
+        "in all recorded factorizations (Step 3, polish, active-set Step 2) / solve time.",
+        "IPOPT is not tried at sizes above the first one where it does not converge within its time limit.",
+        f"Load average at the end (1/5/15 min): {load_average()} — shared machine, timings are noisy.",
+    ]
+    return write_markdown(out / "scaling.md", "Scaling study", notes,
+                          [("Rows", rows, [_BY_KEY[k] for k in MD_COLUMNS]),
+                           ("Fitted exponents (converged rows)", fits, list(FIT_COLUMNS))])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m studies.scaling", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True, type=Path, help="output folder (scaling.csv, .md, .png, networks)")
+    p.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)), help="comma-separated target vertex counts")
+    p.add_argument("--shapes", default=",".join(DEFAULT_SHAPES), help="comma-separated make_shape names")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from {', '.join(METHODS)}")
+    p.add_argument("--time-limit", type=float, default=METHODS["staggered"][1],
+                   help="staggered time limit per row [s]")
+    p.add_argument("--ipopt-time-limit", type=float, default=METHODS["ipopt"][1], help="IPOPT time limit per row [s]")
+    p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve in each row process")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """Run the study; returns the rows (also written to ``--out``)."""
+    a = build_parser().parse_args(argv)
+    sizes = [int(s) for s in a.sizes.split(",") if s]
+    shapes = [s for s in a.shapes.split(",") if s]
+    methods = [m for m in a.methods.split(",") if m]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    from selfsupport.shapes import SHAPES
+
+    bad = [s for s in shapes if s not in SHAPES]
+    if bad:
+        raise SystemExit(f"unknown shape(s) {bad}; choose from {', '.join(sorted(SHAPES))}")
+    rows = run_scaling(out=a.out.resolve(), shapes=shapes, sizes=sizes, methods=methods,
+                       time_limits={"staggered": a.time_limit, "ipopt": a.ipopt_time_limit}, warmup=not a.no_warmup,
+                       on_row=lambda rs: write_outputs(rs, a.out))
+    md = write_outputs(rows, a.out)
+    print(md)
+    print(f"written: {a.out / 'scaling.csv'}, {a.out / 'scaling.md'}, {a.out / 'scaling.png'}")
+    return rows
+
+
+if __name__ == "__main__":  # pragma: no cover
+    exit_on_sigterm()  # a killed study stops its running solver process too
+    main(sys.argv[1:])
