@@ -285,27 +285,14 @@ def fit_weights(scene: Scene, loads: np.ndarray, *, eps: float | None = None, w_
     rows divided by ``|A_i F_i|``, the default ``eps`` of
     :func:`~selfsupport.methods.scaling.default_eps`, and the same small proximal term.
     """
-    from .methods.assembly import Topology, load_vector, weight_matrix
-    from .methods.scaling import Scaling, default_eps
+    from .methods.assembly import load_vector, weight_matrix
+    from .methods.scaling import ScaledProblem
     from .methods.staggered import StaggeredOptions
     from .methods.weightfit import make_backend
 
-    mesh = scene.mesh
-    active = scene.active_edges
-    top = Topology.build(mesh.n_vertices, mesh.edges[active], scene.supports)
+    prob = ScaledProblem.build(scene, loads, eps=eps, w_max=w_max)
+    top, sc, X, L, lower, upper = prob.top, prob.scaling, prob.X, prob.L, prob.lower, prob.upper
     free = top.free
-    loads = np.asarray(loads, float)
-    if np.any(loads[free] >= 0):
-        k = int(np.flatnonzero(free & (loads >= 0))[0])
-        raise InputError(f"vertex {k} carries no downward load (zero area?); remove degenerate faces or add a load there")
-    sc = Scaling.of(mesh.vertices, loads, free)
-    X = sc.pos(mesh.vertices)
-    L = sc.load(loads)
-    eps_s = default_eps(X, top.edges) if eps is None else float(sc.weight(float(eps)))
-    wmax_s = np.inf if w_max is None else float(sc.weight(float(w_max)))
-    if not eps_s < wmax_s:
-        raise InputError(f"w_max ({w_max}) must exceed the lower weight bound ({sc.weight_back(eps_s):.3g} N/m)")
-    lower, upper = np.full(top.m, eps_s), np.full(top.m, wmax_s)
     A = weight_matrix(top, X)
     s = np.repeat(1.0 / np.abs(L[free]), 3)
     As = sp.diags(s) @ A
@@ -333,7 +320,7 @@ def fit_weights(scene: Scene, loads: np.ndarray, *, eps: float | None = None, w_
     if rel.size and rel.max() > REFINED:
         w, rel = _refine(As, bs, w, lower, upper, rel)
     return WeightFitReport(weights=sc.weight_back(w), relative_errors=rel, E=float(rel @ rel),
-                           eps=float(sc.weight_back(eps_s)), n_at_lower=int(np.sum(w <= lower)),
+                           eps=float(sc.weight_back(lower[0])), n_at_lower=int(np.sum(w <= lower)),
                            n_at_upper=int(np.sum(w >= upper)),
                            status=fit.status, iterations=iterations)
 

@@ -42,7 +42,7 @@ from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .assembly import Topology, load_vector, position_blocks, weight_matrix
-from .scaling import Scaling, default_eps
+from .scaling import Scaling, ScaledProblem
 from .weightfit import WeightFitBackend, _factor, make_backend
 
 
@@ -113,24 +113,12 @@ class StaggeredLinearization:
         scene.check_supports()
         loads = with_scene_extras(loads if loads is not None else SelfWeight(), scene)
         mesh0 = scene.mesh
-        n = mesh0.n_vertices
-        active = scene.active_edges
-        top = Topology.build(n, mesh0.edges[active], scene.supports)
-        free = top.free
-
         L0 = loads.nodal(mesh0, mesh0.vertices)
-        if np.any(L0[free] >= 0):
-            k = int(np.flatnonzero(free & (L0 >= 0))[0])
-            raise InputError(f"vertex {k} carries no downward load (zero area?); remove degenerate faces or add a load there")
-        sc = Scaling.of(mesh0.vertices, L0, free)
-        X = sc.pos(mesh0.vertices)
+        prob = ScaledProblem.build(scene, L0, eps=eps, w_max=w_max)
+        top, sc, X, lower, upper = prob.top, prob.scaling, prob.X, prob.lower, prob.upper
+        free = top.free
+        eps_s, wmax_s = float(lower[0]), float(upper[0])  # scalar bounds (every scene has active edges)
         Xref_mesh = mesh0.with_vertices(X)
-        eps_s = default_eps(X, top.edges) if eps is None else sc.weight(float(eps))
-        wmax_s = np.inf if w_max is None else sc.weight(float(w_max))
-        if not eps_s < wmax_s:
-            raise InputError(f"w_max ({w_max}) must exceed the lower weight bound ({sc.weight_back(eps_s):.3g} N/m)")
-        lower = np.full(top.m, eps_s)
-        upper = np.full(top.m, wmax_s)
         self.backend.reset()
 
         X0 = X.copy()
