@@ -14,14 +14,14 @@ The floor
 ---------
 For staggered rows the worker also measures one sparse factorization:
 
-* ``factor_K_s`` — :func:`selfsupport.methods.weightfit._factor` (the project's SPD
+* ``factor_K_s`` — :func:`selfsupport.linalg.spd_factor` (the project's SPD
   factorization) of ``−K_ff``, the free-vertex block of the stress Laplacian at the final
   weights (:func:`selfsupport.methods.assembly.position_blocks`; ``n_free × n_free``, the
   matrix of the polish and of one coordinate of Step 3), median of 3;
 * ``factor_step3_s`` — the median time of the factorizations the solve itself made of its
-  Step-3 matrix (``3 n_free × 3 n_free``), recorded by wrapping ``_factor`` in
+  Step-3 matrix (``3 n_free × 3 n_free``), recorded by wrapping ``spd_factor`` in
   ``selfsupport.methods.staggered`` during the timed solve (a few microseconds of overhead per
-  call). When the method does not call ``_factor`` there (the lead may change that), the
+  call). When the method does not call ``spd_factor`` there (the lead may change that), the
   column stays empty and ``factor_step3_like_s`` — the factorization of
   ``kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)`` (``K_t`` = ``K_ff`` with rows over
   ``|A_i F_i|``; the per-vertex 3×3 blocks stand for Step 3's anchor terms, which couple a
@@ -29,7 +29,8 @@ For staggered rows the worker also measures one sparse factorization:
 * ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s`` (or the
   stand-in): how many Step-3 factorizations one outer iteration costs; 1–3 would be the floor
   of a method that factors once per step. ``factor_share`` is the fraction of the solve spent
-  in all recorded factorizations (Step 3, polish and the active-set Step-2 fits).
+  in all recorded factorizations (Step 3, polish and the active-set Step-2 fits); numeric
+  re-factorizations through a factor object's ``update`` are not recorded.
 
 Writes ``scaling.csv``, ``scaling.md`` and ``scaling.png`` (log-log time and memory vs
 vertices, with the fitted exponents of ``time ∝ n^k``) into ``--out`` and prints the table.
@@ -71,12 +72,12 @@ METHODS: dict[str, tuple[Callable[[], Any], float]] = {
 
 
 class _FactorRecorder:
-    """Wrap a module's ``_factor`` and record (matrix size, seconds) of every call."""
+    """Wrap a module's ``spd_factor`` and record (matrix size, seconds) of every call."""
 
     def __init__(self, module: Any) -> None:
         self.module = module
         self.calls: list[tuple[int, float]] = []
-        self._orig = getattr(module, "_factor", None)
+        self._orig = getattr(module, "spd_factor", None)
 
     def __enter__(self) -> "_FactorRecorder":
         if self._orig is not None:
@@ -88,12 +89,12 @@ class _FactorRecorder:
                 self.calls.append((int(M.shape[0]), time.perf_counter() - t))
                 return out
 
-            self.module._factor = timed
+            self.module.spd_factor = timed
         return self
 
     def __exit__(self, *exc: Any) -> None:
         if self._orig is not None:
-            self.module._factor = self._orig
+            self.module.spd_factor = self._orig
 
 
 def _floor_measurements(result, scene) -> dict[str, float]:
@@ -102,7 +103,7 @@ def _floor_measurements(result, scene) -> dict[str, float]:
 
     from selfsupport.methods.assembly import Topology, position_blocks
     from selfsupport.methods.scaling import Scaling
-    from selfsupport.methods.weightfit import _factor
+    from selfsupport.linalg import spd_factor
 
     net = result.network
     active = scene.active_edges
@@ -119,8 +120,8 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     # makes its matrix one coupled 3n system rather than three scalar ones (same sparsity here)
     blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) + np.eye(3))
     M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
-    return {"factor_K_s": median_time(lambda: _factor(negK), repeat=3, budget=60.0),
-            "factor_step3_like_s": median_time(lambda: _factor(M), repeat=3, budget=120.0),
+    return {"factor_K_s": median_time(lambda: spd_factor(negK), repeat=3, budget=60.0),
+            "factor_step3_like_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
             "n_free": top.n_free}
 
 
@@ -273,6 +274,11 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                                   "out_json": str(out_json), "warmup": warmup},
                                  hard_timeout=2.0 * tl + 300.0)
                 r.update(base)
+                if "vertices" not in r:  # the process died or was killed: size the row here (cheap)
+                    from selfsupport.shapes import make_shape
+
+                    mesh = make_shape(shape, n_vertices=n).mesh
+                    r["vertices"], r["edges"] = mesh.n_vertices, mesh.n_edges
                 if out_json.is_file():
                     r["max_rel_error"] = json_max_relative_error(out_json)
                 r["time_per_iter_s"] = safe_ratio(r.get("time_s"), r.get("iterations"))
@@ -302,9 +308,9 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
         "a tiny dome excluded); each row runs in its own spawned process, so *peak RSS* is that row's "
         "(interpreter and imports included; *RSS before solve* is the level the solve started from).",
         "*max rel. error* recomputed with plain numpy from the saved JSON network.",
-        "Floor: *factor −K_ff* = one SPD factorization (`weightfit._factor`) of the free-vertex stress "
+        "Floor: *factor −K_ff* = one SPD factorization (`linalg.spd_factor`) of the free-vertex stress "
         "Laplacian at the final weights; *factor Step 3* = median of the solve's own factorizations of its "
-        "3n_free×3n_free Step-3 matrix (recorded by wrapping `staggered._factor`); *Step-3-like* = "
+        "3n_free×3n_free Step-3 matrix (recorded by wrapping `staggered.spd_factor`); *Step-3-like* = "
         "`kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)` (same sparsity) when that recording is empty; *iteration / Step-3 "
         "factorization* = (time / iterations) / Step-3 factorization time; *share in factorizations* = time "
         "in all recorded factorizations (Step 3, polish, active-set Step 2) / solve time.",

@@ -335,6 +335,8 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path, *, scenes_dir: Path
         "Distances are relative to the reference's bounding-box diagonal: *to ref.* = vertex to reference "
         "surface; *vs published* = vertex to the same vertex of the paper's network.",
         "*published* rows: the paper's network with weights fitted at fixed positions (`selfsupport.api.check`).",
+        "*iterations*: outer iterations (staggered); IPOPT / nlopt iterations summed over the load rounds "
+        "(simultaneous). The warm-started IPOPT time excludes the staggered solve it starts from.",
         "*speed-up vs paper* = paper time / our time (paper: Xeon 2.3 GHz); *× staggered* = time / the "
         f"{REFERENCE} time on the same scene.",
         f"Scenes: `{scenes_dir}`; methods: {', '.join(variants)}; machine: {_machine()}; "

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..linalg import spd_factor
+
 
 @dataclass(frozen=True)
 class WeightFit:
@@ -59,58 +61,6 @@ def _objective(A: sp.spmatrix, b: np.ndarray, w: np.ndarray) -> float:
     return 0.5 * float(r @ r)
 
 
-def _factor(M: sp.spmatrix):
-    """Sparse factorization of a symmetric positive definite matrix; returns an object with
-    ``solve(rhs)`` (and ``update(M)`` for a new matrix with the same pattern).
-
-    QDLDL (the LDLᵀ solver inside OSQP, AMD ordering) is 3–4× faster than SuperLU on these
-    matrices and refactors a fixed pattern numerically only, which the interior-point loop
-    uses. A numerically singular matrix (a flat network carries no vertical load) is
-    shifted by 1e-12 of its largest diagonal entry.
-    """
-    M = sp.csc_matrix(M)
-    try:
-        return _Factor(M)
-    except (ValueError, RuntimeError, ZeroDivisionError):
-        shift = 1e-12 * max(float(np.abs(M.diagonal()).max()), 1e-300)
-        return _Factor(M + shift * sp.identity(M.shape[0], format="csc"))
-
-
-class _Factor:
-    """QDLDL factor with a SuperLU (partial pivoting) fallback when LDLᵀ without pivoting
-    breaks down on a nearly singular matrix."""
-
-    def __init__(self, M: sp.csc_matrix) -> None:
-        import qdldl
-
-        self._M = M
-        self._f = qdldl.Solver(sp.triu(M, format="csc"))
-        self._lu = None
-
-    def update(self, M: sp.spmatrix) -> None:
-        self._M = sp.csc_matrix(M)
-        self._lu = None
-        self._f.update(sp.triu(self._M, format="csc"))
-
-    def _solve1(self, rhs: np.ndarray) -> np.ndarray:
-        if self._lu is None:
-            x = self._f.solve(rhs)
-            if np.all(np.isfinite(x)):
-                return x
-            from scipy.sparse.linalg import splu
-
-            d = self._M.diagonal()
-            shift = 1e-12 * max(float(np.abs(d).max()), 1e-300)
-            self._lu = splu(self._M + shift * sp.identity(self._M.shape[0], format="csc"))
-        return self._lu.solve(rhs)
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        rhs = np.asarray(rhs, float)
-        if rhs.ndim == 1:
-            return self._solve1(rhs)
-        return np.column_stack([self._solve1(np.ascontiguousarray(rhs[:, k])) for k in range(rhs.shape[1])])
-
-
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
                 tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
@@ -134,7 +84,7 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         y = np.where(fin, np.maximum(-g, 0) + 1e-2 * gm, 0.0)
     else:
         # Mehrotra-style start: the unconstrained minimiser, pushed well inside the box
-        w = _factor(Q).solve(c)
+        w = spd_factor(Q).solve(c)
         if not np.all(np.isfinite(w)):
             w = np.asarray(w0, float).copy()
         dist = np.abs(w - np.clip(w, lower, upper))
@@ -160,12 +110,12 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
             return w, z, y, it, "failed"  # the barrier broke down (degenerate problem)
         MD = (Q + sp.diags(D)).tocsc()
         if it == 1:
-            lu = _factor(MD)
+            lu = spd_factor(MD)
         else:
             try:  # same pattern every iteration: numeric refactorization only
                 lu.update(MD)
             except (ValueError, RuntimeError):
-                lu = _factor(MD)
+                lu = spd_factor(MD)
 
         def direction(sig_mu, corr_s, corr_t):
             rhs = -(Q @ w - c) + (sig_mu - corr_s) / s_ - np.where(fin, (sig_mu - corr_t) / t_, 0.0)
@@ -271,7 +221,7 @@ class ActiveSetFit(WeightFitBackend):
         if free.any():
             Qff = Q[free][:, free]
             rhs = c[free] - Q[free][:, ~free] @ w[~free]
-            w[free] = _factor(Qff).solve(rhs)
+            w[free] = spd_factor(Qff).solve(rhs)
         return w
 
 

@@ -1,0 +1,59 @@
+"""The shared SPD factorization (selfsupport.linalg): CHOLMOD, its fallbacks, reuse of the pattern."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from selfsupport.linalg import spd_factor
+from selfsupport.shapes import make_shape
+from selfsupport.methods.assembly import Topology, position_blocks
+
+
+def _stress_matrix(n_vertices=400, seed=0):
+    """−K_ff of a dome with random positive weights: the polish's SPD matrix."""
+    scene = make_shape("dome", n_vertices=n_vertices)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    w = np.random.default_rng(seed).uniform(0.5, 2.0, top.m)
+    return (-position_blocks(top, w)[0]).tocsc()
+
+
+def test_solves_agree_with_a_dense_solve_for_vectors_and_blocks():
+    M = _stress_matrix()
+    f = spd_factor(M)
+    assert f.backend == "cholmod"
+    rng = np.random.default_rng(1)
+    b, B = rng.standard_normal(M.shape[0]), rng.standard_normal((M.shape[0], 3))
+    dense = M.toarray()
+    np.testing.assert_allclose(f.solve(b), np.linalg.solve(dense, b), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(f.solve(B), np.linalg.solve(dense, B), rtol=1e-10, atol=1e-12)
+
+
+def test_update_with_the_same_pattern_refactors_the_new_values():
+    M1, M2 = _stress_matrix(seed=0), _stress_matrix(seed=1)
+    assert np.array_equal(M1.indices, M2.indices) and not np.allclose(M1.data, M2.data)
+    f = spd_factor(M1)
+    f.update(M2)
+    b = np.ones(M1.shape[0])
+    np.testing.assert_allclose(M2 @ f.solve(b), b, atol=1e-10)
+    # a different pattern is factored afresh
+    M3 = (M2 + sp.random(M2.shape[0], M2.shape[0], density=0.01, random_state=2) * 0).tocsc() + sp.diags(np.ones(M2.shape[0]))
+    f.update(M3)
+    np.testing.assert_allclose(M3 @ f.solve(b), b, atol=1e-10)
+
+
+def test_singular_matrix_falls_back_and_solves_a_consistent_system():
+    # a pure Neumann Laplacian (no supports) is singular: CHOLMOD refuses it; the fallback
+    # factors it with a tiny shift, and a consistent right-hand side is solved to round-off
+    n = 50
+    L = sp.diags([-np.ones(n - 1), np.r_[1.0, 2 * np.ones(n - 2), 1.0], -np.ones(n - 1)], [-1, 0, 1]).tocsc()
+    f = spd_factor(L)
+    assert f.backend in ("qdldl", "superlu")
+    b = np.sin(np.arange(n))
+    b -= b.mean()
+    x = f.solve(b)
+    assert np.all(np.isfinite(x))
+    np.testing.assert_allclose(L @ x, b, atol=1e-6)
+
+
+def test_rejects_a_non_square_matrix():
+    with pytest.raises(ValueError, match="square"):
+        spd_factor(sp.identity(3, format="csr")[:2])
