@@ -49,11 +49,11 @@ from .common import (PAPER_TABLE1, PUBLISHED_UP, Column, Stopwatch, current_rss_
 
 
 # ------------------------------------------------------------------------------ variants
-def _staggered(backend: str) -> Callable[[], Any]:
+def _staggered(backend: str, **options: Any) -> Callable[[], Any]:
     def make():
         from selfsupport.methods.staggered import StaggeredLinearization
 
-        return StaggeredLinearization(backend=backend)
+        return StaggeredLinearization(backend=backend, **options)
     return make
 
 
@@ -104,6 +104,8 @@ REFERENCE = "staggered/active-set"
 #: take 0.5–4 s per fit.
 VARIANTS: dict[str, Variant] = {v.key: v for v in (
     Variant(REFERENCE, "staggered", "active-set", _staggered("active-set"), 600.0),
+    Variant("staggered-coupled/active-set", "staggered (coupled)", "active-set",
+            _staggered("active-set", coupled=True), 600.0),
     Variant("staggered/ipopt", "staggered", "ipopt", _staggered("ipopt"), 120.0),
     Variant("staggered/osqp", "staggered", "osqp", _staggered("osqp"), 120.0),
     Variant("staggered/nlopt", "staggered", "nlopt", _staggered("nlopt"), 120.0),

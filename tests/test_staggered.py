@@ -154,3 +154,19 @@ def test_time_limit_is_reported_honestly():
     res = StaggeredLinearization().solve(scene, SelfWeight(), time_limit=0.0)
     assert res.status == "time_limit"
     assert "time limit" in res.message
+
+
+@pytest.mark.parametrize("shape", ["pillar_vault", "concave_disk"])
+def test_coupled_step_reaches_equilibrium_closer_to_the_reference(shape):
+    # the coupled Step 3 lets the free weights move with the positions (Gauss-Newton on
+    # min_w E): same equilibrium standard, and it must not end farther from the design
+    scene = make_shape(shape, n_vertices=300)
+    loads = SelfWeight(density=2000, thickness=0.1)
+    plain = StaggeredLinearization().solve(scene, loads)
+    coupled = StaggeredLinearization(coupled=True).solve(scene, loads)
+    assert coupled.status == "converged"
+    net = coupled.network
+    sup = np.asarray(net.supports, bool)
+    assert independent_max_rel_error(net.vertices, net.mesh.edges, np.asarray(net.weights), np.asarray(net.loads), sup) <= 1e-9
+    assert np.min(np.asarray(net.weights)[scene.active_edges]) > 0
+    assert coupled.distance_mean <= plain.distance_mean

@@ -181,7 +181,7 @@ class StaggeredLinearization:
                                    "network cannot carry vertical loads); give the surface some rise or check the mesh")
         it = 0
         rejected = 0
-        fresh, early = True, None
+        fresh, early, last_try = True, None, np.inf
         try:
             for it in range(1, opt.max_iter + 1):
                 rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
@@ -190,7 +190,7 @@ class StaggeredLinearization:
                     status = "converged"
                     history.append(rec)
                     break
-                if fresh and cur["max_rel_error"] <= opt.finish_try:
+                if fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try):
                     early = _try_finish(top, X, cur["w"], loads, mesh0, sc, Xref_mesh, opt)
                     rec["finish_try"] = early[3] if early is not None else None
                     if early is not None and early[3]["ok"]:
@@ -198,6 +198,7 @@ class StaggeredLinearization:
                         history.append(rec)
                         break
                     early = None
+                    last_try = cur["max_rel_error"]  # try again once the fit error has halved
                 fresh = False
                 if time.perf_counter() - t_start > opt.time_limit:
                     status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
