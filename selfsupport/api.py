@@ -27,7 +27,7 @@ import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import scipy.sparse as sp
@@ -200,7 +200,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: float | None = None,
           eps: float | None = None, tol: float | None = None, max_iter: int | None = None,
           time_limit: float | None = None, supports: Any = None, up: str | None = None,
-          progress: Callable[[dict], None] | None = None) -> SolveResult:
+          progress: Callable[[dict], None] | None = None, options: Mapping[str, Any] | None = None) -> SolveResult:
     """Find the thrust network nearest to a reference surface.
 
     Parameters
@@ -224,6 +224,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         See :func:`as_scene`.
     progress
         Called with each iteration's history record.
+    options
+        Further settings of the staggered method (fields of
+        :class:`~selfsupport.methods.staggered.StaggeredOptions`, e.g. ``{"coupled": True}``).
 
     Returns
     -------
@@ -241,6 +244,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     loads = scene_loads(scene, density=density, thickness=thickness)
     solver = make_method(method, backend)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
+    if options:
+        if method != "staggered":
+            raise InputError(f"method options {sorted(options)} apply to the staggered method only, not {method!r}")
+        stops = {**dict(options), **stops}
     result = solver.solve(scene, loads, eps=eps, w_max=w_max, progress=progress, **stops)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model,

@@ -273,6 +273,9 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                    help="wall-clock limit in seconds (default: the method's, 600 s staggered / 120 s ipopt)")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="also write the figures (network, deviation, airy, reciprocal, directions, history) and view.html into DIR")
+    p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a staggered-method setting, repeatable (e.g. coupled=true, shrink=0.5; "
+                        "see StaggeredOptions)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
 
 
@@ -281,13 +284,17 @@ def _run_solve(args: argparse.Namespace) -> int:
     from .io import write_network
     from .progress import ProgressDisplay
 
+    from .methods.staggered import parse_option
+
     out = Path(args.out)
     _check_writable(out)
+    options = dict(parse_option(o) for o in args.option)
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
-                       max_iter=args.max_iter, time_limit=args.time_limit, progress=progress)
+                       max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
+                       options=options)
     write_network(out, result, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
     if args.report:

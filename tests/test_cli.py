@@ -223,6 +223,10 @@ def test_bad_input_in_a_real_process(case, tmp_path):
     (["solve", "shape:dome:100", "--out", "x.json", "--backend", "nope"], "unknown backend", 2),
     (["solve", "shape:dome:100", "--out", "x.json", "--up", "w"], "up", 2),
     (["check", "missing.json"], "no such file", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--option", "nope=1"], "KEY=VALUE", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--option", "coupled=maybe"], "bool", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--option", "shrink=nan"], "finite", 2),
+    (["solve", "shape:dome:100", "--out", "x.json", "--method", "ipopt", "--option", "coupled=1"], "staggered", 2),
 ])
 def test_usage_errors_are_one_line(argv, needle, code, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -437,3 +441,12 @@ def test_solve_report_writes_figures_and_view(tmp_path, capsys):
         assert img[..., :3].std() > 0.05  # not a blank canvas
     html = (rep / "view.html").read_text()
     assert "plotly" in html.lower() and "<script src=\"http" not in html  # self-contained
+
+
+def test_option_reaches_the_staggered_method(tmp_path):
+    out = tmp_path / "n.json"
+    rc = cli.main(["solve", "shape:pillar_vault:200", "--out", str(out), "--quiet",
+                   "--option", "coupled=true", "--option", "finish-slack=0.1"])
+    assert rc == 0
+    params = json.loads(out.read_text())["parameters"]
+    assert params["coupled"] is True and params["finish_slack"] == 0.1

@@ -84,6 +84,31 @@ class StaggeredOptions:
     time_limit: float = 600.0
 
 
+def parse_option(text: str) -> tuple[str, Any]:
+    """``"KEY=VALUE"`` → a typed :class:`StaggeredOptions` setting (the CLI's ``--option``).
+
+    >>> parse_option("coupled=true"), parse_option("shrink=0.25")
+    (('coupled', True), ('shrink', 0.25))
+    """
+    key, sep, value = text.partition("=")
+    key, value = key.strip().replace("-", "_"), value.strip()
+    fields = StaggeredOptions.__dataclass_fields__
+    if not sep or key not in fields:
+        raise InputError(f"--option needs KEY=VALUE with KEY one of {sorted(fields)}, got {text!r}")
+    kind = str(fields[key].type)
+    try:
+        if kind == "bool":
+            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(value)
+            return key, value.lower() in ("true", "1", "yes")
+        number = int(value) if kind == "int" else float(value)
+    except ValueError:
+        raise InputError(f"--option {key} needs a {kind} value, got {value!r}") from None
+    if not np.isfinite(number):
+        raise InputError(f"--option {key} must be finite, got {value!r}")
+    return key, number
+
+
 class StaggeredLinearization:
     """The paper's method. ``backend`` names the Step-2 solver (see ``WEIGHT_FIT_BACKENDS``).
 
@@ -123,6 +148,9 @@ class StaggeredLinearization:
         overrides
             Any :class:`StaggeredOptions` field, for this solve only.
         """
+        unknown = set(overrides) - set(StaggeredOptions.__dataclass_fields__)
+        if unknown:
+            raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: {sorted(StaggeredOptions.__dataclass_fields__)}")
         opt = replace(self.options, **overrides) if overrides else self.options
         t_start = time.perf_counter()
         scene.mesh.validate()
