@@ -434,7 +434,8 @@ def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0,
 
     x and y do not depend on the loads and are solved once. The heights are the fixed point
     of ``z = G(z) = K⁻¹(K_fs z_s − L(z))``; on steep shells plain iteration contracts slowly
-    (areas grow with slope), so it is accelerated with Anderson mixing (depth 5).
+    (areas grow with slope), so it is accelerated with Anderson mixing (depth 5); when even
+    that fails (G is not a contraction), Newton–Krylov finishes the job.
     """
     free = top.free
     Kff, Kfs = position_blocks(top, w)
@@ -449,6 +450,9 @@ def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0,
         return lu.solve(zs - L[free])
 
     z = X[free, 2].copy()
+    z_start = z.copy()
+    ftol = 1e-15 * max(float(np.abs(z).max()), 1.0)
+    converged = False
     dz_hist: list[np.ndarray] = []
     df_hist: list[np.ndarray] = []
     f_prev = z_prev = None
@@ -456,8 +460,12 @@ def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0,
     for rounds in range(1, max_rounds + 1):
         gz = G(z)
         f = gz - z
-        if float(np.abs(f).max()) <= 1e-15 * max(float(np.abs(z).max()), 1.0):
-            z = gz
+        fmax = float(np.abs(f).max())
+        if fmax <= ftol:
+            z, converged = gz, True
+            break
+        f_first = fmax if rounds == 1 else f_first
+        if rounds >= 15 and fmax > f_first:  # diverging: leave it to Newton–Krylov below
             break
         if f_prev is not None:
             dz_hist.append(z - z_prev)
@@ -470,6 +478,21 @@ def _polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0,
             z = z + f - (np.stack(dz_hist, axis=1) + dF) @ gamma
         else:
             z = gz
+    if not converged:
+        # not a contraction (seen on steep, heavy networks: more depth, more area, more load,
+        # so plain iteration diverges slowly and Anderson's short memory cannot catch it):
+        # Newton–Krylov on z − G(z), whose Jacobian is I − K⁻¹ dL/dz, needs only G's values
+        from scipy.optimize import NoConvergence, newton_krylov
+
+        try:
+            zk = newton_krylov(lambda v: G(v) - v, z_start, f_tol=ftol, maxiter=50)
+        except NoConvergence as e:  # its last iterate, usually converged to round-off
+            zk = np.asarray(e.args[0], float)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            zk = None
+        if zk is not None and np.all(np.isfinite(zk)) and \
+                float(np.abs(G(zk) - zk).max()) < float(np.abs(G(z) - z).max()):
+            z = zk
     Xn[free, 2] = z
     L = sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))
     return Xn, L, rounds
