@@ -13,6 +13,15 @@ import numpy as np
 from .mesh import PolyMesh
 
 
+def _scatter_add(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """``out[index[k]] += values[k]`` for 1-D or (k, d) values: ``np.bincount`` per column,
+    ~10× faster than ``np.add.at`` (the loads are re-evaluated thousands of times a solve)."""
+    index = np.asarray(index).ravel()
+    if values.ndim == 1:
+        return np.bincount(index, weights=values, minlength=n)
+    return np.stack([np.bincount(index, weights=values[:, j], minlength=n) for j in range(values.shape[1])], axis=1)
+
+
 def bbox_diagonal(vertices: np.ndarray) -> float:
     """Length of the axis-aligned bounding-box diagonal."""
     v = np.asarray(vertices, float)
@@ -22,8 +31,7 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
 def face_centroids(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
     v = mesh.vertices if vertices is None else vertices
     face_of, _, _ = mesh._corner_data
-    c = np.zeros((mesh.n_faces, 3))
-    np.add.at(c, face_of, v[mesh.face_vertices])
+    c = _scatter_add(face_of, v[mesh.face_vertices], mesh.n_faces)
     return c / mesh.face_sizes[:, None]
 
 
@@ -40,17 +48,14 @@ def face_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray
     """Area of each face (sum of its centroid-fan triangles; exact for planar polygons)."""
     v = mesh.vertices if vertices is None else vertices
     face_of, vec, _ = _fan(mesh, v)
-    out = np.zeros(mesh.n_faces)
-    np.add.at(out, face_of, np.linalg.norm(vec, axis=1))
-    return out
+    return _scatter_add(face_of, np.linalg.norm(vec, axis=1), mesh.n_faces)
 
 
 def face_normals(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
     """Unit normals of faces (normalised vector area)."""
     v = mesh.vertices if vertices is None else vertices
     face_of, vec, _ = _fan(mesh, v)
-    out = np.zeros((mesh.n_faces, 3))
-    np.add.at(out, face_of, vec)
+    out = _scatter_add(face_of, vec, mesh.n_faces)
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
 
 
@@ -58,10 +63,8 @@ def vertex_normals(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.nda
     """Area-weighted unit vertex normals, oriented to point up (z >= 0) on average."""
     v = mesh.vertices if vertices is None else vertices
     face_of, vec, _ = _fan(mesh, v)
-    fn = np.zeros((mesh.n_faces, 3))
-    np.add.at(fn, face_of, vec)
-    out = np.zeros((mesh.n_vertices, 3))
-    np.add.at(out, mesh.face_vertices, fn[face_of])
+    fn = _scatter_add(face_of, vec, mesh.n_faces)
+    out = _scatter_add(mesh.face_vertices, fn[face_of], mesh.n_vertices)
     if out[:, 2].sum() < 0:
         out = -out
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
@@ -102,14 +105,14 @@ def vertex_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarr
         start = fo[:-1][tri]
         idx = np.stack([mesh.face_vertices[start], mesh.face_vertices[start + 1], mesh.face_vertices[start + 2]], axis=1)
         a = _triangle_mixed_areas(v[idx[:, 0]], v[idx[:, 1]], v[idx[:, 2]])
-        np.add.at(out, idx.ravel(), a.ravel())
+        out += _scatter_add(idx.ravel(), a.ravel(), n)
     if (~tri).any():
         face_of, vec, nxt = _fan(mesh, v)
         fan = np.linalg.norm(vec, axis=1)
         poly = ~tri[face_of]
         # half of the fan triangle (c, v_k, v_next) goes to v_k, half to v_next
-        np.add.at(out, mesh.face_vertices[poly], 0.5 * fan[poly])
-        np.add.at(out, nxt[poly], 0.5 * fan[poly])
+        out += _scatter_add(mesh.face_vertices[poly], 0.5 * fan[poly], n)
+        out += _scatter_add(nxt[poly], 0.5 * fan[poly], n)
     return out
 
 

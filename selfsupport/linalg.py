@@ -47,21 +47,21 @@ class SPDFactor:
     ``update(M)`` to refactor a new matrix (numerically only when the pattern is unchanged).
     ``backend`` says which library holds the factor ("cholmod", "qdldl" or "superlu")."""
 
-    def __init__(self, M: sp.spmatrix) -> None:
+    def __init__(self, M: sp.spmatrix, lower: bool = False) -> None:
         self.shape = M.shape
         self._symbolic = None
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
-        self._factor(M)
+        self._factor(M, lower)
 
     # ------------------------------------------------------------------ factorization
-    def _factor(self, M: sp.spmatrix) -> None:
-        L = _lower_csc(M)
+    def _factor(self, M: sp.spmatrix, lower: bool = False) -> None:
+        L = sp.csc_matrix(M) if lower else _lower_csc(M)
         if L.shape[0] == 0:
             self.backend, self._f = "empty", None
             return
         if _cholmod is not None and self._cholmod(L):
             return
-        self._ldl(sp.csc_matrix(M))
+        self._ldl(L + sp.tril(L, k=-1, format="csc").T if lower else sp.csc_matrix(M))
 
     def _cholmod(self, L: sp.csc_matrix) -> bool:
         n = L.shape[0]
@@ -102,6 +102,19 @@ class SPDFactor:
         self._f = splu(M + shift * sp.identity(M.shape[0], format="csc"))
         self.backend = "superlu"
 
+    def update_lower(self, L: sp.csc_matrix) -> None:
+        """Refactor from the lower triangle ``L`` (CSC, sorted, the pattern this factor was
+        built from) without re-extracting it: the interior point's per-iteration path."""
+        if (self.backend == "cholmod" and self._pattern is not None and np.array_equal(L.indptr, self._pattern[0])
+                and np.array_equal(L.indices, self._pattern[1])):
+            try:
+                self._S.V = _cvx_matrix(L.data)
+                _cholmod.numeric(self._S, self._symbolic)
+                return
+            except (ArithmeticError, ValueError):
+                pass
+        self._factor(L, lower=True)
+
     def update(self, M: sp.spmatrix) -> None:
         """Refactor for a new matrix (typically the same pattern with new values)."""
         self.shape = M.shape
@@ -129,8 +142,9 @@ class SPDFactor:
         return self._f.solve(rhs)
 
 
-def spd_factor(M: sp.spmatrix) -> SPDFactor:
-    """Factor the symmetric positive (semi)definite matrix ``M`` (see the module docstring)."""
+def spd_factor(M: sp.spmatrix, *, lower: bool = False) -> SPDFactor:
+    """Factor the symmetric positive (semi)definite matrix ``M`` (see the module docstring).
+    With ``lower=True``, ``M`` is its lower triangle, in sorted CSC form, used as it is."""
     if M.shape[0] != M.shape[1]:
         raise ValueError(f"spd_factor needs a square matrix, got {M.shape}")
-    return SPDFactor(M)
+    return SPDFactor(M, lower=lower)

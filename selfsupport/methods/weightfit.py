@@ -61,14 +61,58 @@ def _objective(A: sp.spmatrix, b: np.ndarray, w: np.ndarray) -> float:
     return 0.5 * float(r @ r)
 
 
+class _LowerQ:
+    """The lower triangle of ``Q`` (sorted CSC, every diagonal entry stored) and one SPD factor
+    object for all the matrices of a fit that share its pattern — ``Q + diag(D)`` in the
+    interior point, ``Q`` with the fixed variables' rows and columns replaced by their
+    diagonal in PDAS — so that each is a numeric refactorization only (the symbolic analysis
+    is done once per pattern, and kept across fits while the pattern holds)."""
+
+    def __init__(self, Q: sp.spmatrix, factor: Any = None) -> None:
+        n = Q.shape[0]
+        Qc = sp.tril(Q, format="coo")
+        ii = np.arange(n)
+        M = sp.coo_matrix((np.r_[Qc.data, np.zeros(n)], (np.r_[Qc.row, ii], np.r_[Qc.col, ii])), shape=Q.shape).tocsc()
+        M.sort_indices()  # explicit zeros survive coo -> csc: the diagonal is always stored
+        self.M, self.base = M, M.data.copy()
+        self.diag_pos = M.indptr[:-1]  # a sorted lower-triangular column starts at its diagonal
+        self.diag = self.base[self.diag_pos]
+        self.rows, self.cols = M.indices, np.repeat(ii, np.diff(M.indptr))
+        self.factor = factor
+
+    def _factor(self, data: np.ndarray):
+        self.M.data = data
+        if self.factor is None:
+            self.factor = spd_factor(self.M, lower=True)
+        else:
+            self.factor.update_lower(self.M)
+        return self.factor
+
+    def with_diagonal(self, D: np.ndarray):
+        """Factor of ``Q + diag(D)``."""
+        data = self.base.copy()
+        data[self.diag_pos] += D
+        return self._factor(data)
+
+    def fixing(self, fixed: np.ndarray):
+        """Factor of ``Q`` with the rows and columns of ``fixed`` variables decoupled (their
+        diagonal kept, so a solve returns ``x_i = rhs_i / Q_ii`` there)."""
+        data = self.base.copy()
+        data[fixed[self.rows] | fixed[self.cols]] = 0.0
+        keep = np.where(self.diag > 0, self.diag, 1.0)
+        data[self.diag_pos[fixed]] = keep[fixed]
+        return self._factor(data), keep
+
+
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
                 tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
+                lowq: _LowerQ | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
     """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
 
     One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
     structure of Q. Returns the point, the multipliers of both bounds, iterations, status.
     """
+    lowq = lowq if lowq is not None else _LowerQ(Q)
     fin = np.isfinite(upper)
     span = np.where(fin, upper - lower, np.inf)
     gs = max(float(np.abs(c).max()), 1e-300)
@@ -84,7 +128,7 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         y = np.where(fin, np.maximum(-g, 0) + 1e-2 * gm, 0.0)
     else:
         # Mehrotra-style start: the unconstrained minimiser, pushed well inside the box
-        w = spd_factor(Q).solve(c)
+        w = lowq.with_diagonal(np.zeros(Q.shape[0])).solve(c)
         if not np.all(np.isfinite(w)):
             w = np.asarray(w0, float).copy()
         dist = np.abs(w - np.clip(w, lower, upper))
@@ -108,14 +152,7 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
             D = z / s_ + np.where(fin, y / t_, 0.0)
         if not (np.all(np.isfinite(D)) and np.all(s_ > 0)):
             return w, z, y, it, "failed"  # the barrier broke down (degenerate problem)
-        MD = (Q + sp.diags(D)).tocsc()
-        if it == 1:
-            lu = spd_factor(MD)
-        else:
-            try:  # same pattern every iteration: numeric refactorization only
-                lu.update(MD)
-            except (ValueError, RuntimeError):
-                lu = spd_factor(MD)
+        lu = lowq.with_diagonal(D)  # one pattern every iteration: numeric refactorization only
 
         def direction(sig_mu, corr_s, corr_t):
             rhs = -(Q @ w - c) + (sig_mu - corr_s) / s_ - np.where(fin, (sig_mu - corr_t) / t_, 0.0)
@@ -165,10 +202,12 @@ class ActiveSetFit(WeightFitBackend):
         super().__init__(**options)
         self._active: tuple[np.ndarray, np.ndarray] | None = None
         self._ipm_warm: tuple[np.ndarray, np.ndarray] | None = None
+        self._factor = None  # kept across fits: its symbolic analysis holds while Q's pattern does
 
     def reset(self) -> None:
         self._active = None
         self._ipm_warm = None
+        self._factor = None
 
     def fit(self, *, A, b, lower, upper, w0, prox=0.0):
         t0 = time.perf_counter()
@@ -178,19 +217,21 @@ class ActiveSetFit(WeightFitBackend):
             Q = Q + prox * sp.identity(Q.shape[0], format="csc")
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
+        lowq = _LowerQ(Q, self._factor if self._factor is not None and self._factor.shape == Q.shape else None)
         if self._active is not None and self._active[0].shape == w0.shape:
-            w, it, status = self._pdas(Q, c, lower, upper, *self._active)
+            w, it, status = self._pdas(lowq, Q, c, lower, upper, *self._active)
         if status != "optimal":
             wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, self.options["tol"],
-                                                   self.options["max_ipm"], warm=self._ipm_warm)
+                                                   self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq)
             # crossover: bounds whose multiplier dominates their slack start PDAS
             ws = max(float(np.median(np.abs(wi))), 1e-300)
             gs = max(float(np.abs(c).max()), 1e-300)
             lo = z * ws > (wi - lower) * gs
             up = np.isfinite(upper) & (y * ws > (upper - wi) * gs) & ~lo
-            wp, it_pd, st_pd = self._pdas(Q, c, lower, upper, lo, up)
+            wp, it_pd, st_pd = self._pdas(lowq, Q, c, lower, upper, lo, up)
             it += it_ipm + it_pd
             w, status = (wp, st_pd) if st_pd == "optimal" else (wi, st_ipm)
+        self._factor = lowq.factor
         w = np.clip(w, lower, upper)
         g = Q @ w - c
         self._active = ((w <= lower) & (g > 0), (w >= upper) & (g < 0))
@@ -199,13 +240,13 @@ class ActiveSetFit(WeightFitBackend):
                          seconds=time.perf_counter() - t0, n_lower=int(np.sum(w <= lower)),
                          n_upper=int(np.sum(w >= upper)))
 
-    def _pdas(self, Q, c, lower, upper, lo, up):
+    def _pdas(self, lowq, Q, c, lower, upper, lo, up):
         """PDAS from the guess (lo, up): fix those bounds, solve for the rest, release bounds
         whose multiplier has the wrong sign and fix variables that left the box; stop when the
         guess repeats (then the KKT conditions hold exactly)."""
         w = None
         for it in range(1, self.options["max_pdas"] + 1):
-            w = self._reduced_solve(Q, c, lower, upper, lo, up)
+            w = self._reduced_solve(lowq, Q, c, lower, upper, lo, up)
             g = Q @ w - c
             lo_n = np.where(lo, g > 0, w < lower)
             up_n = np.where(up, g < 0, w > upper) & ~lo_n
@@ -215,14 +256,19 @@ class ActiveSetFit(WeightFitBackend):
         return w, self.options["max_pdas"], "max_iter"
 
     @staticmethod
-    def _reduced_solve(Q, c, lower, upper, lo, up):
+    def _reduced_solve(lowq, Q, c, lower, upper, lo, up):
+        """The free variables' equations with the fixed ones at their bounds, solved in the
+        full-size system whose fixed rows and columns are decoupled (one pattern throughout)."""
+        fixed = lo | up
         w = np.where(lo, lower, np.where(up, upper, 0.0))
-        free = ~(lo | up)
-        if free.any():
-            Qff = Q[free][:, free]
-            rhs = c[free] - Q[free][:, ~free] @ w[~free]
-            w[free] = spd_factor(Qff).solve(rhs)
-        return w
+        if not fixed.any():
+            return lowq.with_diagonal(np.zeros(Q.shape[0])).solve(c)
+        lu, keep = lowq.fixing(fixed)
+        rhs = c - Q @ np.where(fixed, w, 0.0)
+        rhs[fixed] = keep[fixed] * w[fixed]
+        out = lu.solve(rhs)
+        out[fixed] = w[fixed]  # exactly at the bound
+        return out
 
 
 def _registry() -> dict[str, type[WeightFitBackend]]:
