@@ -214,12 +214,18 @@ class StaggeredLinearization:
         rejected = 0
         fresh, early, last_try = True, None, np.inf
         polish_tol = opt.polish_tol
+        retry_errors: list[float] | None = None  # fit errors since a retry began
         while True:
             try:
                 for it in range(it + 1, opt.max_iter + 1):
                     rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
                                            **{k: v for k, v in cur.items() if k not in ("L", "w")}}
-                    if cur["max_rel_error"] <= polish_tol:
+                    if retry_errors is not None:
+                        retry_errors.append(cur["max_rel_error"])
+                    if cur["max_rel_error"] <= polish_tol or (
+                            retry_errors is not None and len(retry_errors) > 5
+                            and retry_errors[-1] > 0.5 * retry_errors[-6]):
+                        # (during a retry: polish again once the fit stops improving)
                         status = "converged"
                         history.append(rec)
                         break
@@ -319,6 +325,7 @@ class StaggeredLinearization:
                 # kink of the area model): iterate on to a much tighter fit and polish again
                 history.append({**final, "kept": False, "retry": True})
                 polish_tol *= 1e-2
+                retry_errors = []
                 status = "iteration_limit"
                 continue
             break
