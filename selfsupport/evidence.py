@@ -33,6 +33,9 @@ def max_relative_error(**kw) -> float:
     return float(rel.max()) if rel.size else 0.0
 
 
+_CHUNK = 2048  # points per trimesh proximity query
+
+
 def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     """Unsigned distance from each point to the (triangulated) reference surface.
 
@@ -50,8 +53,12 @@ def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     P = (np.asarray(points, float) - c) / D
     ok = np.all(np.isfinite(P), axis=1)
     d = np.full(len(P), np.inf)
-    if ok.any():
-        d[ok] = tm.nearest.on_surface(P[ok])[1]
+    idx = np.flatnonzero(ok)
+    # in chunks: trimesh builds its candidate lists for all queries at once, which took
+    # 3.9 GiB for 16k points (and more than 6 GiB at 64k); chunks keep it to a few MiB
+    for k in range(0, len(idx), _CHUNK):
+        part = idx[k:k + _CHUNK]
+        d[part] = tm.nearest.on_surface(P[part])[1]
     return d * D
 
 
