@@ -31,3 +31,24 @@ def test_points_on_the_surface_have_zero_distance():
     _, d, _ = closest_points(P, ref)
     assert d.max() <= 1e-12 * np.linalg.norm(np.ptp(ref.vertices, axis=0))
     assert distance_stats(ref.vertices, ref) == (0.0, 0.0)
+
+
+def test_distance_to_surface_is_exact_near_and_far():
+    """The certified KD-tree answer (near points) and the trimesh fallback (far points, where the
+    certificate fails) together equal trimesh's exact query everywhere."""
+    from selfsupport import evidence
+
+    ref = make_shape("concave_disk", n_vertices=800).mesh
+    rng = np.random.default_rng(5)
+    diag = np.linalg.norm(np.ptp(ref.vertices, axis=0))
+    near = ref.vertices[rng.integers(0, ref.n_vertices, 300)] + rng.normal(scale=0.005 * diag, size=(300, 3))
+    far = ref.vertices[rng.integers(0, ref.n_vertices, 100)] + rng.normal(scale=0.5 * diag, size=(100, 3))
+    P = np.vstack([near, far, [[np.nan, 0.0, 0.0]]])
+    d = evidence.distance_to_surface(P, ref)
+    tm = trimesh.Trimesh(ref.vertices, triangulate(ref), process=False)
+    d_tm = tm.nearest.on_surface(P[:-1])[1]
+    np.testing.assert_allclose(d[:-1], d_tm, rtol=1e-9, atol=1e-12 * diag)
+    assert d[-1] == np.inf
+    # and both paths were taken: near points are certified, far ones are not
+    _, _, _, cert = evidence._closest(P[:-1], ref, candidates=32)
+    assert cert[:300].mean() > 0.9 and not cert[300:].all()
