@@ -406,7 +406,7 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
         rhs += (c * gamma) * (Uf.T @ target_u).ravel()
     rhs += np.einsum("kij,kj->ki", anchor, P[free]).ravel() + (c * beta) * X[free].ravel()
     Xn = X.copy()
-    if G is not None:
+    if G is not None and G.shape[1] > 0:  # (with every weight at a bound it is the plain step)
         # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
         # the reduced error min_w E(X, w) rather than on E(X, w_k)); dw is only used to shape
         # the position step: the trial is refitted exactly
