@@ -103,16 +103,9 @@ class SPDFactor:
         self.backend = "superlu"
 
     def update_lower(self, L: sp.csc_matrix) -> None:
-        """Refactor from the lower triangle ``L`` (CSC, sorted, the pattern this factor was
-        built from) without re-extracting it: the interior point's per-iteration path."""
-        if (self.backend == "cholmod" and self._pattern is not None and np.array_equal(L.indptr, self._pattern[0])
-                and np.array_equal(L.indices, self._pattern[1])):
-            try:
-                self._S.V = _cvx_matrix(L.data)
-                _cholmod.numeric(self._S, self._symbolic)
-                return
-            except (ArithmeticError, ValueError):
-                pass
+        """Refactor from the lower triangle ``L`` (CSC, sorted) without re-extracting it: the
+        interior point's per-iteration path (numeric only while the pattern holds)."""
+        self.shape = L.shape
         self._factor(L, lower=True)
 
     def update(self, M: sp.spmatrix) -> None:

@@ -53,7 +53,7 @@ from ..geometry import vertex_normals
 from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .assembly import Topology, load_vector, position_blocks, weight_matrix
+from .assembly import Topology, load_vector, position_blocks, residual, weight_matrix
 from .scaling import Scaling, ScaledProblem
 from ..linalg import spd_factor
 from .weightfit import WeightFitBackend, make_backend
@@ -196,7 +196,7 @@ class StaggeredLinearization:
                 return None
             rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
             worst = np.argsort(rel)[::-1][:10]
-            return {"L": Lc, "w": fit.w, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
+            return {"L": Lc, "w": fit.w, "As": As, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
                     "worst_vertices": [int(v) for v in free_idx[worst]],
                     "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
                     "n_at_upper": fit.n_upper, "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
@@ -219,7 +219,7 @@ class StaggeredLinearization:
             try:
                 for it in range(it + 1, opt.max_iter + 1):
                     rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
-                                           **{k: v for k, v in cur.items() if k not in ("L", "w")}}
+                                           **{k: v for k, v in cur.items() if k not in ("L", "w", "As")}}
                     if retry_errors is not None:
                         retry_errors.append(cur["max_rel_error"])
                     if cur["max_rel_error"] <= polish_tol or (
@@ -247,15 +247,13 @@ class StaggeredLinearization:
                     t0 = time.perf_counter()
                     if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
                         P, _, Nrm = closest_points(X, Xref_mesh)
-                    G = None
-                    if opt.coupled:
-                        wc = cur["w"]
-                        movable = (wc > lower) & (wc < upper)
-                        s3 = np.repeat(1.0 / np.abs(cur["L"][free]), 3)
-                        G = (sp.diags(s3) @ weight_matrix(top, X))[:, movable]
+                    G = gap = None
+                    if opt.coupled:  # the fit's own scaled A at X, restricted to the weights off their bounds
+                        movable = (cur["w"] > lower) & (cur["w"] < upper)
+                        G, gap = cur["As"][:, movable], (cur["w"] - lower)[movable]
                     Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
                                         opt.fairness * alpha, Xref=X0, umbrella=U, G=G, prox_dw=beta,
-                                        gap=(wc - lower)[movable] if opt.coupled else None, damping=opt.coupled_damping)
+                                        gap=gap, damping=opt.coupled_damping)
                     rec["t_positions"] = time.perf_counter() - t0
                     trial = refit(Xt, cur["w"])  # Steps 1-2 at the trial positions
                     accepted = trial is not None and trial["E"] < cur["E"]
@@ -444,8 +442,7 @@ def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, me
     if not np.all(np.isfinite(Xp)):
         return None
     free = top.free
-    res = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
-    err = float((res / np.abs(L[free])).max())
+    err = float((np.linalg.norm(residual(top, Xp, w, L), axis=1) / np.abs(L[free])).max())
     d_it = closest_points(X, reference)[1]
     d_p = closest_points(Xp, reference)[1]
     slack = opt.finish_slack
