@@ -36,122 +36,90 @@ def max_relative_error(**kw) -> float:
 def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     """Unsigned distance from each point to the (triangulated) reference surface, exact.
 
-    libigl's AABB-tree query (``igl.point_mesh_squared_distance``): exact at any distance and
+    libigl's AABB-tree query (shared with :func:`closest_points`): exact at any distance and
     light on memory — 64k points in 0.2 s near the surface, 1.2 s far from it. trimesh's rtree
     query, used before, built candidate lists for all points at once (3.9 GiB at 16k
     vertices; the OOM killer at 64k). ``tests/test_evidence.py`` checks it against trimesh.
     """
-    import igl
-
-    from .geometry import bbox_diagonal
-
     P = np.asarray(points, float)
     d = np.full(len(P), np.inf)
     ok = np.all(np.isfinite(P), axis=1)
     if ok.any():
-        # centred and in units of the diagonal: no cancellation for scenes far from the origin
-        V = reference.vertices
-        c, D = V.mean(axis=0), max(bbox_diagonal(V), 1e-300)
-        Vn = np.ascontiguousarray((V - c) / D, dtype=float)
-        F = np.ascontiguousarray(triangulate(reference), dtype=np.int64)
-        d2 = igl.point_mesh_squared_distance(np.ascontiguousarray((P[ok] - c) / D), Vn, F)[0]
-        d[ok] = np.sqrt(np.maximum(np.asarray(d2, float).ravel(), 0.0)) * D
+        idx = _reference_index(reference)  # centred, in units of the diagonal: no cancellation
+        d2 = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P[ok] - idx.centre) / idx.scale))[0]
+        d[ok] = np.sqrt(np.maximum(np.asarray(d2, float).ravel(), 0.0)) * idx.scale
     return d
 
 
-def closest_points(points: np.ndarray, reference: PolyMesh, *, candidates: int = 12
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def closest_points(points: np.ndarray, reference: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points on the reference surface, distances and the unit normals there.
 
-    The reference is fan-triangulated; a KD-tree over triangle centroids (scipy) proposes the
-    ``candidates`` nearest triangles per point and an exact, vectorised point–triangle
-    projection (Ericson, *Real-Time Collision Detection* §5.1.5) picks the closest. Written
-    here instead of calling ``trimesh.proximity`` because the solver queries every outer
-    iteration and trimesh's rtree path costs ~0.1 s per 1,200 points against a few ms here;
-    ``tests/test_evidence.py`` checks it against trimesh. A point far from the surface
-    compared with the triangle size could miss its triangle among the candidates; the
-    solver's points stay close to the reference.
+    Exact at any distance: libigl's AABB tree over the fan-triangulated reference, built
+    once per reference mesh and kept (the solver queries it every outer iteration; ~1 ms
+    per 1,000 points). Coordinates are centred and in units of the bounding-box diagonal, so
+    scenes far from the origin lose no digits. ``tests/test_evidence.py`` checks it against
+    trimesh.
 
     The normal is interpolated from the reference's vertex normals with the barycentric
     coordinates of the closest point, so it varies continuously — a per-triangle normal would
     jump across edges, where round-off decides which triangle is "closest".
     """
-    from .geometry import vertex_normals
-
     P = np.asarray(points, float)
-    tris, tree = _triangle_index(reference)
-    V = reference.vertices
-    k = min(candidates, len(tris))
-    _, cand = tree.query(P, k=k)
-    cand = np.asarray(cand).reshape(len(P), k)
-    A, B, C = (V[tris[cand, j]] for j in range(3))  # (n, k, 3) each
-    Q, bary = _closest_on_triangles(P[:, None, :], A, B, C)
-    d2 = ((Q - P[:, None, :]) ** 2).sum(axis=2)
-    best = np.argmin(d2, axis=1)
-    rows = np.arange(len(P))
-    closest = Q[rows, best]
-    bc = bary[rows, best]
-    corners = tris[cand[rows, best]]
-    vn = vertex_normals(reference)
-    normals = np.einsum("kc,kcj->kj", bc, vn[corners])
+    idx = _reference_index(reference)
+    sq, tri, C = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P - idx.centre) / idx.scale))
+    corners = idx.F[tri]
+    bc = _barycentric(C, *(idx.V[corners[:, j]] for j in range(3)))
+    normals = np.einsum("kc,kcj->kj", bc, idx.normals[corners])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    return closest, np.sqrt(d2[rows, best]), normals
+    closest = C * idx.scale + idx.centre
+    return closest, np.sqrt(np.maximum(sq, 0.0)) * idx.scale, normals
 
 
-def _closest_on_triangles(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point on triangle ABC to P (broadcast arrays) and its barycentric coordinates."""
-    P = np.broadcast_to(P, A.shape)
-    ab, ac, ap = B - A, C - A, P - A
-    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
-    bp = P - B
-    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
-    cp = P - C
-    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v = vb / denom
-        w = vc / denom
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    u = 1 - v - w  # interior by default; the Voronoi regions of vertices and edges override it
-    regions = [
-        ((d1 <= 0) & (d2 <= 0), (1.0, 0.0, 0.0)),                                  # vertex A
-        ((d3 >= 0) & (d4 <= d3), (0.0, 1.0, 0.0)),                                 # vertex B
-        ((d6 >= 0) & (d5 <= d6), (0.0, 0.0, 1.0)),                                 # vertex C
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), (1 - t_ab, t_ab, 0.0)),                # edge AB
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), (1 - t_ac, 0.0, t_ac)),                # edge AC
-        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), (0.0, 1 - t_bc, t_bc)),  # edge BC
-    ]
-    taken = np.zeros(d1.shape, bool)
-    for mask, (bu, bv, bw) in regions:
-        m = mask & ~taken
-        u, v, w = np.where(m, bu, u), np.where(m, bv, v), np.where(m, bw, w)
-        taken |= m
-    bary = np.stack([u, v, w], axis=-1)
-    return bary[..., :1] * A + bary[..., 1:2] * B + bary[..., 2:] * C, bary
+def _barycentric(Q: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates ``(k, 3)`` of points Q lying on triangles ABC (clipped to the
+    triangle against round-off; a degenerate triangle gives its first corner)."""
+    ab, ac, aq = B - A, C - A, Q - A
+    d00, d01, d11 = (ab * ab).sum(1), (ab * ac).sum(1), (ac * ac).sum(1)
+    d20, d21 = (aq * ab).sum(1), (aq * ac).sum(1)
+    den = d00 * d11 - d01 * d01
+    ok = den > 1e-30 * np.maximum(d00 * d11, 1e-300)
+    den = np.where(ok, den, 1.0)
+    v = np.where(ok, (d11 * d20 - d01 * d21) / den, 0.0)
+    w = np.where(ok, (d00 * d21 - d01 * d20) / den, 0.0)
+    bc = np.clip(np.stack([1 - v - w, v, w], axis=1), 0.0, None)
+    return bc / np.maximum(bc.sum(axis=1, keepdims=True), 1e-300)
 
 
-_INDEX_CACHE: dict[int, tuple] = {}
+class _ReferenceIndex:
+    """A reference mesh prepared for closest-point queries (normalised coordinates)."""
+
+    def __init__(self, mesh: PolyMesh) -> None:
+        import igl
+
+        from .geometry import vertex_normals
+
+        V = mesh.vertices
+        self.centre, self.scale = V.mean(axis=0), max(bbox_diagonal(V), 1e-300)
+        self.V = np.ascontiguousarray((V - self.centre) / self.scale, dtype=float)
+        self.F = np.ascontiguousarray(triangulate(mesh), dtype=np.int64)
+        self.normals = vertex_normals(mesh)
+        self.tree = igl.AABB()
+        self.tree.init(self.V, self.F)
 
 
-def _triangle_index(mesh: PolyMesh):
-    """Fan triangles of a mesh and a KD-tree of their centroids, cached per mesh object."""
-    from scipy.spatial import cKDTree
+_INDEX_CACHE: dict[int, tuple[PolyMesh, _ReferenceIndex]] = {}
 
+
+def _reference_index(mesh: PolyMesh) -> _ReferenceIndex:
+    """The query structure of a mesh, cached per mesh object (meshes are immutable)."""
     hit = _INDEX_CACHE.get(id(mesh))
     if hit is not None and hit[0] is mesh:
-        return hit[1], hit[2]
-    tris = triangulate(mesh)
-    tree = cKDTree(mesh.vertices[tris].mean(axis=1))
+        return hit[1]
     if len(_INDEX_CACHE) > 16:
         _INDEX_CACHE.clear()
-    _INDEX_CACHE[id(mesh)] = (mesh, tris, tree)
-    return tris, tree
+    idx = _ReferenceIndex(mesh)
+    _INDEX_CACHE[id(mesh)] = (mesh, idx)
+    return idx
 
 
 def triangulate(mesh: PolyMesh) -> np.ndarray:

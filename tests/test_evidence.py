@@ -1,4 +1,4 @@
-"""Closest points on the reference: our KD-tree + exact projection against trimesh's query."""
+"""Closest points and distances on the reference (libigl's AABB tree) against trimesh's exact query."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,8 +12,9 @@ def test_closest_points_agree_with_trimesh():
     ref = make_shape("concave_disk", n_vertices=500).mesh
     rng = np.random.default_rng(3)
     diag = np.linalg.norm(np.ptp(ref.vertices, axis=0))
-    # points near the surface, as the solver produces them (up to 5% of the diagonal away)
+    # points near the surface, as the solver produces them, and far from it
     P = ref.vertices[rng.integers(0, ref.n_vertices, 400)] + rng.normal(scale=0.02 * diag, size=(400, 3))
+    P[::10] += rng.normal(scale=0.5 * diag, size=(40, 3))
     ours, d, n = closest_points(P, ref)
     tm = trimesh.Trimesh(ref.vertices, triangulate(ref), process=False)
     theirs, d_tm, _ = tm.nearest.on_surface(P)
@@ -21,6 +22,19 @@ def test_closest_points_agree_with_trimesh():
     np.testing.assert_allclose(np.linalg.norm(ours - P, axis=1), d, rtol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, rtol=1e-12)
     assert np.all(n[:, 2] > 0)  # interpolated normals of an upward surface point up
+
+
+def test_normals_at_the_reference_vertices_are_its_vertex_normals():
+    """At a vertex every adjacent triangle gives barycentric (1, 0, 0): the interpolated
+    normal is exactly that vertex's normal, whichever triangle the tree reports."""
+    from selfsupport.geometry import vertex_normals
+
+    ref = make_shape("pillar_vault", n_vertices=400).mesh
+    closest, d, n = closest_points(ref.vertices, ref)
+    diag = np.linalg.norm(np.ptp(ref.vertices, axis=0))
+    assert d.max() <= 1e-12 * diag
+    np.testing.assert_allclose(closest, ref.vertices, atol=1e-12 * diag)
+    np.testing.assert_allclose(n, vertex_normals(ref), atol=1e-9)
 
 
 def test_points_on_the_surface_have_zero_distance():
