@@ -172,11 +172,12 @@ def test_coupled_step_reaches_equilibrium_closer_to_the_reference(shape):
     assert coupled.distance_mean <= plain.distance_mean
 
 
-@pytest.mark.parametrize("max_rounds", [60, 2])
-def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, max_rounds):
+@pytest.mark.parametrize("newton, max_rounds", [(True, 60), (False, 60), (False, 2)])
+def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, newton, max_rounds):
     """The polish (weights frozen) solves (2)-(3) with loads of its own geometry. From a
-    perturbed converged network it must come back to equilibrium; with ``max_rounds=2``
-    Anderson cannot finish, so the Newton–Krylov fallback has to."""
+    perturbed converged network it must come back to equilibrium: by Newton with the coloured
+    load Jacobian in a few steps; without Newton by Anderson; and with ``max_rounds=2``
+    Anderson cannot finish either, so the Newton–Krylov fallback has to."""
     from selfsupport.methods.assembly import load_vector, weight_matrix
     from selfsupport.methods.scaling import ScaledProblem
     from selfsupport.methods.staggered import _polish
@@ -191,8 +192,8 @@ def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, max_rounds):
     rng = np.random.default_rng(3)
     Xd = X.copy()
     Xd[top.free] += 1e-3 * rng.standard_normal((top.n_free, 3))
-    Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=max_rounds)
-    assert rounds <= max_rounds
+    Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=max_rounds, newton=newton)
+    assert rounds <= (8 if newton else max_rounds)  # Newton: fast local convergence
     res_p = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
     assert (res_p / np.abs(L[top.free])).max() <= 1e-10
     # loads are those of the polished geometry, and the solution is the one we perturbed

@@ -59,6 +59,27 @@ def test_thrust_network_fit_warm_start_is_exact_and_cheap():
     np.testing.assert_allclose(warm.w, cold.w, rtol=1e-8, atol=1e-12 * eps)
 
 
+def test_an_inexact_fit_is_feasible_near_optimal_and_warm_starts_the_exact_one():
+    """With a caller's rtol the interior point stops early (no crossover): the point is in the
+    box and its objective within ~rtol of the optimum; the exact fit that follows, warm-started
+    from the inexact one's guessed active set, reaches KKT to round-off."""
+    rng = np.random.default_rng(7)
+    m, n = 300, 240
+    A = sp.random(m, n, density=0.03, random_state=7, format="csc") + sp.eye(m, n, format="csc") * 0.3
+    b = rng.normal(size=m)
+    lo, up = np.full(n, 0.05), np.where(rng.random(n) < 0.3, 0.4, np.inf)
+    exact = ActiveSetFit().fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(n), prox=1e-8)
+    backend = ActiveSetFit()
+    loose = backend.fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(n), prox=1e-8, rtol=1e-6)
+    assert loose.status == "inexact" and exact.status == "optimal" and exact.n_lower > 0
+    assert np.all(loose.w >= lo) and np.all(loose.w <= up)
+    assert exact.objective <= loose.objective <= exact.objective * (1 + 1e-4)
+    assert loose.n_lower == exact.n_lower  # the crossover's guess of the active set is right
+    again = backend.fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(n), prox=1e-8)
+    assert again.status == "optimal" and again.iterations <= 2
+    np.testing.assert_allclose(again.w, exact.w, rtol=1e-9, atol=1e-12)
+
+
 def test_unknown_backend_and_option_are_named_errors():
     with pytest.raises(InputError, match="unknown weight-fit backend"):
         make_backend("gurobi")

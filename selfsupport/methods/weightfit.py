@@ -27,7 +27,7 @@ class WeightFit:
     w: np.ndarray
     objective: float  # ½‖A w − b‖² (without the proximal term)
     iterations: int
-    status: str  # "optimal" | "max_iter" | "failed"
+    status: str  # "optimal" | "inexact" (stopped at the caller's looser rtol) | "max_iter" | "failed"
     seconds: float
     n_lower: int = 0
     n_upper: int = 0
@@ -49,7 +49,9 @@ class WeightFitBackend:
         self.options = {**self.defaults, **options}
 
     def fit(self, *, A: sp.spmatrix, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-            w0: np.ndarray, prox: float = 0.0) -> WeightFit:  # pragma: no cover - abstract
+            w0: np.ndarray, prox: float = 0.0, rtol: float | None = None) -> WeightFit:  # pragma: no cover - abstract
+        """Solve the fit. ``rtol``: a looser relative KKT tolerance the caller accepts for this
+        fit (``None``: the backend's own); a backend may ignore it."""
         raise NotImplementedError
 
     def reset(self) -> None:
@@ -118,14 +120,16 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
     gs = max(float(np.abs(c).max()), 1e-300)
     if warm is not None and warm[0].shape == c.shape:
         # warm start near the previous solution and its multipliers, nudged off the bounds
+        # (by 10% of the typical weight: measured on the paper's scenes, 10% fewer iterations
+        # than 1% and 25% fewer than a cold start)
         w, z_prev = warm
         scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
-        push = np.minimum(1e-2 * scale_w, 0.25 * span)
+        push = np.minimum(0.1 * scale_w, 0.25 * span)
         w = np.clip(w, lower + push, np.where(fin, upper - push, np.inf))
         g = Q @ w - c
         gm = max(float(np.median(np.abs(g))), 1e-3 * gs)
-        z = np.maximum(np.maximum(z_prev, g), 0) + 1e-2 * gm
-        y = np.where(fin, np.maximum(-g, 0) + 1e-2 * gm, 0.0)
+        z = np.maximum(np.maximum(z_prev, g), 0) + 0.1 * gm
+        y = np.where(fin, np.maximum(-g, 0) + 0.1 * gm, 0.0)
     else:
         # Mehrotra-style start: the unconstrained minimiser, pushed well inside the box
         w = lowq.with_diagonal(np.zeros(Q.shape[0])).solve(c)
@@ -188,7 +192,10 @@ class ActiveSetFit(WeightFitBackend):
     cycle when Q is not an M-matrix (far from equilibrium it does, badly), so after
     ``max_pdas`` iterations the problem goes to a Mehrotra interior-point method
     (:func:`_box_qp_ipm`), whose result seeds PDAS once more (crossover) so that the final
-    point satisfies the KKT conditions exactly.
+    point satisfies the KKT conditions exactly. PDAS hands over early when its guess is not
+    settling (the number of changed bounds does not halve). With a caller's ``rtol`` above
+    ``tol`` the interior point stops there and its point is returned as it is (status
+    ``"inexact"``, bounds counted from the crossover's guess).
 
     Written here rather than taken from a library: scipy's ``lsq_linear`` takes 10–90 s at
     3,500 edges (DESIGN.md §2), and none of the available sparse QP solvers warm-starts from
@@ -209,7 +216,7 @@ class ActiveSetFit(WeightFitBackend):
         self._ipm_warm = None
         self._factor = None
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0):
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None):
         t0 = time.perf_counter()
         A = sp.csc_matrix(A)
         Q = (A.T @ A).tocsc()
@@ -218,42 +225,57 @@ class ActiveSetFit(WeightFitBackend):
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
         lowq = _LowerQ(Q, self._factor if self._factor is not None and self._factor.shape == Q.shape else None)
+        guess = None
         if self._active is not None and self._active[0].shape == w0.shape:
-            w, it, status = self._pdas(lowq, Q, c, lower, upper, *self._active)
+            w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active)
         if status != "optimal":
-            wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, self.options["tol"],
+            loose = rtol is not None and rtol > self.options["tol"]
+            wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, rtol if loose else self.options["tol"],
                                                    self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq)
             # crossover: bounds whose multiplier dominates their slack start PDAS
             ws = max(float(np.median(np.abs(wi))), 1e-300)
             gs = max(float(np.abs(c).max()), 1e-300)
             lo = z * ws > (wi - lower) * gs
             up = np.isfinite(upper) & (y * ws > (upper - wi) * gs) & ~lo
-            wp, it_pd, st_pd = self._pdas(lowq, Q, c, lower, upper, lo, up)
-            it += it_ipm + it_pd
-            w, status = (wp, st_pd) if st_pd == "optimal" else (wi, st_ipm)
+            guess = (lo, up)
+            if loose:  # the caller accepts this accuracy: no crossover
+                it += it_ipm
+                w, status = wi, ("inexact" if st_ipm == "optimal" else st_ipm)
+                self._ipm_warm = (wi, z)
+            else:
+                wp, it_pd, st_pd, guess = self._pdas(lowq, Q, c, lower, upper, lo, up)
+                it += it_ipm + it_pd
+                w, status = (wp, st_pd) if st_pd == "optimal" else (wi, st_ipm)
         self._factor = lowq.factor
         w = np.clip(w, lower, upper)
         g = Q @ w - c
-        self._active = ((w <= lower) & (g > 0), (w >= upper) & (g < 0))
-        self._ipm_warm = (w, np.maximum(g, 0.0))
+        if status == "optimal" or guess is None:
+            guess = ((w <= lower) & (g > 0), (w >= upper) & (g < 0))
+        # next call's warm starts: this active set (for an interior point: the crossover's guess)
+        self._active = guess
+        if status != "inexact":
+            self._ipm_warm = (w, np.maximum(g, 0.0))
         return WeightFit(w=w, objective=_objective(A, b, w), iterations=it, status=status,
-                         seconds=time.perf_counter() - t0, n_lower=int(np.sum(w <= lower)),
-                         n_upper=int(np.sum(w >= upper)))
+                         seconds=time.perf_counter() - t0, n_lower=int(guess[0].sum()), n_upper=int(guess[1].sum()))
 
     def _pdas(self, lowq, Q, c, lower, upper, lo, up):
         """PDAS from the guess (lo, up): fix those bounds, solve for the rest, release bounds
         whose multiplier has the wrong sign and fix variables that left the box; stop when the
         guess repeats (then the KKT conditions hold exactly)."""
         w = None
+        changes = []
         for it in range(1, self.options["max_pdas"] + 1):
             w = self._reduced_solve(lowq, Q, c, lower, upper, lo, up)
             g = Q @ w - c
             lo_n = np.where(lo, g > 0, w < lower)
             up_n = np.where(up, g < 0, w > upper) & ~lo_n
             if np.array_equal(lo_n, lo) and np.array_equal(up_n, up):
-                return w, it, "optimal"
+                return w, it, "optimal", (lo, up)
+            changes.append(int(np.sum(lo_n != lo) + np.sum(up_n != up)))
             lo, up = lo_n, up_n
-        return w, self.options["max_pdas"], "max_iter"
+            if len(changes) > 1 and changes[-1] > max(0.5 * changes[-2], 10):
+                break  # the guess is not settling (halving its changes): leave it to the interior point
+        return w, it, "max_iter", (lo, up)
 
     @staticmethod
     def _reduced_solve(lowq, Q, c, lower, upper, lo, up):

@@ -107,7 +107,7 @@ class IpoptFit(WeightFitBackend):
                                            {"ipopt": opts, "print_time": False, "error_on_fail": False})
         return self._solvers[key]
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0) -> WeightFit:
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
@@ -173,7 +173,7 @@ class OsqpFit(WeightFitBackend):
         C = sp.hstack([A, -sp.identity(rows)], format="csc")
         return H, C
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0) -> WeightFit:
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
@@ -256,7 +256,7 @@ class NloptFit(WeightFitBackend):
             raise BackendUnavailable("the 'nlopt' weight-fit backend needs the nlopt package: "
                                      "`pip install nlopt`") from None
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0) -> WeightFit:
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
         import nlopt
 
         t0 = time.perf_counter()
