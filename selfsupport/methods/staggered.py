@@ -264,6 +264,7 @@ class StaggeredLinearization:
                                         opt.fairness * alpha, Xref=X0, umbrella=U, G=G, prox_dw=beta,
                                         gap=gap, damping=opt.coupled_damping, workspace=step3)
                     rec["t_positions"] = time.perf_counter() - t0
+                    rec["cg_iterations"] = step3.get("cg_iterations", 0)
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
                     # iteration, so it may stop at a looser tolerance
                     rtol = opt.fit_rtol if cur["max_rel_error"] > opt.finish_try else None
@@ -387,11 +388,20 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
     The residual rows are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
     very error the fit measures); the penalties are multiplied by the mean of
     ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that
-    α and β compare lengths with lengths whatever the mesh resolution. ``workspace`` (a dict
-    kept by the caller across steps) holds what does not change between steps: ``UfᵀUf`` and
-    the factor object, whose symbolic analysis is reused while the pattern holds.
+    α and β compare lengths with lengths whatever the mesh resolution.
+
+    The system is ``(H ⊗ I₃ + b₀ I + b₁ ⊕ n_i n_iᵀ) x = rhs`` with H the (n_free × n_free)
+    Gram matrix of the scaled stress Laplacian (+ fairness): only the anchor's normal part
+    couples x, y and z. It is solved by conjugate gradients preconditioned with one n×n
+    factorization of ``H + b₀ I`` applied to the three coordinates — a 3n×3n factorization
+    costs ~27× the flops, and the preconditioned system's condition number is at most
+    ``1 + b₁/b₀ = 1 + (1 − τ)/(τ + β/α)`` (measured: 2–27 iterations to 1e-10 on the paper's
+    scenes). The direct 3n×3n factorization remains for the coupled step and as a fallback.
+    ``workspace`` (a dict kept by the caller across steps) holds what does not change between
+    steps — ``UfᵀUf`` and the factor objects, whose symbolic analyses are reused.
     """
     ws = workspace if workspace is not None else {}
+    ws["cg_iterations"] = 0  # stays 0 when the direct factorization solves the step
     free = top.free
     Kff, Kfs = position_blocks(top, w)
     d = -Kff.diagonal()
@@ -405,24 +415,28 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
     target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
     H = (Kt.T @ Kt).tocsr()
     n = Nrm[free]
-    anchor = (c * alpha) * (tau * np.eye(3)[None] + (1 - tau) * n[:, :, None] * n[:, None, :])
+    # anchor + proximal term per vertex: b0 I + b1 n nᵀ
+    b0, b1 = c * (alpha * tau + beta), c * alpha * (1 - tau)
+    rhs = Kt.T @ target
     if gamma > 0 and umbrella is not None and umbrella.shape[0]:
         # smooth displacement: γ ‖U (X − X_ref)‖², U the umbrella Laplacian (supports as data)
         if "Uf" not in ws:
             ws["Uf"], ws["Us"] = umbrella[:, free].tocsr(), umbrella[:, ~free].tocsr()
             ws["UtU"] = (ws["Uf"].T @ ws["Uf"]).tocsr()
         Uf, Us = ws["Uf"], ws["Us"]
-        H = H + (c * gamma) * ws["UtU"]
-        target_u = Uf @ Xref[free] + Us @ (Xref[~free] - X[~free])
-    else:
-        target_u = None
-    M = (sp.kron(H, sp.identity(3), format="csr") + _block_diag(anchor + (c * beta) * np.eye(3)[None])).tocsc()
-    rhs = (Kt.T @ target).ravel()
-    if target_u is not None:
-        rhs += (c * gamma) * (Uf.T @ target_u).ravel()
-    rhs += np.einsum("kij,kj->ki", anchor, P[free]).ravel() + (c * beta) * X[free].ravel()
+        H = (H + (c * gamma) * ws["UtU"]).tocsr()
+        rhs += (c * gamma) * (Uf.T @ (Uf @ Xref[free] + Us @ (Xref[~free] - X[~free])))
+    Pf = P[free]
+    rhs += (c * alpha) * (tau * Pf + (1 - tau) * n * np.einsum("ki,ki->k", n, Pf)[:, None]) + (c * beta) * X[free]
     Xn = X.copy()
-    if G is not None and G.shape[1] > 0:  # (with every weight at a bound it is the plain step)
+    if G is None or G.shape[1] == 0:  # (with every weight at a bound the coupled step is the plain one)
+        sol = _solve_anchored(H, b0, b1, n, rhs, ws)
+        if sol is not None:
+            Xn[free] = sol
+            return Xn
+    M = (sp.kron(H, sp.identity(3), format="csr")
+         + _block_diag(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
+    if G is not None and G.shape[1] > 0:
         # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
         # the reduced error min_w E(X, w) rather than on E(X, w_k)); dw is only used to shape
         # the position step: the trial is refitted exactly
@@ -436,15 +450,42 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
         N = sp.bmat([[M, J.T @ G], [G.T @ J, GtG + sp.diags(pw)]], format="csc")
         # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
         rhs_w = G.T @ target.ravel()
-        sol = spd_factor(N).solve(np.r_[rhs, rhs_w])
+        sol = spd_factor(N).solve(np.r_[rhs.ravel(), rhs_w])
         Xn[free] = sol[:M.shape[0]].reshape(-1, 3)
         return Xn
     if ws.get("factor") is not None and ws["factor"].shape == M.shape:
         ws["factor"].update(M)
     else:
         ws["factor"] = spd_factor(M)
-    Xn[free] = ws["factor"].solve(rhs).reshape(-1, 3)
+    Xn[free] = ws["factor"].solve(rhs.ravel()).reshape(-1, 3)
     return Xn
+
+
+def _solve_anchored(H: sp.csr_matrix, b0: float, b1: float, n: np.ndarray, rhs: np.ndarray, ws: dict,
+                    rtol: float = 1e-10, maxiter: int = 200) -> np.ndarray | None:
+    """``(H ⊗ I₃ + b0 I + b1 ⊕ n_i n_iᵀ) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG
+    (scipy), the preconditioner ``(H + b0 I)⁻¹`` per coordinate; None if CG does not converge."""
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    k = H.shape[0]
+    Hs = (H + b0 * sp.identity(k, format="csr")).tocsc()
+    if ws.get("pre") is not None and ws["pre"].shape == Hs.shape:
+        ws["pre"].update(Hs)
+    else:
+        ws["pre"] = spd_factor(Hs)
+    pre = ws["pre"]
+
+    def matvec(x: np.ndarray) -> np.ndarray:
+        X = x.reshape(k, 3)
+        return (H @ X + b0 * X + (b1 * np.einsum("ki,ki->k", n, X))[:, None] * n).ravel()
+
+    op = LinearOperator((3 * k, 3 * k), matvec=matvec, dtype=float)
+    prec = LinearOperator((3 * k, 3 * k), matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel(), dtype=float)
+    count = [0]
+    x, info = cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
+                 callback=lambda _: count.__setitem__(0, count[0] + 1))
+    ws["cg_iterations"] = count[0]
+    return x.reshape(k, 3) if info == 0 and np.all(np.isfinite(x)) else None
 
 
 def _block_diag(blocks: np.ndarray) -> sp.csr_matrix:
