@@ -12,25 +12,22 @@ first size that does not converge within ``--ipopt-time-limit``.
 
 The floor
 ---------
-For staggered rows the worker also measures one sparse factorization:
+For staggered rows the worker also measures, at the final weights:
 
-* ``factor_K_s`` — :func:`selfsupport.linalg.spd_factor` (the project's SPD
-  factorization) of ``−K_ff``, the free-vertex block of the stress Laplacian at the final
-  weights (:func:`selfsupport.methods.assembly.position_blocks`; ``n_free × n_free``, the
-  matrix of the polish and of one coordinate of Step 3), median of 3;
-* ``factor_step3_s`` — the median time of the factorizations the solve itself made of its
-  Step-3 matrix (``3 n_free × 3 n_free``), recorded by wrapping ``spd_factor`` in
-  ``selfsupport.methods.staggered`` during the timed solve (a few microseconds of overhead per
-  call). When the method does not call ``spd_factor`` there (the lead may change that), the
-  column stays empty and ``factor_step3_like_s`` — the factorization of
-  ``kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)`` (``K_t`` = ``K_ff`` with rows over
-  ``|A_i F_i|``; the per-vertex 3×3 blocks stand for Step 3's anchor terms, which couple a
-  vertex's coordinates: the same sparsity as Step 3's matrix) — stands in;
-* ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s`` (or the
-  stand-in): how many Step-3 factorizations one outer iteration costs; 1–3 would be the floor
-  of a method that factors once per step. ``factor_share`` is the fraction of the solve spent
-  in all recorded factorizations (Step 3, polish and the active-set Step-2 fits); numeric
-  re-factorizations through a factor object's ``update`` are not recorded.
+* ``factor_K_s`` — one :func:`selfsupport.linalg.spd_factor` factorization of ``−K_ff``, the
+  free-vertex block of the stress Laplacian (``n_free × n_free``: the polish's matrix), median of 3;
+* ``factor_step3_s`` — one factorization of the Step-3 system itself, ``H ⊗ I₃ + c·⊕(b₀I + b₁nnᵀ)``
+  (``3 n_free × 3 n_free``, ``H = K_tᵀK_t``, ``K_t`` = ``K_ff`` with rows over ``|A_i F_i|``):
+  what a direct Step 3 costs;
+* ``factor_step3_pre_s`` — one factorization of ``H + c I`` (``n_free × n_free``), what the
+  solver's Step 3 actually factors (its conjugate gradients are preconditioned with it);
+* ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s``: an outer
+  iteration's cost in direct Step-3 factorizations (1–3 would be a method that factors once per step);
+* from the solve's own history: ``step2_s`` and ``step3_s`` (time in the weight fits and in the
+  position steps), ``cg_mean`` (mean CG iterations per position step);
+* ``n_factorizations`` / ``factor_share`` — every numeric factorization the solve made (new
+  factor objects and numeric refactorizations alike, recorded by wrapping ``SPDFactor``), and
+  the share of the solve time they took.
 
 Writes ``scaling.csv``, ``scaling.md`` and ``scaling.png`` (log-log time and memory vs
 vertices, with the fitted exponents of ``time ∝ n^k``) into ``--out`` and prints the table.
@@ -72,29 +69,27 @@ METHODS: dict[str, tuple[Callable[[], Any], float]] = {
 
 
 class _FactorRecorder:
-    """Wrap a module's ``spd_factor`` and record (matrix size, seconds) of every call."""
-
-    def __init__(self, module: Any) -> None:
-        self.module = module
-        self.calls: list[tuple[int, float]] = []
-        self._orig = getattr(module, "spd_factor", None)
+    """Record (matrix size, seconds) of every numeric factorization of :class:`SPDFactor`
+    (creation and ``update`` alike) while active."""
 
     def __enter__(self) -> "_FactorRecorder":
-        if self._orig is not None:
-            orig = self._orig
+        from selfsupport.linalg import SPDFactor
 
-            def timed(M, *a, **kw):
-                t = time.perf_counter()
-                out = orig(M, *a, **kw)
-                self.calls.append((int(M.shape[0]), time.perf_counter() - t))
-                return out
+        self.calls: list[tuple[int, float]] = []
+        self._cls, self._orig = SPDFactor, SPDFactor._factor
+        orig, calls = self._orig, self.calls
 
-            self.module.spd_factor = timed
+        def timed(obj, M, *a, **kw):
+            t = time.perf_counter()
+            out = orig(obj, M, *a, **kw)
+            calls.append((int(M.shape[0]), time.perf_counter() - t))
+            return out
+
+        SPDFactor._factor = timed
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self._orig is not None:
-            self.module.spd_factor = self._orig
+        self._cls._factor = self._orig
 
 
 def _floor_measurements(result, scene) -> dict[str, float]:
@@ -116,20 +111,20 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     Kt = sp.diags(s) @ Kff
     H = (Kt.T @ Kt).tocsr()
     c = float(np.mean((negK.diagonal() * s) ** 2))
-    # + c (I + 1 1ᵀ) per vertex: Step 3's normal/tangent anchors couple a vertex's x, y, z, which
-    # makes its matrix one coupled 3n system rather than three scalar ones (same sparsity here)
-    blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) + np.eye(3))
+    # Step 3's anchor b0 I + b1 n nᵀ per vertex (here n = (1, 1, 1)/√3) couples a vertex's x, y, z:
+    # as a direct solve one 3n system, not three scalar ones
+    blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) / 3 + np.eye(3))
     M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
+    pre = (H + c * sp.identity(top.n_free)).tocsc()
     return {"factor_K_s": median_time(lambda: spd_factor(negK), repeat=3, budget=60.0),
-            "factor_step3_like_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
+            "factor_step3_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
+            "factor_step3_pre_s": median_time(lambda: spd_factor(pre), repeat=3, budget=60.0),
             "n_free": top.n_free}
 
 
 def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, out_json: str,
                 warmup: bool = True) -> dict[str, Any]:
     """Worker (own process): generate the shape, solve it, save the network, return the numbers."""
-    import selfsupport.methods.staggered as stg
-    import selfsupport.methods.weightfit as wf
     from selfsupport.api import scene_loads
     from selfsupport.io import write_network
     from selfsupport.shapes import make_shape
@@ -142,7 +137,7 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
         tiny = make_shape("dome", n_vertices=60)
         factory().solve(tiny, scene_loads(tiny), time_limit=30.0)
     rss0 = current_rss_mib()
-    with _FactorRecorder(stg) as rec_s, _FactorRecorder(wf) as rec_w, Stopwatch() as sw:
+    with _FactorRecorder() as rec, Stopwatch() as sw:
         res = solver.solve(scene, loads, time_limit=float(time_limit))
     write_network(out_json, res, study={"shape": shape, "target_vertices": n_vertices, "method": method,
                                         "solve_seconds": sw.seconds, "time_limit": time_limit})
@@ -152,13 +147,14 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
         "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max, "rss_before_mib": rss0,
         "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
     if method == "staggered":
-        nf = int(scene.free.sum())
-        step3 = [t for n, t in rec_s.calls if n == 3 * nf]
-        all_calls = rec_s.calls + rec_w.calls
+        steps = [h for h in res.history if isinstance(h.get("iteration"), int)]
+        row["step2_s"] = sum(h.get("t_weights", 0.0) for h in steps)
+        row["step3_s"] = sum(h.get("t_positions", 0.0) for h in steps)
+        cg = [h["cg_iterations"] for h in steps if h.get("cg_iterations")]
+        row["cg_mean"] = float(np.mean(cg)) if cg else float("nan")
+        row["n_factorizations"] = len(rec.calls)
+        row["factor_share"] = sum(t for _, t in rec.calls) / sw.seconds if rec.calls else float("nan")
         row.update(_floor_measurements(res, scene))
-        row["factor_step3_s"] = float(np.median(step3)) if step3 else float("nan")
-        row["n_factorizations"] = len(all_calls)
-        row["factor_share"] = sum(t for _, t in all_calls) / sw.seconds if all_calls else float("nan")
         row["peak_rss_mib"] = peak_rss_mib()
     return row
 
@@ -171,16 +167,19 @@ COLUMNS: tuple[Column, ...] = (
     Column("dist_ref_mean", "dist. to ref. mean", "{:.2e}"), Column("dist_ref_max", "dist. to ref. max", "{:.2e}"),
     Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("rss_before_mib", "RSS before solve [MiB]", "{:.0f}"),
     Column("time_per_iter_s", "time / iteration [s]", "{:.3f}"),
-    Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"), Column("factor_step3_s", "factor Step 3 [s]", "{:.4f}"),
-    Column("factor_step3_like_s", "factor Step-3-like [s]", "{:.4f}"),
+    Column("step2_s", "Step 2 [s]", "{:.2f}"), Column("step3_s", "Step 3 [s]", "{:.2f}"),
+    Column("cg_mean", "CG its / step", "{:.1f}"),
+    Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"), Column("factor_step3_s", "factor Step 3 (3n) [s]", "{:.4f}"),
+    Column("factor_step3_pre_s", "factor H + cI (n) [s]", "{:.4f}"),
     Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
     Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
 )
 _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "status", "time_s", "iterations", "max_rel_error",
-              "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "factor_K_s", "factor_step3_s",
-              "factor_step3_like_s", "per_iter_over_factor", "n_factorizations", "factor_share")
+              "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
+              "factor_K_s", "factor_step3_s", "factor_step3_pre_s", "per_iter_over_factor", "n_factorizations",
+              "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
                Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
@@ -282,10 +281,7 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                 if out_json.is_file():
                     r["max_rel_error"] = json_max_relative_error(out_json)
                 r["time_per_iter_s"] = safe_ratio(r.get("time_s"), r.get("iterations"))
-                step3 = r.get("factor_step3_s")
-                if step3 is None or not np.isfinite(step3):
-                    step3 = r.get("factor_step3_like_s")
-                r["per_iter_over_factor"] = safe_ratio(r.get("time_per_iter_s"), step3)
+                r["per_iter_over_factor"] = safe_ratio(r.get("time_per_iter_s"), r.get("factor_step3_s"))
                 echo(f"    {r.get('status')}: {r.get('vertices', '?')} V, time {r.get('time_s', float('nan')):.2f} s, "
                      f"{r.get('iterations', '-')} it, error {r.get('max_rel_error', float('nan')):.2e}, "
                      f"peak RSS {r.get('peak_rss_mib', float('nan')):.0f} MiB"
@@ -308,12 +304,13 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
         "a tiny dome excluded); each row runs in its own spawned process, so *peak RSS* is that row's "
         "(interpreter and imports included; *RSS before solve* is the level the solve started from).",
         "*max rel. error* recomputed with plain numpy from the saved JSON network.",
-        "Floor: *factor −K_ff* = one SPD factorization (`linalg.spd_factor`) of the free-vertex stress "
-        "Laplacian at the final weights; *factor Step 3* = median of the solve's own factorizations of its "
-        "3n_free×3n_free Step-3 matrix (recorded by wrapping `staggered.spd_factor`); *Step-3-like* = "
-        "`kron(K_tᵀK_t, I₃) + c·blockdiag(I₃ + 11ᵀ)` (same sparsity) when that recording is empty; *iteration / Step-3 "
-        "factorization* = (time / iterations) / Step-3 factorization time; *share in factorizations* = time "
-        "in all recorded factorizations (Step 3, polish, active-set Step 2) / solve time.",
+        "Floor (at the final weights): *factor −K_ff* = one SPD factorization (`linalg.spd_factor`) of the "
+        "free-vertex stress Laplacian; *factor Step 3 (3n)* = one factorization of the 3n_free×3n_free Step-3 "
+        "system (what a direct Step 3 costs); *factor H + cI (n)* = one factorization of the n_free×n_free "
+        "matrix the solver's Step 3 factors (its CG preconditioner); *iteration / Step-3 factorization* = "
+        "(time / iterations) / the 3n factorization. *Step 2*, *Step 3*: time in the weight fits and the "
+        "position steps (from the solve's history); *factorizations*, *share*: every numeric factorization "
+        "of the solve (new and refactored) and its share of the solve time.",
         "IPOPT is not tried at sizes above the first one where it does not converge within its time limit.",
         f"Load average at the end (1/5/15 min): {load_average()} — shared machine, timings are noisy.",
     ]

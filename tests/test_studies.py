@@ -191,9 +191,12 @@ def test_scaling_row_measures_the_factorization_floor(tmp_path):
                             out_json=str(tmp_path / "n.json"), warmup=False)
     assert r["status"] == "converged"
     assert common.json_max_relative_error(tmp_path / "n.json") == pytest.approx(r["reported_error"], rel=1e-6, abs=1e-15)
-    assert r["factor_K_s"] > 0 and r["factor_step3_like_s"] > 0
+    assert r["factor_K_s"] > 0 and r["factor_step3_s"] > 0 and r["factor_step3_pre_s"] > 0
     assert r["n_free"] == int(make_shape("pillar_vault", n_vertices=150).free.sum())
     assert 0 < r["factor_share"] < 1
+    # every fit and every Step-3 preconditioner is a factorization: at least one per iteration
+    assert r["n_factorizations"] >= r["iterations"]
+    assert 0 < r["step2_s"] < r["time_s"] and 0 < r["step3_s"] < r["time_s"] and r["cg_mean"] >= 1
 
 
 def test_run_isolated_contains_failures():
