@@ -51,3 +51,28 @@ def test_coloured_jacobian_equals_column_by_column_differences(shape):
     scale = np.abs(dense).max()
     np.testing.assert_allclose(J, dense, atol=1e-9 * scale, rtol=0)
     assert np.abs(J).max() > 0
+
+
+def test_polish_with_loads_independent_of_the_geometry_is_one_linear_solve():
+    """Fixed point loads: J = 0, so the Newton step is the exact stress-Laplacian solve and
+    the polish ends after it (a second round only confirms); the result is in equilibrium."""
+    from selfsupport.loads import PointLoad
+    from selfsupport.methods.assembly import load_vector, weight_matrix
+    from selfsupport.methods.polish import polish
+    from selfsupport.methods.scaling import ScaledProblem
+    from selfsupport.methods.staggered import StaggeredLinearization
+
+    scene = make_shape("pillar_vault", n_vertices=200)
+    res = StaggeredLinearization().solve(scene, SelfWeight())
+    net = res.network
+    loads = PointLoad(np.asarray(net.loads))
+    prob = ScaledProblem.build(scene, np.asarray(net.loads))
+    top, sc = prob.top, prob.scaling
+    X = sc.pos(np.asarray(net.vertices))
+    X[top.free] += 1e-2 * np.random.default_rng(0).standard_normal((top.n_free, 3))
+    w = sc.weight(np.asarray(net.weights)[scene.active_edges])
+    ws: dict = {}
+    Xp, L, rounds = polish(top, X, w, loads, scene.mesh, sc, workspace=ws)
+    assert rounds <= 2 and "colouring" not in ws
+    r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
+    assert (r / np.abs(L[top.free])).max() <= 1e-12

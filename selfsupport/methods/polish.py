@@ -56,10 +56,11 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
     z, rounds, converged = z_start, 0, False
     if newton:
         ws = workspace if workspace is not None else {}
-        if "colouring" not in ws:
+        constant = not loads.depends_on_geometry  # then J = 0 and one Newton step is exact
+        if "colouring" not in ws and not constant:
             ws["colouring"] = _load_colouring(mesh0, free)
-        z, rounds, converged = _newton(K, zs, loads_at, chol, z_start, ws["colouring"], ftol, max_rounds,
-                                       constant=not loads.depends_on_geometry)
+        z, rounds, converged = _newton(K, zs, loads_at, chol, z_start, ws.get("colouring"), ftol, max_rounds,
+                                       constant=constant)
     if not converged:
         z, rounds, converged = _anderson(G, z_start, ftol, max_rounds)
     if not converged:
@@ -70,13 +71,12 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
 
 
 def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.ndarray,
-            colouring: tuple, ftol: float, max_steps: int, constant: bool = False
+            colouring: tuple | None, ftol: float, max_steps: int, constant: bool = False
             ) -> tuple[np.ndarray, int, bool]:
     """Chord Newton on ``R(z) = K z − z_s + L(z)``; convergence is measured as in the fixed
     point, ``max |G(z) − z| ≤ ftol`` (G(z) − z = −K⁻¹ R(z))."""
     from scipy.sparse.linalg import splu
 
-    rows, cols, colour, n_colours = colouring
     lu, refreshed, f_prev = None, 0, np.inf
     for step in range(1, max_steps + 1):
         Lz = loads_at(z)
@@ -89,7 +89,7 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
         if lu is None or f > 0.25 * f_prev:  # first step, or the chord contracts slowly: new J
             if refreshed >= 4:
                 return z, step, False
-            J = sp.csc_matrix(K.shape) if constant else _load_jacobian(loads_at, z, Lz, rows, cols, colour, n_colours)
+            J = sp.csc_matrix(K.shape) if constant else _load_jacobian(loads_at, z, Lz, *colouring)
             try:
                 lu = splu((K + J).tocsc())
             except RuntimeError:  # singular: leave it to the fixed-point methods
