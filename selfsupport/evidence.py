@@ -62,17 +62,23 @@ def closest_points(points: np.ndarray, reference: PolyMesh) -> tuple[np.ndarray,
 
     The normal is interpolated from the reference's vertex normals with the barycentric
     coordinates of the closest point, so it varies continuously — a per-triangle normal would
-    jump across edges, where round-off decides which triangle is "closest".
+    jump across edges, where round-off decides which triangle is "closest". A non-finite
+    point gets NaN for its closest point and normal and an infinite distance.
     """
     P = np.asarray(points, float)
+    closest, dist, normals = np.full(P.shape, np.nan), np.full(len(P), np.inf), np.full(P.shape, np.nan)
+    ok = np.all(np.isfinite(P), axis=1)  # (igl returns an arbitrary triangle for a NaN point)
+    if not ok.any():
+        return closest, dist, normals
     idx = _reference_index(reference)
-    sq, tri, C = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P - idx.centre) / idx.scale))
+    sq, tri, C = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P[ok] - idx.centre) / idx.scale))
     corners = idx.F[tri]
     bc = _barycentric(C, *(idx.V[corners[:, j]] for j in range(3)))
-    normals = np.einsum("kc,kcj->kj", bc, idx.normals[corners])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    closest = C * idx.scale + idx.centre
-    return closest, np.sqrt(np.maximum(sq, 0.0)) * idx.scale, normals
+    nrm = np.einsum("kc,kcj->kj", bc, idx.normals[corners])
+    normals[ok] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    closest[ok] = C * idx.scale + idx.centre
+    dist[ok] = np.sqrt(np.maximum(sq, 0.0)) * idx.scale
+    return closest, dist, normals
 
 
 def _barycentric(Q: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:

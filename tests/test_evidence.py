@@ -24,6 +24,14 @@ def test_closest_points_agree_with_trimesh():
     assert np.all(n[:, 2] > 0)  # interpolated normals of an upward surface point up
 
 
+def test_a_non_finite_point_has_no_closest_point():
+    ref = make_shape("dome", n_vertices=200).mesh
+    P = np.vstack([ref.vertices[:3], [[np.nan, 0.0, 0.0]], [[0.0, np.inf, 1.0]]])
+    closest, d, n = closest_points(P, ref)
+    np.testing.assert_allclose(closest[:3], ref.vertices[:3], atol=1e-12)
+    assert np.all(np.isnan(closest[3:])) and np.all(np.isnan(n[3:])) and np.all(d[3:] == np.inf)
+
+
 def test_normals_at_the_reference_vertices_are_its_vertex_normals():
     """At a vertex every adjacent triangle gives barycentric (1, 0, 0): the interpolated
     normal is exactly that vertex's normal, whichever triangle the tree reports."""

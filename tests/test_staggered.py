@@ -193,7 +193,12 @@ def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, newton, max_r
     Xd = X.copy()
     Xd[top.free] += 1e-3 * rng.standard_normal((top.n_free, 3))
     Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=max_rounds, newton=newton)
-    assert rounds <= (8 if newton else max_rounds)  # Newton: fast local convergence
+    if newton:
+        assert rounds <= 8  # Newton: fast local convergence
+    elif max_rounds == 60:
+        assert rounds <= max_rounds  # Anderson alone finished
+    else:
+        assert rounds > max_rounds  # Anderson could not: Newton–Krylov's evaluations are counted too
     res_p = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
     assert (res_p / np.abs(L[top.free])).max() <= 1e-10
     # loads are those of the polished geometry, and the solution is the one we perturbed
@@ -231,11 +236,12 @@ def test_a_stalled_polish_is_retried_from_a_tighter_fit(monkeypatch):
     assert res.iterations < res.parameters["max_iter"]
 
 
-@pytest.mark.parametrize("b0, b1", [(1e-1, 1.9), (1e-4, 1e-3), (1e-8, 1e-7)])
+@pytest.mark.parametrize("b0, b1", [(1e2, 1.9e3), (1e1, 1.9e2), (1e-1, 1.9), (1e-4, 1e-3)])
 def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     """Step 3's conjugate gradients (preconditioned by one n×n factor per coordinate) solve the
     anchored system exactly as the 3n×3n factorization does, in few iterations, whether the
-    anchor (b1 nnᵀ, here up to 19× b0) or the stress term dominates."""
+    anchor (b1 nnᵀ = 19 b0; H's diagonal is 11–128 here, so the first two cases are
+    anchor-dominated) or the stress term dominates."""
     import scipy.sparse as sp
 
     from selfsupport.methods.assembly import Topology, position_blocks
@@ -254,6 +260,6 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     x = _solve_anchored(H, b0, b1, n, rhs, ws)
     M = (sp.kron(H, sp.identity(3)) + _block_diag(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
     direct = sp.linalg.spsolve(M, rhs.ravel()).reshape(-1, 3)
-    np.testing.assert_allclose(x, direct, rtol=0, atol=1e-8 * np.abs(direct).max())
-    assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0: bounded, whatever the mesh size
+    np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
+    assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size
     assert _solve_anchored(H, b0, b1, n, rhs, {}, maxiter=1) is None  # not converged: the caller factors M

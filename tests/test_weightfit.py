@@ -73,7 +73,7 @@ def test_an_inexact_fit_is_feasible_near_optimal_and_warm_starts_the_exact_one()
     loose = backend.fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(n), prox=1e-8, rtol=1e-6)
     assert loose.status == "inexact" and exact.status == "optimal" and exact.n_lower > 0
     assert np.all(loose.w >= lo) and np.all(loose.w <= up)
-    assert exact.objective <= loose.objective <= exact.objective * (1 + 1e-4)
+    assert exact.objective <= loose.objective <= exact.objective * (1 + 1e-5)  # measured 3.4e-6
     assert loose.n_lower == exact.n_lower  # the crossover's guess of the active set is right
     again = backend.fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(n), prox=1e-8)
     assert again.status == "optimal" and again.iterations <= 2

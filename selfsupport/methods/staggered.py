@@ -239,6 +239,13 @@ class StaggeredLinearization:
                         history.append(rec)
                         break
                     if fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try):
+                        if cur["fit_status"] == "inexact":
+                            # a trial fitted loosely (its predecessor was far from equilibrium) that
+                            # landed below finish_try: the finish polishes exact weights only
+                            exact = refit(X, cur["w"])
+                            if exact is not None:
+                                cur = exact
+                                rec.update({k: v for k, v in cur.items() if k not in ("L", "w", "As")})
                         early = _try_finish(top, X, cur["w"], loads, mesh0, sc, Xref_mesh, opt, polish_ws)
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
@@ -264,7 +271,6 @@ class StaggeredLinearization:
                                         opt.fairness * alpha, Xref=X0, umbrella=U, G=G, prox_dw=beta,
                                         gap=gap, damping=opt.coupled_damping, workspace=step3)
                     rec["t_positions"] = time.perf_counter() - t0
-                    rec["cg_iterations"] = step3.get("cg_iterations", 0)
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
                     # iteration, so it may stop at a looser tolerance
                     rtol = opt.fit_rtol if cur["max_rel_error"] > opt.finish_try else None
@@ -278,6 +284,7 @@ class StaggeredLinearization:
                         trial = refit(Xt, cur["w"], rtol=rtol)
                         accepted = trial is not None and trial["E"] < cur["E"]
                         rec["fallback"] = True
+                    rec["cg_iterations"] = step3.get("cg_iterations", 0)  # of the step taken
                     rec["accepted"] = accepted
                     history.append(rec)
                     if progress:
@@ -401,7 +408,7 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
     steps — ``UfᵀUf`` and the factor objects, whose symbolic analyses are reused.
     """
     ws = workspace if workspace is not None else {}
-    ws["cg_iterations"] = 0  # stays 0 when the direct factorization solves the step
+    ws["cg_iterations"] = 0  # set to 0 again when the direct factorization solves the step
     free = top.free
     Kff, Kfs = position_blocks(top, w)
     d = -Kff.diagonal()
@@ -484,8 +491,9 @@ def _solve_anchored(H: sp.csr_matrix, b0: float, b1: float, n: np.ndarray, rhs: 
     count = [0]
     x, info = cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
                  callback=lambda _: count.__setitem__(0, count[0] + 1))
-    ws["cg_iterations"] = count[0]
-    return x.reshape(k, 3) if info == 0 and np.all(np.isfinite(x)) else None
+    ok = info == 0 and np.all(np.isfinite(x))
+    ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
+    return x.reshape(k, 3) if ok else None
 
 
 def _block_diag(blocks: np.ndarray) -> sp.csr_matrix:

@@ -238,7 +238,7 @@ class ActiveSetFit(WeightFitBackend):
             lo = z * ws > (wi - lower) * gs
             up = np.isfinite(upper) & (y * ws > (upper - wi) * gs) & ~lo
             guess = (lo, up)
-            if loose:  # the caller accepts this accuracy: no crossover
+            if loose and st_ipm == "optimal":  # the caller accepts this accuracy: no crossover
                 it += it_ipm
                 w, status = wi, ("inexact" if st_ipm == "optimal" else st_ipm)
                 self._ipm_warm = (wi, z)
