@@ -4,8 +4,9 @@ Step 1  loads from the current geometry.
 Step 2  weights with positions fixed: a box-constrained sparse least-squares fit of the
         relative residual ``(A w − b)_i / |A_i F_i|`` (pluggable backend, warm-started). While
         the fit error is above ``finish_try`` the backend may stop at a KKT tolerance of
-        ``fit_rtol`` (those fits only steer the iteration: measured, 16% fewer factorizations
-        on the paper's scenes, the same networks to 3 digits); the fits that finish are exact.
+        ``fit_rtol`` (those fits only steer the iteration: measured, 17% fewer factorizations
+        on the paper's scenes, the same distances to the reference to 3 digits); the fits the
+        finish and the polish use are exact (a loosely fitted iterate is refitted first).
 Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
 
             Σ_i ‖r_i / d_i‖² + α Σ_i ( ⟨n_i, v_i − p_i⟩² + τ ‖T_i (v_i − p_i)‖² ) + β Σ_i ‖v_i − v_i^k‖²
