@@ -409,7 +409,7 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
     steps — ``UfᵀUf`` and the factor objects, whose symbolic analyses are reused.
     """
     ws = workspace if workspace is not None else {}
-    ws["cg_iterations"] = 0  # set to 0 again when the direct factorization solves the step
+    ws["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
     free = top.free
     Kff, Kfs = position_blocks(top, w)
     d = -Kff.diagonal()

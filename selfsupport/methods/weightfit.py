@@ -240,7 +240,7 @@ class ActiveSetFit(WeightFitBackend):
             guess = (lo, up)
             if loose and st_ipm == "optimal":  # the caller accepts this accuracy: no crossover
                 it += it_ipm
-                w, status = wi, ("inexact" if st_ipm == "optimal" else st_ipm)
+                w, status = wi, "inexact"
                 self._ipm_warm = (wi, z)
             else:
                 wp, it_pd, st_pd, guess = self._pdas(lowq, Q, c, lower, upper, lo, up)
