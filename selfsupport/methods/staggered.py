@@ -239,14 +239,10 @@ class StaggeredLinearization:
                         status = "converged"
                         history.append(rec)
                         break
-                    if fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try):
-                        if cur["fit_status"] == "inexact":
-                            # a trial fitted loosely (its predecessor was far from equilibrium) that
-                            # landed below finish_try: the finish polishes exact weights only
-                            exact = refit(X, cur["w"])
-                            if exact is not None:
-                                cur = exact
-                                rec.update({k: v for k, v in cur.items() if k not in ("L", "w", "As")})
+                    if (fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
+                            and cur["fit_status"] != "inexact"):
+                        # (a trial fitted loosely that landed below finish_try waits one step: the
+                        # next fit is exact, and the finish polishes exact weights only)
                         early = _try_finish(top, X, cur["w"], loads, mesh0, sc, Xref_mesh, opt, polish_ws)
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
