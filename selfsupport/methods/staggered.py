@@ -83,7 +83,7 @@ class StaggeredOptions:
     prox_w_final: float = 1e-12  # ... and for the last fit before the polish
     polish_tol: float = 1e-3  # fit error below which the weights are frozen and positions solved
     coupled: bool = False  # Step 3 moves the free weights with the positions (Gauss-Newton on min_w E):
-    # up to 1.9x closer to the reference on the paper's scenes, 1.6-6x slower, and less reproducible
+    # up to 1.9x closer to the reference on the paper's scenes, 2-6x slower, and less reproducible
     # under rotation/scaling of the input (weights shift by up to ~1.5%); hence opt-in
     coupled_damping: float = 1e-4  # coupled step: how strongly weights near ε are held (∝ 1/gap²)
     finish_try: float = 0.1  # fit error below which the polish is tried after every accepted step
