@@ -45,9 +45,7 @@ def distance_to_surface(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     d = np.full(len(P), np.inf)
     ok = np.all(np.isfinite(P), axis=1)
     if ok.any():
-        idx = _reference_index(reference)  # centred, in units of the diagonal: no cancellation
-        d2 = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P[ok] - idx.centre) / idx.scale))[0]
-        d[ok] = np.sqrt(np.maximum(np.asarray(d2, float).ravel(), 0.0)) * idx.scale
+        d[ok] = _reference_index(reference).query(P[ok])[0]
     return d
 
 
@@ -71,13 +69,12 @@ def closest_points(points: np.ndarray, reference: PolyMesh) -> tuple[np.ndarray,
     if not ok.any():
         return closest, dist, normals
     idx = _reference_index(reference)
-    sq, tri, C = idx.tree.squared_distance(idx.V, idx.F, np.ascontiguousarray((P[ok] - idx.centre) / idx.scale))
+    dist[ok], tri, C = idx.query(P[ok])
     corners = idx.F[tri]
     bc = _barycentric(C, *(idx.V[corners[:, j]] for j in range(3)))
     nrm = np.einsum("kc,kcj->kj", bc, idx.normals[corners])
     normals[ok] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
     closest[ok] = C * idx.scale + idx.centre
-    dist[ok] = np.sqrt(np.maximum(sq, 0.0)) * idx.scale
     return closest, dist, normals
 
 
@@ -111,6 +108,13 @@ class _ReferenceIndex:
         self.normals = vertex_normals(mesh)
         self.tree = igl.AABB()
         self.tree.init(self.V, self.F)
+
+    def query(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For finite points P (world units): distances (world units), the closest triangle
+        and the closest points in the normalised coordinates (centred, in units of the
+        diagonal: no cancellation for scenes far from the origin)."""
+        sq, tri, C = self.tree.squared_distance(self.V, self.F, np.ascontiguousarray((P - self.centre) / self.scale))
+        return np.sqrt(np.maximum(np.asarray(sq, float).ravel(), 0.0)) * self.scale, tri, C
 
 
 _INDEX_CACHE: dict[int, tuple[PolyMesh, _ReferenceIndex]] = {}
