@@ -135,9 +135,17 @@ class SPDFactor:
         return self._f.solve(rhs)
 
 
-def spd_factor(M: sp.spmatrix, *, lower: bool = False) -> SPDFactor:
+def spd_factor(M: sp.spmatrix, *, lower: bool = False, reuse: SPDFactor | None = None) -> SPDFactor:
     """Factor the symmetric positive (semi)definite matrix ``M`` (see the module docstring).
-    With ``lower=True``, ``M`` is its lower triangle, in sorted CSC form, used as it is."""
+    With ``lower=True``, ``M`` is its lower triangle, in sorted CSC form, used as it is.
+    ``reuse``: a factor of an earlier matrix of the same size, refactored in place and
+    returned (numerically only while the pattern holds) — the path of iterative callers."""
     if M.shape[0] != M.shape[1]:
         raise ValueError(f"spd_factor needs a square matrix, got {M.shape}")
+    if reuse is not None and reuse.shape == M.shape:
+        if lower:
+            reuse.update_lower(sp.csc_matrix(M))
+        else:
+            reuse.update(M)
+        return reuse
     return SPDFactor(M, lower=lower)

@@ -45,6 +45,21 @@ def test_update_with_the_same_pattern_refactors_the_new_values():
     np.testing.assert_allclose(f.solve(b), np.linalg.solve(M3.toarray(), b), rtol=1e-10, atol=1e-12)
 
 
+def test_reuse_refactors_in_place_and_starts_afresh_for_another_size():
+    M1, M2 = _stress_matrix(seed=0), _stress_matrix(seed=1)
+    f = spd_factor(M1)
+    assert spd_factor(M2, reuse=f) is f
+    b = np.ones(M2.shape[0])
+    np.testing.assert_allclose(f.solve(b), np.linalg.solve(M2.toarray(), b), rtol=1e-10, atol=1e-12)
+    lower = sp.tril(M1, format="csc")
+    lower.sort_indices()
+    assert spd_factor(lower, lower=True, reuse=f) is f
+    np.testing.assert_allclose(f.solve(b), np.linalg.solve(M1.toarray(), b), rtol=1e-10, atol=1e-12)
+    M3 = _stress_matrix(n_vertices=200)
+    g = spd_factor(M3, reuse=f)
+    assert g is not f and g.shape == M3.shape
+
+
 def test_singular_matrix_falls_back_and_solves_a_consistent_system():
     # a pure Neumann Laplacian (no supports) is singular: CHOLMOD refuses it; the fallback
     # factors it with a tiny shift, and a consistent right-hand side is solved to round-off

@@ -84,10 +84,7 @@ class _LowerQ:
 
     def _factor(self, data: np.ndarray):
         self.M.data = data
-        if self.factor is None:
-            self.factor = spd_factor(self.M, lower=True)
-        else:
-            self.factor.update_lower(self.M)
+        self.factor = spd_factor(self.M, lower=True, reuse=self.factor)
         return self.factor
 
     def with_diagonal(self, D: np.ndarray):
@@ -224,7 +221,7 @@ class ActiveSetFit(WeightFitBackend):
             Q = Q + prox * sp.identity(Q.shape[0], format="csc")
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
-        lowq = _LowerQ(Q, self._factor if self._factor is not None and self._factor.shape == Q.shape else None)
+        lowq = _LowerQ(Q, self._factor)  # (spd_factor starts afresh when the size changed)
         guess = None
         if self._active is not None and self._active[0].shape == w0.shape:
             w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active)
