@@ -139,11 +139,11 @@ def _load_colouring(mesh, free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     such that no two columns of one colour share a row. Returns (rows, cols, colour, count)."""
     face_of, _, _ = mesh._corner_data
     VF = sp.csr_matrix((np.ones(len(face_of)), (mesh.face_vertices, face_of)), shape=(mesh.n_vertices, mesh.n_faces))
-    B = (VF @ VF.T).tocsr()[free][:, free].tocoo()
-    rows, cols = B.row.astype(np.int64), B.col.astype(np.int64)
-    Bb = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=B.shape)
-    conflict = (Bb.T @ Bb).tocsr()
-    colour = _colour_graph(conflict)
+    B = (VF @ VF.T).tocsr()[free][:, free]
+    B.data[:] = 1.0
+    coo = B.tocoo()
+    rows, cols = coo.row.astype(np.int64), coo.col.astype(np.int64)
+    colour = _colour_graph((B.T @ B).tocsr())  # columns sharing a row conflict
     return rows, cols, colour, int(colour.max()) + 1 if colour.size else 0
 
 

@@ -238,7 +238,6 @@ class ActiveSetFit(WeightFitBackend):
             if loose and st_ipm == "optimal":  # the caller accepts this accuracy: no crossover
                 it += it_ipm
                 w, status = wi, "inexact"
-                self._ipm_warm = (wi, z)
             else:
                 wp, it_pd, st_pd, guess = self._pdas(lowq, Q, c, lower, upper, lo, up)
                 it += it_ipm + it_pd
@@ -250,8 +249,8 @@ class ActiveSetFit(WeightFitBackend):
             guess = ((w <= lower) & (g > 0), (w >= upper) & (g < 0))
         # next call's warm starts: this active set (for an interior point: the crossover's guess)
         self._active = guess
-        if status != "inexact":
-            self._ipm_warm = (w, np.maximum(g, 0.0))
+        # (an inexact fit's own interior point and multipliers; else the point and its gradient)
+        self._ipm_warm = (wi, z) if status == "inexact" else (w, np.maximum(g, 0.0))
         return WeightFit(w=w, objective=_objective(A, b, w), iterations=it, status=status,
                          seconds=time.perf_counter() - t0, n_lower=int(guess[0].sum()), n_upper=int(guess[1].sum()))
 
