@@ -280,7 +280,7 @@ def test_sigint_in_a_real_process(tmp_path):
     out.write_text("precious")
     # Python keeps SIGINT ignored if its parent ignored it (background jobs of a non-interactive
     # shell do): restore the default so the child gets KeyboardInterrupt as a terminal user would.
-    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:5000", "--out", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:16000", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(8.0)  # imports done (even on a loaded machine), solve under way (it takes far longer)
