@@ -60,7 +60,7 @@ from .mesh import PolyMesh
 from .scene import Scene
 
 __all__ = ["Issue", "CHECKS", "ISSUE_CODES", "validate_scene", "scene_issues", "top_view_areas", "top_view_winding",
-           "unbalanceable_vertices", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT"]
+           "unbalanceable_vertices", "require_rise", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT", "FLAT"]
 
 #: Vertices closer than this fraction of the bounding-box diagonal coincide.
 COINCIDENT = 1e-10
@@ -76,6 +76,9 @@ NON_PLANAR = 1e-8
 FOLD_FRACTION = 0.25
 #: Largest coordinate magnitude [m]: squares of lengths (areas) must stay far from overflow.
 COORD_LIMIT = 1e100
+#: Distance from the best-fit plane, as a fraction of the bounding-box diagonal, below which every
+#: vertex lies in one plane: a flat reference (see :func:`require_rise`).
+FLAT = 1e-9
 #: Size / coordinate magnitude below which too few significant digits describe the shape.
 PRECISION_LIMIT = 1e-8
 #: Top-view angular gap (radians) from which a vertex's neighbours all lie on one side.
@@ -439,6 +442,37 @@ def scene_issues(scene: Scene) -> list[Issue]:
         if any(i.severity == "error" for i in found):
             break
     return out
+
+
+def require_rise(scene: Scene, w_max: float | None) -> None:
+    """Raise :class:`~selfsupport.errors.InfeasibleDesign` for a flat reference without ``w_max``.
+
+    A planar network carries no vertical load (equation (3) reduces to a combination of
+    equation (2)), so it must rise into a shallow dome; with no upper weight bound any rise,
+    however small, can be balanced by large enough weights, and the nearest network does not
+    exist: the distance tends to 0 as the weights grow without bound. The methods would
+    iterate on towards it until their limits. ``w_max`` chooses the rise.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> require_rise(make_shape("disk", n_vertices=50), w_max=1e3)  # bounded weights: a definite rise
+    >>> require_rise(make_shape("disk", n_vertices=50), w_max=None)
+    Traceback (most recent call last):
+    ...
+    selfsupport.errors.InfeasibleDesign: the reference is flat (all vertices within 1e-09 of the bounding-box diagonal of one plane) and no upper weight bound is set: a flat network carries no vertical load, and any rise, however small, is balanced by large enough weights, so no nearest network exists; give the surface some rise, or set w_max (--wmax) to choose it
+    """
+    if w_max is not None:
+        return
+    V = scene.mesh.vertices
+    d = V - V.mean(axis=0)
+    normal = np.linalg.svd(d, full_matrices=False)[2][-1]  # of the best-fit (least-squares) plane
+    if float(np.abs(d @ normal).max()) <= FLAT * bbox_diagonal(V):
+        from .errors import InfeasibleDesign
+
+        raise InfeasibleDesign(
+            f"the reference is flat (all vertices within {FLAT:g} of the bounding-box diagonal of one plane) and no "
+            "upper weight bound is set: a flat network carries no vertical load, and any rise, however small, is "
+            "balanced by large enough weights, so no nearest network exists; give the surface some rise, or set "
+            "w_max (--wmax) to choose it")
 
 
 def validate_scene(scene: Scene) -> list[Issue]:

@@ -144,6 +144,14 @@ def _dome_obj() -> str:
     return obj_text(d.mesh.vertices, d.mesh.faces)
 
 
+def _flat_obj(tilt: float = 0.0) -> str:
+    """A flat disk (of the ``disk`` shape), in the plane z = tilt·x."""
+    d = make_shape("disk", n_vertices=120)
+    V = d.mesh.vertices.copy()
+    V[:, 2] = tilt * V[:, 0]
+    return obj_text(V, d.mesh.faces)
+
+
 def _supports_file(name: str, content: Callable[[Scene], str]):
     """Writes the small dome as OBJ plus a supports file; the case passes ``--supports FILE``."""
     def make(folder: Path) -> str:
@@ -266,6 +274,10 @@ CORPUS: list[Bad] = [
         "'supports' is a JSON dict", supports=None),
     Bad("JSON: missing faces", _write("mf.json", json.dumps({"vertices": V2.tolist(), "supports": [0]})), InputError,
         "missing key 'faces'", supports=None),
+    # infeasible as posed: a flat reference and no upper weight bound (no nearest network exists)
+    Bad("flat reference without w_max", _write("flat.obj", _flat_obj), InfeasibleDesign, "the reference is flat"),
+    Bad("tilted flat reference without w_max", _write("tilt.obj", lambda: _flat_obj(0.3)), InfeasibleDesign,
+        "set w_max (--wmax) to choose it"),
     # bad numbers for the solve
     Bad("negative w_max", _write("d.obj", _dome_obj), InputError, "must exceed the lower weight bound",
         cli_extra=("--wmax", "-1"), api_kwargs={"w_max": -1.0}, cli_needle="must be a positive finite number"),
@@ -642,6 +654,40 @@ def test_pillar_base_marked_free_through_the_cli(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and d["status"] in err[0]
     assert d["max_relative_error"] == pytest.approx(file_error(d), rel=1e-6)
+
+
+@pytest.mark.parametrize("method", ["staggered", "ipopt"])
+def test_flat_reference_without_w_max_is_refused_by_every_method(method):
+    with pytest.raises(InfeasibleDesign, match="no nearest network exists"):
+        api.solve(make_shape("disk", n_vertices=120), method=method)
+
+
+def test_flat_reference_with_w_max_rises_less_the_larger_w_max():
+    """With w_max the nearest network exists: weights within the bound, in equilibrium
+    (recomputed here), and a larger bound buys a shallower rise (the distance)."""
+    scene = make_shape("disk", n_vertices=120)
+    means = []
+    for w_max in (1e3, 1e4):
+        res = api.solve(scene, w_max=w_max, time_limit=60)
+        net = res.network
+        assert res.status == "converged" and net_error(net) <= 1e-9
+        assert net.weights[net.active_edges].max() <= w_max * (1 + 1e-9)
+        assert np.all(net.vertices[~scene.supports, 2] > 0)  # compression: it rises (a dome, not a hanging net)
+        means.append(res.distance_mean)
+    assert means[1] < 0.5 * means[0]
+
+
+def test_a_nearly_flat_reference_is_not_refused():
+    """Rise 1e-6 of the diagonal (above the flatness threshold 1e-9): a very shallow dome is a design."""
+    from selfsupport.validate import FLAT, require_rise
+
+    scene = make_shape("disk", n_vertices=120)
+    V = scene.mesh.vertices.copy()
+    V[:, 2] = 1e-6 * 2.0 * (1.0 - V[:, 0] ** 2 - V[:, 1] ** 2)  # disk radius 1, diagonal ~2
+    require_rise(replace(scene, mesh=scene.mesh.with_vertices(V)), w_max=None)
+    V = V * [1.0, 1.0, 0.1 * FLAT / 1e-6]  # ten times flatter than the threshold
+    with pytest.raises(InfeasibleDesign):
+        require_rise(replace(scene, mesh=scene.mesh.with_vertices(V)), w_max=None)
 
 
 def test_free_straight_gables_are_predicted_and_bent_inward():

@@ -43,6 +43,7 @@ from ..errors import InputError
 from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
+from ..validate import require_rise
 from .assembly import Topology, position_blocks, residual
 from .scaling import Scaling, default_eps
 
@@ -208,6 +209,7 @@ class Simultaneous:
         t_start = time.perf_counter()
         scene.mesh.validate()
         scene.check_supports()
+        require_rise(scene, w_max)  # a flat reference needs w_max, else no nearest network exists
         loads = with_scene_extras(loads if loads is not None else SelfWeight(), scene)
         mesh0 = scene.mesh
         n = mesh0.n_vertices
