@@ -28,8 +28,8 @@ Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smal
         from "stay on the reference" towards "satisfy equilibrium" as fast as the error allows.
         From the third rejection in a row α shrinks too: by then the steps are short, and what
         stops the descent is the anchor itself (the positions sit at a stationary point of the
-        Step-3 objective for this α). A flat reference with ``w_max`` stalled this way at 3 of 5
-        bounds between 1e2 and 1e5 before; on the paper's scenes no step is ever rejected.
+        Step-3 objective for this α). A flat disk with ``w_max`` stalled this way (w_max 3e3 and
+        1e4 of 1e2...1e5; 1e2 fails in IPOPT too); on the paper's scenes no step is rejected.
 Coupled (option ``coupled``) Step 3 may also move the weights that are not at a bound, with a
         damping ∝ 1/(w − ε)² so that weights near ε hardly move: a Gauss-Newton step on the
         reduced error min_w E(X, w) instead of on E(X, w_k). It follows the penalty path more
