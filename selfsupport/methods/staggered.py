@@ -76,7 +76,7 @@ class StaggeredOptions:
     """Settings of the staggered method (general: no per-scene tuning)."""
 
     alpha0: float = 1.0  # distance-to-reference penalty at the start
-    beta0: float = 0.1  # proximal penalty at the start
+    beta0: float = 0.01  # proximal penalty at the start
     shrink: float = 0.5  # factor applied to α, β after an iteration that reduced the error
     # (and to α from the third rejected step in a row)
     alpha_min: float = 1e-8
