@@ -63,13 +63,13 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
-from scipy.sparse.linalg import splu
 
 from ..errors import InputError
+from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
 
-__all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "spd_factor", "face_orientation", "top_view_jumps", "face_planes_through"]
+__all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "face_orientation", "top_view_jumps", "face_planes_through"]
 
 #: Dijkstra cost of a support–support edge when cutting from a hole to the boundary
 #: (cheap: such edges carry no force, so a period across them disturbs nothing).
@@ -353,14 +353,6 @@ def _cut_tree(mesh: PolyMesh, supports: np.ndarray, xy: np.ndarray) -> _CutTree:
 
 
 # ---------------------------------------------------------------------------------- solve
-def spd_factor(K: sp.spmatrix):
-    """Sparse LU of a symmetric positive definite matrix with a symmetric fill-reducing
-    ordering and no pivoting (SuperLU's symmetric mode: 50× faster than its default on
-    dual-graph Laplacians, same fill)."""
-    return splu(sp.csc_matrix(K), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True})
-
-
 def _tree_integrate(F: int, L: np.ndarray, R: np.ndarray, rhs: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """Integrate ``P[L] − P[R] = rhs`` along a breadth-first spanning tree of every dual
     component (root: its pinned face, ``P = 0``). Exact on exact data, O(F log depth):

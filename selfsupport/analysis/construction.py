@@ -48,7 +48,8 @@ from ..loads import LoadCase
 from ..mesh import PolyMesh
 from ..methods.assembly import Topology, stress_laplacian
 from ..result import Network
-from .airy import _J, face_orientation, face_planes_through, freeze_arrays, spd_factor
+from ..linalg import spd_factor
+from .airy import _J, face_orientation, face_planes_through, freeze_arrays
 
 __all__ = ["PHI_FUNCTIONS", "AREA_RULES", "Construction", "construct", "construct_detailed", "lower_hull",
            "lifting_weights", "phi_function"]
