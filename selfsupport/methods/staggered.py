@@ -33,7 +33,7 @@ Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smal
 Coupled (option ``coupled``) Step 3 may also move the weights that are not at a bound, with a
         damping ∝ 1/(w − ε)² so that weights near ε hardly move: a Gauss-Newton step on the
         reduced error min_w E(X, w) instead of on E(X, w_k). It follows the penalty path more
-        faithfully (measured: up to 1.9× closer to the reference on the paper's scenes) but costs a
+        faithfully (measured: up to 1.65× closer to the reference on the paper's scenes) but costs a
         (3n + m)-sized factorization per step; a rejected coupled step falls back to the plain
         one. Not the default: slower, and its weights are less reproducible under rotations and
         scalings of the input (up to ~1.5% of the weight moves, against < 1% for the plain step).
@@ -90,7 +90,7 @@ class StaggeredOptions:
     prox_w_final: float = 1e-12  # ... and for the last fit before the polish
     polish_tol: float = 1e-3  # fit error below which the weights are frozen and positions solved
     coupled: bool = False  # Step 3 moves the free weights with the positions (Gauss-Newton on min_w E):
-    # up to 1.9x closer to the reference on the paper's scenes, 2-6x slower, and less reproducible
+    # up to 1.65x closer to the reference on the paper's scenes, 1.5-4x slower, and less reproducible
     # under rotation/scaling of the input (weights shift by up to ~1.5%); hence opt-in
     coupled_damping: float = 1e-4  # coupled step: how strongly weights near ε are held (∝ 1/gap²)
     finish_try: float = 0.1  # fit error below which the polish is tried after every accepted step
