@@ -206,6 +206,34 @@ def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, newton, max_r
     assert np.abs(Xp - X).max() <= 1e-6
 
 
+def test_polish_without_fallbacks_returns_newtons_point(pillar):
+    """``fallbacks=False`` (the finish tries): with Newton limited to one step from a perturbed
+    network, the polish stops there — not in equilibrium, after 1 round — where the default
+    goes on through the fixed-point fallbacks to equilibrium."""
+    from selfsupport.methods.assembly import load_vector, weight_matrix
+    from selfsupport.methods.scaling import ScaledProblem
+    from selfsupport.methods.staggered import _polish
+
+    scene, res = pillar
+    loads = SelfWeight(density=2000, thickness=0.1)
+    net = res.network
+    prob = ScaledProblem.build(scene, np.asarray(net.loads))
+    top, sc = prob.top, prob.scaling
+    X = sc.pos(np.asarray(net.vertices))
+    w = sc.weight(np.asarray(net.weights)[scene.active_edges])
+    Xd = X.copy()
+    Xd[top.free] += 1e-3 * np.random.default_rng(3).standard_normal((top.n_free, 3))
+
+    def error(Xp, L):
+        r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
+        return float((r / np.abs(L[top.free])).max())
+
+    Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=1, fallbacks=False)
+    assert rounds == 1 and error(Xp, L) > 1e-10
+    Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=1)
+    assert rounds > 1 and error(Xp, L) <= 1e-10
+
+
 def test_a_stalled_polish_is_retried_from_a_tighter_fit(monkeypatch):
     """If the polish misses equilibrium (its load fixed point stalls), the iteration goes on to a
     100× tighter fit and polishes again, rather than returning a 'converged' network that is not."""

@@ -41,6 +41,8 @@ from dataclasses import dataclass
 from typing import Callable, Sequence, Union
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
 from ..geometry import vertex_areas
@@ -213,7 +215,6 @@ def _restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.nda
     mag = np.bincount(edges.ravel(), weights=np.repeat(np.abs(w) * np.linalg.norm(ev, axis=1), 2), minlength=n)
     if not np.any(free) or np.all(np.linalg.norm(hsum[free], axis=1) <= tol * np.maximum(mag[free], 1e-300)):
         return w
-    import scipy.sparse as sp
 
     cols = np.flatnonzero(w != 0)
     fi = -np.ones(n, dtype=np.int64)
@@ -228,10 +229,9 @@ def _restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.nda
             vals.append(sign * ev[cols[ok], c])
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cc))),
                       shape=(2 * int(free.sum()), len(cols)))
-    try:
-        lu = spd_factor(A @ A.T)
-    except RuntimeError:  # a free vertex with collinear edges: leave the weights as they are
-        return w
+    # (a free vertex with collinear edges makes A Aᵀ singular; spd_factor then factors it with a
+    # tiny diagonal shift, and Aᵀ removes the null-space part of the multipliers again)
+    lu = spd_factor(A @ A.T)
     r = A @ w[cols]
     lam = lu.solve(r)
     lam += lu.solve(r - A @ (A.T @ lam))
@@ -443,11 +443,18 @@ def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.nda
         k = int(np.flatnonzero(free & (held == 0))[0])
         raise InputError(f"free point {int(keep_pts[k])} has no edge with positive weight (φ is flat around it); "
                          "use a strictly convex φ or make it a support")
-    try:
-        lu = spd_factor(-Kff)  # −K_ff is SPD (positive weights)
-    except RuntimeError as err:
-        raise InputError(f"the stress Laplacian is singular ({err}); some free points are not connected to a "
-                         "support through positive weights") from None
+    # −K_ff is SPD exactly when every free point reaches a support through positive weights
+    # (checked here: spd_factor would factor a singular matrix with a tiny shift, not fail)
+    pos = w > 0
+    _, comp = connected_components(sp.csr_matrix((np.ones(int(pos.sum())), (e[pos, 0], e[pos, 1])), shape=(n, n)),
+                                   directed=False)
+    grounded = np.zeros(comp.max() + 1, dtype=bool)
+    grounded[comp[sup]] = True
+    if np.any(free & ~grounded[comp]):
+        k = int(np.flatnonzero(free & ~grounded[comp])[0])
+        raise InputError(f"free point {int(keep_pts[k])} is not connected to a support through positive weights, "
+                         "so its height is undetermined; use a strictly convex φ or add supports")
+    lu = spd_factor(-Kff)  # −K_ff is SPD (positive weights, every free point grounded)
 
     def solve_heights(nodal: np.ndarray) -> np.ndarray:
         s = heights.copy()

@@ -32,12 +32,14 @@ from .scaling import Scaling
 
 
 def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling,
-           max_rounds: int = 60, newton: bool = True, workspace: dict | None = None
-           ) -> tuple[np.ndarray, np.ndarray, int]:
+           max_rounds: int = 60, newton: bool = True, workspace: dict | None = None,
+           fallbacks: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
     """Positions in equilibrium with the frozen weights ``w`` (scaled units), the scaled loads
     of those positions, and the rounds taken: Newton steps, plus Anderson rounds and
     Newton–Krylov's evaluations of G when it came to those. ``max_rounds`` bounds Newton's
-    steps and Anderson's rounds; ``workspace`` (a dict kept by the caller) caches the colouring."""
+    steps and Anderson's rounds; ``workspace`` (a dict kept by the caller) caches the colouring.
+    ``fallbacks=False``: Newton only, its last point returned when it does not converge (a
+    cheap trial; the fixed-point fallbacks can take hundreds of load evaluations)."""
     free = top.free
     Kff, Kfs = position_blocks(top, w)
     K = (-Kff).tocsc()
@@ -63,10 +65,10 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
             ws["colouring"] = _load_colouring(mesh0, free)
         z, rounds, converged = _newton(K, zs, loads_at, chol, z_start, ws.get("colouring"), ftol, max_rounds,
                                        constant=constant)
-    if not converged:
+    if not converged and fallbacks:
         z, r2, converged = _anderson(G, z_start, ftol, max_rounds)
         rounds += r2
-    if not converged:
+    if not converged and fallbacks:
         z, r3 = _newton_krylov(G, z_start, z, ftol)
         rounds += r3
     Xn[free, 2] = z
