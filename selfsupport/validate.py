@@ -507,11 +507,15 @@ def _top_view_balanceable(scene: Scene, rtol: float = 1e-8) -> bool:
     A = weight_matrix(top, X)
     Axy = A[np.flatnonzero(np.arange(A.shape[0]) % 3 != 2)]  # x and y of every free vertex
 
+    Ax, Ay = Axy[0::2], Axy[1::2]
+    length = (Ax.multiply(Ax) + Ay.multiply(Ay)).sqrt()  # |x_j − x_i| per free vertex and edge
+
     def balances(w: np.ndarray) -> bool:
         if not np.all(w > 0):
             return False
-        scale = np.asarray(abs(Axy).multiply(w[None, :]).max(axis=1).todense()).ravel()
-        return bool(np.all(np.abs(Axy @ w) <= rtol * np.maximum(scale, 1e-300)))
+        scale = np.asarray(length.multiply(w[None, :]).max(axis=1).todense()).ravel()
+        r = (Axy @ w).reshape(-1, 2)
+        return bool(np.all(np.hypot(r[:, 0], r[:, 1]) <= rtol * np.maximum(scale, 1e-300)))
 
     candidates = [np.ones(top.m)]
     if np.all(np.diff(mesh.face_offsets) == 3):
@@ -521,7 +525,8 @@ def _top_view_balanceable(scene: Scene, rtol: float = 1e-8) -> bool:
     if top.m > BALANCE_FIT_LIMIT:
         return False
     ones = np.ones(top.m)
-    prox = 1e-12 * float(np.asarray(Axy.multiply(Axy).sum(axis=0)).mean())
+    # (a proximal term leaves a residual in proportion to it: 1e-12 gave ~1e-8, at rtol)
+    prox = 1e-16 * float(np.asarray(Axy.multiply(Axy).sum(axis=0)).mean())
     fit = make_backend("active-set").fit(A=Axy, b=np.zeros(Axy.shape[0]), lower=ones,
                                          upper=np.full(top.m, np.inf), w0=ones, prox=prox)
     return balances(fit.w)

@@ -713,6 +713,60 @@ def test_a_flat_top_view_that_no_positive_weights_balance_is_not_refused():
     require_rise(strip, w_max=None)
 
 
+def _flipped_flat_triangulation(seed: int, flips: int) -> Scene:
+    """A flat Delaunay triangulation of random points with ``flips`` interior edges flipped (so
+    its cotangent weights are not all positive), supported on its boundary."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(seed)
+    P = rng.uniform(-1.0, 1.0, (240, 2))
+    tri = Delaunay(P)
+    F = tri.simplices.copy()
+
+    def cross(o, a, b):
+        (ax, ay), (bx, by) = P[a] - P[o], P[b] - P[o]
+        return ax * by - ay * bx
+
+    done = 0
+    for t in rng.permutation(len(F)):
+        for k in range(3):
+            u = tri.neighbors[t, k]
+            if u < 0 or done >= flips:
+                continue
+            a, e0, e1 = F[t, k], F[t, (k + 1) % 3], F[t, (k + 2) % 3]
+            rest = [x for x in F[u] if x not in (e0, e1)]
+            if len(rest) != 1 or set(F[u]) != {e0, e1, rest[0]}:
+                continue
+            b = rest[0]
+            if cross(a, b, e0) * cross(a, b, e1) < 0:  # convex quad: the flip is a valid triangulation
+                F[t], F[u] = [a, e0, b], [b, e1, a]
+                done += 1
+                break
+        if done >= flips:
+            break
+    F = np.array([f if cross(*f) > 0 else f[[0, 2, 1]] for f in F])
+    mesh = PolyMesh.from_faces(np.c_[P, np.zeros(len(P))], F.tolist())
+    return Scene(mesh=mesh, supports=mesh.boundary_vertex_mask)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_top_view_balance_agrees_with_a_linear_program(seed):
+    """Independent oracle: HiGHS decides whether w ≥ 1 with A_xy w = 0 is feasible."""
+    from scipy.optimize import linprog
+
+    from selfsupport.methods.assembly import Topology, weight_matrix
+    from selfsupport.validate import _top_view_balanceable
+
+    scene = _flipped_flat_triangulation(seed, flips=1 + seed)
+    mesh = scene.mesh
+    top = Topology.build(mesh.n_vertices, mesh.edges[scene.active_edges], scene.supports)
+    A = weight_matrix(top, mesh.vertices)
+    Axy = A[np.flatnonzero(np.arange(A.shape[0]) % 3 != 2)]
+    lp = linprog(np.zeros(top.m), A_eq=Axy, b_eq=np.zeros(Axy.shape[0]), bounds=(1, None), method="highs")
+    assert lp.status in (0, 2)  # solved: feasible or infeasible
+    assert _top_view_balanceable(scene) == (lp.status == 0)
+
+
 def test_top_view_balance_by_candidates_and_by_the_fit_agree(monkeypatch):
     """The Delaunay disk is balanced by its cotangent weights; without that candidate the weight
     fit finds balancing weights too; above the fit's size limit nothing is claimed."""
