@@ -231,3 +231,27 @@ def test_cli_construct_writes_a_network_the_solver_format_reads(tmp_path):
     assert doc["construction"]["phi"] == "paraboloid"
     assert main(["construct", "--random", "80", "--self-weight", "--phi", "quartic", "--out", str(out)]) == 0
     assert read_network(out).max_relative_error() < 1e-11
+
+
+def test_a_free_cluster_cut_off_from_the_supports_by_zero_weights_is_found():
+    """−K_ff is singular exactly when some free points reach no support through positive weights.
+    On a constructed network: all weights positive → none ungrounded; zero the weights of every
+    edge leaving the ring around the centre → that inner cluster (and only it) is ungrounded, and
+    the stress Laplacian restricted to it is singular (its rows sum to zero)."""
+    from selfsupport.analysis.construction import _ungrounded
+    from selfsupport.methods.assembly import Topology, stress_laplacian
+
+    net = construct(disk_points(4), "paraboloid", load=-1.0)
+    e, sup = net.mesh.edges, np.asarray(net.supports, bool)
+    w = np.asarray(net.weights, float).copy()
+    w[sup[e[:, 0]] & sup[e[:, 1]]] = 1.0  # (edges between supports carry 0 by convention)
+    assert _ungrounded(e, w, sup).size == 0
+    r = np.hypot(net.vertices[:, 0], net.vertices[:, 1])
+    inner = r < 0.3 * r.max()
+    cut = inner[e[:, 0]] != inner[e[:, 1]]
+    w[cut] = 0.0
+    found = _ungrounded(e, w, sup)
+    np.testing.assert_array_equal(found, np.flatnonzero(inner))
+    L = stress_laplacian(Topology.build(net.mesh.n_vertices, e, sup), w).toarray()
+    block = L[np.ix_(found, found)]
+    assert np.abs(block.sum(axis=1)).max() <= 1e-12 * np.abs(block).max()

@@ -267,6 +267,23 @@ def _mask(spec, n: int, what: str) -> np.ndarray:
     return m
 
 
+def _ungrounded(edges: np.ndarray, w: np.ndarray, supports: np.ndarray) -> np.ndarray:
+    """Free vertices that reach no support through edges of positive weight. −K_ff is SPD
+    exactly when there are none (checked before factoring: spd_factor would factor a singular
+    matrix with a tiny shift, not fail).
+
+    >>> _ungrounded(np.array([[0, 1], [1, 2], [2, 3]]), np.array([1.0, 0.0, 1.0]), np.array([True, False, False, False]))
+    array([2, 3])
+    """
+    n = supports.size
+    pos = w > 0
+    graph = sp.csr_matrix((np.ones(int(pos.sum())), (edges[pos, 0], edges[pos, 1])), shape=(n, n))
+    _, comp = connected_components(graph, directed=False)
+    grounded = np.zeros(comp.max() + 1, dtype=bool)
+    grounded[comp[supports]] = True
+    return np.flatnonzero(~supports & ~grounded[comp])
+
+
 def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.ndarray | Callable | LoadCase = -1.0,
                        boundary_heights: float | np.ndarray | Callable = 0.0, supports: np.ndarray | None = None,
                        holes: Sequence[np.ndarray] = (), support_holes: bool = False, areas: str = "voronoi",
@@ -443,17 +460,10 @@ def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.nda
         k = int(np.flatnonzero(free & (held == 0))[0])
         raise InputError(f"free point {int(keep_pts[k])} has no edge with positive weight (φ is flat around it); "
                          "use a strictly convex φ or make it a support")
-    # −K_ff is SPD exactly when every free point reaches a support through positive weights
-    # (checked here: spd_factor would factor a singular matrix with a tiny shift, not fail)
-    pos = w > 0
-    _, comp = connected_components(sp.csr_matrix((np.ones(int(pos.sum())), (e[pos, 0], e[pos, 1])), shape=(n, n)),
-                                   directed=False)
-    grounded = np.zeros(comp.max() + 1, dtype=bool)
-    grounded[comp[sup]] = True
-    if np.any(free & ~grounded[comp]):
-        k = int(np.flatnonzero(free & ~grounded[comp])[0])
-        raise InputError(f"free point {int(keep_pts[k])} is not connected to a support through positive weights, "
-                         "so its height is undetermined; use a strictly convex φ or add supports")
+    ungrounded = _ungrounded(e, w, sup)
+    if ungrounded.size:
+        raise InputError(f"free point {int(keep_pts[ungrounded[0]])} is not connected to a support through positive "
+                         "weights, so its height is undetermined; use a strictly convex φ or add supports")
     lu = spd_factor(-Kff)  # −K_ff is SPD (positive weights, every free point grounded)
 
     def solve_heights(nodal: np.ndarray) -> np.ndarray:
