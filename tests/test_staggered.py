@@ -172,26 +172,39 @@ def test_coupled_step_reaches_equilibrium_closer_to_the_reference(shape):
     assert coupled.distance_mean <= plain.distance_mean
 
 
+def _perturbed(pillar):
+    """The converged pillar vault in the solver's scaled units, and a copy with its free vertices
+    moved by ~1e-3 of the diagonal: (scene, loads, top, scaling, X, X perturbed, weights)."""
+    from selfsupport.methods.scaling import ScaledProblem
+
+    scene, res = pillar
+    net = res.network
+    prob = ScaledProblem.build(scene, np.asarray(net.loads))
+    top, sc = prob.top, prob.scaling
+    X = sc.pos(np.asarray(net.vertices))
+    w = sc.weight(np.asarray(net.weights)[scene.active_edges])
+    Xd = X.copy()
+    Xd[top.free] += 1e-3 * np.random.default_rng(3).standard_normal((top.n_free, 3))
+    return scene, SelfWeight(density=2000, thickness=0.1), top, sc, X, Xd, w
+
+
+def _polish_error(top, w, Xp, L) -> float:
+    """Max relative equilibrium error of polished positions ``Xp`` with loads ``L`` (scaled)."""
+    from selfsupport.methods.assembly import load_vector, weight_matrix
+
+    r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
+    return float((r / np.abs(L[top.free])).max())
+
+
 @pytest.mark.parametrize("newton, max_rounds", [(True, 60), (False, 60), (False, 2)])
 def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, newton, max_rounds):
     """The polish (weights frozen) solves (2)-(3) with loads of its own geometry. From a
     perturbed converged network it must come back to equilibrium: by Newton with the coloured
     load Jacobian in a few steps; without Newton by Anderson; and with ``max_rounds=2``
     Anderson cannot finish either, so the Newton–Krylov fallback has to."""
-    from selfsupport.methods.assembly import load_vector, weight_matrix
-    from selfsupport.methods.scaling import ScaledProblem
     from selfsupport.methods.staggered import _polish
 
-    scene, res = pillar
-    loads = SelfWeight(density=2000, thickness=0.1)
-    net = res.network
-    prob = ScaledProblem.build(scene, np.asarray(net.loads))
-    top, sc = prob.top, prob.scaling
-    X = sc.pos(np.asarray(net.vertices))
-    w = sc.weight(np.asarray(net.weights)[scene.active_edges])
-    rng = np.random.default_rng(3)
-    Xd = X.copy()
-    Xd[top.free] += 1e-3 * rng.standard_normal((top.n_free, 3))
+    scene, loads, top, sc, X, Xd, w = _perturbed(pillar)
     Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=max_rounds, newton=newton)
     if newton:
         assert rounds <= 8  # Newton: fast local convergence
@@ -199,8 +212,7 @@ def test_polish_returns_a_perturbed_network_to_equilibrium(pillar, newton, max_r
         assert rounds <= max_rounds  # Anderson alone finished
     else:
         assert rounds > max_rounds  # Anderson could not: Newton–Krylov's evaluations are counted too
-    res_p = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
-    assert (res_p / np.abs(L[top.free])).max() <= 1e-10
+    assert _polish_error(top, w, Xp, L) <= 1e-10
     # loads are those of the polished geometry, and the solution is the one we perturbed
     np.testing.assert_allclose(L, sc.load(loads.nodal(scene.mesh, sc.pos_back(Xp))), rtol=1e-12, atol=0)
     assert np.abs(Xp - X).max() <= 1e-6
@@ -210,28 +222,13 @@ def test_polish_without_fallbacks_returns_newtons_point(pillar):
     """``fallbacks=False`` (the finish tries): with Newton limited to one step from a perturbed
     network, the polish stops there — not in equilibrium, after 1 round — where the default
     goes on through the fixed-point fallbacks to equilibrium."""
-    from selfsupport.methods.assembly import load_vector, weight_matrix
-    from selfsupport.methods.scaling import ScaledProblem
     from selfsupport.methods.staggered import _polish
 
-    scene, res = pillar
-    loads = SelfWeight(density=2000, thickness=0.1)
-    net = res.network
-    prob = ScaledProblem.build(scene, np.asarray(net.loads))
-    top, sc = prob.top, prob.scaling
-    X = sc.pos(np.asarray(net.vertices))
-    w = sc.weight(np.asarray(net.weights)[scene.active_edges])
-    Xd = X.copy()
-    Xd[top.free] += 1e-3 * np.random.default_rng(3).standard_normal((top.n_free, 3))
-
-    def error(Xp, L):
-        r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
-        return float((r / np.abs(L[top.free])).max())
-
+    scene, loads, top, sc, _, Xd, w = _perturbed(pillar)
     Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=1, fallbacks=False)
-    assert rounds == 1 and error(Xp, L) > 1e-10
+    assert rounds == 1 and _polish_error(top, w, Xp, L) > 1e-10
     Xp, L, rounds = _polish(top, Xd, w, loads, scene.mesh, sc, max_rounds=1)
-    assert rounds > 1 and error(Xp, L) <= 1e-10
+    assert rounds > 1 and _polish_error(top, w, Xp, L) <= 1e-10
 
 
 def test_a_stalled_polish_is_retried_from_a_tighter_fit(monkeypatch):
