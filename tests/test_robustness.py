@@ -679,10 +679,22 @@ def test_flat_reference_with_w_max_rises_less_the_larger_w_max():
 
 def test_a_flat_reference_with_too_small_a_w_max_stalls_early():
     """w_max = 1e2 on the flat disk: the rise it needs is tens of diagonals (IPOPT fails too).
-    Once α reaches its minimum and the fit error no longer halves, the solve stops "stalled"
-    instead of drifting on to the iteration limit."""
+    The solve stops "stalled" with α at its minimum, by one of the two stall rules (which one
+    fires first depends on the path), instead of drifting on to the iteration limit."""
     res = api.solve(make_shape("disk", n_vertices=120), w_max=1e2, time_limit=60)
     assert res.status == "stalled" and res.iterations < 100
+    assert "stopped falling" in res.message or "no position step reduces" in res.message
+    hs = [h for h in res.history if isinstance(h.get("iteration"), int)]
+    assert hs[-1]["alpha"] <= res.parameters["alpha_min"]
+
+
+def test_the_stall_window_stops_a_drifting_infeasible_design():
+    """The same design with the rejection rule out of the way (max_rejections 1000): once α
+    reaches its minimum and the fit error no longer halves within ``stall_window`` iterations,
+    the solve stops "stalled"."""
+    res = api.solve(make_shape("disk", n_vertices=120), w_max=1e2, time_limit=60,
+                    options={"max_rejections": 1000})
+    assert res.status == "stalled" and res.iterations < 150
     assert "stopped falling" in res.message
     hs = [h for h in res.history if isinstance(h.get("iteration"), int)]
     at_min = [h for h in hs if h["alpha"] <= res.parameters["alpha_min"]]

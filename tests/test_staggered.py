@@ -288,3 +288,50 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size
     assert _solve_anchored(H, b0, b1, n, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
+
+
+def test_a_screened_out_finish_try_would_have_failed():
+    """The finish screen (one stress-Laplacian solve with the iterate's loads) only skips tries
+    the polish would have rejected: without it the same tries are polished and fail, the
+    network is the same, and the screen's distance ratio predicts the polished one."""
+    scene = make_shape("dome", n_vertices=800)
+    screened = StaggeredLinearization().solve(scene, SelfWeight())
+    full = StaggeredLinearization(finish_screen=np.inf).solve(scene, SelfWeight())
+    tries = {h["iteration"]: h["finish_try"] for h in full.history if h.get("finish_try")}
+    skipped = [h for h in screened.history if h.get("finish_try") and "dist_mean_ratio" not in h["finish_try"]]
+    assert len(skipped) >= 2  # (dome 800: 4 tries skipped)
+    for h in skipped:
+        info = tries[h["iteration"]]
+        assert h["finish_try"]["screened"] > 1 + screened.parameters["finish_screen"]
+        assert not info["ok"] and info["dist_mean_ratio"] > 1 + full.parameters["finish_slack"]
+        assert info["screened"] == pytest.approx(h["finish_try"]["screened"], rel=1e-9)
+        assert 0.5 < info["screened"] / info["dist_mean_ratio"] < 2.0
+    assert screened.status == full.status == "converged" and screened.iterations == full.iterations
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    assert np.abs(screened.network.vertices - full.network.vertices).max() <= 1e-12 * diag
+
+
+def test_a_loosely_fitted_trial_is_never_the_reason_for_a_rejection():
+    """Far from equilibrium the trial fits stop at fit_rtol; such a fit overstates min_w E, so a
+    rejection is confirmed by an exact fit: every rejected step was judged on an exact fit."""
+    res = StaggeredLinearization().solve(make_shape("concave_disk", n_vertices=400), SelfWeight())
+    assert res.status == "converged"
+    rejected = [h for h in res.history if h.get("accepted") is False]
+    assert rejected  # (this scene has 3: a non-vacuous check)
+    assert all(h["trial_fit_status"] == "optimal" for h in rejected)
+    assert any(h.get("confirmed") for h in rejected)
+    # and the loose trials that were accepted were accepted on an upper bound of the exact E
+    assert any(h.get("trial_fit_status") == "inexact" and h.get("accepted") for h in res.history)
+
+
+@pytest.mark.slow
+def test_loose_far_fits_converge_as_close_as_exact_ones_on_a_4k_concave_disk():
+    """Without confirming rejections by an exact fit, fit_rtol 1e-3 stalled this design at its first
+    step (every loose trial fit lay above the exact starting fit). Measured: 24 iterations, 3.9e-3
+    against 4.1e-3 from the reference with fit_rtol 1e-6."""
+    scene = make_shape("concave_disk", n_vertices=4000)
+    loose = StaggeredLinearization().solve(scene, SelfWeight())
+    exact = StaggeredLinearization(fit_rtol=1e-6).solve(scene, SelfWeight())
+    assert loose.status == exact.status == "converged"
+    assert loose.max_relative_error <= 1e-9
+    assert loose.distance_mean <= 1.1 * exact.distance_mean

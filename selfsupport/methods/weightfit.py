@@ -141,43 +141,51 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         z = np.maximum(g, 0) + gm
         y = np.where(fin, np.maximum(-g, 0) + gm, 0.0)
     n_con = w.size + int(fin.sum())
+    has_up = bool(fin.any())  # (y = 0 and t = 1 wherever the upper bound is infinite)
+    zero = np.zeros_like(w)
     it = 0
     for it in range(1, max_iter + 1):
+        g = Q @ w - c  # the gradient, shared by the test and both directions
         s_ = w - lower
-        t_ = np.where(fin, upper - w, 1.0)
-        rd = Q @ w - c - z + y
-        mu = (float(s_ @ z) + float(t_[fin] @ y[fin])) / n_con
-        if np.abs(rd).max() <= tol * gs and mu <= tol * gs * scale_w:
+        t_ = np.where(fin, upper - w, 1.0) if has_up else 1.0
+        mu = (float(s_ @ z) + (float(t_[fin] @ y[fin]) if has_up else 0.0)) / n_con
+        if np.abs(g - z + y).max() <= tol * gs and mu <= tol * gs * scale_w:
             return w, z, y, it, "optimal"
         with np.errstate(divide="ignore", invalid="ignore"):
-            D = z / s_ + np.where(fin, y / t_, 0.0)
+            zs, yt = z / s_, (y / t_ if has_up else zero)
+            D = zs + yt
         if not (np.all(np.isfinite(D)) and np.all(s_ > 0)):
             return w, z, y, it, "failed"  # the barrier broke down (degenerate problem)
         lu = lowq.with_diagonal(D)  # one pattern every iteration: numeric refactorization only
 
         def direction(sig_mu, corr_s, corr_t):
-            rhs = -(Q @ w - c) + (sig_mu - corr_s) / s_ - np.where(fin, (sig_mu - corr_t) / t_, 0.0)
-            dw = lu.solve(rhs)
-            dz = (sig_mu - corr_s) / s_ - z - (z / s_) * dw
-            dy = np.where(fin, (sig_mu - corr_t) / t_ - y + (y / t_) * dw, 0.0)
-            return dw, dz, dy
+            a_s = (sig_mu - corr_s) / s_
+            if has_up:
+                a_t = np.where(fin, (sig_mu - corr_t) / t_, 0.0)
+                dw = lu.solve(a_s - a_t - g)
+                return dw, a_s - z - zs * dw, np.where(fin, a_t - y + yt * dw, 0.0)
+            dw = lu.solve(a_s - g)
+            return dw, a_s - z - zs * dw, zero
 
         def max_step(dw, dz, dy):
-            a = 1.0
-            for v, dv, only_fin in ((s_, dw, False), (t_, -dw, True), (z, dz, False), (y, dy, True)):
-                neg = (dv < 0) & (fin if only_fin else True)
-                if np.any(neg):
-                    a = min(a, float(np.min(-v[neg] / dv[neg])))
-            return a
+            a = min(_ratio(s_, dw), _ratio(z, dz))
+            return min(a, _ratio(t_[fin], -dw[fin]), _ratio(y[fin], dy[fin])) if has_up else a
 
         dw, dz, dy = direction(0.0, 0.0, 0.0)
         a = max_step(dw, dz, dy)
-        mu_aff = (float((s_ + a * dw) @ (z + a * dz)) + float((t_ - a * dw)[fin] @ (y + a * dy)[fin])) / n_con
+        mu_aff = (float((s_ + a * dw) @ (z + a * dz))
+                  + (float((t_ - a * dw)[fin] @ (y + a * dy)[fin]) if has_up else 0.0)) / n_con
         sigma = (mu_aff / mu) ** 3
-        dw, dz, dy = direction(sigma * mu, dw * dz, np.where(fin, -dw * dy, 0.0))
+        dw, dz, dy = direction(sigma * mu, dw * dz, -dw * dy if has_up else 0.0)
         a = min(1.0, 0.995 * max_step(dw, dz, dy))
-        w, z, y = w + a * dw, z + a * dz, y + a * dy
+        w, z, y = w + a * dw, z + a * dz, (y + a * dy if has_up else y)
     return w, z, y, it, "max_iter"
+
+
+def _ratio(v: np.ndarray, dv: np.ndarray) -> float:
+    """The largest step ``a ≤ 1`` with ``v + a dv ≥ 0`` (v > 0)."""
+    neg = dv < 0
+    return float((-v[neg] / dv[neg]).min(initial=1.0))
 
 
 class ActiveSetFit(WeightFitBackend):
