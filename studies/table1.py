@@ -2,7 +2,7 @@
 
     python -m studies.table1 --scenes ../shared/paper-scenes/scenes --out OUT
         [--published DIR] [--methods staggered/active-set simultaneous/ipopt ...]
-        [--time-limit S] [--only lilium,cas] [--checker PATH] [--no-warmup]
+        [--time-limit S] [--only lilium,cas] [--checker PATH] [--no-warmup] [--repeat N]
 
 For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`) and every
 variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, the
@@ -16,7 +16,10 @@ How each number is measured
   one crash or hang costs one row, and the peak RSS is that row's own. The process first
   reads the scene and solves a tiny dome with the same method (imports, solver plug-ins and
   caches loaded: ``--no-warmup`` skips this); the **time is the ``solve()`` call alone** —
-  no interpreter start-up, imports or file reading.
+  no interpreter start-up, imports or file reading. With ``--repeat N`` the row's process
+  solves N times and the time column is the median (``time_min_s``: the fastest): this
+  machine's speed drifts by tens of percent within minutes. The solves are deterministic;
+  a row whose repeats disagree in any vertex says so in its message.
 * The **error column is recomputed from the saved JSON network** with plain numpy
   (:func:`studies.common.json_max_relative_error`), not taken from the result object; the
   shared independent checker (``--checker``) is run on the same file as a second opinion.
@@ -136,7 +139,7 @@ def _warmup(variant: Variant) -> None:
 
 
 def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, time_limit: float,
-              warm_from: str | None = None, warmup: bool = True) -> dict[str, Any]:
+              warm_from: str | None = None, warmup: bool = True, repeat: int = 1) -> dict[str, Any]:
     """Worker: solve one scene with one variant, save the network, return the row's numbers.
 
     Runs in its own process (see :func:`studies.common.run_isolated`). The time is the
@@ -161,14 +164,22 @@ def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, 
         if warmup:
             _warmup(v)
         rss0 = current_rss_mib()
-        with Stopwatch() as sw:
-            res = method.solve(scene, loads, **kw)
+        times, networks = [], []
+        for _ in range(max(int(repeat), 1)):
+            with Stopwatch() as sw:
+                res = method.solve(scene, loads, **kw)
+            times.append(sw.seconds)
+            networks.append(res.network.vertices)
+        if any(not np.array_equal(networks[0], V) for V in networks[1:]):
+            row["message"] = "; ".join(m for m in (row.get("message"), "the repeated solves differ") if m)
     except BackendUnavailable as exc:
         return {**row, "status": "not applicable", "message": str(exc), "peak_rss_mib": peak_rss_mib()}
-    write_network(out_json, res, study={"scene": scene_name, "variant": variant, "solve_seconds": sw.seconds,
-                                        "time_limit": time_limit})
+    seconds = float(np.median(times))
+    write_network(out_json, res, study={"scene": scene_name, "variant": variant, "solve_seconds": seconds,
+                                        "solve_seconds_each": times, "time_limit": time_limit})
     msg = "; ".join(m for m in (row.get("message", ""), res.message) if m)
-    return {**row, "status": res.status, "message": msg, "time_s": sw.seconds, "iterations": res.iterations,
+    return {**row, "status": res.status, "message": msg, "time_s": seconds, "time_min_s": min(times),
+            "repeats": len(times), "iterations": res.iterations,
             "reported_error": res.max_relative_error, "min_weight": res.min_weight,
             "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max,
             "rss_before_mib": rss0, "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
@@ -209,7 +220,8 @@ def published_row(*, scenes_dir: str, scene_name: str, published: str, out_json:
 COLUMNS: tuple[Column, ...] = (
     Column("scene", "scene"), Column("figure", "figure"), Column("vertices", "V"), Column("edges", "E"),
     Column("method", "method"), Column("backend", "backend"), Column("status", "status"),
-    Column("time_s", "time [s]", "{:.2f}"), Column("paper_time_s", "paper time [s]", "{:.1f}"),
+    Column("time_s", "time [s]", "{:.2f}"), Column("time_min_s", "fastest [s]", "{:.2f}"),
+    Column("repeats", "solves", "{:d}"), Column("paper_time_s", "paper time [s]", "{:.1f}"),
     Column("speedup_vs_paper", "speed-up vs paper", "{:.1f}×"),
     Column("time_vs_staggered", "× staggered", "{:.2f}"),
     Column("iterations", "iterations", "{:d}"), Column("paper_iterations", "paper it.", "{:d}"),
@@ -224,7 +236,8 @@ COLUMNS: tuple[Column, ...] = (
 )
 _BY_KEY = {c.key: c for c in COLUMNS}
 #: The Markdown's two tables: Table 1 itself, then fidelity, memory and messages.
-MD_MAIN = ("scene", "figure", "vertices", "edges", "method", "backend", "status", "time_s", "paper_time_s",
+MD_MAIN = ("scene", "figure", "vertices", "edges", "method", "backend", "status", "time_s", "time_min_s",
+           "repeats", "paper_time_s",
            "speedup_vs_paper", "time_vs_staggered", "iterations", "paper_iterations", "max_rel_error",
            "paper_max_rel_error", "min_weight")
 MD_MORE = ("scene", "method", "backend", "dist_ref_mean", "dist_ref_max", "dist_pub_mean", "dist_pub_max",
@@ -267,6 +280,7 @@ def _complete(row: dict[str, Any], out: Path, checker: Path | None) -> dict[str,
 
 def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, variants: Sequence[str],
               scenes: Sequence[str], time_limit: float | None, checker: Path | None, warmup: bool = True,
+              repeat: int = 1,
               echo: Callable[[str], None] = print,
               on_scene: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """Run every (scene, variant) row and the published comparisons; return the rows.
@@ -281,12 +295,13 @@ def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, varian
             tl = float(time_limit if time_limit is not None else v.time_limit)
             out_json = out / f"{name}__{key.replace('/', '-')}.json"
             out_json.unlink(missing_ok=True)  # a stale file from an earlier run must not pass for this row's
-            hard = 1.5 * tl + 180.0 + (VARIANTS[REFERENCE].time_limit if v.warm_start and ref_json is None else 0.0)
+            hard = max(int(repeat), 1) * 1.5 * tl + 180.0 + (VARIANTS[REFERENCE].time_limit if v.warm_start and ref_json is None else 0.0)
             echo(f"[{time.strftime('%H:%M:%S')}] {name} {key} (time limit {tl:g} s) ...")
             r = run_isolated("studies.table1:solve_row",
                              {"scenes_dir": str(scenes_dir), "scene_name": name, "variant": key,
                               "out_json": str(out_json), "time_limit": tl,
-                              "warm_from": str(ref_json) if ref_json else None, "warmup": warmup},
+                              "warm_from": str(ref_json) if ref_json else None, "warmup": warmup,
+                              "repeat": repeat},
                              hard_timeout=hard)
             r.update({"scene": name, "method": v.method, "backend": v.backend, "time_limit_s": tl})
             _complete(r, out, checker)
@@ -330,7 +345,8 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path, *, scenes_dir: Path
     write_csv(out / "table1.csv", rows, COLUMNS)
     notes = [
         "**Times are the `solve()` call alone**: process start-up, imports, file reading and a warm-up "
-        "solve of a tiny dome (solver plug-ins loaded) are excluded. Each row runs in its own process.",
+        "solve of a tiny dome (solver plug-ins loaded) are excluded. Each row runs in its own process; "
+        "*time* is the median of the row's *solves* (`--repeat`), *fastest* the quickest of them.",
         "**max rel. error** is recomputed with plain numpy from the saved JSON network (the paper's "
         "Table 1 metric, loads of the network's own geometry); *checker error* is the shared "
         "`check_network.py` on the same file, *reported error* the method's own evidence field.",
@@ -374,12 +390,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checker", type=Path, default=None,
                    help="independent checker script (default: SCENES/../../tools/check_network.py if present)")
     p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve in each row process")
+    p.add_argument("--repeat", type=int, default=1, metavar="N",
+                   help="solve each row N times in its process and report the median time (and the fastest)")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     """Run the study; returns the rows (also written to ``--out``)."""
     a = build_parser().parse_args(argv)
+    if a.repeat < 1:
+        raise SystemExit(f"--repeat needs a positive number of solves, got {a.repeat}")
     variants = [m for item in a.methods for m in item.split(",") if m]
     unknown = [m for m in variants if m not in VARIANTS]
     if unknown:
@@ -402,7 +422,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     checker = a.checker if a.checker is not None else a.scenes.resolve().parent.parent / "tools" / "check_network.py"
     rows = run_table(scenes_dir=a.scenes.resolve(), out=a.out.resolve(), published_dir=published,
                      variants=variants, scenes=scenes, time_limit=a.time_limit,
-                     checker=checker if checker.is_file() else None, warmup=not a.no_warmup,
+                     checker=checker if checker.is_file() else None, warmup=not a.no_warmup, repeat=a.repeat,
                      on_scene=lambda rs: write_outputs(rs, a.out, scenes_dir=a.scenes, variants=variants))
     md = write_outputs(rows, a.out, scenes_dir=a.scenes, variants=variants)
     print(md)
