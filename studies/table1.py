@@ -5,9 +5,9 @@
         [--time-limit S] [--only lilium,cas] [--checker PATH] [--no-warmup] [--repeat N]
 
 For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`) and every
-variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, the
-simultaneous IPOPT solve cold and warm-started from the staggered network, nlopt where it
-applies) one row: wall time, outer iterations, max relative error, min weight, distance to
+variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, its
+coupled variant and its refinement phase, the simultaneous IPOPT solve cold and warm-started
+from the staggered network, nlopt where it applies) one row: wall time, outer iterations, max relative error, min weight, distance to
 the reference, status and peak memory, with the paper's time / iterations / error beside them.
 
 How each number is measured
@@ -109,6 +109,8 @@ VARIANTS: dict[str, Variant] = {v.key: v for v in (
     Variant(REFERENCE, "staggered", "active-set", _staggered("active-set"), 600.0),
     Variant("staggered-coupled/active-set", "staggered (coupled)", "active-set",
             _staggered("active-set", coupled=True), 600.0),
+    Variant("staggered-refine/active-set", "staggered + refine (20)", "active-set",
+            _staggered("active-set", refine=20), 600.0),
     Variant("staggered/ipopt", "staggered", "ipopt", _staggered("ipopt"), 120.0),
     Variant("staggered/osqp", "staggered", "osqp", _staggered("osqp"), 120.0),
     Variant("staggered/nlopt", "staggered", "nlopt", _staggered("nlopt"), 120.0),

@@ -270,7 +270,8 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     import scipy.sparse as sp
 
     from selfsupport.methods.assembly import Topology, position_blocks
-    from selfsupport.methods.staggered import _block_diag, _solve_anchored
+    from selfsupport.methods.assembly import block_diagonal
+    from selfsupport.methods.staggered import _solve_anchored
     from selfsupport.geometry import vertex_normals
 
     scene = make_shape("pillar_vault", n_vertices=400)
@@ -283,7 +284,7 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     rhs = rng.standard_normal((top.n_free, 3))
     ws: dict = {}
     x = _solve_anchored(H, b0, b1, n, rhs, ws)
-    M = (sp.kron(H, sp.identity(3)) + _block_diag(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
+    M = (sp.kron(H, sp.identity(3)) + block_diagonal(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
     direct = sp.linalg.spsolve(M, rhs.ravel()).reshape(-1, 3)
     np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size

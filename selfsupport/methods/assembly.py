@@ -84,3 +84,11 @@ def position_blocks(top: Topology, weights: np.ndarray) -> tuple[sp.csr_matrix, 
 def residual(top: Topology, vertices: np.ndarray, weights: np.ndarray, loads: np.ndarray) -> np.ndarray:
     """``(n_free, 3)`` residual of (2)-(3) at free vertices."""
     return (weight_matrix(top, vertices) @ weights - load_vector(top, loads)).reshape(-1, 3)
+
+
+def block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
+    """The (3k × 3k) block-diagonal matrix of ``k`` 3×3 ``blocks`` (one per free vertex)."""
+    k = blocks.shape[0]
+    rows = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    cols = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * k, 3 * k))

@@ -78,10 +78,11 @@ from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_rise
-from .assembly import Topology, load_vector, position_blocks, residual, weight_matrix
+from .assembly import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from .scaling import Scaling, ScaledProblem
 from ..linalg import spd_factor
 from .polish import polish as _polish
+from .refine import refine as _refine
 from .weightfit import WeightFitBackend, make_backend
 
 
@@ -116,6 +117,8 @@ class StaggeredOptions:
     try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
     fit_rtol: float = 1e-3  # KKT tolerance a Step-2 backend may stop at while the fit error is above
     # finish_try (those fits only steer the iteration; the fits the finish uses are exact)
+    refine: int = 0  # at most this many SQP steps towards the reference after convergence (refine.py;
+    # 0: the paper's method as it is)
     tol: float = 1e-9  # required max relative error of the final network
     max_iter: int = 200
     time_limit: float = 600.0
@@ -399,6 +402,23 @@ class StaggeredLinearization:
         history.append(final)
         if progress:
             progress(final)
+        if opt.refine > 0 and status == "converged" and err <= opt.tol:
+            # walk back towards the reference along the equilibrium manifold (SQP, refine.py)
+            t0 = time.perf_counter()
+            Xn = sc.pos(net.vertices)
+            Xn[scene.supports] = X0[scene.supports]
+            wn = sc.weight(net.weights[scene.active_edges])
+            ref = _refine(top, Xn, wn, loads, mesh0, sc, Xref_mesh, lower, upper, max_steps=opt.refine,
+                          tau=opt.tangential, tol=opt.tol, workspace=polish_ws)
+            refined = self._network(scene, sc, ref.X, ref.w, loads) if ref.steps else None
+            if refined is not None and refined.max_relative_error() <= opt.tol:  # (never trade equilibrium)
+                net, err = refined, refined.max_relative_error()
+            rec = {"iteration": "refine", "steps": ref.steps, "tried": ref.tried, "t_refine": time.perf_counter() - t0,
+                   "max_rel_error": err, "dist_mean": [h["dist_mean"] for h in ref.history if h["accepted"]],
+                   "rho": [h["rho"] for h in ref.history]}
+            history.append(rec)
+            if progress:
+                progress(rec)
         if status == "converged" and not err <= opt.tol:
             worst = np.argsort(net.relative_errors())[::-1][:5]
             status, message = "stalled", (
@@ -491,7 +511,7 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
             Xn[free] = sol
             return Xn
     M = (sp.kron(H, sp.identity(3), format="csr")
-         + _block_diag(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
+         + block_diagonal(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
     if G is not None and G.shape[1] > 0:
         # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
         # the reduced error min_w E(X, w) rather than on E(X, w_k)); dw is only used to shape
@@ -535,13 +555,6 @@ def _solve_anchored(H: sp.csr_matrix, b0: float, b1: float, n: np.ndarray, rhs: 
     ok = info == 0 and np.all(np.isfinite(x))
     ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
     return x.reshape(k, 3) if ok else None
-
-
-def _block_diag(blocks: np.ndarray) -> sp.csr_matrix:
-    k = blocks.shape[0]
-    rows = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
-    cols = (3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
-    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * k, 3 * k))
 
 
 def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, L_it: np.ndarray, loads: LoadCase, mesh0,
