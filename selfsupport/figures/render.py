@@ -484,7 +484,7 @@ HISTORY_SERIES: dict[str, tuple[str, str]] = {
     "beta": ("β (proximal penalty)", "penalty"),
 }
 _PANEL_LABELS = {"error": "error", "penalty": "penalty weight"}
-_FINAL_STAGES = ("polish",)
+_FINAL_STAGES = ("polish", "refine")
 #: record key that counts the records -> x-axis label (staggered: outer iterations; IPOPT: load rounds)
 _HISTORY_COUNTERS = {"iteration": "outer iteration", "round": "load round"}
 
@@ -529,7 +529,9 @@ def figure_history(inp: FigureInput):
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     last = axes[panels[-1]]
     counter = next((label for key, label in _HISTORY_COUNTERS.items() if key in hist[0]), "record")
-    last.set_xlabel(counter + (" (dotted: final polish)" if final else ""))
+    stages = " / ".join(dict.fromkeys("refinement" if (r.get("iteration") or r.get("stage")) == "refine"
+                                      else "final polish" for r in (hist[i] for i in final)))
+    last.set_xlabel(counter + (f" (dotted: {stages})" if final else ""))
     last.xaxis.get_major_locator().set_params(integer=True)
     for ax in list(axes.values())[:-1]:
         ax.tick_params(labelbottom=False)
