@@ -7,8 +7,9 @@
 For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`) and every
 variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, its
 coupled variant and its refinement phase, the simultaneous IPOPT solve cold and warm-started
-from the staggered network, nlopt where it applies) one row: wall time, outer iterations, max relative error, min weight, distance to
-the reference, status and peak memory, with the paper's time / iterations / error beside them.
+from the staggered network, nlopt where it applies) one row: wall time, outer iterations, max
+relative error, min weight, distance to the reference, status and peak memory, with the paper's
+time / iterations / error beside them.
 
 How each number is measured
 ---------------------------
@@ -297,7 +298,8 @@ def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, varian
             tl = float(time_limit if time_limit is not None else v.time_limit)
             out_json = out / f"{name}__{key.replace('/', '-')}.json"
             out_json.unlink(missing_ok=True)  # a stale file from an earlier run must not pass for this row's
-            hard = max(int(repeat), 1) * 1.5 * tl + 180.0 + (VARIANTS[REFERENCE].time_limit if v.warm_start and ref_json is None else 0.0)
+            hard = (max(int(repeat), 1) * 1.5 * tl + 180.0
+                    + (VARIANTS[REFERENCE].time_limit if v.warm_start and ref_json is None else 0.0))
             echo(f"[{time.strftime('%H:%M:%S')}] {name} {key} (time limit {tl:g} s) ...")
             r = run_isolated("studies.table1:solve_row",
                              {"scenes_dir": str(scenes_dir), "scene_name": name, "variant": key,

@@ -12,8 +12,8 @@ Step 2  weights with positions fixed: a box-constrained sparse least-squares fit
         Measured against 1e-6 on 37 solves (paper scenes, rotated/scaled and jittered variants,
         generated shapes): all converge, 7 end closer to the reference (up to 30%), 4 farther
         (up to 6%); lilium takes 0.71-0.83x the time (two alternating measurements). The fits
-        the finish and the polish use are exact (a loosely fitted iterate waits one step for its exact fit
-        before the finish is tried).
+        the finish and the polish use are exact (a loosely fitted iterate waits one step for
+        its exact fit before the finish is tried).
 Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
 
             Σ_i ‖r_i / d_i‖² + α Σ_i ( ⟨n_i, v_i − p_i⟩² + τ ‖T_i (v_i − p_i)‖² ) + β Σ_i ‖v_i − v_i^k‖²
@@ -55,9 +55,9 @@ Finish  once the fit's max relative error is below ``finish_try``, every accepte
         drift. A try is screened first: positions in equilibrium with the weights and the
         iterate's loads (one stress-Laplacian solve) predict the polished distance, and a try
         predicted far beyond the slack is not polished (twocirc-3: 4 tries of 20–33 ms skipped,
-        0.83× the time, the same network). A try uses Newton only: one that Newton cannot finish fails cheaply (the
-        fixed-point fallbacks took 0.7 s of 1.9 s on a 1k concave disk for a try that failed
-        anyway). The linear systems are factored by CHOLMOD (:mod:`selfsupport.linalg`).
+        0.83× the time, the same network). A try uses Newton only: one that Newton cannot
+        finish fails cheaply (the fixed-point fallbacks took 0.7 s of 1.9 s on a 1k concave
+        disk for a try that failed anyway). The linear systems are factored by CHOLMOD (:mod:`selfsupport.linalg`).
 Polish  once the fit's max relative error is below ``polish_tol``, the weights are frozen and
         the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
         re-estimated from the new geometry until they are consistent to round-off (Newton with
