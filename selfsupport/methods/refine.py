@@ -67,9 +67,8 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
 
     Stops after ``max_steps`` tried steps, when an accepted step gains less than ``min_gain`` of
     the mean distance, after 6 rejected steps in a row, or at ``deadline``
-    (``time.perf_counter()``). The result is in
-    equilibrium with loads of its own geometry (the polish's accuracy) whenever ``steps > 0``,
-    else it is the input.
+    (``time.perf_counter()``). The result is in equilibrium with loads of its own geometry (the
+    polish's accuracy) whenever ``steps > 0``, else it is the input.
     """
     ws = workspace if workspace is not None else {}
     free = top.free
