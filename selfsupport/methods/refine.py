@@ -43,7 +43,7 @@ from ..evidence import closest_points
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from .assembly import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
-from .polish import _load_colouring, polish
+from .polish import _load_colouring, _load_jacobian, polish
 from .scaling import Scaling
 
 
@@ -159,20 +159,19 @@ def _linearize(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P: np
 
 def _load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.ndarray, fidx: np.ndarray,
                        colouring: tuple) -> sp.csr_matrix:
-    """``∂L_free / ∂X_free`` placed in the z rows of the 3 n_free residual: forward differences,
-    one load evaluation per colour and coordinate (the colouring of the polish's ``dL/dz``:
-    a load depends on the positions of the vertices sharing a face with it, in x, y and z alike)."""
-    rows, cols, colour, n_colours = colouring
+    """``∂L_free / ∂X_free`` placed in the z rows of the 3 n_free residual: the polish's
+    coloured forward differences (:func:`~selfsupport.methods.polish._load_jacobian`) once per
+    coordinate — a load depends on the positions of the vertices sharing a face with it, in x,
+    y and z alike, so the colouring of ``dL/dz`` serves all three."""
     nf = fidx.size
-    h = 1e-7 * max(float(np.abs(X).max()), 1.0)
-    R, C, D = [], [], []
+    blocks = []
     for c in range(3):
-        for k in range(n_colours):
+        def loads_at(v: np.ndarray, c: int = c) -> np.ndarray:
             Xh = X.copy()
-            Xh[fidx, c] += h * (colour == k)
-            dL = (sc.load(loads.nodal(mesh0, sc.pos_back(Xh)))[fidx] - L[fidx]) / h
-            sel = colour[cols] == k
-            R.append(3 * rows[sel] + 2)
-            C.append(3 * cols[sel] + c)
-            D.append(dL[rows[sel]])
-    return sp.csr_matrix((np.concatenate(D), (np.concatenate(R), np.concatenate(C))), shape=(3 * nf, 3 * nf))
+            Xh[fidx, c] = v
+            return sc.load(loads.nodal(mesh0, sc.pos_back(Xh)))[fidx]
+
+        blocks.append(_load_jacobian(loads_at, X[fidx, c], L[fidx], *colouring).tocoo())
+    R = np.concatenate([3 * J.row + 2 for J in blocks])
+    C = np.concatenate([3 * J.col + c for c, J in enumerate(blocks)])
+    return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
