@@ -533,21 +533,19 @@ def _top_view_balanceable(scene: Scene, rtol: float = 1e-8) -> bool:
 
 
 def _cotangent_weights(mesh: PolyMesh, X: np.ndarray) -> np.ndarray:
-    """Per mesh edge, ½ Σ cot of the top-view angles opposite it (triangle meshes)."""
+    """Per mesh edge, ½ Σ cot of the top-view angles opposite it (triangle meshes). The
+    half-edge leaving corner k of a triangle runs to corner k+1, opposite corner k+2; the mesh
+    maps every half-edge to its edge."""
     F = mesh.face_vertices.reshape(-1, 3)
+    he_edge = mesh._halfedge_data["halfedge_edge"].reshape(-1, 3)
     P = X[:, :2]
     w = np.zeros(mesh.n_edges)
-    E = np.sort(mesh.edges, axis=1)
-    keys = E[:, 0] * mesh.n_vertices + E[:, 1]
-    order = np.argsort(keys)
     for k in range(3):
-        i, j, o = F[:, (k + 1) % 3], F[:, (k + 2) % 3], F[:, k]  # edge (i, j) opposite corner o
+        i, j, o = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
         u, v = P[i] - P[o], P[j] - P[o]
         cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
         cot = (u * v).sum(axis=1) / np.where(np.abs(cross) > 0, np.abs(cross), np.nan)
-        lo, hi = np.minimum(i, j), np.maximum(i, j)
-        idx = order[np.searchsorted(keys, lo * mesh.n_vertices + hi, sorter=order)]
-        np.add.at(w, idx, 0.5 * np.nan_to_num(cot, nan=-np.inf))
+        np.add.at(w, he_edge[:, k], 0.5 * np.nan_to_num(cot, nan=-np.inf))
     return w
 
 
