@@ -21,10 +21,14 @@ For staggered rows the worker also measures, at the final weights:
   what a direct Step 3 costs;
 * ``factor_step3_pre_s`` — one factorization of ``H + c I`` (``n_free × n_free``), what the
   solver's Step 3 actually factors (its conjugate gradients are preconditioned with it);
+* ``factor_step2_s`` — one numeric refactorization (symbolic analysis done beforehand, as in
+  the solver) of Step 2's matrix ``AᵀA + prox·I + D`` (``m × m``, m the number of weights): what
+  each interior-point iteration and each PDAS solve of a fit costs;
 * ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s``: an outer
   iteration's cost in direct Step-3 factorizations (1–3 would be a method that factors once per step);
 * from the solve's own history: ``step2_s`` and ``step3_s`` (time in the weight fits and in the
-  position steps), ``cg_mean`` (mean CG iterations per position step);
+  position steps), ``cg_mean`` (mean CG iterations per position step), ``fit_its_mean`` (mean
+  Step-2 iterations per fit — each one factorization of that matrix);
 * ``n_factorizations`` / ``factor_share`` — every numeric factorization the solve made (new
   factor objects and numeric refactorizations alike, recorded by wrapping ``SPDFactor``), and
   the share of the solve time they took.
@@ -96,8 +100,9 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     """Factorization times at the final weights (see the module docstring)."""
     import scipy.sparse as sp
 
-    from selfsupport.methods.assembly import Topology, position_blocks
+    from selfsupport.methods.assembly import Topology, position_blocks, weight_matrix
     from selfsupport.methods.scaling import Scaling
+    from selfsupport.methods.weightfit import _LowerQ
     from selfsupport.linalg import spd_factor
 
     net = result.network
@@ -116,7 +121,15 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) / 3 + np.eye(3))
     M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
     pre = (H + c * sp.identity(top.n_free)).tocsc()
-    return {"factor_K_s": median_time(lambda: spd_factor(negK), repeat=3, budget=60.0),
+    # Step 2's matrix AᵀA + prox·I (m×m, edges coupled through shared vertices): what every
+    # interior-point iteration and PDAS solve of a fit factors
+    A = weight_matrix(top, sc.pos(np.asarray(net.vertices)))
+    Q = (A.T @ A).tocsc()
+    Q = (Q + 1e-8 * float(Q.diagonal().mean()) * sp.identity(Q.shape[0], format="csc")).tocsc()
+    lowq = _LowerQ(Q)
+    lowq.with_diagonal(np.ones(Q.shape[0]))  # symbolic analysis, once per fit pattern in the solver
+    return {"factor_step2_s": median_time(lambda: lowq.with_diagonal(np.ones(Q.shape[0])), repeat=3, budget=60.0),
+            "factor_K_s": median_time(lambda: spd_factor(negK), repeat=3, budget=60.0),
             "factor_step3_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
             "factor_step3_pre_s": median_time(lambda: spd_factor(pre), repeat=3, budget=60.0),
             "n_free": top.n_free}
@@ -152,10 +165,13 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
         row["step3_s"] = sum(h.get("t_positions", 0.0) for h in steps)
         cg = [h["cg_iterations"] for h in steps if h.get("cg_iterations")]
         row["cg_mean"] = float(np.mean(cg)) if cg else float("nan")
+        fits = [h["fit_iterations"] for h in steps if h.get("fit_iterations")]
+        row["fit_its_mean"] = float(np.mean(fits)) if fits else float("nan")
         row["n_factorizations"] = len(rec.calls)
         row["factor_share"] = sum(t for _, t in rec.calls) / sw.seconds if rec.calls else float("nan")
         row.update(_floor_measurements(res, scene))
-        row["peak_rss_mib"] = peak_rss_mib()
+        # (peak_rss_mib stays the solve's own: the floor's direct 3n factorization can exceed it)
+        row["peak_rss_floor_mib"] = peak_rss_mib()
     return row
 
 
@@ -166,9 +182,12 @@ COLUMNS: tuple[Column, ...] = (
     Column("reported_error", "reported error", "{:.1e}"),
     Column("dist_ref_mean", "dist. to ref. mean", "{:.2e}"), Column("dist_ref_max", "dist. to ref. max", "{:.2e}"),
     Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("rss_before_mib", "RSS before solve [MiB]", "{:.0f}"),
+    Column("peak_rss_floor_mib", "peak RSS with floor [MiB]", "{:.0f}"),
     Column("time_per_iter_s", "time / iteration [s]", "{:.3f}"),
     Column("step2_s", "Step 2 [s]", "{:.2f}"), Column("step3_s", "Step 3 [s]", "{:.2f}"),
     Column("cg_mean", "CG its / step", "{:.1f}"),
+    Column("fit_its_mean", "Step-2 its / fit", "{:.1f}"),
+    Column("factor_step2_s", "factor Step 2 (m) [s]", "{:.4f}"),
     Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"), Column("factor_step3_s", "factor Step 3 (3n) [s]", "{:.4f}"),
     Column("factor_step3_pre_s", "factor H + cI (n) [s]", "{:.4f}"),
     Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
@@ -178,7 +197,7 @@ COLUMNS: tuple[Column, ...] = (
 _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "status", "time_s", "iterations", "max_rel_error",
               "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
-              "factor_K_s", "factor_step3_s", "factor_step3_pre_s", "per_iter_over_factor", "n_factorizations",
+              "fit_its_mean", "factor_step2_s", "factor_K_s", "factor_step3_s", "factor_step3_pre_s", "per_iter_over_factor", "n_factorizations",
               "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
@@ -302,10 +321,14 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
     notes = [
         "Times are the `solve()` call alone (process start-up, imports, mesh generation and a warm-up solve of "
         "a tiny dome excluded); each row runs in its own spawned process, so *peak RSS* is that row's "
-        "(interpreter and imports included; *RSS before solve* is the level the solve started from).",
+        "solve (interpreter and imports included; *RSS before solve* is the level the solve started from; the "
+        "CSV's *peak RSS with floor* includes the floor measurements below, whose direct 3n factorization is "
+        "larger than anything the solve factors).",
         "*max rel. error* recomputed with plain numpy from the saved JSON network.",
         "Floor (at the final weights): *factor −K_ff* = one SPD factorization (`linalg.spd_factor`) of the "
-        "free-vertex stress Laplacian; *factor Step 3 (3n)* = one factorization of the 3n_free×3n_free Step-3 "
+        "free-vertex stress Laplacian; *factor Step 2 (m)* = one numeric refactorization of the weight fit's "
+        "m×m matrix AᵀA + prox·I + D (one per *Step-2 its / fit*, the mean over the solve's fits); "
+        "*factor Step 3 (3n)* = one factorization of the 3n_free×3n_free Step-3 "
         "system (what a direct Step 3 costs); *factor H + cI (n)* = one factorization of the n_free×n_free "
         "matrix the solver's Step 3 factors (its CG preconditioner); *iteration / Step-3 factorization* = "
         "(time / iterations) / the 3n factorization. *Step 2*, *Step 3*: time in the weight fits and the "
