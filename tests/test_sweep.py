@@ -337,3 +337,30 @@ def test_hard_time_limit_records_timeout_and_the_sweep_goes_on(client, tmp_path)
     again = run_sweep(parse_spec(sweep_text(grid="density = [2000.0]"), scene_dir=tmp_path), tmp_path / "b",
                       client=client, progress=False)
     assert again.by_status == {"converged": 2}
+
+
+PAPER_SCENES = Path(__file__).resolve().parents[2] / "shared" / "paper-scenes" / "scenes"
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "studies").glob("*.toml")),
+                         ids=lambda p: p.name)
+def test_shipped_sweep_files_parse_and_expand(path):
+    """The sweep files under studies/ are valid: every scene is found, every method and
+    option is known, and the expansion has the documented size."""
+    from selfsupport.methods.staggered import StaggeredOptions
+    from selfsupport.sweep import load_spec
+
+    text = path.read_text(encoding="utf-8")
+    if "paper-scenes" in text or "--scenes" in text:
+        if not PAPER_SCENES.is_dir():
+            pytest.skip("the paper scenes (../shared) are not beside the repository")
+        spec = load_spec(path, scene_dir=PAPER_SCENES)
+    else:
+        spec = load_spec(path)
+    runs = spec.expand()
+    assert runs and len({r.scene for r in runs}) == len(spec.scenes)
+    for r in runs:
+        if r.method == "staggered":
+            assert {k for k, _ in r.options} <= set(StaggeredOptions.__dataclass_fields__)
+    if path.name == "sweep_schedule.toml":  # 6 scenes × 4 shrink × 2 refine, as its header says
+        assert len(runs) == 48 and {dict(r.options)["shrink"] for r in runs} == {0.5, 0.35, 0.25, 0.15}
