@@ -200,7 +200,8 @@ def test_scaling_row_measures_the_factorization_floor(tmp_path):
                             out_json=str(tmp_path / "n.json"), warmup=False)
     assert r["status"] == "converged"
     assert common.json_max_relative_error(tmp_path / "n.json") == pytest.approx(r["reported_error"], rel=1e-6, abs=1e-15)
-    assert r["factor_K_s"] > 0 and r["factor_step3_s"] > 0 and r["factor_step3_pre_s"] > 0 and r["factor_step2_s"] > 0
+    assert r["factor_K_s"] > 0 and r["factor_step3_s"] > 0 and r["factor_step3_pre_s"] > 0
+    assert r["factor_step2_s"] > 0
     hist = json.loads((tmp_path / "n.json").read_text())["history"]
     fits = [h["fit_iterations"] for h in hist if isinstance(h.get("iteration"), int)]
     assert r["fit_its_mean"] == pytest.approx(np.mean(fits)) and r["fit_its_mean"] >= 1
@@ -242,4 +243,5 @@ def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
         assert rows[key]["status"] == "converged"
         assert d["parameters"]["objective"] == ("surface" if "surface" in key else None)
         assert _independent_errors(d).max() <= 1e-8
-    assert rows["simultaneous/ipopt-surface-warm"]["dist_ref_mean"] < 0.9 * rows["simultaneous/ipopt-warm"]["dist_ref_mean"]
+    surface, vertices = rows["simultaneous/ipopt-surface-warm"], rows["simultaneous/ipopt-warm"]
+    assert surface["dist_ref_mean"] < 0.9 * vertices["dist_ref_mean"]

@@ -362,5 +362,5 @@ def test_shipped_sweep_files_parse_and_expand(path):
     for r in runs:
         if r.method == "staggered":
             assert {k for k, _ in r.options} <= set(StaggeredOptions.__dataclass_fields__)
-    if path.name == "sweep_schedule.toml":  # 6 scenes × 4 shrink × 2 refine, as its header says
+    if path.name == "sweep_schedule.toml":  # 6 scenes × 4 shrink × 2 refine (the README's 48 runs)
         assert len(runs) == 48 and {dict(r.options)["shrink"] for r in runs} == {0.5, 0.35, 0.25, 0.15}
