@@ -122,11 +122,13 @@ def _sqp_step(lin: tuple, w: np.ndarray, lower: np.ndarray, upper: np.ndarray, r
     free, so the step satisfies the linearized constraint."""
     Cx, A, r, g, Winv = lin
     free_w = (w > lower) & (w < upper)
+    CWC = Cx @ Winv @ Cx.T  # the positions' part of the Schur complement (the same for both attempts)
+    rhs = r - Cx @ (Winv @ g)
     for attempt in range(2):  # (a second release is left to the next step)
         Cw = A[:, free_w]
         Rinv = sp.diags(w[free_w] ** 2 / rho)
-        M = (Cx @ Winv @ Cx.T + Cw @ Rinv @ Cw.T).tocsc()
-        lam = spd_factor(M).solve(r - Cx @ (Winv @ g))
+        M = (CWC + Cw @ Rinv @ Cw.T).tocsc()
+        lam = spd_factor(M).solve(rhs)
         pull = -(A.T @ lam) * w ** 2 / rho  # the step of each weight, were it free
         release = ~free_w & (((w <= lower) & (pull > 0)) | ((w >= upper) & (pull < 0)))
         if attempt or not release.any():
