@@ -1,13 +1,23 @@
-"""The thrust-network problem stated once, symbolically, in CasADi.
+"""The thrust-network problem stated once.
 
-* :mod:`formulations.equilibrium` — unknowns, the residual of eqs. (2)-(3), weight bounds;
-* :mod:`formulations.objectives` — one class per objective term (``TERMS`` registry);
-* :mod:`formulations.problem` — :class:`ThrustNetworkProblem`, the NLP handed to solvers.
+* :mod:`formulations.problem` — :class:`Problem`: scene + load cases + bounds + objective +
+  constraints, with its scale-free units; what every method consumes;
+* :mod:`formulations.equilibrium` — eqs. (2)-(3): the CasADi statement and its sparse numeric form;
+* :mod:`formulations.terms` — one class per objective term (``TERMS`` registry), each with a
+  CasADi residual and a numeric Gauss–Newton linearization;
+* :mod:`formulations.loadcases` — :class:`LoadCases`, the named set of load cases;
+* :mod:`formulations.scaling` — the scale-free units;
+* :mod:`formulations.nlp` — :class:`ThrustNetworkProblem`, the NLP handed to IPOPT / nlopt.
 """
-from .equilibrium import GROUP_NAMES, Equilibrium, WeightBounds
-from .objectives import (TERMS, Fairness, NormalDrift, Planarity, PointDistance, ReferenceDistance, Scaled, Sum,
-                         Term)
-from .problem import ThrustNetworkProblem
+from .equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds
+from .loadcases import DEFAULT_CASE, LoadCases
+from .nlp import ThrustNetworkProblem
+from .problem import CONSTRAINTS, Bounds, FixedTopView, Hull, ObjectiveTerm, Problem, ScaledProblem, parse_objective
+from .scaling import Scaling, default_eps
+from .terms import (TERMS, Fairness, HullPenalty, NormalDrift, Planarity, PlanarityVolume, PointDistance,
+                    ReferenceDistance, Scaled, Sum, Term, TermContext)
 
-__all__ = ["GROUP_NAMES", "Equilibrium", "WeightBounds", "TERMS", "Term", "Sum", "Scaled", "PointDistance",
-           "ReferenceDistance", "NormalDrift", "Planarity", "Fairness", "ThrustNetworkProblem"]
+__all__ = ["Problem", "ScaledProblem", "Bounds", "Hull", "FixedTopView", "CONSTRAINTS", "ObjectiveTerm",
+           "parse_objective", "LoadCases", "DEFAULT_CASE", "GROUP_NAMES", "Equilibrium", "Topology", "WeightBounds",
+           "TERMS", "Term", "TermContext", "Sum", "Scaled", "PointDistance", "ReferenceDistance", "NormalDrift",
+           "Planarity", "PlanarityVolume", "Fairness", "HullPenalty", "ThrustNetworkProblem", "Scaling", "default_eps"]

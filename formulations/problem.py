@@ -1,175 +1,294 @@
-"""The thrust-network problem stated once: unknowns, equilibrium constraints, bounds, objective.
+"""The design problem, stated once: scene + load cases + weight bounds + objective +
+constraints. Every method (staggered, refinement, polish, IPOPT, nlopt) and ``check`` consume
+it; it owns its scale-free units (:meth:`Problem.scaled`).
 
-    minimise    objective(V)
-    over        X (free positions), w (active-edge weights)
-    subject to  Σ_j w_ij (v_j − v_i) − (0, 0, L_i) = 0    at free vertices   (named groups
-                                                          equilibrium_x/y/z)
-                lower ≤ w ≤ upper
+    minimise    Σ_t weight_t · ‖r_t(V)‖²                        (objective terms, :mod:`.terms`)
+    over        free positions V, one weight vector w_c per load case c
+    subject to  Σ_j w_c,ij (v_j − v_i) = (0, 0, L_c,i(V))     every case, every free vertex (eqs. 2-3)
+                lower ≤ w_c ≤ upper                              (scalar or per edge)
+                |⟨n_i, v_i − p_i⟩| ≤ t/2                         (optional: the masonry hull)
+                x_i, y_i fixed                                   (optional: fixed top view, the TNA setting)
 
-The NLP vector is ``x = [X_free.ravel(), w]``; the parameters are
-``p = [V_sup.ravel(), L_free, row_scale]`` so a solver built once can be re-run with new loads
-(methods re-estimate self-weight from the geometry). Constraint rows may be scaled by
-``row_scale`` (default ``1 / |L_i|`` per free vertex, so the constraint tolerance *is* the paper's
-relative error); the residual functions are never scaled.
+``objective=None`` leaves the objective to the method's default (staggered: distance to the
+reference surface + smooth displacement; simultaneous: distance to the reference vertices); an
+explicit objective is used as stated by every method.
 
-Methods pick their own units; :mod:`selfsupport.methods.simultaneous` builds this in scale-free
-units and wraps user terms with :class:`formulations.objectives.Scaled`.
+Example
+-------
+>>> from selfsupport.shapes import make_shape
+>>> p = Problem.build(make_shape("dome", n_vertices=80), objective={"vertices": 1.0, "planarity": 10.0})
+>>> [t.name for t in p.objective], p.loads.names
+(['vertices', 'planarity'], ('self-weight',))
+>>> sp = p.scaled()
+>>> sp.L.shape[0] == len(p.loads) and bool((sp.L[:, sp.top.free] < 0).all())
+True
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cached_property
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping, Sequence
 
-import casadi as ca
 import numpy as np
 
 from selfsupport.errors import InputError
-from selfsupport.methods.assembly import Topology
 
-from .equilibrium import Equilibrium, WeightBounds, symbol_type
-from .objectives import Term
-
-#: Floor of the default row scale, relative to the mean |load| (guards free vertices without load).
-ROW_SCALE_FLOOR = 1e-3
+from .equilibrium import Topology
+from .loadcases import LoadCases
+from .scaling import Scaling, default_eps
+from .terms import TERMS, Scaled, Sum, Term, TermContext
 
 
-@dataclass(eq=False)
-class ThrustNetworkProblem:
-    """One thrust-network problem (numbers in whatever units the caller chose).
+# ------------------------------------------------------------------------------ bounds
+@dataclass(frozen=True, eq=False)
+class Bounds:
+    """Weight bounds [N/m]: ``lower`` (ε; ``None``: the scale-free default of
+    :func:`~formulations.scaling.default_eps`) and ``upper`` (w_max; ``None``: unbounded).
+    Each a scalar, one value per mesh edge, or one per active edge."""
 
-    Parameters
-    ----------
-    topology
-        Free vertices and active edges.
-    vertices
-        ``(n, 3)`` positions; the support rows are the (fixed) support positions, the free rows
-        only serve as the default starting point.
-    loads
-        ``(n,)`` signed vertical loads (only the free entries enter the equations).
-    bounds
-        Weight bounds on the active edges.
-    objective
-        A :class:`~formulations.objectives.Term` of all ``n`` positions, or ``None`` (feasibility).
-    symbol
-        ``"MX"`` (default; fast to build) or ``"SX"``.
-    relative_rows
-        Scale constraint rows by ``1 / |L_i|`` (see the module docstring).
-    weight_regularization, weight_scale
-        Adds ``weight_regularization · mean((w / weight_scale)²)`` to the objective (default 0).
-        Without it the objective ignores ``w``: the optimal weights are not unique and IPOPT
-        can drift towards degenerate optima with unbounded weights; a tiny value makes the
-        optimum isolated at a negligible cost in the objective.
-    """
+    lower: float | np.ndarray | None = None
+    upper: float | np.ndarray | None = None
 
-    topology: Topology
-    vertices: np.ndarray
-    loads: np.ndarray
-    bounds: WeightBounds
-    objective: Term | None = None
-    symbol: str | type = "MX"
-    relative_rows: bool = True
-    weight_regularization: float = 0.0
-    weight_scale: float = 1.0
+    @staticmethod
+    def _per_active(value, scene, what: str) -> np.ndarray | float | None:
+        if value is None:
+            return None
+        a = np.asarray(value, float)
+        act = scene.active_edges
+        if a.ndim == 0:
+            out = float(a)
+        elif a.shape == (scene.mesh.n_edges,):
+            out = a[act]
+        elif a.shape == (int(act.sum()),):
+            out = a
+        else:
+            raise InputError(f"{what} has {a.shape} entries; give a scalar, one per mesh edge ({scene.mesh.n_edges}) "
+                             f"or one per active edge ({int(act.sum())})")
+        if not np.all(np.isfinite(out) | (np.asarray(out) == np.inf)) or np.any(np.asarray(out) <= 0):
+            raise InputError(f"{what} must be positive (w >= 0 means compression), got {value!r}")
+        return out
+
+    def active(self, scene) -> tuple[np.ndarray | float | None, np.ndarray | float | None]:
+        """``(lower, upper)`` restricted to the scene's active edges (scalars stay scalars)."""
+        return self._per_active(self.lower, scene, "eps"), self._per_active(self.upper, scene, "w_max")
+
+    @property
+    def has_upper(self) -> bool:
+        return self.upper is not None and not (np.ndim(self.upper) == 0 and np.isinf(float(self.upper)))
+
+
+# ------------------------------------------------------------------------- constraints
+@dataclass(frozen=True)
+class Hull:
+    """Every free vertex within ±t/2 of the reference mid-surface, along the reference normal.
+    ``thickness=None``: the self-weight's thickness. ``penalty``: weight of the hull term in
+    methods that treat it as a penalty (the staggered method), relative to the objective."""
+
+    thickness: float | None = None
+    penalty: float = 1e4
+    name: ClassVar[str] = "hull"
+
+
+@dataclass(frozen=True)
+class FixedTopView:
+    """The free vertices keep their x and y: only heights move (the thrust-network-analysis setting)."""
+
+    name: ClassVar[str] = "fixed_top_view"
+
+
+#: Constraint registry by name.
+CONSTRAINTS: dict[str, type] = {c.name: c for c in (Hull, FixedTopView)}
+
+
+# ---------------------------------------------------------------------------- objective
+@dataclass(frozen=True)
+class ObjectiveTerm:
+    """One weighted registered term: ``TERMS[name]`` built for the problem with ``params``."""
+
+    name: str
+    weight: float = 1.0
+    params: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        top = self.topology
-        self.vertices = np.asarray(self.vertices, float)
-        self.loads = np.asarray(self.loads, float)
-        if self.vertices.shape != (top.n, 3):
-            raise InputError(f"vertices have shape {self.vertices.shape}, expected ({top.n}, 3)")
-        if self.loads.shape != (top.n,):
-            raise InputError(f"loads have shape {self.loads.shape}, expected ({top.n},)")
-        if self.objective is not None and self.objective.n_vertices != top.n:
-            raise InputError(f"the objective is defined on {self.objective.n_vertices} vertices, "
-                             f"the problem has {top.n}")
-        symbol_type(self.symbol)
-        self.lower, self.upper = self.bounds.arrays(top.m)
+        if self.name not in TERMS:
+            raise InputError(f"unknown objective term {self.name!r}; choose from {', '.join(sorted(TERMS))}")
+        w = float(self.weight)
+        if not (np.isfinite(w) and w >= 0):
+            raise InputError(f"objective weight of {self.name!r} must be a finite number >= 0, got {self.weight!r}")
 
-    # ---------------------------------------------------------------- symbols
-    @cached_property
-    def equilibrium(self) -> Equilibrium:
-        return Equilibrium(self.topology, symbol=self.symbol)
+    def build(self, ctx: TermContext) -> Term:
+        return TERMS[self.name].build(ctx, weight=float(self.weight), **dict(self.params))
 
-    @cached_property
-    def row_scale_symbol(self):
-        return symbol_type(self.symbol).sym("row_scale", self.topology.n_free)
+
+def parse_objective(spec: Any) -> tuple[ObjectiveTerm | Term, ...] | None:
+    """``None``; a :class:`Term`; ``{"name": weight}``; ``"name=weight"`` strings; or a sequence
+    of those -> a tuple of :class:`ObjectiveTerm` / user terms (in SI units)."""
+    if spec is None:
+        return None
+    if isinstance(spec, (Term, ObjectiveTerm)):
+        return (spec,)
+    if isinstance(spec, Mapping):
+        return tuple(ObjectiveTerm(str(k), float(v)) for k, v in spec.items())
+    if isinstance(spec, str):
+        name, sep, value = spec.partition("=")
+        try:
+            weight = float(value) if sep else 1.0
+        except ValueError:
+            raise InputError(f"objective {spec!r}: write NAME=WEIGHT with a number as WEIGHT") from None
+        return (ObjectiveTerm(name.strip(), weight),)
+    if isinstance(spec, Sequence):
+        out: list = []
+        for s in spec:
+            out.extend(parse_objective(s) or ())
+        return tuple(out)
+    raise InputError(f"cannot read an objective from a {type(spec).__name__}")
+
+
+# ------------------------------------------------------------------------------ problem
+@dataclass(frozen=True, eq=False)
+class ScaledProblem:
+    """A problem in scale-free units (lengths / bbox diagonal, forces / mean nodal load of the
+    first case): what the numeric methods and ``check`` work with."""
+
+    top: Topology
+    scaling: Scaling
+    X: np.ndarray  # scaled reference positions (n, 3)
+    L: np.ndarray  # scaled loads at the reference, (n_cases, n)
+    lower: np.ndarray  # per active edge
+    upper: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """A thrust-network design problem (see the module docstring). Build with :meth:`build`."""
+
+    scene: Any  # selfsupport.scene.Scene
+    loads: LoadCases
+    bounds: Bounds = Bounds()
+    objective: tuple | None = None  # of ObjectiveTerm / Term (SI units); None: the method's default
+    constraints: tuple = ()
+
+    @classmethod
+    def build(cls, scene, loads: Any = None, *, eps: Any = None, w_max: Any = None, objective: Any = None,
+              constraints: Sequence[Any] = ()) -> "Problem":
+        """From a scene, load model(s) (one model, a mapping name -> model, or :class:`LoadCases`;
+        the scene's extras are added to each), bounds [N/m], an objective (see
+        :func:`parse_objective`) and constraints (instances or names in :data:`CONSTRAINTS`)."""
+        cons = []
+        for c in constraints:
+            if isinstance(c, str):
+                if c not in CONSTRAINTS:
+                    raise InputError(f"unknown constraint {c!r}; choose from {', '.join(CONSTRAINTS)}")
+                c = CONSTRAINTS[c]()
+            cons.append(c)
+        return cls(scene=scene, loads=LoadCases.of(loads, scene), bounds=Bounds(eps, w_max),
+                   objective=parse_objective(objective), constraints=tuple(cons))
+
+    # -------------------------------------------------------------- constraints
+    def constraint(self, kind: type) -> Any:
+        """The problem's constraint of that class, or ``None``."""
+        return next((c for c in self.constraints if isinstance(c, kind)), None)
 
     @property
-    def n_x(self) -> int:
-        return 3 * self.topology.n_free + self.topology.m
+    def fixed_top_view(self) -> bool:
+        return self.constraint(FixedTopView) is not None
 
-    @property
-    def constraint_groups(self) -> dict[str, np.ndarray]:
-        """Group name -> rows of ``g`` (row ``3 k + c``: coordinate ``c`` at free vertex ``k``)."""
-        return self.equilibrium.groups
+    def hull_thickness(self) -> float | None:
+        """The masonry hull's thickness [m] when the problem has one."""
+        h = self.constraint(Hull)
+        if h is None:
+            return None
+        t = h.thickness
+        if t is None:
+            t = next((getattr(m, "thickness", None) for m in _flatten(self.loads.models)
+                      if getattr(m, "thickness", None) is not None), None)
+        if t is None or not (np.isfinite(t) and t > 0):
+            raise InputError("the masonry hull needs a positive thickness (--thickness)")
+        return float(t)
 
-    # ---------------------------------------------------------------- NLP
-    def nlp(self) -> dict:
-        """The NLP dict for ``ca.nlpsol``: ``x``, ``p``, ``f``, ``g``."""
-        eq = self.equilibrium
-        r = eq.residual()
-        if self.relative_rows:
-            r = r * ca.vec(ca.repmat(self.row_scale_symbol.T, 3, 1))  # s_k repeated for x, y, z
-        f = self.objective.expr(eq.all_positions()) if self.objective is not None else 0 * eq.w[0]
-        if self.weight_regularization:
-            f = f + self.weight_regularization / max(self.topology.m, 1) * ca.sumsqr(eq.w / self.weight_scale)
-        return {"x": ca.vertcat(eq.X, eq.w), "p": ca.vertcat(eq.V_sup, eq.L, self.row_scale_symbol),
-                "f": f, "g": r}
+    # ---------------------------------------------------------------- checks
+    def validate(self) -> None:
+        """Mesh, supports and (for a flat reference) the need for ``w_max``; raises named errors."""
+        from selfsupport.validate import require_rise
 
-    def row_scale(self, loads: np.ndarray | None = None) -> np.ndarray:
-        L = np.abs((self.loads if loads is None else np.asarray(loads, float))[self.topology.free])
-        if not self.relative_rows:
-            return np.ones_like(L)
-        floor = ROW_SCALE_FLOOR * (L.mean() if L.size and L.mean() > 0 else 1.0)
-        return 1.0 / np.maximum(L, floor)
+        self.scene.mesh.validate()
+        self.scene.check_supports()
+        require_rise(self.scene, 1.0 if self.bounds.has_upper else None)
 
-    def parameters(self, loads: np.ndarray | None = None) -> np.ndarray:
-        """Numeric ``p`` for the current (or the given ``(n,)``) loads."""
-        top = self.topology
-        L = self.loads if loads is None else np.asarray(loads, float)
-        return np.concatenate([self.vertices[~top.free].ravel(), L[top.free], self.row_scale(L)])
+    # ---------------------------------------------------------------- units
+    def scaled(self, loads: np.ndarray | None = None) -> ScaledProblem:
+        """The problem in scale-free units, with ``loads`` ((n_cases, n) [N]; default: at the
+        reference). Raises :class:`InputError` when a free vertex carries no downward load in
+        some case or the bounds are inconsistent."""
+        scene = self.scene
+        mesh = scene.mesh
+        top = Topology.build(mesh.n_vertices, mesh.edges[scene.active_edges], scene.supports)
+        free = top.free
+        L = self.loads.nodal(mesh, mesh.vertices) if loads is None else np.atleast_2d(np.asarray(loads, float))
+        if not np.all(np.isfinite(L)):
+            raise InputError("the loads are not finite numbers (density or thickness too large?); "
+                             "give physical values")
+        for name, Lc in zip(self.loads.names, L):
+            if np.any(Lc[free] >= 0):
+                k = int(np.flatnonzero(free & (Lc >= 0))[0])
+                where = f" in load case {name!r}" if len(L) > 1 else ""
+                raise InputError(f"vertex {k} carries no downward load{where} (zero area?); remove degenerate faces "
+                                 "or add a load there")
+        sc = Scaling.of(mesh.vertices, L[0], free)
+        X = sc.pos(mesh.vertices)
+        lo, up = self.bounds.active(scene)
+        lower = np.broadcast_to(default_eps(X, top.edges) if lo is None else sc.weight(np.asarray(lo, float)),
+                                (top.m,)).astype(float)
+        upper = np.broadcast_to(np.inf if up is None else sc.weight(np.asarray(up, float)), (top.m,)).astype(float)
+        if np.any(lower >= upper):
+            k = int(np.argmax(lower >= upper))
+            raise InputError(f"w_max ({sc.weight_back(upper[k]):.6g} N/m) must exceed the lower weight bound "
+                             f"({sc.weight_back(lower[k]):.3g} N/m) on active edge {k}")
+        return ScaledProblem(top=top, scaling=sc, X=X, L=sc.load(L), lower=lower, upper=upper)
 
-    def pack(self, vertices: np.ndarray | None = None, weights: np.ndarray | None = None) -> np.ndarray:
-        """``x`` from ``(n, 3)`` positions and ``(m,)`` active weights (defaults: own vertices, lower bound)."""
-        V = self.vertices if vertices is None else np.asarray(vertices, float)
-        w = np.maximum(self.lower, 0.0) if weights is None else np.asarray(weights, float)
-        return np.concatenate([V[self.topology.free].ravel(), w])
+    # ---------------------------------------------------------------- objective
+    def terms(self, ctx: TermContext, scaling: Scaling | None = None, default: Any = None) -> Term | None:
+        """The objective as one :class:`Term` in the units of ``ctx`` (``scaling`` converts user
+        terms stated in SI units); ``default`` (a spec) when the problem leaves it to the method.
+        The hull constraint adds its penalty term (``constraint``: methods do not relax it)."""
+        spec = self.objective if self.objective is not None else parse_objective(default)
+        built: list[Term] = []
+        for item in spec or ():
+            if isinstance(item, ObjectiveTerm):
+                built.append(item.build(ctx))
+            elif scaling is not None:
+                built.append(Scaled(item, length=scaling.length, center=scaling.center))
+            else:
+                built.append(item)
+        t = self.hull_thickness()
+        if t is not None:
+            h = self.constraint(Hull)
+            th = t / scaling.length if scaling is not None else t
+            built.append(TERMS["hull"].build(ctx, weight=h.penalty, thickness=th))
+        if not built:
+            return None
+        return built[0] if len(built) == 1 else Sum(tuple(built))
 
-    def unpack(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """``(V (n, 3) with the fixed supports, w (m,))`` from an NLP vector."""
-        x = np.asarray(x, float).ravel()
-        top = self.topology
-        V = self.vertices.copy()
-        V[top.free] = x[:3 * top.n_free].reshape(-1, 3)
-        return V, x[3 * top.n_free:].copy()
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready description (for the network file's ``parameters.problem``)."""
+        obj = None if self.objective is None else [
+            {"name": o.name, "weight": float(o.weight), **({"params": dict(o.params)} if o.params else {})}
+            if isinstance(o, ObjectiveTerm) else {"name": getattr(o, "name", type(o).__name__), "user_term": True}
+            for o in self.objective]
+        return {"load_cases": list(self.loads.names), "objective": obj,
+                "constraints": [{"name": c.name, **({"thickness": self.hull_thickness()} if isinstance(c, Hull) else {})}
+                                for c in self.constraints],
+                "bounds": {"eps": _jsonable(self.bounds.lower), "w_max": _jsonable(self.bounds.upper)}}
 
-    def bounds_args(self) -> dict[str, np.ndarray]:
-        """``lbx, ubx, lbg, ubg`` for the solver call."""
-        nf3 = 3 * self.topology.n_free
-        return {"lbx": np.r_[np.full(nf3, -np.inf), self.lower], "ubx": np.r_[np.full(nf3, np.inf), self.upper],
-                "lbg": np.zeros(nf3), "ubg": np.zeros(nf3)}
 
-    def solver_args(self, x0: np.ndarray, loads: np.ndarray | None = None, **extra) -> dict:
-        return {"x0": x0, "p": self.parameters(loads), **self.bounds_args(), **extra}
+def _flatten(models) -> list:
+    out = []
+    for m in models:
+        out.extend(_flatten(m.cases) if hasattr(m, "cases") else [m])
+    return out
 
-    # ---------------------------------------------------------------- functions (unscaled)
-    def residual_function(self) -> ca.Function:
-        """``residual(X, w, V_sup, L) -> r`` (3 n_free, unscaled)."""
-        return self.equilibrium.residual_function()
 
-    def jacobian_functions(self) -> dict[str, ca.Function]:
-        """``{"X", "w", "V_sup"}`` -> Jacobian functions of the unscaled residual."""
-        return self.equilibrium.jacobian_functions()
-
-    def objective_function(self) -> ca.Function:
-        """``objective(x, p) -> f``."""
-        d = self.nlp()
-        return ca.Function("objective", [d["x"], d["p"]], [d["f"]], ["x", "p"], ["f"])
-
-    def residual_at(self, vertices: np.ndarray, weights: np.ndarray, loads: np.ndarray | None = None) -> np.ndarray:
-        """Numeric ``(n_free, 3)`` residual at the given positions and active weights."""
-        top = self.topology
-        V = np.asarray(vertices, float)
-        L = self.loads if loads is None else np.asarray(loads, float)
-        r = self.residual_function()(V[top.free].ravel(), weights, V[~top.free].ravel(), L[top.free])
-        return np.asarray(r).reshape(-1, 3)
+def _jsonable(v: Any) -> Any:
+    if v is None:
+        return None
+    a = np.asarray(v, float)
+    return float(a) if a.ndim == 0 else a.tolist()

@@ -288,12 +288,12 @@ def fit_weights(scene: Scene, loads: np.ndarray, *, eps: float | None = None, w_
     (still compressive) when that brings the network into equilibrium.
 
     Same units as :class:`~selfsupport.methods.staggered.StaggeredLinearization`: lengths /
-    bounding-box diagonal, forces / mean nodal load (:class:`~selfsupport.methods.scaling.Scaling`),
+    bounding-box diagonal, forces / mean nodal load (:class:`~formulations.scaling.Scaling`),
     rows divided by ``|A_i F_i|``, the default ``eps`` of
-    :func:`~selfsupport.methods.scaling.default_eps`, and the same small proximal term.
+    :func:`~formulations.scaling.default_eps`, and the same small proximal term.
     """
-    from .methods.assembly import load_vector, weight_matrix
-    from .methods.scaling import ScaledProblem
+    from formulations.equilibrium import load_vector, weight_matrix
+    from formulations.scaling import ScaledProblem
     from .methods.staggered import StaggeredOptions
     from .methods.weightfit import make_backend
 

@@ -30,14 +30,14 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
 
 def face_centroids(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
     v = mesh.vertices if vertices is None else vertices
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     c = _scatter_add(face_of, v[mesh.face_vertices], mesh.n_faces)
     return c / mesh.face_sizes[:, None]
 
 
 def _fan(mesh: PolyMesh, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per corner k of face f: the fan triangle (centroid, v_k, v_next) as vector area."""
-    face_of, nxt, _ = mesh._corner_data
+    face_of, nxt, _ = mesh.corner_data
     c = face_centroids(mesh, v)[face_of]
     a = v[mesh.face_vertices] - c
     b = v[nxt] - c

@@ -65,7 +65,7 @@ class PolyMesh:
     def with_vertices(self, vertices: np.ndarray) -> "PolyMesh":
         """Same connectivity, new positions; the cached topology is shared, not recomputed."""
         new = PolyMesh(vertices, self.face_vertices, self.face_offsets)
-        for name in ("edges", "_halfedge_data", "boundary_loops", "_corner_data"):
+        for name in ("edges", "halfedge_data", "boundary_loops", "corner_data"):
             if name in self.__dict__:
                 new.__dict__[name] = self.__dict__[name]
         return new
@@ -99,7 +99,7 @@ class PolyMesh:
 
     # ------------------------------------------------------------------ topology
     @cached_property
-    def _corner_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def corner_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per corner: face index, next corner's vertex, previous corner's vertex."""
         fo = self.face_offsets
         sizes = np.diff(fo)
@@ -110,8 +110,8 @@ class PolyMesh:
         return face_of, self.face_vertices[nxt], self.face_vertices[prv]
 
     @cached_property
-    def _halfedge_data(self) -> dict[str, np.ndarray]:
-        face_of, nxt, _ = self._corner_data
+    def halfedge_data(self) -> dict[str, np.ndarray]:
+        face_of, nxt, _ = self.corner_data
         a, b = self.face_vertices, nxt
         lo, hi = np.minimum(a, b), np.maximum(a, b)
         key = lo * (self.n_vertices + 1) + hi
@@ -135,18 +135,18 @@ class PolyMesh:
     @cached_property
     def edges(self) -> np.ndarray:
         """``(m, 2)`` unique undirected edges, ``i < j``, sorted lexicographically."""
-        e = self._halfedge_data["edges"]
+        e = self.halfedge_data["edges"]
         e.setflags(write=False)
         return e
 
     @property
     def edge_faces(self) -> np.ndarray:
         """``(m, 2)`` the faces on either side of each edge (``-1`` on the boundary)."""
-        return self._halfedge_data["edge_faces"]
+        return self.halfedge_data["edge_faces"]
 
     @property
     def boundary_edge_mask(self) -> np.ndarray:
-        return self._halfedge_data["edge_counts"] == 1
+        return self.halfedge_data["edge_counts"] == 1
 
     @cached_property
     def boundary_vertex_mask(self) -> np.ndarray:
@@ -157,8 +157,8 @@ class PolyMesh:
     @cached_property
     def boundary_loops(self) -> list[np.ndarray]:
         """Closed boundary loops, each a vertex index array following the boundary half-edges."""
-        face_of, nxt, _ = self._corner_data
-        he_edge = self._halfedge_data["halfedge_edge"]
+        face_of, nxt, _ = self.corner_data
+        he_edge = self.halfedge_data["halfedge_edge"]
         is_b = self.boundary_edge_mask[he_edge]
         succ: dict[int, int] = {}
         for a, b in zip(self.face_vertices[is_b].tolist(), nxt[is_b].tolist()):
@@ -222,11 +222,11 @@ class PolyMesh:
         if np.any(self.face_sizes < 3):
             out.append(f"face {int(np.argmax(self.face_sizes < 3))} has fewer than 3 vertices")
             return out
-        face_of, nxt, _ = self._corner_data
+        face_of, nxt, _ = self.corner_data
         if np.any(fv == nxt):
             out.append(f"face {int(face_of[np.argmax(fv == nxt)])} repeats a vertex")
             return out
-        he = self._halfedge_data
+        he = self.halfedge_data
         if np.any(he["edge_counts"] > 2):
             k = int(np.argmax(he["edge_counts"] > 2))
             i, j = he["edges"][k]
@@ -236,7 +236,7 @@ class PolyMesh:
             i, j = he["edges"][k]
             out.append(f"faces on both sides of edge ({i}, {j}) have opposite orientation; orient the mesh consistently")
         else:
-            _, nxt2, _ = self._corner_data
+            _, nxt2, _ = self.corner_data
             is_b = self.boundary_edge_mask[he["halfedge_edge"]]
             starts = np.bincount(self.face_vertices[is_b], minlength=n)
             if np.any(starts > 1):

@@ -144,7 +144,7 @@ def top_view_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.nda
     """Signed area of each face's projection onto the ground plane (positive: counter-clockwise
     seen from above, i.e. the face's normal points up). Shoelace formula, exact for polygons."""
     v = mesh.vertices if vertices is None else np.asarray(vertices, float)
-    face_of, nxt, _ = mesh._corner_data
+    face_of, nxt, _ = mesh.corner_data
     a, b = v[mesh.face_vertices], v[nxt]
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     out = np.zeros(mesh.n_faces)
@@ -155,7 +155,7 @@ def top_view_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.nda
 def _face_inner_points(mesh: PolyMesh, v: np.ndarray) -> np.ndarray:
     """A top-view point inside each face: the centroid of its largest centroid-fan triangle
     (inside the polygon whenever the polygon is star-shaped about its centroid, e.g. convex)."""
-    face_of, nxt, _ = mesh._corner_data
+    face_of, nxt, _ = mesh.corner_data
     sizes = mesh.face_sizes
     c = np.zeros((mesh.n_faces, 2))
     np.add.at(c, face_of, v[mesh.face_vertices, :2])
@@ -181,8 +181,8 @@ def top_view_winding(mesh: PolyMesh, points: np.ndarray, vertices: np.ndarray | 
     """
     v = mesh.vertices if vertices is None else np.asarray(vertices, float)
     pts = np.asarray(points, float).reshape(-1, 2)
-    face_of, nxt, _ = mesh._corner_data
-    on_b = mesh.boundary_edge_mask[mesh._halfedge_data["halfedge_edge"]]
+    face_of, nxt, _ = mesh.corner_data
+    on_b = mesh.boundary_edge_mask[mesh.halfedge_data["halfedge_edge"]]
     A, B = v[mesh.face_vertices[on_b], :2], v[nxt[on_b], :2]
     order = np.argsort(pts[:, 1], kind="stable")
     ys = pts[order, 1]
@@ -497,7 +497,7 @@ def _top_view_balanceable(scene: Scene, rtol: float = 1e-8) -> bool:
     weights of the top view, which balance every interior vertex of a Delaunay triangulation.
     Failing those, one Step-2 fit of the horizontal rows (weights ≥ 1, zero right-hand side)
     up to :data:`BALANCE_FIT_LIMIT` weights; above it ``False`` (not proven balanceable)."""
-    from .methods.assembly import Topology, weight_matrix
+    from formulations.equilibrium import Topology, weight_matrix
     from .methods.weightfit import make_backend
 
     mesh = scene.mesh
@@ -537,7 +537,7 @@ def _cotangent_weights(mesh: PolyMesh, X: np.ndarray) -> np.ndarray:
     half-edge leaving corner k of a triangle runs to corner k+1, opposite corner k+2; the mesh
     maps every half-edge to its edge."""
     F = mesh.face_vertices.reshape(-1, 3)
-    he_edge = mesh._halfedge_data["halfedge_edge"].reshape(-1, 3)
+    he_edge = mesh.halfedge_data["halfedge_edge"].reshape(-1, 3)
     P = X[:, :2]
     w = np.zeros(mesh.n_edges)
     for k in range(3):

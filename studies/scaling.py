@@ -100,8 +100,8 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     """Factorization times at the final weights (see the module docstring)."""
     import scipy.sparse as sp
 
-    from selfsupport.methods.assembly import Topology, position_blocks, weight_matrix
-    from selfsupport.methods.scaling import Scaling
+    from formulations.equilibrium import Topology, position_blocks, weight_matrix
+    from formulations.scaling import Scaling
     from selfsupport.methods.weightfit import _LowerQ
     from selfsupport.linalg import spd_factor
 

@@ -63,7 +63,7 @@ def lifted_network(values: np.ndarray, rings: int = 7) -> Network:
     w[sup[mesh.edges[:, 0]] & sup[mesh.edges[:, 1]]] = 0.0
     from scipy.sparse.linalg import spsolve
 
-    from selfsupport.methods.assembly import Topology, stress_laplacian
+    from formulations.equilibrium import Topology, stress_laplacian
 
     L = stress_laplacian(Topology.build(len(pts), mesh.edges, sup), w)
     loads = np.full(len(pts), -1.0 / len(pts))
@@ -136,7 +136,7 @@ def test_stress_laplacian_of_phi_is_twice_the_reciprocal_cell_area(seed):
     net = random_network(seed)
     res = airy(net)
     rd = reciprocal(res)
-    from selfsupport.methods.assembly import Topology, stress_laplacian
+    from formulations.equilibrium import Topology, stress_laplacian
 
     L = stress_laplacian(Topology.build(net.mesh.n_vertices, net.edges, net.supports), net.weights)
     lap = L @ res.phi
@@ -180,7 +180,7 @@ def test_polar_dual_faces_lie_on_the_polar_planes_of_the_vertices():
 def test_rings_are_counter_clockwise_and_complete():
     mesh = make_shape("dome", rings=5).mesh
     off, faces = vertex_face_rings(mesh, 1)
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     for v in range(mesh.n_vertices):
         ring = faces[off[v]:off[v + 1]]
         assert sorted(ring.tolist()) == sorted(face_of[mesh.face_vertices == v].tolist())

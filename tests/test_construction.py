@@ -239,7 +239,7 @@ def test_a_free_cluster_cut_off_from_the_supports_by_zero_weights_is_found():
     edge leaving the ring around the centre → that inner cluster (and only it) is ungrounded, and
     the stress Laplacian restricted to it is singular (its rows sum to zero)."""
     from selfsupport.analysis.construction import _ungrounded
-    from selfsupport.methods.assembly import Topology, stress_laplacian
+    from formulations.equilibrium import Topology, stress_laplacian
 
     net = construct(disk_points(4), "paraboloid", load=-1.0)
     e, sup = net.mesh.edges, np.asarray(net.supports, bool)

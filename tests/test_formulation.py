@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, NormalDrift, Planarity, PointDistance,
-                          ReferenceDistance, Scaled, Sum, ThrustNetworkProblem, WeightBounds)
+from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, HullPenalty, NormalDrift, Planarity,
+                          PlanarityVolume, PointDistance, ReferenceDistance, Scaled, Sum, ThrustNetworkProblem,
+                          WeightBounds)
 from selfsupport.errors import InputError
 from selfsupport.mesh import PolyMesh
-from selfsupport.methods import assembly
+from formulations import equilibrium as assembly
 
 
 # ----------------------------------------------------------------------------- meshes
@@ -166,11 +167,13 @@ def all_terms(mesh: PolyMesh, seed: int = 1):
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     ref = mesh.with_vertices(mesh.vertices + 0.02 * rng.standard_normal((n, 3)))
     return {
-        "reference_distance": ReferenceDistance.from_reference(mesh.vertices, ref, mask=free, weight=1.5),
-        "point_distance": PointDistance(targets=ref.vertices, mask=free),
+        "reference": ReferenceDistance.from_reference(mesh.vertices, ref, mask=free, weight=1.5, tangential=0.05),
+        "vertices": PointDistance(targets=ref.vertices, mask=free),
         "normal_drift": NormalDrift(points=ref.vertices, normals=nrm, weight=0.7),
         "planarity": Planarity(mesh, weight=2.0),
+        "planarity_volume": PlanarityVolume(mesh, weight=3.0),
         "fairness": Fairness(mesh, free=free),
+        "hull": HullPenalty(points=ref.vertices, normals=nrm, half_thickness=0.01, mask=free, weight=5.0),
     }
 
 
@@ -211,7 +214,8 @@ def test_planarity_is_angle_defect_squared():
     for k in range(4):
         a, b = V[k - 1] - V[k], V[(k + 1) % 4] - V[k]
         ang += np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))
-    assert Planarity(mesh).value(V) == pytest.approx((2 * np.pi - ang) ** 2, rel=1e-12)
+    ell = np.mean([np.linalg.norm(V[(k + 1) % 4] - V[k]) for k in range(4)])  # the face's length scale
+    assert Planarity(mesh).value(V) == pytest.approx(ell ** 2 * (2 * np.pi - ang) ** 2, rel=1e-12)
 
 
 def test_fairness_zero_on_affine_interior():
@@ -224,7 +228,7 @@ def test_terms_add_and_scale():
     mesh = MESHES["mixed"]
     t = all_terms(mesh)
     V = mesh.vertices + 0.01
-    a, b, c = t["point_distance"], t["planarity"], t["fairness"]
+    a, b, c = t["vertices"], t["planarity"], t["fairness"]
     s = 2.0 * a + b * 3.0 + c
     assert isinstance(s, Sum) and len(s.terms) == 3
     assert s.value(V) == pytest.approx(2 * a.value(V) + 3 * b.value(V) + c.value(V), rel=1e-13)

@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 from selfsupport.linalg import spd_factor
 from selfsupport.shapes import make_shape
-from selfsupport.methods.assembly import Topology, position_blocks
+from formulations.equilibrium import Topology, position_blocks
 
 
 def _stress_matrix(n_vertices=400, seed=0):

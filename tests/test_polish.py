@@ -57,16 +57,16 @@ def test_polish_with_loads_independent_of_the_geometry_is_one_linear_solve():
     """Fixed point loads: J = 0, so the Newton step is the exact stress-Laplacian solve and
     the polish ends after it (a second round only confirms); the result is in equilibrium."""
     from selfsupport.loads import PointLoad
-    from selfsupport.methods.assembly import load_vector, weight_matrix
+    from formulations.equilibrium import load_vector, weight_matrix
     from selfsupport.methods.polish import polish
-    from selfsupport.methods.scaling import ScaledProblem
+    from formulations import Problem
     from selfsupport.methods.staggered import StaggeredLinearization
 
     scene = make_shape("pillar_vault", n_vertices=200)
     res = StaggeredLinearization().solve(scene, SelfWeight())
     net = res.network
     loads = PointLoad(np.asarray(net.loads))
-    prob = ScaledProblem.build(scene, np.asarray(net.loads))
+    prob = Problem.build(scene).scaled(np.asarray(net.loads))
     top, sc = prob.top, prob.scaling
     X = sc.pos(np.asarray(net.vertices))
     X[top.free] += 1e-2 * np.random.default_rng(0).standard_normal((top.n_free, 3))

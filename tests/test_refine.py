@@ -13,10 +13,10 @@ import scipy.sparse as sp
 from selfsupport.evidence import closest_points
 from selfsupport.io import write_network
 from selfsupport.loads import SelfWeight
-from selfsupport.methods.assembly import load_vector, weight_matrix
+from formulations.equilibrium import load_vector, weight_matrix
 from selfsupport.methods.polish import _load_colouring
 from selfsupport.methods.refine import _linearize, _sqp_step
-from selfsupport.methods.scaling import ScaledProblem
+from formulations import Problem
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.shapes import make_shape
 
@@ -29,7 +29,7 @@ def setup():
     # dL/dx and dL/dy do not exist — pillar_vault's remainders fall by 2.3-49× per halving)
     scene = make_shape("dome", n_vertices=150)
     loads = SelfWeight()
-    prob = ScaledProblem.build(scene, loads.nodal(scene.mesh, scene.mesh.vertices))
+    prob = Problem.build(scene, loads).scaled()
     top, sc = prob.top, prob.scaling
     rng = np.random.default_rng(3)
     X = prob.X.copy()

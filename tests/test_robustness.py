@@ -766,7 +766,7 @@ def test_top_view_balance_agrees_with_a_linear_program(seed):
     """Independent oracle: HiGHS decides whether w ≥ 1 with A_xy w = 0 is feasible."""
     from scipy.optimize import linprog
 
-    from selfsupport.methods.assembly import Topology, weight_matrix
+    from formulations.equilibrium import Topology, weight_matrix
     from selfsupport.validate import _top_view_balanceable
 
     scene = _flipped_flat_triangulation(seed, flips=1 + seed)

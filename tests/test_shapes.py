@@ -124,7 +124,7 @@ def test_disk_is_the_delaunay_triangulation_of_disk_points():
     # opposite angles of every interior edge sum to at most pi (local Delaunay), so the
     # Voronoi-dual/primal weights of the paper's section 2.5 are non-negative
     m = scene.mesh
-    he_edge = m._halfedge_data["halfedge_edge"]
+    he_edge = m.halfedge_data["halfedge_edge"]
     # the angle opposite a half-edge (corner c -> c+1) is at corner c+2
     opposite = ang[:, [2, 0, 1]].ravel()
     sums = np.bincount(he_edge, weights=opposite, minlength=m.n_edges)

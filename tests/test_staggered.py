@@ -175,11 +175,11 @@ def test_coupled_step_reaches_equilibrium_closer_to_the_reference(shape):
 def _perturbed(pillar):
     """The converged pillar vault in the solver's scaled units, and a copy with its free vertices
     moved by ~1e-3 of the diagonal: (scene, loads, top, scaling, X, X perturbed, weights)."""
-    from selfsupport.methods.scaling import ScaledProblem
+    from formulations import Problem
 
     scene, res = pillar
     net = res.network
-    prob = ScaledProblem.build(scene, np.asarray(net.loads))
+    prob = Problem.build(scene).scaled(np.asarray(net.loads))
     top, sc = prob.top, prob.scaling
     X = sc.pos(np.asarray(net.vertices))
     w = sc.weight(np.asarray(net.weights)[scene.active_edges])
@@ -190,7 +190,7 @@ def _perturbed(pillar):
 
 def _polish_error(top, w, Xp, L) -> float:
     """Max relative equilibrium error of polished positions ``Xp`` with loads ``L`` (scaled)."""
-    from selfsupport.methods.assembly import load_vector, weight_matrix
+    from formulations.equilibrium import load_vector, weight_matrix
 
     r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
     return float((r / np.abs(L[top.free])).max())
@@ -269,8 +269,8 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     anchor-dominated) or the stress term dominates."""
     import scipy.sparse as sp
 
-    from selfsupport.methods.assembly import Topology, position_blocks
-    from selfsupport.methods.assembly import block_diagonal
+    from formulations.equilibrium import Topology, position_blocks
+    from formulations.equilibrium import block_diagonal
     from selfsupport.methods.staggered import _solve_anchored
     from selfsupport.geometry import vertex_normals
 

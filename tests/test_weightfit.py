@@ -7,8 +7,8 @@ import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
 from selfsupport.loads import SelfWeight
-from selfsupport.methods.assembly import Topology, load_vector, weight_matrix
-from selfsupport.methods.scaling import Scaling, default_eps
+from formulations.equilibrium import Topology, load_vector, weight_matrix
+from formulations.scaling import Scaling, default_eps
 from selfsupport.methods.weightfit import ActiveSetFit, make_backend
 from selfsupport.errors import InputError
 from selfsupport.shapes import make_shape

@@ -208,7 +208,7 @@ def face_orientation(mesh: PolyMesh, xy: np.ndarray | None = None) -> tuple[int,
     """Top-view orientation: ``(σ, signed_areas)`` with σ = +1 when the faces run
     counter-clockwise seen from above (by total signed area)."""
     xy = mesh.vertices[:, :2] if xy is None else xy
-    face_of, nxt, _ = mesh._corner_data
+    face_of, nxt, _ = mesh.corner_data
     a = np.zeros(mesh.n_faces)
     np.add.at(a, face_of, 0.5 * _cross2(xy[mesh.face_vertices], xy[nxt]))
     return (1 if a.sum() >= 0 else -1), a
@@ -227,7 +227,7 @@ def face_planes_through(mesh: PolyMesh, xy: np.ndarray, values: np.ndarray
     Returns ``(g (F, 2), c (F,), residual (F,))`` with the residual the max deviation over the
     corners (zero for triangles). Batched 3 × 3 normal equations around each face centroid.
     """
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     sizes = mesh.face_sizes
     fv = mesh.face_vertices
     cen = np.zeros((mesh.n_faces, 2))
@@ -503,7 +503,7 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
     P, label, integration = _dual_least_squares(F, ef[dual, 0], ef[dual, 1], rhs_all[dual], rule)
 
     # faces of components that touch no free vertex carry nothing: refit them afterwards
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     fv = mesh.face_vertices
     has_free = np.zeros(F, dtype=bool)
     np.logical_or.at(has_free, face_of, ~supports[fv])

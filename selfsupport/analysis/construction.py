@@ -48,7 +48,7 @@ from ..errors import InputError
 from ..geometry import vertex_areas
 from ..loads import LoadCase
 from ..mesh import PolyMesh
-from ..methods.assembly import Topology, stress_laplacian
+from formulations.equilibrium import Topology, stress_laplacian
 from ..result import Network
 from ..linalg import spd_factor
 from .airy import _J, face_orientation, face_planes_through, freeze_arrays
@@ -80,7 +80,7 @@ def _barycentric_areas(mesh: PolyMesh) -> np.ndarray:
     from ..geometry import face_areas
 
     fa = face_areas(mesh, v)
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     return np.bincount(mesh.face_vertices, weights=(fa / mesh.face_sizes)[face_of], minlength=mesh.n_vertices)
 
 

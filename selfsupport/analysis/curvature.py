@@ -1,7 +1,7 @@
 """Curvatures of a thrust network relative to its Airy stress surface (paper §2.3–2.4, §5).
 
 With the stress Laplacian ``Δ_φ f(v_i) = Σ_j w_ij (f_j − f_i)`` (the same matrix as
-:func:`selfsupport.methods.assembly.stress_laplacian`), equation (3) reads
+:func:`formulations.equilibrium.stress_laplacian`), equation (3) reads
 ``Δ_φ s = A F`` and, per interior free vertex ``i``:
 
 * ``Δ_φ φ (v_i) = 2 A*_i`` — twice the signed area of vertex ``i``'s cell in the reciprocal
@@ -36,7 +36,7 @@ from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.axes import to_file
 from ..mesh import PolyMesh
-from ..methods.assembly import Topology, stress_laplacian
+from formulations.equilibrium import Topology, stress_laplacian
 from ..result import Network
 from .airy import AiryResult, airy, face_planes_through, freeze_arrays
 from .construction import AREA_RULES
@@ -235,7 +235,7 @@ def face_principal_directions(network: Network, curv: Curvatures) -> np.ndarray:
         raise InputError("the curvatures were computed without directions; call curvatures(..., directions=True)")
     network = getattr(network, "network", network)
     mesh = network.mesh
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     fv = mesh.face_vertices
     sizes = mesh.face_sizes[:, None, None]
     Hp = np.zeros((mesh.n_faces, 2, 2))

@@ -40,7 +40,7 @@ def vertex_face_rings(mesh: PolyMesh, orientation: int = 1) -> tuple[np.ndarray,
         CSR layout: the ring of vertex ``v`` is ``faces[offsets[v]:offsets[v + 1]]``.
     """
     n = mesh.n_vertices
-    face_of, nxt, prv = mesh._corner_data
+    face_of, nxt, prv = mesh.corner_data
     fv = mesh.face_vertices
     C = len(fv)
     key = fv * n + nxt  # the half-edge leaving each corner

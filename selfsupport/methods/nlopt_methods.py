@@ -30,7 +30,7 @@ from ..errors import BackendUnavailable, InputError
 from ..loads import LoadCase
 from ..result import SolveResult
 from ..scene import Scene
-from .assembly import position_blocks, weight_matrix
+from formulations.equilibrium import position_blocks, weight_matrix
 from .simultaneous import Simultaneous
 
 #: Largest number of free vertices accepted, per formulation (see the module docstring).

@@ -27,8 +27,8 @@ import scipy.sparse as sp
 
 from ..linalg import spd_factor
 from ..loads import LoadCase
-from .assembly import Topology, position_blocks
-from .scaling import Scaling
+from formulations.equilibrium import Topology, position_blocks
+from formulations.scaling import Scaling
 
 
 def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling,
@@ -139,7 +139,7 @@ def _load_jacobian(loads_at: Callable, z: np.ndarray, Lz: np.ndarray, rows: np.n
 def _load_colouring(mesh, free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Pattern of ``dL_free/dz_free`` (vertices sharing a face) and a colouring of its columns
     such that no two columns of one colour share a row. Returns (rows, cols, colour, count)."""
-    face_of, _, _ = mesh._corner_data
+    face_of, _, _ = mesh.corner_data
     VF = sp.csr_matrix((np.ones(len(face_of)), (mesh.face_vertices, face_of)), shape=(mesh.n_vertices, mesh.n_faces))
     B = (VF @ VF.T).tocsr()[free][:, free]
     B.data[:] = 1.0

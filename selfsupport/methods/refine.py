@@ -42,9 +42,9 @@ import scipy.sparse as sp
 from ..evidence import closest_points
 from ..linalg import spd_factor
 from ..loads import LoadCase
-from .assembly import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
+from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from .polish import _load_colouring, _load_jacobian, polish
-from .scaling import Scaling
+from formulations.scaling import Scaling
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@
                 eps ≤ w ≤ w_max
 
 stated once in :class:`formulations.problem.ThrustNetworkProblem` and solved by ``ca.nlpsol``
-(IPOPT with MUMPS, adaptive μ) in scale-free units (:class:`~selfsupport.methods.scaling.Scaling`:
+(IPOPT with MUMPS, adaptive μ) in scale-free units (:class:`~formulations.scaling.Scaling`:
 lengths / bounding-box diagonal, forces / mean nodal load). Constraint rows are divided by
 ``|L_i|``, so IPOPT's ``tol`` bounds the paper's relative error directly.
 
@@ -22,7 +22,7 @@ The objective ignores the weights, so their optimum is not unique; a tiny weight
 (:data:`WEIGHT_REGULARIZATION`) keeps IPOPT off degenerate optima with huge weights.
 The problem is non-convex: IPOPT returns a local optimum, and which one depends on the start.
 
-Default lower bound: :func:`selfsupport.methods.scaling.default_eps`, shared with the
+Default lower bound: :func:`formulations.scaling.default_eps`, shared with the
 staggered method: ``ε̂ = 1e-4 / ĥ²`` in scaled units (``ĥ`` the mean edge length / bbox
 diagonal), i.e. ``ε = 1e-4 · F̄ · D / h̄²`` in N/m with ``F̄`` the mean nodal load. Equilibrium
 weights are of order ``F̄ / h̄²`` times the inverse curvature, so this is 3–4 orders below
@@ -44,8 +44,8 @@ from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_rise
-from .assembly import Topology, position_blocks, residual
-from .scaling import Scaling, default_eps
+from formulations.equilibrium import Topology, position_blocks, residual
+from formulations.scaling import Scaling, default_eps
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
 #: consistent with the geometry.
@@ -189,7 +189,7 @@ class Simultaneous:
             masses and point loads. Re-estimated from the geometry between IPOPT rounds.
         eps, w_max
             Weight bounds in N/m (scalar, per mesh edge or per active edge). ``eps`` defaults
-            to :func:`~selfsupport.methods.scaling.default_eps` (see the module docstring).
+            to :func:`~formulations.scaling.default_eps` (see the module docstring).
         tol
             IPOPT's ``tol`` (the constraint rows are relative residuals).
         max_iter

@@ -80,8 +80,8 @@ from ..loads import LoadCase, SelfWeight, with_scene_extras
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_rise
-from .assembly import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
-from .scaling import Scaling, ScaledProblem
+from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
+from formulations.scaling import Scaling, ScaledProblem
 from ..linalg import spd_factor
 from .polish import polish as _polish
 from .refine import refine as _refine
@@ -184,7 +184,7 @@ class StaggeredLinearization:
             Load case (default: :class:`SelfWeight` with its defaults), plus the scene's extras.
         eps, w_max
             Weight bounds in SI units [N/m]; ``eps`` defaults to a scale-free bound
-            (:func:`~selfsupport.methods.scaling.default_eps`).
+            (:func:`~formulations.scaling.default_eps`).
         progress
             Called with the history record of each iteration.
         overrides

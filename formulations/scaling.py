@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import bbox_diagonal
+from selfsupport.geometry import bbox_diagonal
 
 
 @dataclass(frozen=True)
@@ -56,43 +56,3 @@ def default_eps(scaled_vertices: np.ndarray, edges: np.ndarray) -> float:
     d = scaled_vertices[edges[:, 1]] - scaled_vertices[edges[:, 0]]
     h = float(np.linalg.norm(d, axis=1).mean())
     return EPS_FACTOR / h ** 2
-
-
-@dataclass(frozen=True, eq=False)
-class ScaledProblem:
-    """What every fit of a scene needs, in scaled units: topology, scaling, positions, loads
-    and weight bounds. Built once by :meth:`build` for the staggered method and ``api.check``."""
-
-    top: "Topology"
-    scaling: Scaling
-    X: np.ndarray  # scaled positions
-    L: np.ndarray  # scaled loads (every vertex)
-    lower: np.ndarray  # per active edge
-    upper: np.ndarray
-
-    @classmethod
-    def build(cls, scene, loads: np.ndarray, *, eps: float | None = None,
-              w_max: float | None = None) -> "ScaledProblem":
-        """From a scene and its nodal loads [N]; ``eps``/``w_max`` in N/m (``None``: defaults).
-
-        Raises :class:`~selfsupport.errors.InputError` when a free vertex carries no downward
-        load or the bounds are inconsistent.
-        """
-        from ..errors import InputError
-        from .assembly import Topology
-
-        mesh = scene.mesh
-        top = Topology.build(mesh.n_vertices, mesh.edges[scene.active_edges], scene.supports)
-        free = top.free
-        loads = np.asarray(loads, float)
-        if np.any(loads[free] >= 0):
-            k = int(np.flatnonzero(free & (loads >= 0))[0])
-            raise InputError(f"vertex {k} carries no downward load (zero area?); remove degenerate faces or add a load there")
-        sc = Scaling.of(mesh.vertices, loads, free)
-        X = sc.pos(mesh.vertices)
-        eps_s = default_eps(X, top.edges) if eps is None else float(sc.weight(float(eps)))
-        wmax_s = np.inf if w_max is None else float(sc.weight(float(w_max)))
-        if not eps_s < wmax_s:
-            raise InputError(f"w_max ({w_max}) must exceed the lower weight bound ({sc.weight_back(eps_s):.3g} N/m)")
-        return cls(top=top, scaling=sc, X=X, L=sc.load(loads), lower=np.full(top.m, eps_s),
-                   upper=np.full(top.m, wmax_s))

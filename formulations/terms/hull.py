@@ -1,0 +1,84 @@
+"""The masonry hull as a penalty: every vertex within ±t/2 of the reference mid-surface."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from selfsupport.errors import InputError
+
+from ..equilibrium import to_dm
+from .base import Term, TermContext, points_array, vertex_indices
+
+
+@dataclass(frozen=True, eq=False)
+class HullPenalty(Term):
+    """``Σ_i max(0, |⟨n_i, v_i − p_i⟩| − h)²``: zero inside the slab of half-thickness ``h``
+    around the tangent plane at ``p_i`` (the reference vertex, normal ``n_i``), quadratic outside.
+
+    A ``constraint`` term: methods keep its weight when they relax the objective. The hard form
+    ``|⟨n_i, v_i − p_i⟩| ≤ h`` is :meth:`signed_distance` with bounds. Registered as ``"hull"``
+    (needs the problem's thickness: ``h = t/2``).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    half_thickness: float
+    mask: np.ndarray | None = None
+    weight: float = 1.0
+    name: ClassVar[str] = "hull"
+    vertex_local: ClassVar[bool] = True
+    constraint: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "points", points_array(self.points, "points"))
+        object.__setattr__(self, "normals", points_array(self.normals, "normals"))
+        if not (np.isfinite(self.half_thickness) and self.half_thickness >= 0):
+            raise InputError(f"the hull's half thickness must be finite and >= 0, got {self.half_thickness}")
+
+    @classmethod
+    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "HullPenalty":
+        from selfsupport.geometry import vertex_normals
+
+        t = params.pop("thickness", ctx.thickness)
+        if t is None:
+            raise InputError("the hull term needs the shell thickness (--thickness)")
+        return cls(points=ctx.reference.vertices, normals=vertex_normals(ctx.reference), half_thickness=0.5 * t,
+                   mask=ctx.free, weight=weight, **params)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.points.shape[0]
+
+    @cached_property
+    def idx(self) -> np.ndarray:
+        return vertex_indices(self.mask, self.n_vertices)
+
+    @cached_property
+    def _rows(self) -> sp.csr_matrix:
+        idx = self.idx
+        r = np.repeat(np.arange(len(idx)), 3)
+        c = (3 * idx[:, None] + np.arange(3)).ravel()
+        return sp.csr_matrix((self.normals[idx].ravel(), (r, c)), shape=(len(idx), 3 * self.n_vertices))
+
+    def signed_distance_expr(self, X_all):
+        """``⟨n_i, v_i − p_i⟩`` of the selected vertices (CasADi): the hard constraint's body."""
+        off = np.einsum("ij,ij->i", self.normals[self.idx], self.points[self.idx])
+        return ca.mtimes(to_dm(self._rows), X_all) - off
+
+    def signed_distance(self, V: np.ndarray) -> np.ndarray:
+        """Signed normal distance of the selected vertices from their reference points."""
+        idx = self.idx
+        return np.einsum("ij,ij->i", self.normals[idx], np.asarray(V, float)[idx] - self.points[idx])
+
+    def residual_expr(self, X_all):
+        return ca.fmax(0, ca.fabs(self.signed_distance_expr(X_all)) - self.half_thickness)
+
+    def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        s = self.signed_distance(V)
+        r = np.maximum(np.abs(s) - self.half_thickness, 0.0)
+        return r, (sp.diags(np.where(r > 0, np.sign(s), 0.0)) @ self._rows).tocsr()

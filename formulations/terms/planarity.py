@@ -1,0 +1,159 @@
+"""Planarity of polygon faces (paper §5): the angle-sum defect, and a scale-free volume form."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from selfsupport.mesh import PolyMesh
+
+from ..equilibrium import flat_selection, to_dm
+from .base import Term, TermContext
+
+
+def _face_lengths(mesh: PolyMesh, faces: np.ndarray) -> np.ndarray:
+    """Mean edge length of each face in ``faces`` (at the mesh's own positions)."""
+    face_of, nxt, _ = mesh.corner_data  # (nxt: the next corner's vertex)
+    V = mesh.vertices
+    ln = np.linalg.norm(V[nxt] - V[mesh.face_vertices], axis=1)
+    total = np.bincount(face_of, weights=ln, minlength=mesh.n_faces)
+    return total[faces] / mesh.face_sizes[faces]
+
+
+@dataclass(frozen=True, eq=False)
+class Planarity(Term):
+    """``Σ_f ℓ_f² (2π − θ_f)²`` over faces with four or more corners, ``θ_f`` the sum of the
+    face's corner angles (paper §5), ``ℓ_f`` its mean edge length on ``mesh`` (a constant that
+    makes the residual a length, like every other term's).
+
+    A skew quad has ``θ_f < 2π``; a planar convex one ``θ_f = 2π``. Faces with ``k > 4`` corners
+    use their planar value ``(k − 2)π``; triangles are always planar and skipped. Corner
+    angles are ``atan2(‖a × b‖, a · b)`` (smooth away from degenerate corners).
+    Registered as ``"planarity"``.
+    """
+
+    mesh: PolyMesh
+    weight: float = 1.0
+    name: ClassVar[str] = "planarity"
+
+    @classmethod
+    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "Planarity":
+        return cls(mesh=ctx.reference, weight=weight, **params)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.mesh.n_vertices
+
+    @cached_property
+    def _data(self) -> dict[str, Any] | None:
+        m = self.mesh
+        sizes = m.face_sizes
+        faces = np.flatnonzero(sizes >= 4)
+        if faces.size == 0:
+            return None
+        face_of, nxt, prv = m.corner_data
+        corners = np.flatnonzero(sizes[face_of] >= 4)
+        local = np.searchsorted(faces, face_of[corners])
+        return {"cur": m.face_vertices[corners], "prv": prv[corners], "nxt": nxt[corners], "local": local,
+                "nf": len(faces), "target": (sizes[faces] - 2) * np.pi, "scale": _face_lengths(m, faces)}
+
+    def residual_expr(self, X_all):
+        d = self._data
+        if d is None:
+            return ca.DM.zeros(0, 1)
+        n = self.n_vertices
+        Sc = flat_selection(d["cur"], n)
+        a = ca.reshape(ca.mtimes(to_dm(flat_selection(d["prv"], n) - Sc), X_all), 3, -1)
+        b = ca.reshape(ca.mtimes(to_dm(flat_selection(d["nxt"], n) - Sc), X_all), 3, -1)
+        cross = ca.cross(a, b, 1)
+        theta = ca.atan2(ca.sqrt(ca.sum1(cross * cross)), ca.sum1(a * b)).T
+        k = len(d["cur"])
+        S = sp.csr_matrix((np.ones(k), (d["local"], np.arange(k))), shape=(d["nf"], k))
+        return d["scale"] * (d["target"] - ca.mtimes(to_dm(S), theta))
+
+    def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        d = self._data
+        n = self.n_vertices
+        if d is None:
+            return np.zeros(0), sp.csr_matrix((0, 3 * n))
+        V = np.asarray(V, float)
+        a, b = V[d["prv"]] - V[d["cur"]], V[d["nxt"]] - V[d["cur"]]
+        ab = np.einsum("ij,ij->i", a, b)
+        cr = np.linalg.norm(np.cross(a, b), axis=1)
+        theta = np.arctan2(cr, ab)
+        r = d["scale"] * (d["target"] - np.bincount(d["local"], weights=theta, minlength=d["nf"]))
+        # ∂θ/∂a = −b⊥/(|a| |b⊥|), b⊥ the part of b orthogonal to a (and the same with a, b swapped)
+        na2, nb2 = np.einsum("ij,ij->i", a, a), np.einsum("ij,ij->i", b, b)
+        bp = b - (ab / na2)[:, None] * a
+        ap = a - (ab / nb2)[:, None] * b
+        ga = -bp / (np.sqrt(na2) * np.linalg.norm(bp, axis=1))[:, None]
+        gb = -ap / (np.sqrt(nb2) * np.linalg.norm(ap, axis=1))[:, None]
+        rows, cols, vals = [], [], []
+        sc = -d["scale"][d["local"]][:, None]  # r = scale · (target − Σθ)
+        for verts, g in ((d["prv"], ga), (d["nxt"], gb), (d["cur"], -(ga + gb))):
+            rows.append(np.repeat(d["local"], 3))
+            cols.append((3 * verts[:, None] + np.arange(3)).ravel())
+            vals.append((sc * g).ravel())
+        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(d["nf"], 3 * n))
+        return r, J
+
+
+@dataclass(frozen=True, eq=False)
+class PlanarityVolume(Term):
+    """Scale-free planarity of quads: ``Σ_f (det[v₁ − v₀, v₂ − v₀, v₃ − v₀] / ℓ_f²)²`` — six
+    times the volume of the quad's tetrahedron over its squared mean edge length ``ℓ_f`` (on
+    ``mesh``), i.e. the distance between the diagonals times their sine: a polynomial, free of
+    the angle sum's ``atan2`` and of its insensitivity near 2π. Faces other than quads are skipped.
+    Registered as ``"planarity_volume"``.
+    """
+
+    mesh: PolyMesh
+    weight: float = 1.0
+    name: ClassVar[str] = "planarity_volume"
+
+    @classmethod
+    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "PlanarityVolume":
+        return cls(mesh=ctx.reference, weight=weight, **params)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.mesh.n_vertices
+
+    @cached_property
+    def _data(self) -> tuple[np.ndarray, np.ndarray] | None:
+        m = self.mesh
+        quads = np.flatnonzero(m.face_sizes == 4)
+        if quads.size == 0:
+            return None
+        Q = np.array([m.faces[f] for f in quads], dtype=np.int64)
+        return Q, 1.0 / _face_lengths(m, quads) ** 2
+
+    def residual_expr(self, X_all):
+        if self._data is None:
+            return ca.DM.zeros(0, 1)
+        Q, s = self._data
+        n = self.n_vertices
+        P = [ca.reshape(ca.mtimes(to_dm(flat_selection(Q[:, k], n)), X_all), 3, -1) for k in range(4)]
+        e1, e2, e3 = P[1] - P[0], P[2] - P[0], P[3] - P[0]
+        return s * ca.sum1(e1 * ca.cross(e2, e3, 1)).T
+
+    def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        n = self.n_vertices
+        if self._data is None:
+            return np.zeros(0), sp.csr_matrix((0, 3 * n))
+        Q, s = self._data
+        V = np.asarray(V, float)
+        e1, e2, e3 = (V[Q[:, k]] - V[Q[:, 0]] for k in (1, 2, 3))
+        r = s * np.einsum("ij,ij->i", e1, np.cross(e2, e3))
+        g1, g2, g3 = np.cross(e2, e3), np.cross(e3, e1), np.cross(e1, e2)  # ∂det/∂e_k
+        grads = (-(g1 + g2 + g3), g1, g2, g3)
+        k = len(Q)
+        rows = np.tile(np.repeat(np.arange(k), 3), 4)
+        cols = np.concatenate([(3 * Q[:, j][:, None] + np.arange(3)).ravel() for j in range(4)])
+        vals = np.concatenate([(s[:, None] * g).ravel() for g in grads])
+        return r, sp.csr_matrix((vals, (rows, cols)), shape=(k, 3 * n))
