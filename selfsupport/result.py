@@ -83,13 +83,26 @@ class SolveResult:
     min_weight: float = float("nan")
     distance_mean: float = float("nan")
     distance_max: float = float("nan")
+    #: one network per load case (name, network): same geometry, the case's weights and loads;
+    #: ``network`` is the first. Empty for a single-case solve.
+    cases: tuple[tuple[str, Network], ...] = ()
+    #: each objective term's value at the result (SI units), by name
+    terms: dict[str, float] = field(default_factory=dict)
 
     @classmethod
-    def build(cls, network: Network, **kw) -> "SolveResult":
-        """Fill the evidence fields from the network itself (never from the method's bookkeeping)."""
+    def build(cls, network: Network, *, cases: tuple[tuple[str, Network], ...] = (), **kw) -> "SolveResult":
+        """Fill the evidence fields from the network itself (never from the method's bookkeeping);
+        with several load cases, the max error and min weight are over all of them."""
         dm, dx = network.distance_to_reference()
-        return cls(network=network, max_relative_error=network.max_relative_error(),
-                   min_weight=network.min_weight(), distance_mean=dm, distance_max=dx, **kw)
+        nets = [n for _, n in cases] or [network]
+        return cls(network=network, max_relative_error=max(n.max_relative_error() for n in nets),
+                   min_weight=min(n.min_weight() for n in nets), distance_mean=dm, distance_max=dx,
+                   cases=tuple(cases) if len(cases) > 1 else (), **kw)
+
+    @property
+    def case_networks(self) -> tuple[tuple[str, Network], ...]:
+        """``(name, network)`` per load case (one entry for a single-case solve)."""
+        return self.cases or ((str(self.parameters.get("load_cases", ["self-weight"])[0]), self.network),)
 
     @property
     def converged(self) -> bool:

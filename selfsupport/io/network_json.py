@@ -91,7 +91,23 @@ def _result_fields(result: SolveResult) -> dict[str, Any]:
     }
     if result.message:
         fields["message"] = result.message
+    if result.terms:
+        fields["objective_terms"] = dict(result.terms)
+    if result.cases:  # one weight vector (and load vector) per load case, each with its own evidence
+        fields["load_cases"] = [{"name": name, "weights": _edge_weights(net), "loads": np.asarray(net.loads, float),
+                                 "max_relative_error": net.max_relative_error(), "min_weight": net.min_weight()}
+                                for name, net in result.cases]
     return fields
+
+
+def _edge_weights(net: Network) -> np.ndarray:
+    e = net.mesh.edges
+    sup = np.asarray(net.supports, dtype=bool)
+    w = np.array(net.weights, dtype=float)
+    if w.shape != (len(e),):
+        raise ValueError(f"network has {w.size} weights for {len(e)} edges")
+    w[sup[e[:, 0]] & sup[e[:, 1]]] = 0.0  # support-support edges carry no unknown (DESIGN.md §5)
+    return w
 
 
 def network_to_dict(network: Network | SolveResult, **extra: Any) -> dict[str, Any]:
@@ -117,10 +133,7 @@ def network_to_dict(network: Network | SolveResult, **extra: Any) -> dict[str, A
     mesh = net.mesh
     e = mesh.edges
     sup = np.asarray(net.supports, dtype=bool)
-    w = np.array(net.weights, dtype=float)
-    if w.shape != (len(e),):
-        raise ValueError(f"network has {w.size} weights for {len(e)} edges")
-    w[sup[e[:, 0]] & sup[e[:, 1]]] = 0.0  # support-support edges carry no unknown (DESIGN.md §5)
+    w = _edge_weights(net)
     d: dict[str, Any] = {
         "vertices": to_jsonable(mesh.vertices, "vertices"),
         "faces": mesh.faces,
