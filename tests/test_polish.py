@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from selfsupport.loads import SelfWeight
-from selfsupport.methods.polish import _load_colouring, _load_jacobian
+from selfsupport.methods.polish import load_colouring, load_jacobian
 from selfsupport.shapes import make_shape
 
 
@@ -14,7 +14,7 @@ def test_colouring_is_valid_and_small(shape):
     scene = make_shape(shape, n_vertices=400)
     free = np.ones(scene.mesh.n_vertices, bool)
     free[scene.supports] = False
-    rows, cols, colour, k = _load_colouring(scene.mesh, free)
+    rows, cols, colour, k = load_colouring(scene.mesh, free)
     # no two columns of one colour share a row: every (row, colour) pair occurs once
     key = rows * k + colour[cols]
     assert len(np.unique(key)) == len(key)
@@ -40,8 +40,8 @@ def test_coloured_jacobian_equals_column_by_column_differences(shape):
 
     z = mesh.vertices[free, 2].copy()
     Lz = loads_at(z)
-    rows, cols, colour, k = _load_colouring(mesh, free)
-    J = _load_jacobian(loads_at, z, Lz, rows, cols, colour, k).toarray()
+    rows, cols, colour, k = load_colouring(mesh, free)
+    J = load_jacobian(loads_at, z, Lz, rows, cols, colour, k).toarray()
     h = 1e-7 * max(float(np.abs(z).max()), 1.0)
     dense = np.empty_like(J)
     for j in range(z.size):

@@ -14,9 +14,9 @@ from selfsupport.evidence import closest_points
 from selfsupport.io import write_network
 from selfsupport.loads import SelfWeight
 from formulations.equilibrium import load_vector, weight_matrix
-from selfsupport.methods.polish import _load_colouring
+from selfsupport.methods.polish import load_colouring
 from selfsupport.methods.refine import _linearize, _sqp_step
-from formulations import Problem
+from formulations import Fairness, Problem, ReferenceDistance
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.shapes import make_shape
 
@@ -39,16 +39,17 @@ def setup():
     L = sc.load(loads.nodal(scene.mesh, sc.pos_back(X)))
     reference = scene.mesh.with_vertices(prob.X)
     P, _, N = closest_points(X, reference)
-    colouring = _load_colouring(scene.mesh, top.free)
-    lin = _linearize(top, X, w, L, P, N, loads, scene.mesh, sc, 0.05, colouring)
+    colouring = load_colouring(scene.mesh, top.free)
+    objective = ReferenceDistance(points=P, normals=N, mask=top.free, tangential=0.05)
+    lin = _linearize(top, X, w, L, objective, loads, scene.mesh, sc, colouring)
     return dict(scene=scene, loads=loads, top=top, sc=sc, X=X, w=w, L=L, lin=lin, lower=prob.lower, upper=prob.upper,
-                P=P, N=N)
+                P=P, N=N, colouring=colouring, reference=reference)
 
 
 def test_the_constraint_linearization_is_first_order_exact(setup):
     """r(X + hΔx, w + hΔw) − r(X, w) − h (C_x Δx + A Δw) = O(h²): halving h quarters it."""
     s_, top, sc, X, w, L = setup, setup["top"], setup["sc"], setup["X"], setup["w"], setup["L"]
-    Cx, A, r0, _, _ = s_["lin"]
+    Cx, A, r0, _, _, _ = s_["lin"]
     free = top.free
     s = np.repeat(1.0 / np.abs(L[free]), 3)  # the scaling is that of the base point, held fixed
 
@@ -74,7 +75,7 @@ def test_the_step_solves_the_kkt_system_of_its_qp(setup):
     + ½ρΣ(Δw/w)² over the weights that move, s.t. C_x Δx + C_w Δw = −r, W = n nᵀ + τ(I − n nᵀ)
     per free vertex, g = W (x − p). The step satisfies the linearized constraint; a weight at a
     bound moves only inward (released), and then as a free variable of the same QP."""
-    Cx, A, r, g_code, Winv = setup["lin"]
+    Cx, A, r, g_code, _, Winv = setup["lin"]
     top, X, w, lower, upper = setup["top"], setup["X"], setup["w"], setup["lower"], setup["upper"]
     free = top.free
     n = setup["N"][free]
@@ -106,6 +107,29 @@ def test_the_step_solves_the_kkt_system_of_its_qp(setup):
     assert np.allclose(dw[F], sol[nx:nx + nw], rtol=0, atol=1e-8 * np.abs(sol[nx:nx + nw]).max())
 
 
+def test_the_kkt_path_gives_the_schur_path_step_and_takes_general_objectives(setup):
+    """The two ways the step is solved agree: the Schur complement (W block diagonal, W⁻¹ known)
+    and the KKT system (any W, e.g. with the fairness term coupling neighbours). And with the
+    fairness term added the step still satisfies the linearized constraint."""
+    s_ = setup
+    top, X, w, L = s_["top"], s_["X"], s_["w"], s_["L"]
+    Cx, A, r, g, W, Winv = s_["lin"]
+    assert Winv is not None
+    rho = 1e-3
+    dx_schur, dw_schur = _sqp_step(s_["lin"], w, s_["lower"], s_["upper"], rho)
+    dx_kkt, dw_kkt = _sqp_step((Cx, A, r, g, W.tocsc(), None), w, s_["lower"], s_["upper"], rho)
+    assert np.allclose(dx_kkt, dx_schur, rtol=0, atol=1e-8 * np.abs(dx_schur).max())
+    assert np.allclose(dw_kkt, dw_schur, rtol=0, atol=1e-8 * np.abs(dw_schur).max())
+    free = top.free
+    obj = (ReferenceDistance(points=s_["P"], normals=s_["N"], mask=free, tangential=0.05)
+           + Fairness(mesh=s_["reference"], free=free, targets=s_["reference"].vertices) * 100.0)
+    lin = _linearize(top, X, w, L, obj, s_["loads"], s_["scene"].mesh, s_["sc"], s_["colouring"])
+    assert lin[5] is None  # fairness couples neighbours: no block inverse
+    dx, dw = _sqp_step(lin, w, s_["lower"], s_["upper"], rho)
+    c = lin[0] @ dx.ravel() + lin[1] @ dw
+    assert np.abs(c + lin[2]).max() <= 1e-8 * np.abs(lin[2]).max()
+
+
 @pytest.fixture(scope="module")
 def solved():
     scene = make_shape("concave_disk", n_vertices=400)
@@ -121,9 +145,12 @@ def test_refinement_moves_the_network_closer_and_keeps_it_in_equilibrium(solved)
     assert rec["steps"] >= 1
     assert refined.max_relative_error <= 1e-9  # loads of its own geometry (Network recomputes them)
     assert refined.distance_mean < 0.5 * plain.distance_mean  # measured: 6.7e-3 -> 9.3e-4
-    d = rec["dist_mean"]
-    assert all(b < a for a, b in zip(d, d[1:]))  # every accepted step got closer
-    assert refined.distance_mean == pytest.approx(d[-1], rel=1e-6)  # (in SI units, the same ratio)
+    f = rec["objective"]
+    assert all(b < a for a, b in zip(f, f[1:]))  # every accepted step lowered the objective
+    # (the objective in SI units is the scaled one times the length²)
+    total = sum(refined.terms.values())
+    assert total == pytest.approx(f[-1] * refined.parameters["scaling"]["length"] ** 2, rel=1e-6)
+    assert total < sum(plain.terms.values())
     net = refined.network
     active = scene.active_edges
     eps = refined.parameters["eps"]

@@ -279,7 +279,7 @@ CORPUS: list[Bad] = [
     Bad("tilted flat reference without w_max", _write("tilt.obj", lambda: _flat_obj(0.3)), InfeasibleDesign,
         "set w_max (--wmax) to choose it"),
     # bad numbers for the solve
-    Bad("negative w_max", _write("d.obj", _dome_obj), InputError, "must exceed the lower weight bound",
+    Bad("negative w_max", _write("d.obj", _dome_obj), InputError, "w_max must be positive",
         cli_extra=("--wmax", "-1"), api_kwargs={"w_max": -1.0}, cli_needle="must be a positive finite number"),
     Bad("w_max below the lower weight bound", _write("d.obj", _dome_obj), InputError,
         "must exceed the lower weight bound", cli_extra=("--wmax", "1e-30"), api_kwargs={"w_max": 1e-30}),

@@ -271,7 +271,7 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
 
     from formulations.equilibrium import Topology, position_blocks
     from formulations.equilibrium import block_diagonal
-    from selfsupport.methods.staggered import _solve_anchored
+    from selfsupport.methods.staggered import _solve_blocks
     from selfsupport.geometry import vertex_normals
 
     scene = make_shape("pillar_vault", n_vertices=400)
@@ -283,12 +283,13 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     n = vertex_normals(m)[top.free]
     rhs = rng.standard_normal((top.n_free, 3))
     ws: dict = {}
-    x = _solve_anchored(H, b0, b1, n, rhs, ws)
-    M = (sp.kron(H, sp.identity(3)) + block_diagonal(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
+    blocks = b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :]  # the reference term + β, as Step 3 builds it
+    x = _solve_blocks(H, blocks, rhs, ws)
+    M = (sp.kron(H, sp.identity(3)) + block_diagonal(blocks)).tocsc()
     direct = sp.linalg.spsolve(M, rhs.ravel()).reshape(-1, 3)
     np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size
-    assert _solve_anchored(H, b0, b1, n, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
+    assert _solve_blocks(H, blocks, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
 
 
 def test_a_screened_out_finish_try_would_have_failed():

@@ -119,8 +119,10 @@ class Term:
         raise InputError(f"term {cls.name!r} cannot be built from a problem; construct it directly")
 
     # -------------------------------------------------------------- shared
-    def at(self, V: np.ndarray) -> "Term":
-        """This term with its moving data (closest points) taken at ``V``; most terms: itself."""
+    def at(self, V: np.ndarray, projection: tuple | None = None) -> "Term":
+        """This term with its moving data (closest points) taken at ``V``; most terms: itself.
+        ``projection``: the closest points, distances and normals of ``V`` on the reference when
+        the caller has them already (in the same units)."""
         return self
 
     def raw(self, X_all):
@@ -206,8 +208,8 @@ class Sum(Term):
         return (np.concatenate([si * r for si, (r, _) in zip(s, lin)]),
                 sp.vstack([si * J for si, (_, J) in zip(s, lin)], format="csr"))
 
-    def at(self, V: np.ndarray) -> "Sum":
-        return dataclasses.replace(self, terms=tuple(t.at(V) for t in self.terms))
+    def at(self, V: np.ndarray, projection: tuple | None = None) -> "Sum":
+        return dataclasses.replace(self, terms=tuple(t.at(V, projection) for t in self.terms))
 
     def parts(self) -> tuple[Term, ...]:
         return tuple(t * self.weight for t in self.terms)
@@ -251,8 +253,8 @@ class Scaled(Term):
         s = np.sqrt(self.term.weight)
         return s * r / self.length, (s * J).tocsr()
 
-    def at(self, V: np.ndarray) -> "Scaled":
-        return dataclasses.replace(self, term=self.term.at(self._back(V)))
+    def at(self, V: np.ndarray, projection: tuple | None = None) -> "Scaled":
+        return dataclasses.replace(self, term=self.term.at(self._back(V)))  # (a projection in other units)
 
 
 @dataclass(frozen=True, eq=False)

@@ -47,10 +47,10 @@ class ReferenceDistance(PlaneDistance):
                        reference=ctx.reference, **params)
         return cls.from_reference(ctx.vertices, ctx.reference, mask=ctx.free, weight=weight, **params)
 
-    def at(self, V: np.ndarray) -> "ReferenceDistance":
+    def at(self, V: np.ndarray, projection: tuple | None = None) -> "ReferenceDistance":
         if self.reference is None:
             return self
         from selfsupport.evidence import closest_points
 
-        p, _, nrm = closest_points(np.asarray(V, float), self.reference)
+        p, _, nrm = projection if projection is not None else closest_points(np.asarray(V, float), self.reference)
         return dataclasses.replace(self, points=p, normals=nrm)

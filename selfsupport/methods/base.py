@@ -61,6 +61,23 @@ def term_values(problem: Problem, network: Network, default: Any = None) -> dict
     return out
 
 
+def hull_report(problem: Problem, network: Network) -> dict[str, Any] | None:
+    """Where the network sits in the masonry hull (reference ± t/2 along the reference vertex
+    normals), when the problem has one: thickness, max excess beyond t/2 [m], vertices outside."""
+    t = problem.hull_thickness()
+    if t is None:
+        return None
+    from formulations.terms import HullPenalty
+
+    scene = problem.scene
+    ctx = TermContext(vertices=scene.mesh.vertices, reference=scene.mesh, free=scene.free, thickness=t)
+    term = HullPenalty.build(ctx)
+    excess = np.abs(term.signed_distance(network.vertices)) - 0.5 * t
+    outside = term.idx[excess > 1e-9 * t]
+    return {"thickness": t, "max_excess": float(max(excess.max(initial=-np.inf), 0.0)),
+            "outside": int(outside.size), "outside_vertices": outside[:20].tolist()}
+
+
 def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np.ndarray]
                   ) -> tuple[Network, tuple[tuple[str, Network], ...]]:
     """Networks in SI units for scaled positions ``X`` and one scaled weight vector per case:

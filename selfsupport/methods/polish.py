@@ -20,6 +20,7 @@ free loads). Three methods, each a fallback for the one before:
 """
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
@@ -27,7 +28,7 @@ import scipy.sparse as sp
 
 from ..linalg import spd_factor
 from ..loads import LoadCase
-from formulations.equilibrium import Topology, position_blocks
+from formulations.equilibrium import Topology, load_vector, position_blocks, weight_matrix
 from formulations.scaling import Scaling
 
 
@@ -62,7 +63,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         ws = workspace if workspace is not None else {}
         constant = not loads.depends_on_geometry  # then J = 0 and one Newton step is exact
         if "colouring" not in ws and not constant:
-            ws["colouring"] = _load_colouring(mesh0, free)
+            ws["colouring"] = load_colouring(mesh0, free)
         z, rounds, converged = _newton(K, zs, loads_at, chol, z_start, ws.get("colouring"), ftol, max_rounds,
                                        constant=constant)
     if not converged and fallbacks:
@@ -101,7 +102,7 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
         if lu is None or (stale and not fresh):
             if refreshed >= 8:
                 return z, step - 1, False
-            J = sp.csc_matrix(K.shape) if constant else _load_jacobian(loads_at, z, Lz, *colouring)
+            J = sp.csc_matrix(K.shape) if constant else load_jacobian(loads_at, z, Lz, *colouring)
             try:
                 lu = splu((K + J).tocsc())
             except RuntimeError:  # singular: leave it to the fixed-point methods
@@ -125,7 +126,7 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
     return z, max_steps, f <= ftol
 
 
-def _load_jacobian(loads_at: Callable, z: np.ndarray, Lz: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+def load_jacobian(loads_at: Callable, z: np.ndarray, Lz: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                    colour: np.ndarray, n_colours: int) -> sp.csc_matrix:
     """``dL/dz`` on the face-neighbour pattern, one load evaluation per colour (forward
     differences; the Jacobian only steers the Newton step, the residual decides convergence)."""
@@ -136,7 +137,7 @@ def _load_jacobian(loads_at: Callable, z: np.ndarray, Lz: np.ndarray, rows: np.n
     return sp.csc_matrix((D[colour[cols], rows], (rows, cols)), shape=(z.size, z.size))
 
 
-def _load_colouring(mesh, free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def load_colouring(mesh, free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Pattern of ``dL_free/dz_free`` (vertices sharing a face) and a colouring of its columns
     such that no two columns of one colour share a row. Returns (rows, cols, colour, count)."""
     face_of, _, _ = mesh.corner_data
@@ -226,3 +227,115 @@ def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: f
     if np.all(np.isfinite(zk)) and float(np.abs(G(zk) - zk).max()) < float(np.abs(G(z_best) - z_best).max()):
         return zk, count[0]
     return z_best, count[0]
+
+
+def load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.ndarray, fidx: np.ndarray,
+                       colouring: tuple) -> sp.csr_matrix:
+    """``∂L_free / ∂X_free`` placed in the z rows of the 3 n_free residual: the polish's
+    coloured forward differences (:func:`~selfsupport.methods.polish.load_jacobian`) once per
+    coordinate — a load depends on the positions of the vertices sharing a face with it, in x,
+    y and z alike, so the colouring of ``dL/dz`` serves all three."""
+    nf = fidx.size
+    blocks = []
+    for c in range(3):
+        def loads_at(v: np.ndarray, c: int = c) -> np.ndarray:
+            Xh = X.copy()
+            Xh[fidx, c] = v
+            return sc.load(loads.nodal(mesh0, sc.pos_back(Xh)))[fidx]
+
+        blocks.append(load_jacobian(loads_at, X[fidx, c], L[fidx], *colouring).tocoo())
+    R = np.concatenate([3 * J.row + 2 for J in blocks])
+    C = np.concatenate([3 * J.col + c for c, J in enumerate(blocks)])
+    return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
+
+
+def polish_joint(top: Topology, X: np.ndarray, weights: list[np.ndarray], loads, mesh0, sc: Scaling,
+                 lower: np.ndarray, upper: np.ndarray, *, fixed_xy: bool = False, workspace: dict | None = None,
+                 max_rounds: int = 40, deadline: float = np.inf
+                 ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, int]:
+    """Exact equilibrium for several load cases (or a fixed top view): positions *and* the
+    weights off their bounds move together, by minimum-norm Newton steps.
+
+    With one weight vector per case, the frozen weights of the single-case polish cannot
+    balance every case by moving the positions alone (3 n_free unknowns, 3 n_free equations per
+    case), and with x, y fixed they cannot balance x and y at all. Here each round solves the
+    linearized equations of every case, ``C_x Δx + S_c A Δw_c = −r_c`` (rows scaled by
+    ``1/|L_c,i|``; ``C_x`` = stress Laplacian minus the coloured finite-difference load
+    Jacobian, :func:`load_jacobian_xyz`), for the step of least ``‖Δx‖² + Σ_c ‖Δw_c / w_c‖²``
+    (relative weight changes) through ``(J D² Jᵀ) y = r``, one sparse SPD factorization per
+    round. Weights a step carries across a bound are clamped there and held. Converges
+    quadratically from an iterate whose fit error is small (the staggered method's
+    ``polish_tol``). ``loads`` is a :class:`~formulations.LoadCases`. Returns
+    ``(X, weights, L (n_cases, n) scaled, rounds)`` — the best iterate (smallest max relative
+    error) if it does not converge.
+    """
+    ws = workspace if workspace is not None else {}
+    free = top.free
+    fidx = np.flatnonzero(free)
+    nf = top.n_free
+    C = len(loads)
+    if "colouring" not in ws and loads.depends_on_geometry:
+        ws["colouring"] = load_colouring(mesh0, free)
+    cols = np.arange(3 * nf).reshape(nf, 3)[:, 2] if fixed_xy else np.arange(3 * nf)
+    X = X.copy()
+    w = [np.asarray(wc, float).copy() for wc in weights]
+    held = [(wc <= lower) | (wc >= upper) for wc in w]
+
+    def state(Xc: np.ndarray, wc: list[np.ndarray]):
+        Lc = sc.load(loads.nodal(mesh0, sc.pos_back(Xc)))
+        A = weight_matrix(top, Xc)
+        res, ss = [], []
+        for c in range(C):
+            s = np.repeat(1.0 / np.abs(Lc[c, free]), 3)
+            res.append(s * (A @ wc[c] - load_vector(top, Lc[c])))
+            ss.append(s)
+        err = max(float(np.linalg.norm(r.reshape(-1, 3), axis=1).max()) for r in res)
+        return Lc, A, res, ss, err if np.isfinite(err) else np.inf
+
+    L, A, res, ss, err = state(X, w)
+    best = (err, X.copy(), [wc.copy() for wc in w], L)
+    rounds = 0
+    for rounds in range(1, max_rounds + 1):
+        if err <= 1e-14 or time.perf_counter() > deadline:
+            break
+        blocks_x, blocks_w, D2w = [], [], []
+        for c in range(C):
+            Kff, _ = position_blocks(top, w[c])
+            Cx = sp.kron(Kff, sp.identity(3), format="csr")
+            if loads.models[c].depends_on_geometry:
+                Cx = Cx - load_jacobian_xyz(loads.models[c], mesh0, sc, X, L[c], fidx, ws["colouring"])
+            S = sp.diags(ss[c])
+            blocks_x.append((S @ Cx).tocsr()[:, cols])
+            mov = ~held[c]
+            blocks_w.append((S @ A[:, mov]).tocsc())
+            D2w.append(w[c][mov] ** 2)
+        Jx = sp.vstack(blocks_x, format="csr")
+        N = (Jx @ Jx.T + sp.block_diag([Bw @ sp.diags(d) @ Bw.T for Bw, d in zip(blocks_w, D2w)])).tocsc()
+        N = (N + sp.identity(N.shape[0]) * (1e-14 * float(N.diagonal().mean()))).tocsc()
+        try:
+            y = spd_factor(N).solve(np.concatenate(res))
+        except (RuntimeError, ValueError, ArithmeticError):
+            break
+        dx = -(Jx.T @ y)
+        Xt = X.copy()
+        Xt[fidx] = (Xt[fidx].ravel() + np.bincount(cols, weights=dx, minlength=3 * nf)).reshape(nf, 3)
+        wt = []
+        for c in range(C):
+            yc = y[3 * nf * c:3 * nf * (c + 1)]
+            wc = w[c].copy()
+            mov = ~held[c]
+            wc[mov] -= D2w[c] * (blocks_w[c].T @ yc)
+            wt.append(wc)
+        heldt = [h | (wc < lower) | (wc > upper) for h, wc in zip(held, wt)]
+        wt = [np.clip(wc, lower, upper) for wc in wt]
+        Lt, At, rest, sst, errt = state(Xt, wt)
+        if not errt < err:  # no progress (a clamp, or the linearization no longer holds): stop
+            if any((h != hn).any() for h, hn in zip(held, heldt)):
+                held = heldt  # ... unless newly held weights change the next step
+                continue
+            break
+        X, w, held, L, A, res, ss, err = Xt, wt, heldt, Lt, At, rest, sst, errt
+        if err < best[0]:
+            best = (err, X.copy(), [wc.copy() for wc in w], L)
+    _, X, w, L = best
+    return X, w, L, rounds

@@ -1,11 +1,12 @@
-"""Refinement: from a network in equilibrium, move it closer to the reference while keeping it
+"""Refinement: from a network in equilibrium, lower the problem's objective while keeping it
 in equilibrium — sequential quadratic programming on the simultaneous problem
 
-    minimise   Σ_i (v_i − p_i)ᵀ (n_i n_iᵀ + τ (I − n_i n_iᵀ)) (v_i − p_i)
+    minimise   Σ_t μ_t ‖r_t(V)‖²                 (the problem's objective terms, formulations.terms)
     subject to equilibrium (2)-(3) at every free vertex,   lower ≤ w ≤ upper
 
-(``p_i``, ``n_i``: closest point on the reference and its normal, re-projected every step; the
-same anchor as the staggered method's Step 3). The staggered iteration follows a penalty path
+(the same terms as the staggered method's Step 3, Gauss–Newton-linearized and re-projected
+every step; by default the distance to the reference surface and a smooth displacement). The
+staggered iteration follows a penalty path
 with one linearized step per α, and the network it ends in has drifted from the reference by up
 to 3× more than the simultaneous optimum (structural, twocirc-3: DESIGN.md's IPOPT runs); this
 phase walks back along the equilibrium manifold.
@@ -17,15 +18,17 @@ load Jacobian ``∂L/∂X`` (coloured finite differences) — and in the weights
 
     min  ½ Δxᵀ W Δx + gᵀ Δx + ½ ρ Σ_j (Δw_j / w_j)²     s.t.   C_x Δx + C_w Δw = −r
 
-through its Schur complement ``C_x W⁻¹ C_xᵀ + C_w R⁻¹ C_wᵀ`` (SPD, 3 n_free square, one
-CHOLMOD factorization). ``ρ`` bounds the relative weight change: a trust region, divided by 3
+(``W = Σ μ JᵀJ``, ``g = Σ μ Jᵀr`` from the terms) through its Schur complement
+``C_x W⁻¹ C_xᵀ + C_w R⁻¹ C_wᵀ`` (SPD, 3 n_free square, one CHOLMOD factorization) when ``W`` is
+3×3 block diagonal (terms whose rows each involve one vertex), else through the KKT system
+(sparse LU). ``ρ`` bounds the relative weight change: a trust region, divided by 3
 after an accepted step and multiplied by 10 after a rejected one. Weights the step would carry
 across a bound are clamped to it and stay there (cutting the whole step at the first bound
 crawled, one weight per step); bounded weights whose multiplier pulls them inward are released
 (and the step solved again with them free).
 The trial is polished to exact equilibrium (Newton,
 :mod:`~selfsupport.methods.polish`) and accepted when it is in equilibrium to ``tol`` and its
-mean distance to the reference is smaller (in equilibrium to half of ``tol``: the caller rebuilds
+objective is smaller (in equilibrium to half of ``tol``: the caller rebuilds
 the network in SI units, which costs a little round-off, and keeps it only within ``tol``).
 
 Written here: no available sparse solver does SQP with this structure (IPOPT solves the same
@@ -39,12 +42,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
+from formulations.scaling import Scaling
+from formulations.terms import Term
+
 from ..evidence import closest_points
 from ..linalg import spd_factor
 from ..loads import LoadCase
-from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
-from .polish import _load_colouring, _load_jacobian, polish
-from formulations.scaling import Scaling
+from .polish import load_colouring, load_jacobian_xyz, polish
 
 
 @dataclass(frozen=True)
@@ -59,31 +64,36 @@ class Refinement:
     history: tuple[dict, ...]  # one record per tried step
 
 
-def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling, reference,
-           lower: np.ndarray, upper: np.ndarray, *, max_steps: int, tau: float = 0.05, tol: float = 1e-9,
-           rho0: float = 1e-6, min_gain: float = 1e-2, deadline: float = np.inf,
-           workspace: dict | None = None) -> Refinement:
-    """Refine the network ``(X, w)`` (in equilibrium, scaled units) towards ``reference``.
+def objective_value(objective: Term, X: np.ndarray, projection: tuple | None = None) -> tuple[Term, float]:
+    """The objective re-linearized at ``X`` (closest points there) and its value at ``X``."""
+    t = objective.at(X, projection)
+    return t, t.numeric_value(X)
 
-    Stops after ``max_steps`` tried steps, when an accepted step gains less than ``min_gain`` of
-    the mean distance, after 6 rejected steps in a row, or at ``deadline``
-    (``time.perf_counter()``). The result is in equilibrium with loads of its own geometry (the
-    polish's accuracy) whenever ``steps > 0``, else it is the input.
+
+def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling, objective: Term,
+           lower: np.ndarray, upper: np.ndarray, *, max_steps: int, tol: float = 1e-9, rho0: float = 1e-6,
+           min_gain: float = 1e-2, deadline: float = np.inf, workspace: dict | None = None) -> Refinement:
+    """Refine the network ``(X, w)`` (in equilibrium, scaled units) towards the optimum of
+    ``objective`` (a :class:`~formulations.terms.Term` in the same units).
+
+    Stops after ``max_steps`` tried steps, when an accepted step lowers the square root of the
+    objective by less than ``min_gain`` (relative), after 6 rejected steps in a row, or at
+    ``deadline`` (``time.perf_counter()``). The result is in equilibrium with loads of its own
+    geometry (the polish's accuracy) whenever ``steps > 0``, else it is the input.
     """
     ws = workspace if workspace is not None else {}
     free = top.free
     if "colouring" not in ws and loads.depends_on_geometry:
-        ws["colouring"] = _load_colouring(mesh0, free)
+        ws["colouring"] = load_colouring(mesh0, free)
     L = sc.load(loads.nodal(mesh0, sc.pos_back(X)))
-    P, d, N = closest_points(X, reference)
-    dist = float(d.mean())
+    obj, F = objective_value(objective, X)
     rho, lin, rejected = rho0, None, 0
     steps, history = 0, []
     for tried in range(1, max_steps + 1):
         if time.perf_counter() > deadline:
             break
         if lin is None:  # the linearization at the current network (kept while steps are rejected)
-            lin = _linearize(top, X, w, L, P, N, loads, mesh0, sc, tau, ws.get("colouring"))
+            lin = _linearize(top, X, w, L, obj, loads, mesh0, sc, ws.get("colouring"))
         dx, dw = _sqp_step(lin, w, lower, upper, rho)
         # the full step, weights that would cross a bound clamped to it (they stay fixed next
         # step; cutting the step at the first bound instead crawled, one weight per step)
@@ -93,19 +103,18 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         Xp, Lp, _ = polish(top, Xt, wt, loads, mesh0, sc, workspace=ws, fallbacks=False)
         ok = bool(np.all(np.isfinite(Xp)))
         err = float((np.linalg.norm(residual(top, Xp, wt, Lp), axis=1) / np.abs(Lp[free])).max()) if ok else np.inf
-        Pp, dp, Np = closest_points(Xp, reference) if ok else (None, np.full(1, np.inf), None)
-        new = float(dp.mean())
-        accepted = err <= 0.5 * tol and new < dist  # (margin: the caller rebuilds the network in SI units)
+        obj_p, F_p = objective_value(objective, Xp) if ok else (None, np.inf)
+        accepted = err <= 0.5 * tol and F_p < F  # (margin: the caller rebuilds the network in SI units)
         history.append({"step": tried, "rho": rho, "clamped": int(np.sum(wt != w + dw)), "error": err,
-                        "dist_mean": new, "accepted": accepted})
+                        "objective": F_p, "accepted": accepted})
         if not accepted:
             rho *= 10.0  # a smaller step
             rejected += 1
             if rejected >= 6:
                 break
             continue
-        gain = 1.0 - new / dist
-        X, w, L, P, N, dist = Xp, wt, Lp, Pp, Np, new
+        gain = 1.0 - np.sqrt(F_p / F) if F > 0 else 0.0
+        X, w, L, obj, F = Xp, wt, Lp, obj_p, F_p
         lin, rejected = None, 0
         steps += 1
         rho = max(rho / 3.0, 1e-12)  # accepted: a larger step next (÷10 alternated accept / reject)
@@ -117,63 +126,64 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
 def _sqp_step(lin: tuple, w: np.ndarray, lower: np.ndarray, upper: np.ndarray, rho: float
               ) -> tuple[np.ndarray, np.ndarray]:
     """The step ``(Δx (n_free, 3), Δw)`` of the equality-constrained QP in the module docstring
-    through the Schur complement of its KKT system. Weights at a bound are held there unless
-    their multiplier pulls them inward; those are released and the QP solved again with them
-    free, so the step satisfies the linearized constraint."""
-    Cx, A, r, g, Winv = lin
+    (Schur complement when ``W⁻¹`` is known, else the KKT system). Weights at a bound are held
+    there unless their multiplier pulls them inward; those are released and the QP solved
+    again with them free, so the step satisfies the linearized constraint."""
+    Cx, A, r, g, W, Winv = lin
     free_w = (w > lower) & (w < upper)
-    CWC = Cx @ Winv @ Cx.T  # the positions' part of the Schur complement (the same for both attempts)
-    rhs = r - Cx @ (Winv @ g)
+    if Winv is not None:
+        CWC = Cx @ Winv @ Cx.T  # the positions' part of the Schur complement (the same for both attempts)
+        rhs = r - Cx @ (Winv @ g)
     for attempt in range(2):  # (a second release is left to the next step)
         Cw = A[:, free_w]
         Rinv = sp.diags(w[free_w] ** 2 / rho)
-        M = (CWC + Cw @ Rinv @ Cw.T).tocsc()
-        lam = spd_factor(M).solve(rhs)
+        if Winv is not None:
+            M = (CWC + Cw @ Rinv @ Cw.T).tocsc()
+            lam = spd_factor(M).solve(rhs)
+        else:  # [W Cxᵀ; Cx −Cw R⁻¹ Cwᵀ] [Δx; λ] = [−g; −r]
+            K = sp.bmat([[W, Cx.T], [Cx, -(Cw @ Rinv @ Cw.T)]], format="csc")
+            sol = sp.linalg.splu(K).solve(-np.r_[g, r])
+            lam = sol[W.shape[0]:]
         pull = -(A.T @ lam) * w ** 2 / rho  # the step of each weight, were it free
         release = ~free_w & (((w <= lower) & (pull > 0)) | ((w >= upper) & (pull < 0)))
         if attempt or not release.any():
             break
         free_w = free_w | release
-    dx = -(Winv @ (g + Cx.T @ lam)).reshape(-1, 3)
+    dx = (-(Winv @ (g + Cx.T @ lam)) if Winv is not None else sol[:W.shape[0]]).reshape(-1, 3)
     dw = np.where(free_w, pull, 0.0)
     return dx, dw
 
 
-def _linearize(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P: np.ndarray, N: np.ndarray,
-               loads: LoadCase, mesh0, sc: Scaling, tau: float, colouring: tuple | None):
+def _linearize(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, objective: Term, loads: LoadCase,
+               mesh0, sc: Scaling, colouring: tuple | None):
     """The step's data at ``(X, w)``: the scaled constraint Jacobians ``C_x`` (positions) and
-    ``A`` (all weights), the scaled residual, the objective's gradient and ``W⁻¹``."""
+    ``A`` (all weights), the scaled residual, the objective's gradient ``g``, its Gauss–Newton
+    matrix ``W`` and ``W⁻¹`` when ``W`` is 3×3 block diagonal (else ``None``)."""
     free = top.free
+    fidx = np.flatnonzero(free)
+    cols3 = (3 * fidx[:, None] + np.arange(3)).ravel()
     s = np.repeat(1.0 / np.abs(L[free]), 3)
-    n = N[free]
-    nn = n[:, :, None] * n[:, None, :]
-    Wb = tau * np.eye(3)[None] + (1 - tau) * nn
-    Winv = block_diagonal(nn + (np.eye(3)[None] - nn) / tau)  # W⁻¹ = n nᵀ + (I − n nᵀ) / τ
-    g = np.einsum("kij,kj->ki", Wb, X[free] - P[free]).ravel()
+    W, g, local = None, np.zeros(3 * top.n_free), True
+    for t in objective.parts():
+        r, J = t.linearize(X)
+        Jf = J[:, cols3].tocsr()
+        W = t.weight * (Jf.T @ Jf) if W is None else W + t.weight * (Jf.T @ Jf)
+        g += t.weight * (Jf.T @ r)
+        local &= bool(t.vertex_local)
+    W = W.tocsr()
+    Winv = None
+    if local:  # 3×3 blocks: invert each (every free vertex must carry a vertex-local term)
+        coo = W.tocoo()
+        blocks = np.zeros((top.n_free, 3, 3))
+        np.add.at(blocks, (coo.row // 3, coo.row % 3, coo.col % 3), coo.data)
+        if np.all(np.linalg.eigvalsh(blocks)[:, 0] > 0):
+            Winv = block_diagonal(np.linalg.inv(blocks))
+    if Winv is None:  # a small shift keeps the KKT matrix regular where the objective is flat
+        W = (W + sp.identity(W.shape[0]) * (1e-12 * float(W.diagonal().mean()))).tocsc()
     Kff, _ = position_blocks(top, w)
     Cx = sp.kron(Kff, sp.identity(3), format="csr")
     if loads.depends_on_geometry:
-        Cx = Cx - _load_jacobian_xyz(loads, mesh0, sc, X, L, np.flatnonzero(free), colouring)
+        Cx = Cx - load_jacobian_xyz(loads, mesh0, sc, X, L, fidx, colouring)
     S = sp.diags(s)
     A = (S @ weight_matrix(top, X)).tocsc()
-    return (S @ Cx).tocsr(), A, A @ w - s * load_vector(top, L), g, Winv
-
-
-def _load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.ndarray, fidx: np.ndarray,
-                       colouring: tuple) -> sp.csr_matrix:
-    """``∂L_free / ∂X_free`` placed in the z rows of the 3 n_free residual: the polish's
-    coloured forward differences (:func:`~selfsupport.methods.polish._load_jacobian`) once per
-    coordinate — a load depends on the positions of the vertices sharing a face with it, in x,
-    y and z alike, so the colouring of ``dL/dz`` serves all three."""
-    nf = fidx.size
-    blocks = []
-    for c in range(3):
-        def loads_at(v: np.ndarray, c: int = c) -> np.ndarray:
-            Xh = X.copy()
-            Xh[fidx, c] = v
-            return sc.load(loads.nodal(mesh0, sc.pos_back(Xh)))[fidx]
-
-        blocks.append(_load_jacobian(loads_at, X[fidx, c], L[fidx], *colouring).tocoo())
-    R = np.concatenate([3 * J.row + 2 for J in blocks])
-    C = np.concatenate([3 * J.col + c for c, J in enumerate(blocks)])
-    return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
+    return (S @ Cx).tocsr(), A, A @ w - s * load_vector(top, L), g, W, Winv

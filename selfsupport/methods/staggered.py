@@ -16,17 +16,25 @@ Step 2  weights with positions fixed: a box-constrained sparse least-squares fit
         its exact fit before the finish is tried).
 Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
 
-            Σ_i ‖r_i / d_i‖² + α Σ_i ( ⟨n_i, v_i − p_i⟩² + τ ‖T_i (v_i − p_i)‖² ) + β Σ_i ‖v_i − v_i^k‖²
+            Σ_c Σ_i ‖r_c,i / d_i‖² + α Σ_t μ_t ‖r_t + J_t Δx‖² + Σ_h μ_h ‖r_h + J_h Δx‖² + β ‖Δx‖²
 
-        (+ γ ‖U (v − v_ref)‖², U the umbrella Laplacian: the displacement must be smooth, which
-        keeps vertices whose weights sit at ε from being thrown far away — the original tool
-        smoothed the same way) where the residual rows are scaled by ``1 / |A_i F_i|`` (the error
-        the fit measures) and the penalties by the mean ``(d_i / |A_i F_i|)²``, ``d_i = Σ_j w_ij``,
-        which turns that relative residual into a length. ``p_i`` and ``n_i``
-        are a point of the reference surface and its normal (tangent-plane linearization of
-        the distance to the reference, re-projected as the vertex slides), ``T_i`` the tangent
-        projector (a weak hold against sliding) and the β term a proximal step. All terms
-        are lengths relative to the bounding-box diagonal, so α, β, τ are dimensionless.
+        the equilibrium residual of every load case ``c`` (rows scaled by ``1 / |A_i F_i|``, the
+        error the fit measures), plus the problem's objective terms (:mod:`formulations.terms`,
+        each Gauss–Newton-linearized at the iterate, weight ``μ_t``) relaxed by α, plus constraint
+        penalties (the masonry hull) that are not relaxed, plus a proximal step β. The penalties
+        are multiplied by the mean ``(d_i / |A_i F_i|)²``, ``d_i = Σ_j w_ij``, which turns the
+        relative residual into a length. Without an objective in the problem the method uses
+        :data:`DEFAULT_OBJECTIVE`: the distance to the reference surface (tangent-plane
+        linearization at the closest point ``p_i``, normal ``n_i``, re-projected as the vertex
+        slides, with a weak tangential hold τ) and a smooth displacement
+        (γ ‖U (v − v_ref)‖², U the umbrella Laplacian, γ/α = 100: keeps vertices whose weights
+        sit at ε from being thrown far away — the original tool smoothed the same way). All
+        terms are lengths relative to the bounding-box diagonal, so the weights are dimensionless.
+        Terms that act on x, y, z alike (fairness, vertex distance) enter one n×n matrix; terms
+        whose rows each involve one vertex (reference distance, hull) enter 3×3 blocks; the
+        system is solved by CG preconditioned with one n×n factorization (:func:`_solve_blocks`).
+        Other terms (planarity) couple neighbouring vertices' coordinates: then the 3n×3n system
+        is factored. With a fixed top view only the heights move (an n×n system).
 Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smaller fit error
         (the merit is E(X) = min_w E(X, w), so the iteration is a descent method); otherwise β is
         multiplied by 4 and the step retried (a trust region). After an accepted step α and β
@@ -62,37 +70,49 @@ Polish  once the fit's max relative error is below ``polish_tol``, the weights a
         the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
         re-estimated from the new geometry until they are consistent to round-off (Newton with
         a coloured finite-difference load Jacobian; :mod:`~selfsupport.methods.polish`). The
-        result is in equilibrium to machine precision with loads of its own geometry.
+        result is in equilibrium to machine precision with loads of its own geometry. With
+        several load cases, or a fixed top view, frozen weights cannot balance every case (or
+        x and y) by moving the positions alone: the polish is then a minimum-norm Newton
+        iteration on positions and the weights off their bounds together
+        (:func:`~selfsupport.methods.polish.polish_joint`).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
-from typing import Any, Callable
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import scipy.sparse as sp
 
+from formulations import LoadCases, Problem, TermContext
+from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
+from formulations.scaling import Scaling
+from formulations.terms import Term
+
 from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
-from ..geometry import vertex_normals
-from ..loads import LoadCase, SelfWeight, with_scene_extras
+from ..linalg import spd_factor
+from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene
-from ..validate import require_rise
-from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
-from formulations.scaling import Scaling, ScaledProblem
-from ..linalg import spd_factor
+from .base import as_problem, case_networks, hull_report, term_values
 from .polish import polish as _polish
+from .polish import polish_joint as _polish_joint
 from .refine import refine as _refine
 from .weightfit import WeightFitBackend, make_backend
+
+#: The objective when the problem leaves it to the method: distance to the reference surface
+#: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`) and a smooth
+#: displacement, γ/α = 100 (the original tool's smoothing).
+DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0, "fairness": 100.0}
 
 
 @dataclass(frozen=True)
 class StaggeredOptions:
     """Settings of the staggered method (general: no per-scene tuning)."""
 
-    alpha0: float = 1.0  # distance-to-reference penalty at the start
+    alpha0: float = 1.0  # weight of the objective (distance to the reference, ...) at the start
     beta0: float = 0.01  # proximal penalty at the start
     shrink: float = 0.5  # factor applied to α, β after an iteration that reduced the error
     # (and to α from the third rejected step in a row)
@@ -101,8 +121,6 @@ class StaggeredOptions:
     max_rejections: int = 12  # consecutive rejected position steps before "stalled"
     stall_window: int = 30  # iterations at alpha_min in which the fit error must halve, else "stalled"
     # (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
-    tangential: float = 0.05  # τ: tangential hold relative to the normal one
-    fairness: float = 100.0  # γ/α: umbrella-Laplacian smoothness of the displacement (the original tool's smoothing)
     reproject_every: int = 1  # closest-point re-projection onto the reference (0: never)
     prox_w: float = 1e-8  # proximal weight of the Step-2 fit relative to its diagonal: makes the
     # weights unique (A has more columns than rows) and reproducible during the iteration
@@ -119,8 +137,8 @@ class StaggeredOptions:
     try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
     fit_rtol: float = 1e-3  # KKT tolerance a Step-2 backend may stop at while the fit error is above
     # finish_try (those fits only steer the iteration; the fits the finish uses are exact)
-    refine: int = 0  # at most this many SQP steps towards the reference after convergence (refine.py;
-    # 0: the paper's method as it is)
+    refine: int = 0  # at most this many SQP steps towards the objective's optimum after convergence
+    # (refine.py; 0: the paper's method as it is)
     tol: float = 1e-9  # required max relative error of the final network
     max_iter: int = 200
     time_limit: float = 600.0
@@ -151,11 +169,20 @@ def parse_option(text: str) -> tuple[str, Any]:
     return key, number
 
 
+def _options(base: StaggeredOptions, overrides: Mapping[str, Any]) -> StaggeredOptions:
+    unknown = set(overrides) - set(StaggeredOptions.__dataclass_fields__)
+    if unknown:
+        raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: "
+                         f"{sorted(StaggeredOptions.__dataclass_fields__)}")
+    return replace(base, **overrides) if overrides else base
+
+
 class StaggeredLinearization:
     """The paper's method. ``backend`` names the Step-2 solver (see ``WEIGHT_FIT_BACKENDS``).
 
     Example
     -------
+    >>> from selfsupport.loads import SelfWeight
     >>> from selfsupport.shapes import make_shape
     >>> res = StaggeredLinearization().solve(make_shape("dome", n_vertices=300), SelfWeight())
     >>> res.status, res.max_relative_error < 1e-9
@@ -166,113 +193,174 @@ class StaggeredLinearization:
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
         self.backend = make_backend(backend) if isinstance(backend, str) else backend
-        unknown = set(options) - set(StaggeredOptions.__dataclass_fields__)
-        if unknown:
-            raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: {sorted(StaggeredOptions.__dataclass_fields__)}")
-        self.options = StaggeredOptions(**options)
+        self.options = _options(StaggeredOptions(), options)
 
-    def solve(self, scene: Scene, loads: LoadCase | None = None, *, eps: float | None = None,
-              w_max: float | None = None, progress: Callable[[dict], None] | None = None,
-              **overrides: Any) -> SolveResult:
-        """Solve for the thrust network nearest to ``scene.mesh``.
+    def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | LoadCase | LoadCases | None = None, *,
+              progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None,
+              w_max: Any = None, objective: Any = None, **overrides: Any) -> SolveResult:
+        """Solve for the thrust network of ``problem`` (see :mod:`formulations.problem`).
 
         Parameters
         ----------
-        scene
-            Reference mesh and supports.
-        loads
-            Load case (default: :class:`SelfWeight` with its defaults), plus the scene's extras.
-        eps, w_max
-            Weight bounds in SI units [N/m]; ``eps`` defaults to a scale-free bound
-            (:func:`~formulations.scaling.default_eps`).
+        problem
+            A :class:`~formulations.Problem`, or a :class:`Scene` (the short form: then ``loads``
+            — also accepted as the second positional argument — ``eps``, ``w_max`` [N/m] and
+            ``objective`` build the problem, see :func:`~selfsupport.methods.base.as_problem`).
+        options
+            :class:`StaggeredOptions` fields for this solve only (also as keywords).
         progress
             Called with the history record of each iteration.
-        overrides
-            Any :class:`StaggeredOptions` field, for this solve only.
         """
-        unknown = set(overrides) - set(StaggeredOptions.__dataclass_fields__)
-        if unknown:
-            raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: {sorted(StaggeredOptions.__dataclass_fields__)}")
-        opt = replace(self.options, **overrides) if overrides else self.options
-        t_start = time.perf_counter()
-        scene.mesh.validate()
-        scene.check_supports()
-        require_rise(scene, w_max)  # a flat reference needs w_max, else no nearest network exists
-        loads = with_scene_extras(loads if loads is not None else SelfWeight(), scene)
-        mesh0 = scene.mesh
-        L0 = loads.nodal(mesh0, mesh0.vertices)
-        prob = ScaledProblem.build(scene, L0, eps=eps, w_max=w_max)
-        top, sc, X, lower, upper = prob.top, prob.scaling, prob.X, prob.lower, prob.upper
-        free = top.free
-        eps_s, wmax_s = float(lower[0]), float(upper[0])  # scalar bounds (every scene has active edges)
-        Xref_mesh = mesh0.with_vertices(X)
-        self.backend.reset()
+        if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
+                                                           and all(isinstance(v, LoadCase) for v in options.values())):
+            loads, options = options, None
+        problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
+        opt = _options(self.options, {**dict(options or {}), **overrides})
+        return _Run(self, problem, opt, progress).solve()
 
-        X0 = X.copy()
-        U = _umbrella(top, mesh0)
-        step3: dict = {}  # Step 3's constant parts and its factor, kept across iterations
-        polish_ws: dict = {}  # the polish's load-Jacobian colouring
-        P = X.copy()  # anchor points on the reference surface
-        Nrm = vertex_normals(Xref_mesh)  # and the normals there
+
+class _Run:
+    """One solve: the problem in scaled units, the state of the iteration, and the named steps."""
+
+    def __init__(self, method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
+                 progress: Callable[[dict], None] | None) -> None:
+        self.t_start = time.perf_counter()
+        problem.validate()  # mesh, supports; a flat reference needs w_max, else no nearest network exists
+        self.method, self.problem, self.opt, self.progress = method, problem, opt, progress
+        self.scene, self.loads = problem.scene, problem.loads
+        self.mesh0 = self.scene.mesh
+        self.C = len(self.loads)
+        self.fixed_xy = problem.fixed_top_view
+        if opt.coupled and (self.C > 1 or self.fixed_xy):
+            raise InputError("the coupled step (coupled=true) handles one load case with a free top view; "
+                             "drop coupled=true")
+        sp_ = problem.scaled()
+        self.top, self.sc = sp_.top, sp_.scaling
+        self.lower, self.upper = sp_.lower, sp_.upper
+        self.free = self.top.free
+        self.free_idx = np.flatnonzero(self.free)
+        self.X0 = sp_.X
+        self.L0 = sp_.L
+        self.reference = self.mesh0.with_vertices(sp_.X)
+        self.ctx = TermContext(vertices=sp_.X, reference=self.reference, free=self.scene.free,
+                               thickness=None if problem.hull_thickness() is None
+                               else problem.hull_thickness() / self.sc.length)
+        self.objective: Term | None = problem.terms(self.ctx, scaling=self.sc, default=DEFAULT_OBJECTIVE)
+        method.backend.reset()
+        # one backend per load case: each keeps its own warm start (active set, factor patterns)
+        self.backends = [method.backend] + [type(method.backend)(**getattr(method.backend, "options", {}))
+                                            for _ in range(self.C - 1)]
+        self.step3: dict = {}  # Step 3's constant parts and its factor, kept across iterations
+        self.polish_ws: dict = {}  # the polish's load-Jacobian colouring
+        self.rtol_far = opt.fit_rtol  # the far-phase fits' KKT tolerance (tightened when it proves too loose)
+
+    # ---------------------------------------------------------------- Steps 1-2
+    def loads_at(self, X: np.ndarray) -> np.ndarray:
+        """Step 1: scaled nodal loads of every case at positions ``X``, shape (n_cases, n)."""
+        return self.sc.load(self.loads.nodal(self.mesh0, self.sc.pos_back(X)))
+
+    def fit(self, X: np.ndarray, w0: list[np.ndarray], prox_rel: float | None = None,
+            rtol: float | None = None) -> dict | None:
+        """Steps 1 and 2 at positions ``X``: loads, then one weight fit per load case."""
+        t0 = time.perf_counter()
+        L = self.loads_at(X)
+        t1 = time.perf_counter()
+        free = self.free
+        if not np.all(L[:, free] < 0) or not np.all(np.isfinite(X)):
+            return None
+        A = weight_matrix(self.top, X)
+        prox_rel = self.opt.prox_w if prox_rel is None else prox_rel
+        ws, As_all, rels, fits = [], [], [], []
+        for c in range(self.C):
+            s = np.repeat(1.0 / np.abs(L[c, free]), 3)
+            As = sp.diags(s) @ A
+            b = s * load_vector(self.top, L[c])
+            prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
+            try:
+                f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
+                                         rtol=rtol)
+            except (ValueError, RuntimeError, ArithmeticError):  # singular systems of a degenerate geometry
+                return None
+            if not np.all(np.isfinite(f.w)):
+                return None
+            ws.append(f.w)
+            As_all.append(As)
+            rels.append(np.linalg.norm((As @ f.w - b).reshape(-1, 3), axis=1))
+            fits.append(f)
+        worst_case = int(np.argmax([r.max() if r.size else 0.0 for r in rels]))
+        worst = np.argsort(rels[worst_case])[::-1][:10]
+        status = "inexact" if any(f.status == "inexact" for f in fits) else fits[-1].status
+        return {"L": L, "w": ws, "As": As_all, "E": float(sum(r @ r for r in rels)),
+                "max_rel_error": float(max(r.max() for r in rels)),
+                "worst_vertices": [int(v) for v in self.free_idx[worst]],
+                "fit_iterations": int(sum(f.iterations for f in fits)), "fit_status": status,
+                "n_at_lower": int(sum(f.n_lower for f in fits)), "n_at_upper": int(sum(f.n_upper for f in fits)),
+                "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
+
+    def judge(self, Xt: np.ndarray, cur: dict, rec: dict) -> tuple[dict | None, bool]:
+        """Steps 1-2 at the trial positions and whether they lower the recorded fit error.
+        Far from equilibrium (fit error above finish_try) the fit only steers the iteration
+        and stops at ``rtol_far``. Such a fit overstates min_w E (its proximal term aside),
+        so it may reject a step that lowers it: a rejection is confirmed by an exact fit.
+        When the exact fit overturns it, the steps' gains are smaller than the loose fits'
+        overstatement (large meshes: E falls by ~0.1% per step), and the tolerance is
+        tightened tenfold for the rest of the solve."""
+        opt = self.opt
+        rtol = self.rtol_far if cur["max_rel_error"] > opt.finish_try else None
+        trial = self.fit(Xt, cur["w"], rtol=rtol)
+        accepted = trial is not None and trial["E"] < cur["E"]
+        if not accepted and trial is not None and trial["fit_status"] == "inexact":
+            trial = self.fit(Xt, cur["w"])
+            accepted = trial is not None and trial["E"] < cur["E"]
+            rec["confirmed"] = True
+            if accepted:
+                self.rtol_far = max(0.1 * self.rtol_far, min(opt.fit_rtol, 1e-6))
+        rec["fit_rtol"] = rtol
+        rec["trial_fit_status"] = trial["fit_status"] if trial is not None else None
+        return trial, accepted
+
+    # ---------------------------------------------------------------- Step 3
+    def position_step(self, X: np.ndarray, cur: dict, alpha: float, beta: float, coupled: bool = False) -> np.ndarray:
+        """Step 3 at the current fit (see the module docstring)."""
+        G = gap = None
+        if coupled:  # the fit's own scaled A at X, restricted to the weights off their bounds
+            w = cur["w"][0]
+            movable = (w > self.lower) & (w < self.upper)
+            G, gap = cur["As"][0][:, movable], (w - self.lower)[movable]
+        return _position_step(self.top, X, cur["w"], cur["L"], self.objective, alpha, beta, G=G, prox_dw=beta,
+                              gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
+                              fixed_xy=self.fixed_xy)
+
+    # ---------------------------------------------------------------- results
+    def networks(self, X: np.ndarray, ws: list[np.ndarray]) -> tuple[Network, tuple[tuple[str, Network], ...]]:
+        return case_networks(self.problem, self.sc, X, ws)
+
+    def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True):
+        """Positions (and, with several cases or a fixed top view, weights) in exact equilibrium:
+        (X, ws, L, rounds)."""
+        if self.C == 1 and not self.fixed_xy:
+            Xp, L, rounds = _polish(self.top, X, ws[0], self.loads.primary, self.mesh0, self.sc,
+                                    workspace=self.polish_ws, fallbacks=fallbacks)
+            return Xp, ws, L[None], rounds
+        return _polish_joint(self.top, X, ws, self.loads, self.mesh0, self.sc, self.lower, self.upper,
+                             fixed_xy=self.fixed_xy, workspace=self.polish_ws,
+                             deadline=self.t_start + self.opt.time_limit)
+
+    # ---------------------------------------------------------------- the iteration
+    def solve(self) -> SolveResult:
+        opt, top, sc = self.opt, self.top, self.sc
+        X = self.X0.copy()
         alpha, beta = opt.alpha0, opt.beta0
         history: list[dict[str, Any]] = []
         status, message = "iteration_limit", ""
-
-        def refit(Xc: np.ndarray, w0: np.ndarray, prox_rel: float = opt.prox_w, rtol: float | None = None):
-            """Steps 1 and 2 at positions Xc: loads, then the weight fit."""
-            t0 = time.perf_counter()
-            Lc = sc.load(loads.nodal(mesh0, sc.pos_back(Xc)))
-            t1 = time.perf_counter()
-            if not np.all(Lc[free] < 0) or not np.all(np.isfinite(Xc)):
-                return None
-            A = weight_matrix(top, Xc)
-            b = load_vector(top, Lc)
-            s = np.repeat(1.0 / np.abs(Lc[free]), 3)
-            As = sp.diags(s) @ A
-            prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
-            try:
-                fit = self.backend.fit(A=As, b=s * b, lower=lower, upper=upper, w0=w0, prox=prox, rtol=rtol)
-            except (ValueError, RuntimeError, ArithmeticError):  # singular systems of a degenerate geometry
-                return None
-            if not np.all(np.isfinite(fit.w)):
-                return None
-            rel = np.linalg.norm((As @ fit.w - s * b).reshape(-1, 3), axis=1)
-            worst = np.argsort(rel)[::-1][:10]
-            return {"L": Lc, "w": fit.w, "As": As, "E": float(rel @ rel), "max_rel_error": float(rel.max()),
-                    "worst_vertices": [int(v) for v in free_idx[worst]],
-                    "fit_iterations": fit.iterations, "fit_status": fit.status, "n_at_lower": fit.n_lower,
-                    "n_at_upper": fit.n_upper, "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
-
-        rtol_far = opt.fit_rtol  # the far-phase fits' KKT tolerance (tightened when it proves too loose)
-
-        def judge(Xt: np.ndarray, rec: dict):
-            """Steps 1-2 at the trial positions and whether they lower the recorded fit error.
-            Far from equilibrium (fit error above finish_try) the fit only steers the iteration
-            and stops at ``rtol_far``. Such a fit overstates min_w E (its proximal term aside),
-            so it may reject a step that lowers it: a rejection is confirmed by an exact fit.
-            When the exact fit overturns it, the steps' gains are smaller than the loose fits'
-            overstatement (large meshes: E falls by ~0.1% per step), and the tolerance is
-            tightened tenfold for the rest of the solve."""
-            nonlocal rtol_far
-            rtol = rtol_far if cur["max_rel_error"] > opt.finish_try else None
-            trial = refit(Xt, cur["w"], rtol=rtol)
-            accepted = trial is not None and trial["E"] < cur["E"]
-            if not accepted and trial is not None and trial["fit_status"] == "inexact":
-                trial = refit(Xt, cur["w"])
-                accepted = trial is not None and trial["E"] < cur["E"]
-                rec["confirmed"] = True
-                if accepted:
-                    rtol_far = max(0.1 * rtol_far, min(opt.fit_rtol, 1e-6))
-            rec["fit_rtol"] = rtol
-            rec["trial_fit_status"] = trial["fit_status"] if trial is not None else None
-            return trial, accepted
-
         # proximal centre of the first fit: the best uniform weight (scale-free, deterministic)
         A0 = weight_matrix(top, X) @ np.ones(top.m)
-        b0 = load_vector(top, sc.load(L0))
-        w_uniform = float(np.clip(A0 @ b0 / max(float(A0 @ A0), 1e-300), eps_s, wmax_s))
-        free_idx = np.flatnonzero(free)
-        cur = refit(X, np.full(top.m, w_uniform))
+        w_start = []
+        for c in range(self.C):
+            b0 = load_vector(top, self.L0[c])
+            w_uniform = float(A0 @ b0 / max(float(A0 @ A0), 1e-300))
+            w_start.append(np.clip(np.full(top.m, w_uniform), self.lower, self.upper))
+        cur = self.fit(X, w_start)
         if cur is None:
             raise InfeasibleDesign("no weights can be fitted to the reference as it is (degenerate geometry, e.g. a flat "
                                    "network cannot carry vertical loads); give the surface some rise or check the mesh")
@@ -282,6 +370,7 @@ class StaggeredLinearization:
         fresh, early, last_try = True, None, np.inf
         polish_tol = opt.polish_tol
         retry_errors: list[float] | None = None  # fit errors since a retry began
+        can_finish_early = self.C == 1 and not self.fixed_xy
         while True:
             try:
                 for it in range(it + 1, opt.max_iter + 1):
@@ -297,13 +386,13 @@ class StaggeredLinearization:
                         status = "converged"
                         history.append(rec)
                         break
-                    if (fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
+                    if (can_finish_early and fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
                             and cur["fit_status"] != "inexact"):
                         # (a trial fitted loosely that landed below finish_try waits one step: the
                         # next fit is exact, and the finish polishes exact weights only)
-                        proj = proj if proj is not None else closest_points(X, Xref_mesh)
-                        early = _try_finish(top, X, cur["w"], cur["L"], loads, mesh0, sc, Xref_mesh, proj[1], opt,
-                                            polish_ws)
+                        proj = proj if proj is not None else closest_points(X, self.reference)
+                        early = _try_finish(top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, sc,
+                                            self.reference, proj[1], opt, self.polish_ws)
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
                             status = "converged"
@@ -322,37 +411,30 @@ class StaggeredLinearization:
                             f"{len(released) - 1} iterations)")
                         history.append(rec)
                         break
-                    if time.perf_counter() - t_start > opt.time_limit:
+                    if time.perf_counter() - self.t_start > opt.time_limit:
                         status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
                         history.append(rec)
                         break
                     # Step 3: positions, with the weights of the current fit
                     t0 = time.perf_counter()
-                    if opt.reproject_every and it > 1 and it % opt.reproject_every == 0:
-                        P, _, Nrm = proj if proj is not None else closest_points(X, Xref_mesh)
-                    G = gap = None
-                    if opt.coupled:  # the fit's own scaled A at X, restricted to the weights off their bounds
-                        movable = (cur["w"] > lower) & (cur["w"] < upper)
-                        G, gap = cur["As"][:, movable], (cur["w"] - lower)[movable]
-                    Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
-                                        opt.fairness * alpha, Xref=X0, umbrella=U, G=G, prox_dw=beta,
-                                        gap=gap, damping=opt.coupled_damping, workspace=step3)
+                    if opt.reproject_every and it > 1 and it % opt.reproject_every == 0 and self.objective is not None:
+                        self.objective = self.objective.at(X, projection=proj)
+                    Xt = self.position_step(X, cur, alpha, beta, coupled=opt.coupled)
                     rec["t_positions"] = time.perf_counter() - t0
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
                     # iteration, so it may stop at a looser tolerance
-                    trial, accepted = judge(Xt, rec)
-                    if G is not None and not accepted:
+                    trial, accepted = self.judge(Xt, cur, rec)
+                    if opt.coupled and not accepted:
                         # the coupled model over-promised (weights it moved were clamped by the
                         # refit): fall back to the plain position step before shrinking the region
-                        Xt = _position_step(top, X, cur["w"], cur["L"], P, Nrm, alpha, beta, opt.tangential,
-                                            opt.fairness * alpha, Xref=X0, umbrella=U, workspace=step3)
-                        trial, accepted = judge(Xt, rec)
+                        Xt = self.position_step(X, cur, alpha, beta)
+                        trial, accepted = self.judge(Xt, cur, rec)
                         rec["fallback"] = True
-                    rec["cg_iterations"] = step3.get("cg_iterations", 0)  # of the step taken
+                    rec["cg_iterations"] = self.step3.get("cg_iterations", 0)  # of the step taken
                     rec["accepted"] = accepted
                     history.append(rec)
-                    if progress:
-                        progress(rec)
+                    if self.progress:
+                        self.progress(rec)
                     # Step 4: trust-region style schedule
                     if accepted:
                         ratio = trial["E"] / cur["E"]
@@ -381,32 +463,34 @@ class StaggeredLinearization:
             # little as the data allow (an input already in equilibrium comes back unchanged)
             t0 = time.perf_counter()
             if early is not None:  # the polish of the current weights was already accepted
-                Xp, L, load_rounds, _ = early
-                w = cur["w"]
+                Xp, _, load_rounds, _ = early
+                ws = cur["w"]
             else:
-                last = refit(X, cur["w"], opt.prox_w_final)
-                w = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
-                # Polish: weights frozen, positions exact, loads consistent
+                last = self.fit(X, cur["w"], opt.prox_w_final)
+                ws = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
+                # Polish: weights frozen (or, with several cases, moved least), positions exact
                 t0 = time.perf_counter()
-                Xp, L, load_rounds = _polish(top, X, w, loads, mesh0, sc, workspace=polish_ws)
+                Xp, ws, _, load_rounds = self.polish(X, ws)
             polish_move = float(np.linalg.norm(Xp - X, axis=1).max()) if np.all(np.isfinite(Xp)) else np.inf
-            net = self._network(scene, sc, Xp, w, loads) if np.isfinite(polish_move) else None
-            err = net.max_relative_error() if net is not None else np.inf
+            net, cases = self.networks(Xp, ws) if np.isfinite(polish_move) else (None, ())
+            err = max(n.max_relative_error() for _, n in cases) if net is not None else np.inf
             final = {"iteration": "polish", "t_polish": time.perf_counter() - t0, "load_rounds": load_rounds,
                      "polish_max_move": polish_move, "max_rel_error": err, "kept": True}
             if status != "converged" and not (np.isfinite(err) and err <= min(cur["max_rel_error"], 1.0)):
                 # from a poor fit the exact solve can land anywhere (even collapse): keep the last
                 # iterate, labelled by its status, rather than a "polished" network that is worse
                 final["kept"] = False
-                net = self._network(scene, sc, X, w, loads)
-                if w is not cur["w"]:  # the final fit minimises the sum of squares, not the max error
-                    net = min(net, self._network(scene, sc, X, cur["w"], loads), key=Network.max_relative_error)
+                net, cases = self.networks(X, ws)
+                if ws is not cur["w"]:  # the final fit minimises the sum of squares, not the max error
+                    alt = self.networks(X, cur["w"])
+                    if _max_error(alt[1]) < _max_error(cases):
+                        net, cases = alt
                 message += "; the final polish did not improve the network, so the last iterate is returned (not in equilibrium)"
             elif status != "converged" and polish_move > opt.polish_tol:
                 message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
                             "of the bounding-box diagonal, so this network may be far from the design")
             if (status == "converged" and early is None and not err <= opt.tol and polish_tol > 1e-9
-                    and it < opt.max_iter and time.perf_counter() - t_start < opt.time_limit):
+                    and it < opt.max_iter and time.perf_counter() - self.t_start < opt.time_limit):
                 # the polish did not reach equilibrium (the load fixed point stalled, e.g. on a
                 # kink of the area model): iterate on to a much tighter fit and polish again
                 history.append({**final, "kept": False, "retry": True})
@@ -416,125 +500,190 @@ class StaggeredLinearization:
                 continue
             break
         history.append(final)
-        if progress:
-            progress(final)
+        if self.progress:
+            self.progress(final)
+        err = _max_error(cases)
         if opt.refine > 0 and status == "converged" and err <= opt.tol:
-            # walk back towards the reference along the equilibrium manifold (SQP, refine.py)
-            t0 = time.perf_counter()
-            Xn = sc.pos(net.vertices)
-            Xn[scene.supports] = X0[scene.supports]
-            wn = sc.weight(net.weights[scene.active_edges])
-            ref = _refine(top, Xn, wn, loads, mesh0, sc, Xref_mesh, lower, upper, max_steps=opt.refine,
-                          tau=opt.tangential, tol=opt.tol, deadline=t_start + opt.time_limit, workspace=polish_ws)
-            refined = self._network(scene, sc, ref.X, ref.w, loads) if ref.steps else None
-            applied = refined is not None and refined.max_relative_error() <= opt.tol  # (never trade equilibrium)
-            if applied:
-                net, err = refined, refined.max_relative_error()
-            rec = {"iteration": "refine", "steps": ref.steps, "tried": ref.tried, "applied": applied,
-                   "t_refine": time.perf_counter() - t0, "max_rel_error": err,
-                   "dist_mean": [h["dist_mean"] for h in ref.history if h["accepted"]],
-                   "rho": [h["rho"] for h in ref.history]}
-            history.append(rec)
-            if progress:
-                progress(rec)
+            net, cases, err = self.refine(net, cases, err, history)
         if status == "converged" and not err <= opt.tol:
             worst = np.argsort(net.relative_errors())[::-1][:5]
             status, message = "stalled", (
                 f"the polished network has max relative error {err:.2e} > tol {opt.tol:g}; vertices hardest to "
-                f"balance: {[int(v) for v in free_idx[worst]]}; try more supports there, a larger w_max, or a pillar")
+                f"balance: {[int(v) for v in worst]}; try more supports there, a larger w_max, or a pillar")
+        params: dict[str, Any] = {**asdict(opt), "eps": _si_bound(sc, self.lower), "w_max": _si_bound(sc, self.upper),
+                                  "scaling": asdict(sc), "problem": self.problem.describe(),
+                                  "load_cases": list(self.loads.names)}
+        hull = hull_report(self.problem, net)
+        if hull is not None:
+            params["hull"] = hull
         return SolveResult.build(
-            net, status=status, method=self.name, backend=self.backend.name, iterations=it,
-            wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
-            parameters={**asdict(opt), "eps": sc.weight_back(eps_s), "w_max": w_max,
-                        "scaling": asdict(sc)})
+            net, cases=cases, status=status, method=self.method.name, backend=self.method.backend.name,
+            iterations=it, wall_time=time.perf_counter() - self.t_start, history=tuple(history), message=message,
+            parameters=params, terms=term_values(self.problem, net, default=DEFAULT_OBJECTIVE))
+
+    def refine(self, net: Network, cases, err: float, history: list) -> tuple[Network, Any, float]:
+        """The optional refinement phase (:mod:`~selfsupport.methods.refine`), one load case."""
+        opt, sc = self.opt, self.sc
+        rec: dict[str, Any] = {"iteration": "refine"}
+        if self.C > 1 or self.fixed_xy or self.objective is None:
+            rec.update(applied=False, skipped="the refinement handles one load case, a free top view and an objective")
+            history.append(rec)
+            return net, cases, err
+        t0 = time.perf_counter()
+        Xn = sc.pos(net.vertices)
+        Xn[self.scene.supports] = self.X0[self.scene.supports]
+        wn = sc.weight(net.weights[self.scene.active_edges])
+        ref = _refine(self.top, Xn, wn, self.loads.primary, self.mesh0, sc, self.objective, self.lower, self.upper,
+                      max_steps=opt.refine, tol=opt.tol, deadline=self.t_start + opt.time_limit,
+                      workspace=self.polish_ws)
+        applied = False
+        if ref.steps:
+            refined, rcases = self.networks(ref.X, [ref.w])
+            applied = _max_error(rcases) <= opt.tol  # (never trade equilibrium)
+            if applied:
+                net, cases, err = refined, rcases, _max_error(rcases)
+        rec.update(steps=ref.steps, tried=ref.tried, applied=applied, t_refine=time.perf_counter() - t0,
+                   max_rel_error=err, objective=[h["objective"] for h in ref.history if h["accepted"]],
+                   rho=[h["rho"] for h in ref.history])
+        history.append(rec)
+        if self.progress:
+            self.progress(rec)
+        return net, cases, err
 
 
-    @staticmethod
-    def _network(scene: Scene, sc: Scaling, X: np.ndarray, w: np.ndarray, loads: LoadCase) -> Network:
-        """The network in SI units: supports exactly where the design put them, loads of its geometry."""
-        mesh0 = scene.mesh
-        V = sc.pos_back(X)
-        V[scene.supports] = mesh0.vertices[scene.supports]  # exactly, not through the scaling round trip
-        weights = np.zeros(mesh0.n_edges)
-        weights[scene.active_edges] = sc.weight_back(w)
-        return Network(mesh=mesh0.with_vertices(V), weights=weights, loads=loads.nodal(mesh0, V),
-                       supports=scene.supports, reference=mesh0, handles=scene.handles)
+def _max_error(cases) -> float:
+    return max(n.max_relative_error() for _, n in cases)
 
 
-def _umbrella(top: Topology, mesh) -> sp.csr_matrix:
-    """Umbrella Laplacian rows ``u_i − mean_j u_j`` at free interior vertices, over all vertices."""
-    n = top.n
-    e = mesh.edges
-    A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    Lu = (sp.identity(n) - sp.diags(1.0 / deg) @ A).tocsr()
-    rows = top.free & ~mesh.boundary_vertex_mask
-    return Lu[rows]
+def _si_bound(sc: Scaling, b: np.ndarray) -> Any:
+    """A bound in N/m for the record: a number when it is the same on every edge."""
+    v = sc.weight_back(np.asarray(b, float))
+    if v.size and np.all(v == v[0]):
+        return None if np.isinf(v[0]) else float(v[0])
+    return v.tolist()
 
 
-def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P: np.ndarray,
-                   Nrm: np.ndarray, alpha: float, beta: float, tau: float, gamma: float = 0.0,
-                   Xref: np.ndarray | None = None, umbrella: sp.csr_matrix | None = None,
-                   G: sp.spmatrix | None = None, prox_dw: float = 0.0, gap: np.ndarray | None = None,
-                   damping: float = 0.0, workspace: dict | None = None) -> np.ndarray:
+# -------------------------------------------------------------------- Step 3 assembly
+def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: float, c: float,
+                ws: dict) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix | None,
+                                  np.ndarray]:
+    """The objective's Gauss–Newton model at ``X`` over the free positions, weighted by ``c α``
+    (constraint terms by ``c``): ``Σ μ ‖r + J Δx‖²`` split into a per-coordinate matrix ``H₁``
+    (terms acting on x, y, z alike) with right-hand side ``(k, 3)``, 3×3 blocks per free vertex
+    (vertex-local terms) with their right-hand side, and a general part (3 nf square). The
+    right-hand sides are those of the normal equations in absolute positions:
+    ``JᵀJ X − Jᵀ r`` at the current ``X``."""
+    nf = int(free.sum())
+    H1, rhs1 = None, np.zeros((nf, 3))
+    blocks, rhs3 = np.zeros((nf, 3, 3)), np.zeros((nf, 3))
+    Gg, rhsg = None, np.zeros(3 * nf)
+    if objective is None:
+        return H1, rhs1, blocks, rhs3, Gg, rhsg
+    cols3 = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
+    Xf = X[free]
+    for t in objective.parts():
+        mu = c * t.weight * (1.0 if t.constraint else alpha)
+        if mu == 0.0:
+            continue
+        if not t.couples_xyz:
+            r1, J1 = t.per_coordinate(X)
+            cache = ws.setdefault("per_coordinate", {})
+            if id(t) not in cache:  # these terms' Jacobians are constant: JᵀJ once per solve
+                J1f = J1[:, free].tocsr()
+                cache[id(t)] = (t, J1f, (J1f.T @ J1f).tocsr())
+            _, J1f, JtJ = cache[id(t)]
+            H1 = mu * JtJ if H1 is None else H1 + mu * JtJ
+            rhs1 += mu * (J1f.T @ (J1f @ Xf - r1))
+            continue
+        r, J = t.linearize(X)
+        Jf = J[:, cols3].tocsr()
+        rhs = mu * (Jf.T @ (Jf @ Xf.ravel() - r))
+        JtJ = (Jf.T @ Jf).tocoo()
+        if t.vertex_local:
+            np.add.at(blocks, (JtJ.row // 3, JtJ.row % 3, JtJ.col % 3), mu * JtJ.data)
+            rhs3 += rhs.reshape(nf, 3)
+        else:
+            Gg = mu * JtJ.tocsr() if Gg is None else (Gg + mu * JtJ).tocsr()
+            rhsg += rhs
+    return H1, rhs1, blocks, rhs3, Gg, rhsg
+
+
+def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
+                   objective: Term | None, alpha: float, beta: float, G: sp.spmatrix | None = None,
+                   prox_dw: float = 0.0, gap: np.ndarray | None = None, damping: float = 0.0,
+                   workspace: dict | None = None, fixed_xy: bool = False) -> np.ndarray:
     """Step 3: the SPD least-squares update of the free positions (see the module docstring).
 
-    The residual rows are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
+    ``weights`` and ``L`` hold one weight vector and one load vector per load case. The residual
+    rows of each case are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
     very error the fit measures); the penalties are multiplied by the mean of
-    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that
-    α and β compare lengths with lengths whatever the mesh resolution.
+    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that the
+    objective's weights, α and β compare lengths with lengths whatever the mesh resolution.
 
-    The system is ``(H ⊗ I₃ + b₀ I + b₁ ⊕ n_i n_iᵀ) x = rhs`` with H the (n_free × n_free)
-    Gram matrix of the scaled stress Laplacian (+ fairness): only the anchor's normal part
-    couples x, y and z. It is solved by conjugate gradients preconditioned with one n×n
-    factorization of ``H + b₀ I`` applied to the three coordinates — a 3n×3n factorization
-    costs ~27× the flops, and the preconditioned system's condition number is at most
-    ``1 + b₁/b₀ = 1 + (1 − τ)/(τ + β/α)`` (measured: 2–27 iterations to 1e-10 on the paper's
-    scenes). The direct 3n×3n factorization remains for the coupled step and as a fallback.
-    ``workspace`` (a dict kept by the caller across steps) holds what does not change between
-    steps — ``UfᵀUf`` and the factor objects, whose symbolic analyses are reused.
+    The system is ``(H ⊗ I₃ + ⊕ B_i + G) x = rhs`` with H the (n_free × n_free) Gram matrix of
+    the scaled stress Laplacians (+ per-coordinate terms), ``B_i`` 3×3 blocks (vertex-local
+    terms + β) and ``G`` the general terms. Without ``G`` it is solved by conjugate gradients
+    preconditioned with one n×n factorization of ``H + diag(λ_min(B_i))`` applied to the three
+    coordinates (:func:`_solve_blocks`) — a 3n×3n factorization costs ~27× the flops; for the
+    default objective the preconditioned condition number is at most ``1 + (1 − τ)/(τ + β/α)``
+    (measured: 2–27 iterations to 1e-10 on the paper's scenes). The direct 3n×3n factorization
+    remains for general terms, the coupled step and as a fallback; with a fixed top view only
+    the heights move (an n×n factorization). ``workspace`` (a dict kept by the caller across
+    steps) holds the factor objects, whose symbolic analyses are reused, and the constant
+    Gram matrices of the per-coordinate terms.
     """
-    ws = workspace if workspace is not None else {}
-    ws["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
+    wsp = workspace if workspace is not None else {}
+    wsp["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
     free = top.free
-    Kff, Kfs = position_blocks(top, w)
-    d = -Kff.diagonal()
-    s = 1.0 / np.abs(L[free])
-    c = float(np.mean((d * s) ** 2))
-    S = sp.diags(s)
-    Kt = (S @ Kff).tocsr()
     nf = top.n_free
-    B = np.zeros((nf, 3))
-    B[:, 2] = L[free]
-    target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
-    H = (Kt.T @ Kt).tocsr()
-    n = Nrm[free]
-    # anchor + proximal term per vertex: b0 I + b1 n nᵀ
-    b0, b1 = c * (alpha * tau + beta), c * alpha * (1 - tau)
-    rhs = Kt.T @ target
-    if gamma > 0 and umbrella is not None and umbrella.shape[0]:
-        # smooth displacement: γ ‖U (X − X_ref)‖², U the umbrella Laplacian (supports as data)
-        if "Uf" not in ws:
-            ws["Uf"], ws["Us"] = umbrella[:, free].tocsr(), umbrella[:, ~free].tocsr()
-            ws["UtU"] = (ws["Uf"].T @ ws["Uf"]).tocsr()
-        Uf, Us = ws["Uf"], ws["Us"]
-        H = (H + (c * gamma) * ws["UtU"]).tocsr()
-        rhs += (c * gamma) * (Uf.T @ (Uf @ Xref[free] + Us @ (Xref[~free] - X[~free])))
-    Pf = P[free]
-    rhs += (c * alpha) * (tau * Pf + (1 - tau) * n * np.einsum("ki,ki->k", n, Pf)[:, None]) + (c * beta) * X[free]
+    H, rhs, cvals, Kt0, target0 = None, np.zeros((nf, 3)), [], None, None
+    for w, Lc in zip(weights, L):
+        Kff, Kfs = position_blocks(top, w)
+        s = 1.0 / np.abs(Lc[free])
+        cvals.append(float(np.mean((-Kff.diagonal() * s) ** 2)))
+        S = sp.diags(s)
+        Kt = (S @ Kff).tocsr()
+        B = np.zeros((nf, 3))
+        B[:, 2] = Lc[free]
+        target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
+        H = (Kt.T @ Kt).tocsr() if H is None else (H + Kt.T @ Kt).tocsr()
+        rhs += Kt.T @ target
+        if Kt0 is None:
+            Kt0, target0 = Kt, target
+    c = float(np.mean(cvals))
+    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp)
+    if H1 is not None:
+        H = (H + H1).tocsr()
+    blocks = blocks + (c * beta) * np.eye(3)[None]
+    rhs += rhs1 + rhs3 + (c * beta) * X[free]
     Xn = X.copy()
-    if G is None or G.shape[1] == 0:  # (with every weight at a bound the coupled step is the plain one)
-        sol = _solve_anchored(H, b0, b1, n, rhs, ws)
+    if fixed_xy:  # only the heights move: the zz part of the system (x, y stay at X)
+        # M_zz z = rhs_z − M_z,xy x_xy with x, y held (H has no x-z coupling; blocks and G may)
+        Mz = (H + sp.diags(blocks[:, 2, 2])).tocsc()
+        rz = rhs[:, 2] - np.einsum("kj,kj->k", blocks[:, 2, :2], X[free, :2])
+        if Gg is not None:
+            z3 = np.arange(nf) * 3 + 2
+            xy = np.sort(np.r_[np.arange(nf) * 3, np.arange(nf) * 3 + 1])
+            Gg = Gg.tocsr()
+            Mz = (Mz + Gg[z3][:, z3]).tocsc()
+            rz = rz + rhsg[z3] - Gg[z3][:, xy] @ X[free, :2].ravel()
+        wsp["factor_z"] = spd_factor(Mz, reuse=wsp.get("factor_z"))
+        Xn[free, 2] = wsp["factor_z"].solve(rz)
+        return Xn
+    if Gg is None and (G is None or G.shape[1] == 0):  # (with every weight at a bound the coupled step is the plain one)
+        sol = _solve_blocks(H, blocks, rhs, wsp)
         if sol is not None:
             Xn[free] = sol
             return Xn
-    M = (sp.kron(H, sp.identity(3), format="csr")
-         + block_diagonal(b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :])).tocsc()
+    M = (sp.kron(H, sp.identity(3), format="csr") + block_diagonal(blocks)).tocsc()
+    rhs_flat = rhs.ravel() + (rhsg if Gg is not None else 0.0)
+    if Gg is not None:
+        M = (M + Gg).tocsc()
     if G is not None and G.shape[1] > 0:
         # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
         # the reduced error min_w E(X, w) rather than on E(X, w_k)); dw is only used to shape
         # the position step: the trial is refitted exactly
-        J = sp.kron(Kt, sp.identity(3), format="csr")
+        J = sp.kron(Kt0, sp.identity(3), format="csr")
         GtG = (G.T @ G).tocsr()
         pw = prox_dw * float(GtG.diagonal().mean()) if GtG.shape[0] else 0.0
         # weights near their bound may hardly move (an interior-point-like scaling), since the
@@ -543,27 +692,30 @@ def _position_step(top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, P
         pw = pw + damping * float(GtG.diagonal().mean()) * (np.median(gap) / gap) ** 2
         N = sp.bmat([[M, J.T @ G], [G.T @ J, GtG + sp.diags(pw)]], format="csc")
         # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
-        rhs_w = G.T @ target.ravel()
-        sol = spd_factor(N).solve(np.r_[rhs.ravel(), rhs_w])
+        rhs_w = G.T @ target0.ravel()
+        sol = spd_factor(N).solve(np.r_[rhs_flat, rhs_w])
         Xn[free] = sol[:M.shape[0]].reshape(-1, 3)
         return Xn
-    ws["factor"] = spd_factor(M, reuse=ws.get("factor"))
-    Xn[free] = ws["factor"].solve(rhs.ravel()).reshape(-1, 3)
+    wsp["factor"] = spd_factor(M, reuse=wsp.get("factor"))
+    Xn[free] = wsp["factor"].solve(rhs_flat).reshape(-1, 3)
     return Xn
 
 
-def _solve_anchored(H: sp.csr_matrix, b0: float, b1: float, n: np.ndarray, rhs: np.ndarray, ws: dict,
-                    rtol: float = 1e-10, maxiter: int = 200) -> np.ndarray | None:
-    """``(H ⊗ I₃ + b0 I + b1 ⊕ n_i n_iᵀ) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG
-    (scipy), the preconditioner ``(H + b0 I)⁻¹`` per coordinate; None if CG does not converge."""
+def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, rtol: float = 1e-10,
+                  maxiter: int = 200) -> np.ndarray | None:
+    """``(H ⊗ I₃ + ⊕ B_i) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG (scipy), the
+    preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
+    ``⊕ B_i − λ_min ⊗ I`` is PSD, so the preconditioned system's eigenvalues are ≥ 1); None if CG
+    does not converge."""
     from scipy.sparse.linalg import LinearOperator, cg
 
     k = H.shape[0]
-    pre = ws["pre"] = spd_factor((H + b0 * sp.identity(k, format="csr")).tocsc(), reuse=ws.get("pre"))
+    lam = np.linalg.eigvalsh(blocks)[:, 0]
+    pre = ws["pre"] = spd_factor((H + sp.diags(lam)).tocsc(), reuse=ws.get("pre"))
 
     def matvec(x: np.ndarray) -> np.ndarray:
-        X = x.reshape(k, 3)
-        return (H @ X + b0 * X + (b1 * np.einsum("ki,ki->k", n, X))[:, None] * n).ravel()
+        Xv = x.reshape(k, 3)
+        return (H @ Xv + np.einsum("kij,kj->ki", blocks, Xv)).ravel()
 
     op = LinearOperator((3 * k, 3 * k), matvec=matvec, dtype=float)
     prec = LinearOperator((3 * k, 3 * k), matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel(), dtype=float)
@@ -573,7 +725,6 @@ def _solve_anchored(H: sp.csr_matrix, b0: float, b1: float, n: np.ndarray, rhs: 
     ok = info == 0 and np.all(np.isfinite(x))
     ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
     return x.reshape(k, 3) if ok else None
-
 
 def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, L_it: np.ndarray, loads: LoadCase, mesh0,
                 sc: Scaling, reference, d_it: np.ndarray, opt: StaggeredOptions, workspace: dict | None = None):
