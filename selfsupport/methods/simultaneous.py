@@ -154,6 +154,11 @@ JOINT_POLISH_TOL = 1e-12
 BOUND_ACTIVE_REL = 1e-6
 #: A hull row within this fraction of ``t/2`` of the hull's face is held by :func:`polish_joint`.
 HULL_ACTIVE_REL = 1e-6
+#: :func:`polish_joint` measures weight steps in units of ``weight_scale / WEIGHT_STEP_PREFERENCE``:
+#: its minimum-norm steps then change weights rather than positions where both can remove a
+#: residual. Weights do not change the loads; positions do (self-weight), and with an active
+#: hull position steps fed a load-lag cycle that did not converge (dome + point load, t = 2 cm).
+WEIGHT_STEP_PREFERENCE = 1e3
 
 
 @dataclass(frozen=True)
@@ -395,6 +400,7 @@ class Simultaneous:
         if polish:
             t0 = time.perf_counter()
             Vp, Wp = form.unpack_cases(x)
+            L_before = loads_at(Vp)
             joint = C > 1 or hull is not None or problem.fixed_top_view
             if joint:
                 Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at)
@@ -407,7 +413,7 @@ class Simultaneous:
                 x = form.pack(Vp, Wp)
             rec = {"round": len(history) + 1, "stage": "polish", "solver_status": "converged" if ok else "not converged",
                    "iterations": k, "seconds": time.perf_counter() - t0, "objective": None,
-                   "load_change": perr if not joint else _relative_change(loads_at(Vp), loads_at(form.unpack(x)[0])),
+                   "load_change": perr if not joint else _relative_change(loads_at(Vp), L_before),
                    "max_relative_error": _max_rel_error(top, Vp, Wp, loads_at(Vp))}
             history.append(rec)
             if progress is not None:
@@ -620,8 +626,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
 
     Gauss–Newton with minimum-norm steps on the system ``r_c(X, w_c; L_c(V)) = 0`` (all cases,
     rows scaled as in the NLP): the unknowns are the free positions (z only with a fixed top
-    view) and, per case, the weights strictly inside their bounds (in units of the natural
-    weight scale, so positions and weights are measured alike); weights on a bound and hull
+    view) and, per case, the weights strictly inside their bounds (measured so that the
+    step prefers weights, :data:`WEIGHT_STEP_PREFERENCE`: they leave the loads unchanged); weights on a bound and hull
     rows on the hull's face are held. The loads are re-estimated from the geometry before every
     step (they lag by one step; the steps are of the size of the residual, so the lag is
     small). ``δ = Jᵀ (J Jᵀ + μ I)⁻¹ (−r)`` with one refinement step; ``μ`` is round-off level
@@ -644,7 +650,7 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     free = top.free
     nf, m, C = top.n_free, top.m, form.n_cases
     V, W = np.array(V, float), np.array(W, float)
-    s_w = form.weight_scale
+    s_w = form.weight_scale * WEIGHT_STEP_PREFERENCE
     coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
     xcols = (3 * np.arange(nf)[:, None] + coords).ravel()  # movable entries of X (flattened free positions)
     hull = form.hull
@@ -661,46 +667,54 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
         if err <= tol:
             return V, W, k, err, True
         if k == max_iter or (k >= 5 and err > 0.9 * best[0] and best[0] < 1e3 * tol):
-            break  # round-off floor reached: keep the best iterate
+            break  # round-off floor reached (or no progress): keep the best iterate
         S = form.row_scale(L)  # (C, nf)
-        blocks, rhs, wcols = [], [], []
+        lo, up = form.lower, form.upper
+        below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
+        inner = (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up  # (C, m)
+        JX, Aw, rhs = [], weight_matrix(top, V), []
         for c in range(C):
             sr = np.repeat(S[c], 3)
             Kff, _ = position_blocks(top, W[c])
-            JX = sp.diags(sr) @ sp.kron(Kff, sp.identity(3), format="csr")[:, xcols]
-            lo, up = form.lower, form.upper
-            below_up = W[c] < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
-            inner = np.flatnonzero((W[c] > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up)
-            wcols.append(inner)
-            Jw = sp.diags(sr) @ weight_matrix(top, V)[:, inner] * s_w
-            blocks.append((JX, Jw))
+            JX.append(sp.diags(sr) @ sp.kron(Kff, sp.identity(3), format="csr")[:, xcols])
             rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
-        nW = [len(i) for i in wcols]
-        rows = [sp.hstack([JX] + [Jw if j == c else sp.csr_matrix((JX.shape[0], nW[j])) for j in range(C)])
-                for c, (JX, Jw) in enumerate(blocks)]
+        Hr = None
         if hull is not None:
             sd = hull.signed_distance(V)
             on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
             if on.any():
                 Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / max(hull.half_thickness, 1e-300)
-                rows.append(sp.hstack([Hr, sp.csr_matrix((Hr.shape[0], sum(nW)))]))
                 rhs.append((np.clip(sd[on], -hull.half_thickness, hull.half_thickness) - sd[on])
                            / max(hull.half_thickness, 1e-300))
-        J = sp.vstack(rows, format="csr")
         b = np.concatenate(rhs)
-        M = (J @ J.T).tocsc()
-        mu = 1e-14 * float(M.diagonal().max(initial=1.0))
-        fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
-        y = fac.solve(b)
-        y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
-        d = J.T @ y
+        for _ in range(20):  # weights a step would push past a bound are held, and the step redone
+            wcols = [np.flatnonzero(inner[c]) for c in range(C)]
+            nW = [len(i) for i in wcols]
+            rows = [sp.hstack([JX[c]] + [sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w if j == c
+                                         else sp.csr_matrix((JX[c].shape[0], nW[j])) for j in range(C)])
+                    for c in range(C)]
+            if Hr is not None:
+                rows.append(sp.hstack([Hr, sp.csr_matrix((Hr.shape[0], sum(nW)))]))
+            J = sp.vstack(rows, format="csr")
+            M = (J @ J.T).tocsc()
+            mu = 1e-14 * float(M.diagonal().max(initial=1.0))
+            fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
+            y = fac.solve(b)
+            y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
+            d = J.T @ y
+            off, crossing = len(xcols), False
+            Wn = W.copy()
+            for c in range(C):
+                Wn[c, wcols[c]] += s_w * d[off:off + nW[c]]
+                out = wcols[c][(Wn[c, wcols[c]] < lo[wcols[c]]) | (Wn[c, wcols[c]] > up[wcols[c]])]
+                if out.size:
+                    inner[c, out], crossing = False, True
+                off += nW[c]
+            if not crossing:
+                break
         dX = np.zeros(3 * nf)
         dX[xcols] = d[:len(xcols)]
         V[free] += dX.reshape(-1, 3)
-        off = len(xcols)
-        for c in range(C):
-            W[c, wcols[c]] = np.clip(W[c, wcols[c]] + s_w * d[off:off + nW[c]], form.lower[wcols[c]],
-                                     form.upper[wcols[c]])
-            off += nW[c]
+        W = np.clip(Wn, lo, up)
     err, V, W = best
-    return V, W, max_iter, err, err <= tol
+    return V, W, k, err, err <= tol
