@@ -1,7 +1,9 @@
 """The simultaneous problem with nlopt — small problems only.
 
-Same problem, units, load rounds, polish and result as :class:`~selfsupport.methods.simultaneous.
-Simultaneous`; only the solver differs. Two formulations:
+Same problem (a :class:`formulations.Problem` or the short form), units, load rounds, polish and
+result as :class:`~selfsupport.methods.simultaneous.Simultaneous`; only the solver differs. One
+load case, no hull, free top view: other problems are refused with an :class:`InputError` naming
+the feature. Two formulations:
 
 * ``algorithm="LD_LBFGS"`` (default) — the *reduced* problem in the weights alone: for given
   weights the positions follow from (2)-(3) by one sparse solve per coordinate (the force
@@ -24,12 +26,9 @@ import casadi as ca
 import numpy as np
 from scipy.sparse.linalg import splu
 
-from formulations import ThrustNetworkProblem
+from formulations import Hull, Problem, ThrustNetworkProblem
 
 from ..errors import BackendUnavailable, InputError
-from ..loads import LoadCase
-from ..result import SolveResult
-from ..scene import Scene
 from formulations.equilibrium import position_blocks, weight_matrix
 from .simultaneous import Simultaneous
 
@@ -82,18 +81,23 @@ class NloptSimultaneous(Simultaneous):
         except ImportError:  # pragma: no cover
             raise BackendUnavailable("the nlopt backend needs the nlopt package: `pip install nlopt`") from None
 
-    def solve(self, scene: Scene, loads: LoadCase | None = None, **kw: Any) -> SolveResult:
-        """Same arguments and result as :meth:`Simultaneous.solve` (``max_iter`` counts nlopt
-        evaluations per load round). Raises :class:`BackendUnavailable` above
-        :data:`MAX_FREE_VERTICES`."""
-        n_free = int(scene.free.sum())
+    def _check_problem(self, problem: Problem) -> None:
+        """Refuse what this backend cannot state: several load cases, the hull's inequality rows,
+        a fixed top view (the reduced formulation computes x, y from the weights); and problems
+        above :data:`MAX_FREE_VERTICES` (:class:`BackendUnavailable`)."""
+        for unsupported, what in ((len(problem.loads) > 1, f"{len(problem.loads)} load cases"),
+                                  (problem.constraint(Hull) is not None, "the masonry-hull constraint"),
+                                  (problem.fixed_top_view, "a fixed top view")):
+            if unsupported:
+                raise InputError(f"the nlopt backend does not support {what}; use the IPOPT method "
+                                 "(Simultaneous, --method ipopt)")
+        n_free = int(problem.scene.free.sum())
         kind = "reduced" if self.options["algorithm"] in self.REDUCED else "full"
         if n_free > MAX_FREE_VERTICES[kind]:
             raise BackendUnavailable(
                 f"the nlopt simultaneous backend ({self.options['algorithm']}) is for small problems: "
                 f"{n_free} free vertices > {MAX_FREE_VERTICES[kind]}; use the IPOPT method "
                 "(Simultaneous, --method ipopt) instead")
-        return super().solve(scene, loads, **kw)
 
     def _solve_round(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray, loads_scaled: np.ndarray,
                      warm: dict | None, *, tol: float, max_iter: int, remaining: float, verbose: bool) -> dict:
@@ -115,7 +119,7 @@ class NloptSimultaneous(Simultaneous):
         p = problem.parameters(loads_scaled)
         F = self._functions(problem, nlp)["f"]
         Vs = problem.vertices[~free]
-        Lf = np.asarray(loads_scaled, float)[free]
+        Lf = np.atleast_2d(np.asarray(loads_scaled, float))[0, free]  # one case (see _check_problem)
         lower, upper = problem.lower, problem.upper
         scale = problem.weight_scale
         count = [0]

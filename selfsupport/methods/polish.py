@@ -28,7 +28,8 @@ import scipy.sparse as sp
 
 from ..linalg import spd_factor
 from ..loads import LoadCase
-from formulations.equilibrium import Topology, load_vector, position_blocks, weight_matrix
+from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
+from formulations.nlp import ThrustNetworkProblem
 from formulations.scaling import Scaling
 
 
@@ -249,93 +250,138 @@ def load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.
     return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
 
 
-def polish_joint(top: Topology, X: np.ndarray, weights: list[np.ndarray], loads, mesh0, sc: Scaling,
-                 lower: np.ndarray, upper: np.ndarray, *, fixed_xy: bool = False, workspace: dict | None = None,
-                 max_rounds: int = 40, deadline: float = np.inf
-                 ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, int]:
-    """Exact equilibrium for several load cases (or a fixed top view): positions *and* the
-    weights off their bounds move together, by minimum-norm Newton steps.
+#: Target of :func:`polish_joint`: max relative residual over every case (round-off is ~1e-14).
+JOINT_POLISH_TOL = 1e-12
+#: A weight within this fraction of its bound counts as on it (held by :func:`polish_joint`).
+BOUND_ACTIVE_REL = 1e-6
+#: A hull row within this fraction of ``t/2`` of the hull's face is held by :func:`polish_joint`.
+HULL_ACTIVE_REL = 1e-6
+#: :func:`polish_joint` measures weight steps in units of ``weight_scale / WEIGHT_STEP_PREFERENCE``:
+#: its minimum-norm steps then change weights rather than positions where both can remove a
+#: residual. Weights do not change the loads; positions do (self-weight), and with an active
+#: hull position steps fed a load-lag cycle that did not converge (dome + point load, t = 2 cm).
+WEIGHT_STEP_PREFERENCE = 1e3
+#: Most steps of :func:`polish_joint`.
+JOINT_POLISH_MAX_ITER = 100
 
-    With one weight vector per case, the frozen weights of the single-case polish cannot
-    balance every case by moving the positions alone (3 n_free unknowns, 3 n_free equations per
-    case), and with x, y fixed they cannot balance x and y at all. Here each round solves the
-    linearized equations of every case, ``C_x Δx + S_c A Δw_c = −r_c`` (rows scaled by
-    ``1/|L_c,i|``; ``C_x`` = stress Laplacian minus the coloured finite-difference load
-    Jacobian, :func:`load_jacobian_xyz`), for the step of least ``‖Δx‖² + Σ_c ‖Δw_c / w_c‖²``
-    (relative weight changes) through ``(J D² Jᵀ) y = r``, one sparse SPD factorization per
-    round. Weights a step carries across a bound are clamped there and held. Converges
-    quadratically from an iterate whose fit error is small (the staggered method's
-    ``polish_tol``). ``loads`` is a :class:`~formulations.LoadCases`. Returns
-    ``(X, weights, L (n_cases, n) scaled, rounds)`` — the best iterate (smallest max relative
-    error) if it does not converge.
+
+def max_rel_error(top: Topology, V: np.ndarray, W: np.ndarray, L: np.ndarray) -> float:
+    """Max relative residual at free vertices over every case (scaled units; ``W`` ``(m,)`` or
+    ``(n_cases, m)``, ``L`` ``(n,)`` or ``(n_cases, n)``)."""
+    out = 0.0
+    for w, Lc in zip(np.atleast_2d(W), np.atleast_2d(L)):
+        r = residual(top, V, w, Lc)
+        Lf = np.abs(Lc[top.free])
+        if Lf.size:
+            out = max(out, float((np.linalg.norm(r, axis=1) / np.maximum(Lf, 1e-300)).max()))
+    return out
+
+
+def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
+                 loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
+                 max_iter: int = JOINT_POLISH_MAX_ITER,
+                 load_jacobian: Callable[[np.ndarray, np.ndarray], list] | None = None) -> tuple[np.ndarray, np.ndarray, int, float, bool]:
+    """Every load case in equilibrium to round-off, with loads of the final geometry.
+
+    Gauss–Newton with minimum-norm steps on the system ``r_c(X, w_c; L_c(V)) = 0`` (all cases,
+    rows scaled as in the NLP): the unknowns are the free positions (z only with a fixed top
+    view) and, per case, the weights strictly inside their bounds (measured so that the
+    step prefers weights, :data:`WEIGHT_STEP_PREFERENCE`: they leave the loads unchanged); weights on a bound and hull
+    rows on the hull's face are held. The loads are re-estimated from the geometry before every
+    step (they lag by one step; the steps are of the size of the residual, so the lag is
+    small). ``δ = Jᵀ (J Jᵀ + μ I)⁻¹ (−r)`` with one refinement step; ``μ`` is round-off level
+    and only matters where ``J`` is rank deficient.
+
+    Parameters
+    ----------
+    form
+        The NLP statement (topology, bounds, row scaling, hull, fixed top view) in scaled units.
+    V, W
+        ``(n, 3)`` positions and ``(n_cases, m)`` active weights to correct (scaled units).
+    loads_at
+        ``V -> (n_cases, n)`` scaled loads of a geometry.
+
+    Returns
+    -------
+    V, W, steps, max relative error, converged
     """
-    ws = workspace if workspace is not None else {}
+    top = form.topology
     free = top.free
-    fidx = np.flatnonzero(free)
-    nf = top.n_free
-    C = len(loads)
-    if "colouring" not in ws and loads.depends_on_geometry:
-        ws["colouring"] = load_colouring(mesh0, free)
-    cols = np.arange(3 * nf).reshape(nf, 3)[:, 2] if fixed_xy else np.arange(3 * nf)
-    X = X.copy()
-    w = [np.asarray(wc, float).copy() for wc in weights]
-    held = [(wc <= lower) | (wc >= upper) for wc in w]
-
-    def state(Xc: np.ndarray, wc: list[np.ndarray]):
-        Lc = sc.load(loads.nodal(mesh0, sc.pos_back(Xc)))
-        A = weight_matrix(top, Xc)
-        res, ss = [], []
-        for c in range(C):
-            s = np.repeat(1.0 / np.abs(Lc[c, free]), 3)
-            res.append(s * (A @ wc[c] - load_vector(top, Lc[c])))
-            ss.append(s)
-        err = max(float(np.linalg.norm(r.reshape(-1, 3), axis=1).max()) for r in res)
-        return Lc, A, res, ss, err if np.isfinite(err) else np.inf
-
-    L, A, res, ss, err = state(X, w)
-    best = (err, X.copy(), [wc.copy() for wc in w], L)
-    rounds = 0
-    for rounds in range(1, max_rounds + 1):
-        if err <= 1e-14 or time.perf_counter() > deadline:
-            break
-        blocks_x, blocks_w, D2w = [], [], []
-        for c in range(C):
-            Kff, _ = position_blocks(top, w[c])
-            Cx = sp.kron(Kff, sp.identity(3), format="csr")
-            if loads.models[c].depends_on_geometry:
-                Cx = Cx - load_jacobian_xyz(loads.models[c], mesh0, sc, X, L[c], fidx, ws["colouring"])
-            S = sp.diags(ss[c])
-            blocks_x.append((S @ Cx).tocsr()[:, cols])
-            mov = ~held[c]
-            blocks_w.append((S @ A[:, mov]).tocsc())
-            D2w.append(w[c][mov] ** 2)
-        Jx = sp.vstack(blocks_x, format="csr")
-        N = (Jx @ Jx.T + sp.block_diag([Bw @ sp.diags(d) @ Bw.T for Bw, d in zip(blocks_w, D2w)])).tocsc()
-        N = (N + sp.identity(N.shape[0]) * (1e-14 * float(N.diagonal().mean()))).tocsc()
-        try:
-            y = spd_factor(N).solve(np.concatenate(res))
-        except (RuntimeError, ValueError, ArithmeticError):
-            break
-        dx = -(Jx.T @ y)
-        Xt = X.copy()
-        Xt[fidx] = (Xt[fidx].ravel() + np.bincount(cols, weights=dx, minlength=3 * nf)).reshape(nf, 3)
-        wt = []
-        for c in range(C):
-            yc = y[3 * nf * c:3 * nf * (c + 1)]
-            wc = w[c].copy()
-            mov = ~held[c]
-            wc[mov] -= D2w[c] * (blocks_w[c].T @ yc)
-            wt.append(wc)
-        heldt = [h | (wc < lower) | (wc > upper) for h, wc in zip(held, wt)]
-        wt = [np.clip(wc, lower, upper) for wc in wt]
-        Lt, At, rest, sst, errt = state(Xt, wt)
-        if not errt < err:  # no progress (a clamp, or the linearization no longer holds): stop
-            if any((h != hn).any() for h, hn in zip(held, heldt)):
-                held = heldt  # ... unless newly held weights change the next step
-                continue
-            break
-        X, w, held, L, A, res, ss, err = Xt, wt, heldt, Lt, At, rest, sst, errt
+    nf, m, C = top.n_free, top.m, form.n_cases
+    V, W = np.array(V, float), np.array(W, float)
+    s_w = form.weight_scale * WEIGHT_STEP_PREFERENCE
+    coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
+    xcols = (3 * np.arange(nf)[:, None] + coords).ravel()  # movable entries of X (flattened free positions)
+    hull = form.hull
+    if hull is not None:
+        fi = top.free_index[hull.idx]
+        hull_rows_all = hull._rows[:, (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()]  # on free X
+    err = np.inf
+    best = (np.inf, V.copy(), W.copy())
+    since, best_before = 0, np.inf
+    for k in range(max_iter + 1):
+        L = loads_at(V)
+        err = max_rel_error(top, V, W, L)
         if err < best[0]:
-            best = (err, X.copy(), [wc.copy() for wc in w], L)
-    _, X, w, L = best
-    return X, w, L, rounds
+            best = (err, V.copy(), W.copy())
+        if err <= tol:
+            return V, W, k, err, True
+        since = since + 1 if err > 0.9 * best_before else 0
+        best_before = min(best_before, err)
+        if k == max_iter or (k >= 5 and err > 0.9 * best[0] and best[0] < 1e3 * tol) or since >= 4:
+            break  # round-off floor reached, or no progress for 4 steps (far from a solution: the
+            # caller iterates on and polishes from closer): keep the best iterate
+        S = form.row_scale(L)  # (C, nf)
+        lo, up = form.lower, form.upper
+        below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
+        inner = (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up  # (C, m)
+        JX, Aw, rhs = [], weight_matrix(top, V), []
+        dL = load_jacobian(V, L) if load_jacobian is not None else [None] * C
+        for c in range(C):
+            sr = np.repeat(S[c], 3)
+            Kff, _ = position_blocks(top, W[c])
+            Cx = sp.kron(Kff, sp.identity(3), format="csr")
+            if dL[c] is not None:  # the loads move with the positions (self-weight): a Newton step
+                Cx = Cx - dL[c]
+            JX.append(sp.diags(sr) @ Cx.tocsr()[:, xcols])
+            rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
+        Hr = None
+        if hull is not None:
+            sd = hull.signed_distance(V)
+            on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
+            if on.any():
+                Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / max(hull.half_thickness, 1e-300)
+                rhs.append((np.clip(sd[on], -hull.half_thickness, hull.half_thickness) - sd[on])
+                           / max(hull.half_thickness, 1e-300))
+        b = np.concatenate(rhs)
+        for _ in range(20):  # weights a step would push past a bound are held, and the step redone
+            wcols = [np.flatnonzero(inner[c]) for c in range(C)]
+            nW = [len(i) for i in wcols]
+            rows = [sp.hstack([JX[c]] + [sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w if j == c
+                                         else sp.csr_matrix((JX[c].shape[0], nW[j])) for j in range(C)])
+                    for c in range(C)]
+            if Hr is not None:
+                rows.append(sp.hstack([Hr, sp.csr_matrix((Hr.shape[0], sum(nW)))]))
+            J = sp.vstack(rows, format="csr")
+            M = (J @ J.T).tocsc()
+            mu = 1e-14 * float(M.diagonal().max(initial=1.0))
+            fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
+            y = fac.solve(b)
+            y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
+            d = J.T @ y
+            off, crossing = len(xcols), False
+            Wn = W.copy()
+            for c in range(C):
+                Wn[c, wcols[c]] += s_w * d[off:off + nW[c]]
+                out = wcols[c][(Wn[c, wcols[c]] < lo[wcols[c]]) | (Wn[c, wcols[c]] > up[wcols[c]])]
+                if out.size:
+                    inner[c, out], crossing = False, True
+                off += nW[c]
+            if not crossing:
+                break
+        dX = np.zeros(3 * nf)
+        dX[xcols] = d[:len(xcols)]
+        V[free] += dX.reshape(-1, 3)
+        W = np.clip(Wn, lo, up)
+    err, V, W = best
+    return V, W, k, err, err <= tol

@@ -1,22 +1,38 @@
-"""The simultaneous method: all free positions and active weights at once, with IPOPT.
+"""The simultaneous method: all free positions and every load case's weights at once, with IPOPT.
 
-    minimise    objective(V)                       (default: Σ ‖v_i − v_i^ref‖², free vertices)
-    subject to  Σ_j w_ij (v_j − v_i) = (0, 0, L_i)  at every free vertex
-                eps ≤ w ≤ w_max
+    minimise    Σ weight_t · term_t(V)  (+ a tiny weight regulariser)
+                                   (default objective: Σ ‖v_i − v_i^ref‖² over free vertices)
+    subject to  Σ_j w_c,ij (v_j − v_i) = (0, 0, L_c,i)    every load case c, every free vertex
+                eps ≤ w_c ≤ w_max                           (scalar or per edge)
+                −t/2 ≤ ⟨n_i, v_i − p_i⟩ ≤ t/2               (the problem's :class:`~formulations.Hull`)
+                x_i, y_i fixed                              (the problem's :class:`~formulations.FixedTopView`)
 
-stated once in :class:`formulations.problem.ThrustNetworkProblem` and solved by ``ca.nlpsol``
-(IPOPT with MUMPS, adaptive μ) in scale-free units (:class:`~formulations.scaling.Scaling`:
-lengths / bounding-box diagonal, forces / mean nodal load). Constraint rows are divided by
-``|L_i|``, so IPOPT's ``tol`` bounds the paper's relative error directly.
+The problem is a :class:`formulations.Problem`; it is stated as a
+:class:`formulations.nlp.ThrustNetworkProblem` (one weight vector per case, ``x = [X, w_1, …, w_C]``)
+and solved by ``ca.nlpsol`` (IPOPT with MUMPS, adaptive μ) in the problem's scale-free units
+(:meth:`formulations.Problem.scaled`: lengths / bounding-box diagonal, forces / mean nodal load
+of the first case). Constraint rows are divided by ``|L_c,i|``, so IPOPT's ``tol`` bounds the
+paper's relative error directly. The hull is hard here: its penalty term, which
+:meth:`~formulations.Problem.terms` appends for penalty methods, is left out of the objective.
 
 Loads depend on the geometry (self-weight ∝ area). They are held fixed during one IPOPT run;
-then re-estimated from the result (Anderson-accelerated) and the problem re-solved,
-warm-started (1–20 IPOPT iterations each), until they change by less than :data:`LOAD_TOL`
-(relative, max-norm). IPOPT's positions are only as accurate as its ``tol``, so once the change
-is below :data:`POLISH_FROM` (or stops shrinking below :data:`POLISH_ACCEPT`) the weights are
-frozen and the heights solved exactly from (3) with re-estimated loads (:func:`polish_heights`,
-sparse LU). Either way the final loads are those of the final geometry and the network is in
-equilibrium to round-off. On vault / vault-pillar: 8–14 rounds; domes: 2–4.
+then every case's loads are re-estimated from the result (Anderson-accelerated) and the problem
+re-solved, warm-started (1–20 IPOPT iterations each), until they change by less than
+:data:`LOAD_TOL` (relative, max-norm). IPOPT's positions are only as accurate as its ``tol``, so
+once the change is below :data:`POLISH_FROM` (or stops shrinking below :data:`POLISH_ACCEPT`) the
+result is polished to round-off:
+
+* one load case, no hull, free top view: the weights are frozen and the positions solved
+  exactly from (2)-(3) with re-estimated loads (:func:`polish_heights`, sparse LU), as before;
+* otherwise (several cases — positions cannot be solved from one case's frozen weights and
+  still balance the others —, a hull, or a fixed top view, which a free x, y solve would
+  break): :func:`polish_joint`, a Gauss–Newton iteration with *minimum-norm* steps on the
+  positions (z only for a fixed top view) and every case's weights that are off their bounds,
+  active hull rows held, loads re-estimated every step. The steps are of the size of IPOPT's
+  residual (~tol), so the optimum moves by that much only.
+
+Either way the final loads are those of the final geometry and every case is in equilibrium to
+round-off. On vault / vault-pillar: 8–14 rounds; domes: 2–4.
 
 The objective ignores the weights, so their optimum is not unique; a tiny weight regulariser
 (:data:`WEIGHT_REGULARIZATION`) keeps IPOPT off degenerate optima with huge weights.
@@ -30,22 +46,30 @@ typical weights on any scene, and invariant under scaling lengths and loads.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
-from typing import Any, Callable
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from formulations import (PointDistance, ReferenceDistance, Scaled, Term, ThrustNetworkProblem, WeightBounds)
+from formulations import (TERMS, PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem,
+                          WeightBounds)
+from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
+from formulations.scaling import Scaling
+from formulations.terms import HullPenalty, Sum
 
 from ..errors import InputError
-from ..loads import LoadCase, SelfWeight, with_scene_extras
+from ..linalg import spd_factor
+from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene
-from ..validate import require_rise
-from formulations.equilibrium import Topology, position_blocks, residual
-from formulations.scaling import Scaling, default_eps
+from .base import as_problem, case_networks, term_values
+from .polish import HULL_ACTIVE_REL, polish_joint
+from .polish import max_rel_error as _max_rel_error
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
 #: consistent with the geometry.
@@ -113,8 +137,9 @@ def _surface_objective(scene: Scene, start: np.ndarray) -> Term:
             + PointDistance(targets=scene.mesh.vertices, mask=scene.free) * 0.1)
 
 
-#: Named default objectives (stated in SI units): name -> factory(scene, start_vertices) -> Term.
-#: ``"vertices"``: squared distance to the reference vertices. ``"surface"``: squared distance to
+#: Legacy objective names of the short form ``solve(scene, loads, objective=NAME)`` (stated in SI
+#: units): name -> factory(scene, start_vertices) -> Term; a problem names registry terms instead
+#: (``formulations.TERMS``). ``"vertices"``: squared distance to the reference vertices. ``"surface"``: squared distance to
 #: the reference surface, linearised at the start (closest points and normals), plus 0.1 × the
 #: vertex term (the paper's α = 1, β = 0.1 regulariser).
 OBJECTIVES: dict[str, Callable[[Scene, np.ndarray], Term]] = {
@@ -123,19 +148,75 @@ OBJECTIVES: dict[str, Callable[[Scene, np.ndarray], Term]] = {
 }
 
 
-def _per_active_edge(value, scene: Scene, m: int, what: str) -> np.ndarray | float | None:
-    """A bound given as a scalar, per active edge or per mesh edge -> scalar or (m,) array."""
-    if value is None:
-        return None
-    a = np.asarray(value, float)
-    if a.ndim == 0:
-        return float(a)
-    if a.shape == (scene.mesh.n_edges,):
-        return a[scene.active_edges]
-    if a.shape == (m,):
-        return a
-    raise InputError(f"{what} has {a.shape} entries; give a scalar, one per mesh edge ({scene.mesh.n_edges}) "
-                     f"or one per active edge ({m})")
+#: Objective of a problem that leaves it to this method: distance to the reference vertices.
+DEFAULT_OBJECTIVE = "vertices"
+
+
+@dataclass(frozen=True)
+class SimultaneousOptions:
+    """Settings of one simultaneous solve.
+
+    Attributes
+    ----------
+    tol
+        IPOPT's ``tol`` (the constraint rows are relative residuals).
+    max_iter
+        IPOPT iteration limit per load round (nlopt: evaluations per round).
+    time_limit
+        Wall-clock limit [s] of the whole solve (IPOPT's ``max_wall_time`` gets what is left).
+    warm_start
+        A previous :class:`~selfsupport.result.Network` (or :class:`~selfsupport.result.SolveResult`,
+        then one weight vector per case) on the same mesh: its free positions and active weights
+        start IPOPT.
+    verbose
+        Print IPOPT's log.
+    """
+
+    tol: float = 1e-9
+    max_iter: int = 3000
+    time_limit: float = 120.0
+    warm_start: Network | SolveResult | None = None
+    verbose: bool = False
+
+    @classmethod
+    def of(cls, options: "SimultaneousOptions | Mapping[str, Any] | None" = None, **kw: Any) -> "SimultaneousOptions":
+        """From an instance, a mapping and/or keywords (keywords win); unknown names are an error."""
+        base = dataclasses.asdict(options) if isinstance(options, SimultaneousOptions) else dict(options or {})
+        if isinstance(options, SimultaneousOptions):
+            base["warm_start"] = options.warm_start  # asdict would deep-copy the network
+        base.update(kw)
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(base) - known)
+        if unknown:
+            raise InputError(f"unknown option(s) {unknown} of the simultaneous method; known: {sorted(known)}")
+        return cls(**base)
+
+
+@dataclass(frozen=True, eq=False)
+class IpoptAnswer:
+    """IPOPT's own answer in the last load round (before any polish), in scaled units: what a
+    KKT check or a sensitivity needs. ``nlp`` is the NLP dict of ``formulation``; ``p`` the
+    parameter vector of that round; ``lam_x``, ``lam_g`` CasADi's multipliers
+    (``∇f + Jᵀ lam_g + lam_x = 0`` at a KKT point)."""
+
+    formulation: ThrustNetworkProblem
+    nlp: dict
+    x: np.ndarray
+    p: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    f: float
+    scaling: Scaling
+    raw_status: str
+
+
+@dataclass(frozen=True, eq=False)
+class SimultaneousRun:
+    """:meth:`Simultaneous.run`'s answer: the result and IPOPT's last answer (``None`` when no
+    round ran, e.g. a time limit before the first)."""
+
+    result: SolveResult
+    answer: IpoptAnswer | None
 
 
 class Simultaneous:
@@ -144,7 +225,9 @@ class Simultaneous:
     Example
     -------
     >>> from selfsupport.shapes import make_shape
-    >>> res = Simultaneous().solve(make_shape("dome", n_vertices=100), SelfWeight())
+    >>> from formulations import Problem
+    >>> from selfsupport.loads import SelfWeight
+    >>> res = Simultaneous().solve(Problem.build(make_shape("dome", n_vertices=100), SelfWeight()))
     >>> res.status, res.max_relative_error < 1e-9
     ('converged', True)
     """
@@ -152,7 +235,7 @@ class Simultaneous:
     name = "simultaneous"
     backend = "ipopt"
     #: IPOPT options (``ipopt.`` prefix added); ``tol``, ``max_iter``, ``max_wall_time`` and
-    #: ``print_level`` come from :meth:`solve`'s arguments.
+    #: ``print_level`` come from the solve's options.
     defaults: dict[str, Any] = {
         "mu_strategy": "adaptive",
         "linear_solver": "mumps",
@@ -174,123 +257,123 @@ class Simultaneous:
         self.options = {**self.defaults, **ipopt_options}
 
     # ------------------------------------------------------------------ public
-    def solve(self, scene: Scene, loads: LoadCase | None = None, *, eps: float | None = None,
-              w_max=None, tol: float = 1e-9, max_iter: int = 3000, time_limit: float = 120.0,
-              warm_start: Network | None = None, objective: str | Term | None = None,
-              progress: Callable[[dict], None] | None = None, verbose: bool = False) -> SolveResult:
-        """Solve for the thrust network nearest to the reference.
+    def solve(self, problem: Problem | Scene, options: SimultaneousOptions | Mapping[str, Any] | Any = None, *,
+              progress: Callable[[dict], None] | None = None, **kw: Any) -> SolveResult:
+        """Solve for the thrust network nearest to the reference (see :meth:`run`)."""
+        return self.run(problem, options, progress=progress, **kw).result
+
+    def run(self, problem: Problem | Scene, options: SimultaneousOptions | Mapping[str, Any] | Any = None, *,
+            progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None, w_max: Any = None,
+            objective: Any = None, constraints: Any = (), **option_kw: Any) -> SimultaneousRun:
+        """Solve ``problem`` and also return IPOPT's last answer (multipliers included).
 
         Parameters
         ----------
-        scene
-            Reference mesh (also the start unless ``warm_start``) and supports (held fixed).
-        loads
-            Load case (default :class:`~selfsupport.loads.SelfWeight`), plus the scene's extra
-            masses and point loads. Re-estimated from the geometry between IPOPT rounds.
-        eps, w_max
-            Weight bounds in N/m (scalar, per mesh edge or per active edge). ``eps`` defaults
-            to :func:`~formulations.scaling.default_eps` (see the module docstring).
-        tol
-            IPOPT's ``tol`` (the constraint rows are relative residuals).
-        max_iter
-            IPOPT iteration limit per round.
-        time_limit
-            Wall-clock limit [s] of the whole solve (IPOPT's ``max_wall_time`` gets what is left).
-        warm_start
-            A previous network on the same mesh: its free positions and active weights start IPOPT.
-        objective
-            ``None`` / a name in :data:`OBJECTIVES` / a :class:`~formulations.objectives.Term` of all
-            vertex positions stated in SI units (it is rescaled internally; minimisers are kept).
+        problem
+            A :class:`formulations.Problem`, or a scene for the short form: then the second
+            positional argument is the load model (as in ``solve(scene, SelfWeight())``) and
+            ``eps``, ``w_max``, ``objective``, ``constraints`` build the problem
+            (:func:`~selfsupport.methods.base.as_problem`). ``objective`` may also name one of
+            :data:`OBJECTIVES` (``"surface"``).
+        options
+            :class:`SimultaneousOptions` or a mapping of its fields (a :class:`Problem` only).
         progress
             Called with the history record of every round (``stage`` "ipopt" or "polish").
-        verbose
-            Print IPOPT's log.
+        **option_kw
+            Fields of :class:`SimultaneousOptions` (``tol``, ``max_iter``, ``time_limit``,
+            ``warm_start``, ``verbose``).
         """
         t_start = time.perf_counter()
-        scene.mesh.validate()
-        scene.check_supports()
-        require_rise(scene, w_max)  # a flat reference needs w_max, else no nearest network exists
-        loads = with_scene_extras(loads if loads is not None else SelfWeight(), scene)
+        named = None  # a legacy objective name ("vertices", "surface"), recorded as given
+        if not isinstance(problem, Problem):
+            if loads is not None and options is not None:
+                raise InputError("give the load model once (second argument or loads=)")
+            loads, options = (options if loads is None else loads), None
+            if isinstance(objective, str) and objective in OBJECTIVES and objective not in TERMS:
+                ws = option_kw.get("warm_start")
+                start = problem.mesh.vertices if ws is None else _start_vertices(problem, ws)
+                named, objective = objective, OBJECTIVES[objective](problem, start)
+        opts = SimultaneousOptions.of(options, **option_kw)
+        problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
+        problem.validate()
+        self._check_problem(problem)
+        scene = problem.scene
         mesh0 = scene.mesh
-        n = mesh0.n_vertices
-        active = scene.active_edges
-        top = Topology.build(n, mesh0.edges[active], scene.supports)
+        top_free = scene.free
+
+        V = _start_vertices(scene, opts.warm_start)
+        sp_ = problem.scaled(problem.loads.nodal(mesh0, V))
+        sc, top = sp_.scaling, sp_.top
         free = top.free
+        C = len(problem.loads)
+        ctx = TermContext(vertices=sc.pos(V), reference=mesh0.with_vertices(sp_.X), free=top_free)
+        total = problem.terms(ctx, scaling=sc, default=DEFAULT_OBJECTIVE)
+        parts = total.parts() if total is not None else ()
+        hull = next((t for t in parts if isinstance(t, HullPenalty)), None) if problem.hull_thickness() else None
+        kept = [t for t in parts if not (hull is not None and t.constraint)]  # the hull is hard here
+        objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
+        h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
+        form = ThrustNetworkProblem(top, sc.pos(V), sp_.L, WeightBounds(sp_.lower, sp_.upper), objective=objective_term,
+                                    weight_regularization=WEIGHT_REGULARIZATION, weight_scale=1.0 / h ** 2,
+                                    hull=hull, fixed_xy=sp_.X[free, :2] if problem.fixed_top_view else None,
+                                    case_names=problem.loads.names)
+        W0 = _start_weights(opts.warm_start, scene, C, sc) if opts.warm_start is not None else \
+            np.full((C, top.m), COLD_START_FACTOR / h ** 2)
+        W0 = np.clip(W0, form.lower, form.upper)
+        x = form.pack(sc.pos(V), W0)
 
-        V = mesh0.vertices.copy()
-        if warm_start is not None:
-            if warm_start.mesh.n_vertices != n or warm_start.weights.shape != (mesh0.n_edges,):
-                raise InputError(f"warm_start network has {warm_start.mesh.n_vertices} vertices / "
-                                 f"{warm_start.weights.shape[0]} edges, the scene {n} / {mesh0.n_edges}; "
-                                 "warm-start only from a network on the same mesh")
-            V[free] = warm_start.vertices[free]
-        L = loads.nodal(mesh0, V)
-        if np.any(L[free] >= 0):
-            k = int(np.flatnonzero(free & (L >= 0))[0])
-            raise InputError(f"vertex {k} carries no downward load (zero area?); remove degenerate faces "
-                             "or add a load there")
+        def loads_at(Vs: np.ndarray) -> np.ndarray:
+            return sc.load(problem.loads.nodal(mesh0, sc.pos_back(Vs)))
 
-        sc = Scaling.of(mesh0.vertices, L, free)
-        Xref = sc.pos(mesh0.vertices)
-        if eps is None:
-            eps_s = default_eps(Xref, top.edges)
-        else:
-            eps_s = sc.weight(np.asarray(_per_active_edge(eps, scene, top.m, "eps")))
-        wmax = _per_active_edge(w_max, scene, top.m, "w_max")
-        wmax_s = None if wmax is None else sc.weight(np.asarray(wmax))
-        term = self._objective(objective, scene, V)
-        h = float(np.linalg.norm(Xref[top.edges[:, 1]] - Xref[top.edges[:, 0]], axis=1).mean())
-        problem = ThrustNetworkProblem(top, sc.pos(V), sc.load(L), WeightBounds(eps_s, wmax_s),
-                                       objective=Scaled(term, length=sc.length, center=sc.center),
-                                       weight_regularization=WEIGHT_REGULARIZATION, weight_scale=1.0 / h ** 2)
-
-        if warm_start is not None:
-            w0 = sc.weight(warm_start.weights[active])
-        else:
-            w0 = np.full(top.m, COLD_START_FACTOR / h ** 2)
-        w0 = np.clip(w0, problem.lower, problem.upper)
-        x = problem.pack(sc.pos(V), w0)
-
-        nlp = problem.nlp()
+        nlp = form.nlp()
         history: list[dict[str, Any]] = []
         warm = None
+        answer: IpoptAnswer | None = None
         status, message, iterations = "failed", "", 0
-        L_cur = L
-        mixer = _Anderson(ANDERSON_DEPTH, accept=lambda Lm: bool(np.all(Lm[free] < 0)))
+        tol = opts.tol
+        L_cur = sp_.L
+        mixer = _Anderson(ANDERSON_DEPTH, accept=lambda Lm: bool(np.all(Lm.reshape(C, -1)[:, free] < 0)))
         polish = False
         x_ok = None  # last iterate of a converged round
         best = (np.inf, x)  # (load change, iterate) of the most load-consistent converged round
         for rnd in range(1, MAX_LOAD_ROUNDS + 1):
-            remaining = time_limit - (time.perf_counter() - t_start)
+            remaining = opts.time_limit - (time.perf_counter() - t_start)
             if remaining <= 0:
-                status, message = "time_limit", f"time limit {time_limit:g} s reached before load round {rnd}"
+                status, message = "time_limit", f"time limit {opts.time_limit:g} s reached before load round {rnd}"
                 polish = x_ok is not None
                 break
-            out = self._solve_round(problem, nlp, x, sc.load(L_cur), warm, tol=tol, max_iter=max_iter,
-                                    remaining=remaining, verbose=verbose)
+            out = self._solve_round(form, nlp, x, L_cur, warm, tol=tol, max_iter=opts.max_iter,
+                                    remaining=remaining, verbose=opts.verbose)
             iterations += out["iterations"]
             x, warm = out["x"], out["warm"]
-            Vs, ws = problem.unpack(x)
-            L_new = loads.nodal(mesh0, sc.pos_back(Vs))
+            if warm is not None:
+                answer = IpoptAnswer(form, nlp, x.copy(), form.parameters(L_cur), np.asarray(warm["lam_x0"]).ravel(),
+                                     np.asarray(warm["lam_g0"]).ravel(), out["objective"], sc, out["raw"])
+            Vs, Ws = form.unpack_cases(x)
+            L_new = loads_at(Vs)
             change = _relative_change(L_new, L_cur)
             rec = {"round": rnd, "stage": self.backend, "solver_status": out["raw"], "iterations": out["iterations"],
                    "seconds": out["seconds"], "objective": out["objective"], "load_change": change,
-                   "max_relative_error": _max_rel_error(top, Vs, ws, sc.load(L_new))}
+                   "max_relative_error": _max_rel_error(top, Vs, Ws, L_new)}
             history.append(rec)
             if progress is not None:
                 progress(rec)
             status = out["status"]
             if status != "converged":
                 message = f"{self.backend} returned {out['raw']} in load round {rnd}"
-                if x_ok is not None:
+                if status == "infeasible" and hull is not None:
+                    message = self._hull_diagnosis(form, x, L_cur, hull, sc, tol=tol,
+                                                   remaining=opts.time_limit - (time.perf_counter() - t_start))
+                elif x_ok is not None:
                     x, polish = x_ok, True
-                    message += "; the last converged round's result is returned, heights solved with its weights"
+                    message += "; the last converged round's result is returned, polished"
                 break
             x_ok = x
             if change < best[0]:
                 best = (change, x)
             if change < LOAD_TOL:
                 message = f"{self.backend} converged; loads consistent with the geometry after {rnd} round(s)"
+                polish = C > 1 or hull is not None or problem.fixed_top_view  # exactness of every case
                 break
             stagnating = len(history) > 1 and change > 0.5 * history[-2]["load_change"]
             if change < POLISH_FROM or (stagnating and change < POLISH_ACCEPT):
@@ -304,19 +387,26 @@ class Simultaneous:
                            f"{best[0]:.2e}) is returned with loads of its own geometry (tight w_max, or a design "
                            "that cannot carry its own weight?)")
                 break
-            L_cur = mixer.next(L_cur, L_new)
+            L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
 
         if polish:
             t0 = time.perf_counter()
-            Vp, wp = problem.unpack(x)
-            Vp, k, pchange, ok = polish_heights(top, Vp, wp, loads=loads, mesh=mesh0, scaling=sc)
+            Vp, Wp = form.unpack_cases(x)
+            L_before = loads_at(Vp)
+            joint = C > 1 or hull is not None or problem.fixed_top_view
+            if joint:
+                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at)
+                what = f"max relative error {perr:.1e}"
+            else:
+                Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc)
+                what = f"load change {perr:.1e}"
             switch = history[-1]["load_change"] if status == "converged" else float("nan")
             if ok:
-                x = problem.pack(Vp, wp)
-            Lp = sc.load(loads.nodal(mesh0, sc.pos_back(Vp)))
+                x = form.pack(Vp, Wp)
             rec = {"round": len(history) + 1, "stage": "polish", "solver_status": "converged" if ok else "not converged",
-                   "iterations": k, "seconds": time.perf_counter() - t0, "objective": None, "load_change": pchange,
-                   "max_relative_error": _max_rel_error(top, Vp, wp, Lp)}
+                   "iterations": k, "seconds": time.perf_counter() - t0, "objective": None,
+                   "load_change": perr if not joint else _relative_change(loads_at(Vp), L_before),
+                   "max_relative_error": _max_rel_error(top, Vp, Wp, loads_at(Vp))}
             history.append(rec)
             if progress is not None:
                 progress(rec)
@@ -324,36 +414,60 @@ class Simultaneous:
                 pass  # keep the solver's status and message
             elif not ok:
                 status = "stalled"
-                message = (f"height solve with fixed weights did not make the loads consistent (still "
-                           f"{pchange:.2e} relative after {k} solves); the last {self.backend} round's network "
-                           "is returned with loads of its own geometry")
+                message = (f"the final polish did not reach equilibrium to round-off (still {what} after {k} "
+                           f"steps); the last {self.backend} round's network is returned with loads of its own "
+                           "geometry")
             else:
+                how = ("joint minimum-norm Gauss-Newton correction of positions and free weights of every case"
+                       if joint else "heights solved with fixed weights")
                 message = (f"{self.backend} converged in {len(history) - 1} load round(s) (last load change "
-                           f"{switch:.1e}); heights solved with fixed weights until the loads changed < {LOAD_TOL:g}")
+                           f"{switch:.1e}); {how} until {what}")
 
-        Vs, ws = problem.unpack(x)
-        V_final = sc.pos_back(Vs)
-        V_final[~free] = mesh0.vertices[~free]  # exactly, not through the scaling round trip
-        weights = np.zeros(mesh0.n_edges)
-        weights[active] = sc.weight_back(ws)
-        final_mesh = mesh0.with_vertices(V_final)
-        network = Network(mesh=final_mesh, weights=weights, loads=loads.nodal(final_mesh, V_final),
-                          supports=scene.supports, reference=mesh0, handles=scene.handles)
-        return SolveResult.build(
-            network, status=status, method=self.name, backend=self.backend, iterations=iterations,
+        Vs, Ws = form.unpack_cases(x)
+        first, cases = case_networks(problem, sc, Vs, list(Ws))
+        lo, up = problem.bounds.active(scene)
+        return SimultaneousRun(SolveResult.build(
+            first, cases=cases, terms=term_values(problem, first, default=DEFAULT_OBJECTIVE),
+            status=status, method=self.name, backend=self.backend, iterations=iterations,
             wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
-            parameters={"eps": float(np.min(sc.weight_back(np.asarray(eps_s)))), "w_max": w_max, "tol": tol,
-                        "max_iter": max_iter, "time_limit": time_limit,
-                        "objective": objective if objective is None or isinstance(objective, str)
-                        else type(objective).__name__,
-                        "warm_start": warm_start is not None, "load_rounds": len(history),
-                        "solver_options": dict(self.options)})
+            parameters={"eps": float(np.min(sc.weight_back(form.lower))),
+                        "w_max": None if up is None else _jsonable(problem.bounds.upper),
+                        "tol": tol, "max_iter": opts.max_iter, "time_limit": opts.time_limit,
+                        "objective": named if named is not None else _describe_objective(problem),
+                        "problem": problem.describe(), "load_cases": list(problem.loads.names),
+                        "warm_start": opts.warm_start is not None, "load_rounds": len(history),
+                        "solver_options": dict(self.options)}), answer)
+
+    # ------------------------------------------------------------------ hooks
+    def _check_problem(self, problem: Problem) -> None:
+        """Refuse problems this backend cannot state (IPOPT states them all)."""
+
+    def _hull_diagnosis(self, form: ThrustNetworkProblem, x: np.ndarray, L: np.ndarray, hull: HullPenalty,
+                        sc: Scaling, *, tol: float, remaining: float) -> str:
+        """Message for an infeasible hull: the equilibrium network closest to the hull (hull
+        penalty minimised, hull rows dropped) and how many free vertices it puts outside."""
+        relaxed = dataclasses.replace(form, objective=hull * 1.0, hull=None)
+        relaxed.__post_init__()
+        out = self._solve_round(relaxed, relaxed.nlp(), x, L, None, tol=tol, max_iter=3000,
+                                remaining=max(remaining, 5.0), verbose=False)
+        Vs, _ = relaxed.unpack_cases(out["x"])
+        d = np.abs(hull.signed_distance(Vs)) - hull.half_thickness
+        outside = d > HULL_ACTIVE_REL * hull.half_thickness + 1e-12
+        t = 2 * hull.half_thickness * sc.length
+        if out["status"] != "converged":
+            return (f"no compressive network in equilibrium within the masonry hull (t = {t:.4g} m) was found "
+                    f"({self.backend} reported it infeasible; the closest-network search ended {out['raw']})")
+        return (f"no compressive network in equilibrium stays within the masonry hull (t = {t:.4g} m): "
+                f"{int(outside.sum())} of {len(d)} free vertices must leave it (the least-squares closest "
+                f"network puts them up to {float(d.max()) * sc.length:.3g} m outside); thicken the shell or "
+                "change the design")
 
     # ------------------------------------------------------------------ backend
     def _solve_round(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray, loads_scaled: np.ndarray,
                      warm: dict | None, *, tol: float, max_iter: int, remaining: float, verbose: bool) -> dict:
-        """One IPOPT run with the loads fixed. Returns ``x``, ``warm`` (multipliers for the next
-        round), ``raw`` (IPOPT's status), ``status``, ``iterations``, ``objective``, ``seconds``."""
+        """One IPOPT run with the loads ``(n_cases, n)`` fixed. Returns ``x``, ``warm`` (multipliers
+        for the next round), ``raw`` (IPOPT's status), ``status``, ``iterations``, ``objective``,
+        ``seconds``."""
         opts = dict(self.options)
         if warm is not None:
             opts.update(self.warm_defaults)
@@ -375,23 +489,43 @@ class Simultaneous:
                 "iterations": 0 if ret in _NO_ITERATIONS else int(st.get("iter_count", 0) or 0),
                 "objective": float(sol["f"]), "seconds": seconds}
 
-    # ------------------------------------------------------------------ helpers
-    @staticmethod
-    def _objective(objective: str | Term | None, scene: Scene, start: np.ndarray) -> Term:
-        if objective is None:
-            objective = "vertices"
-        if isinstance(objective, str):
-            try:
-                return OBJECTIVES[objective](scene, start)
-            except KeyError:
-                raise InputError(f"unknown objective {objective!r}; choose one of {sorted(OBJECTIVES)} "
-                                 "or pass a formulations.objectives.Term") from None
-        if isinstance(objective, Term):
-            if objective.n_vertices != scene.mesh.n_vertices:
-                raise InputError(f"the objective is defined on {objective.n_vertices} vertices, the scene has "
-                                 f"{scene.mesh.n_vertices}")
-            return objective
-        raise InputError(f"objective must be a name in {sorted(OBJECTIVES)} or a Term, got {type(objective).__name__}")
+
+def _start_vertices(scene: Scene, warm_start: Network | SolveResult | None) -> np.ndarray:
+    """The reference, with the free vertices of ``warm_start`` (checked to be on the same mesh)."""
+    V = scene.mesh.vertices.copy()
+    if warm_start is None:
+        return V
+    net = warm_start.network if isinstance(warm_start, SolveResult) else warm_start
+    n = scene.mesh.n_vertices
+    if net.mesh.n_vertices != n or net.weights.shape != (scene.mesh.n_edges,):
+        raise InputError(f"warm_start network has {net.mesh.n_vertices} vertices / {net.weights.shape[0]} edges, "
+                         f"the scene {n} / {scene.mesh.n_edges}; warm-start only from a network on the same mesh")
+    V[scene.free] = net.vertices[scene.free]
+    return V
+
+
+def _start_weights(warm_start: Network | SolveResult, scene: Scene, n_cases: int, sc: Scaling) -> np.ndarray:
+    """``(n_cases, m)`` scaled starting weights: one per case of a result with as many cases,
+    else the (first) network's weights for every case."""
+    act = scene.active_edges
+    if isinstance(warm_start, SolveResult):
+        nets = [n for _, n in warm_start.case_networks]
+        if len(nets) == n_cases:
+            return np.stack([sc.weight(n.weights[act]) for n in nets])
+        warm_start = warm_start.network
+    return np.tile(sc.weight(warm_start.weights[act]), (n_cases, 1))
+
+
+def _describe_objective(problem: Problem) -> Any:
+    """``None`` (the method's default) or ``["name=weight", …]`` (user terms by class name)."""
+    if problem.objective is None:
+        return None
+    return [type(o).__name__ if isinstance(o, Term) else f"{o.name}={float(o.weight):g}" for o in problem.objective]
+
+
+def _jsonable(v: Any) -> Any:
+    a = np.asarray(v, float)
+    return float(a) if a.ndim == 0 else a.tolist()
 
 
 class _Anderson:
@@ -463,10 +597,3 @@ def polish_heights(top: Topology, V: np.ndarray, w: np.ndarray, *, loads: LoadCa
 
 def _relative_change(new: np.ndarray, old: np.ndarray) -> float:
     return float(np.abs(new - old).max() / max(np.abs(new).max(), 1e-300))
-
-
-def _max_rel_error(top: Topology, V: np.ndarray, w: np.ndarray, L: np.ndarray) -> float:
-    """Max relative residual at free vertices (scaled units; for the history only)."""
-    r = residual(top, V, w, L)
-    Lf = np.abs(L[top.free])
-    return float((np.linalg.norm(r, axis=1) / np.maximum(Lf, 1e-300)).max()) if Lf.size else 0.0

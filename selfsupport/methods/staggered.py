@@ -85,10 +85,10 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from formulations import LoadCases, Problem, TermContext
+from formulations import LoadCases, Problem, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from formulations.scaling import Scaling
-from formulations.terms import Term
+from formulations.terms import HullPenalty, Term
 
 from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
@@ -98,6 +98,7 @@ from ..result import Network, SolveResult
 from ..scene import Scene
 from .base import as_problem, case_networks, hull_report, term_values
 from .polish import polish as _polish
+from .polish import load_colouring, load_jacobian_xyz
 from .polish import polish_joint as _polish_joint
 from .refine import refine as _refine
 from .weightfit import WeightFitBackend, make_backend
@@ -246,6 +247,10 @@ class _Run:
                                thickness=None if problem.hull_thickness() is None
                                else problem.hull_thickness() / self.sc.length)
         self.objective: Term | None = problem.terms(self.ctx, scaling=self.sc, default=DEFAULT_OBJECTIVE)
+        # the hull's penalty term (if any): the joint polish holds its rows on the hull's face
+        self.hull = next((t for t in (self.objective.parts() if self.objective is not None else ())
+                          if isinstance(t, HullPenalty)), None)
+        self.joint = self.C > 1 or self.fixed_xy or self.hull is not None
         method.backend.reset()
         # one backend per load case: each keeps its own warm start (active set, factor patterns)
         self.backends = [method.backend] + [type(method.backend)(**getattr(method.backend, "options", {}))
@@ -338,13 +343,25 @@ class _Run:
     def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True):
         """Positions (and, with several cases or a fixed top view, weights) in exact equilibrium:
         (X, ws, L, rounds)."""
-        if self.C == 1 and not self.fixed_xy:
+        if not self.joint:
             Xp, L, rounds = _polish(self.top, X, ws[0], self.loads.primary, self.mesh0, self.sc,
                                     workspace=self.polish_ws, fallbacks=fallbacks)
             return Xp, ws, L[None], rounds
-        return _polish_joint(self.top, X, ws, self.loads, self.mesh0, self.sc, self.lower, self.upper,
-                             fixed_xy=self.fixed_xy, workspace=self.polish_ws,
-                             deadline=self.t_start + self.opt.time_limit)
+        top = self.top
+        h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
+        form = ThrustNetworkProblem(top, X, self.loads_at(X), WeightBounds(self.lower, self.upper),
+                                    weight_scale=1.0 / h ** 2, hull=self.hull,
+                                    fixed_xy=self.X0[self.free, :2] if self.fixed_xy else None)
+        ws_ = self.polish_ws
+        if "colouring" not in ws_ and self.loads.depends_on_geometry:
+            ws_["colouring"] = load_colouring(self.mesh0, self.free)
+
+        def load_jacobian(V: np.ndarray, L: np.ndarray) -> list:
+            return [load_jacobian_xyz(m, self.mesh0, self.sc, V, L[c], self.free_idx, ws_["colouring"])
+                    if m.depends_on_geometry else None for c, m in enumerate(self.loads.models)]
+
+        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at, load_jacobian=load_jacobian)
+        return Xp, list(W), self.loads_at(Xp), rounds
 
     # ---------------------------------------------------------------- the iteration
     def solve(self) -> SolveResult:
@@ -370,7 +387,7 @@ class _Run:
         fresh, early, last_try = True, None, np.inf
         polish_tol = opt.polish_tol
         retry_errors: list[float] | None = None  # fit errors since a retry began
-        can_finish_early = self.C == 1 and not self.fixed_xy
+        can_finish_early = not self.joint
         while True:
             try:
                 for it in range(it + 1, opt.max_iter + 1):
@@ -525,8 +542,9 @@ class _Run:
         """The optional refinement phase (:mod:`~selfsupport.methods.refine`), one load case."""
         opt, sc = self.opt, self.sc
         rec: dict[str, Any] = {"iteration": "refine"}
-        if self.C > 1 or self.fixed_xy or self.objective is None:
-            rec.update(applied=False, skipped="the refinement handles one load case, a free top view and an objective")
+        if self.joint or self.objective is None:
+            rec.update(applied=False, skipped="the refinement handles one load case, a free top view, no hull, and "
+                                              "an objective")
             history.append(rec)
             return net, cases, err
         t0 = time.perf_counter()

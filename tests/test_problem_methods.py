@@ -1,0 +1,189 @@
+"""The simultaneous methods on shared problem factories (rockit-style): every factory builds a
+:class:`formulations.Problem` on a generated mesh, IPOPT solves it, and each load case of each
+result passes the independent checker (``../shared/tools/check_network.py``), the bounds, the
+problem's constraints and a KKT check of IPOPT's own answer. Evidence is recomputed here, never
+read from the result."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from formulations import FixedTopView, Hull, Problem
+from selfsupport.errors import InputError
+from selfsupport.geometry import vertex_normals
+from selfsupport.io import write_network
+from selfsupport.loads import PointLoad, SelfWeight
+from selfsupport.methods.base import term_values
+from selfsupport.methods.nlopt_methods import NloptSimultaneous
+from selfsupport.methods.simultaneous import Simultaneous
+from selfsupport.scene import Scene
+from selfsupport.shapes import make_shape
+
+from .conftest import kkt_residual
+
+CHECKER = Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_network.py"
+LOADS = SelfWeight(density=2000.0, thickness=0.1)
+#: Per-edge w_max of the w_max factory [N/m]: the dome's unbounded optimum reaches ~5,300 N/m.
+W_MAX_LOW, W_MAX_HIGH = 4500.0, 1e4
+HULL_T = 0.02  # [m]; the dome with a point load leaves this hull without the constraint
+
+
+def _dome() -> Scene:
+    return make_shape("dome", n_vertices=100)
+
+
+def _apex_load(scene: Scene, fraction: float = 0.2) -> PointLoad:
+    """A downward point load at the apex: ``fraction`` of the reference's self-weight."""
+    f = np.zeros(scene.mesh.n_vertices)
+    f[int(np.argmax(scene.mesh.vertices[:, 2]))] = fraction * LOADS.nodal(scene.mesh, scene.mesh.vertices).sum()
+    return PointLoad(f)
+
+
+def _wobbly_quad_vault() -> Scene:
+    """A barrel vault (quads) with noisy heights, so its faces are not planar."""
+    s = make_shape("barrel_vault", n_vertices=100)
+    V = s.mesh.vertices.copy()
+    V[s.free, 2] += 0.05 * np.random.default_rng(0).standard_normal(int(s.free.sum()))
+    return Scene(s.mesh.with_vertices(V), s.supports, name="wobbly barrel vault")
+
+
+def _w_max(scene: Scene) -> np.ndarray:
+    return np.where(np.arange(scene.mesh.n_edges) % 2 == 0, W_MAX_LOW, W_MAX_HIGH)
+
+
+#: name -> problem factory (the matrix the issue asks every method to run).
+FACTORIES: dict[str, Callable[[], Problem]] = {
+    "vault": lambda: Problem.build(make_shape("cross_vault", n_vertices=81), LOADS),
+    "dome_point_load": lambda: Problem.build(_dome(), LOADS + _apex_load(_dome())),
+    "two_load_cases": lambda: Problem.build(_dome(), {"empty": LOADS, "point": LOADS + _apex_load(_dome())}),
+    "quad_vault_planarity": lambda: Problem.build(_wobbly_quad_vault(), LOADS,
+                                                  objective={"vertices": 1.0, "planarity": 10.0}),
+    "w_max_per_edge": lambda: Problem.build(_dome(), LOADS, w_max=_w_max(_dome())),
+    "fixed_top_view": lambda: Problem.build(_dome(), LOADS, constraints=[FixedTopView()]),
+    "hull": lambda: Problem.build(_dome(), LOADS + _apex_load(_dome()), constraints=[Hull(HULL_T)]),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(FACTORIES))
+def solved(request):
+    problem = FACTORIES[request.param]()
+    run = Simultaneous().run(problem)
+    return request.param, problem, run
+
+
+def check_cases(result, tmp_path: Path) -> list[float]:
+    """Run the independent checker on every load case (a copy of the JSON with that case's
+    weights and loads at the top level); returns each case's max relative error."""
+    path = tmp_path / "net.json"
+    write_network(path, result)
+    d = json.loads(path.read_text())
+    cases = d.get("load_cases") or [{"weights": d["weights"], "loads": d["loads"]}]
+    errors = []
+    for c, case in enumerate(cases):
+        p = tmp_path / f"case{c}.json"
+        p.write_text(json.dumps({**d, "weights": case["weights"], "loads": case["loads"]}))
+        out = subprocess.run([sys.executable, str(CHECKER), str(p), "--tol", "1e-9"], capture_output=True, text=True)
+        assert out.returncode == 0, out.stdout + out.stderr
+        errors.append(float(re.search(r"max_rel_error=(\S+)", out.stdout).group(1)))
+    return errors
+
+
+def test_every_case_passes_the_independent_checker(solved, tmp_path):
+    name, problem, run = solved
+    res = run.result
+    assert res.status == "converged", (name, res.message)
+    errors = check_cases(res, tmp_path)
+    assert len(errors) == len(problem.loads)
+    assert max(errors) <= 1e-9, (name, errors)
+    # each case's loads are its load model at the final geometry
+    for (case_name, model), (net_name, net) in zip(problem.loads, res.case_networks):
+        assert case_name == net_name
+        np.testing.assert_allclose(net.loads, model.nodal(net.mesh, net.vertices), rtol=1e-12, atol=0)
+
+
+def test_weights_within_bounds(solved):
+    name, problem, run = solved
+    res = run.result
+    act = problem.scene.active_edges
+    eps = res.parameters["eps"]
+    for _, net in res.case_networks:
+        w = net.weights[act]
+        assert w.min() >= eps * (1 - 1e-9)
+        assert np.all(net.weights[~act] == 0.0)
+    if name == "w_max_per_edge":
+        wmax = _w_max(problem.scene)[act]
+        w = res.network.weights[act]
+        assert np.all(w <= wmax * (1 + 1e-9))
+        assert np.any(w >= wmax * (1 - 1e-6))  # the bound is active: it shaped the answer
+
+
+def test_problem_constraints_hold(solved):
+    name, problem, run = solved
+    scene, net = problem.scene, run.result.network
+    free = scene.free
+    if problem.fixed_top_view:
+        diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+        np.testing.assert_allclose(net.vertices[free, :2], scene.mesh.vertices[free, :2], rtol=0, atol=1e-13 * diag)
+        assert np.abs(net.vertices[free, 2] - scene.mesh.vertices[free, 2]).max() > 0  # heights did move
+    if problem.constraint(Hull) is not None:
+        n = vertex_normals(scene.mesh)
+        s = np.einsum("ij,ij->i", n, net.vertices - scene.mesh.vertices)[free]
+        assert np.abs(s).max() <= HULL_T / 2 * (1 + 1e-9)
+        assert np.abs(s).max() >= HULL_T / 2 * (1 - 1e-6)  # the hull is active here
+
+
+def test_ipopt_answer_satisfies_kkt(solved):
+    name, problem, run = solved
+    a = run.answer
+    assert a is not None and a.raw_status == "Solve_Succeeded"
+    assert kkt_residual(a.nlp, a.x, a.p, a.lam_x, a.lam_g) <= 1e-6, name
+    # the check has teeth: multipliers 1 % off do not pass
+    assert kkt_residual(a.nlp, a.x, a.p, a.lam_x, 1.01 * a.lam_g) > 1e-3
+
+
+def test_planarity_term_lowers_the_non_planarity():
+    problem = FACTORIES["quad_vault_planarity"]()
+    with_term = Simultaneous().solve(problem)
+    default = Simultaneous().solve(Problem.build(problem.scene, LOADS))
+    assert with_term.status == default.status == "converged"
+    before = term_values(problem, default.network)["planarity"]
+    after = with_term.terms["planarity"]
+    assert after < 0.5 * before, (before, after)
+
+
+def test_two_cases_have_distinct_weights():
+    res = Simultaneous().solve(FACTORIES["two_load_cases"]())
+    (n0, a), (n1, b) = res.case_networks
+    assert (n0, n1) == ("empty", "point")
+    np.testing.assert_array_equal(a.vertices, b.vertices)  # one geometry stands for both
+    assert np.abs(a.weights - b.weights).max() > 1e-3 * np.abs(a.weights).max()
+    assert b.loads.sum() < a.loads.sum()
+
+
+def test_short_form_and_legacy_objective_names():
+    scene = make_shape("dome", n_vertices=60)
+    a = Simultaneous().solve(scene, LOADS, objective="vertices", time_limit=30.0)
+    b = Simultaneous().solve(Problem.build(scene, LOADS), {"time_limit": 30.0})
+    assert a.status == b.status == "converged"
+    np.testing.assert_allclose(a.network.vertices, b.network.vertices, rtol=0, atol=1e-12)
+    c = Simultaneous().solve(scene, LOADS, objective="surface")
+    assert c.status == "converged" and c.max_relative_error <= 1e-9
+    with pytest.raises(InputError, match="option"):
+        Simultaneous().solve(Problem.build(scene, LOADS), {"tolerance": 1e-3})
+
+
+@pytest.mark.parametrize("kind", ["cases", "hull", "fixed_top_view"])
+def test_nlopt_refuses_what_it_cannot_state(kind):
+    scene = make_shape("dome", n_vertices=30)
+    problem = {"cases": lambda: Problem.build(scene, {"a": LOADS, "b": LOADS + _apex_load(scene)}),
+               "hull": lambda: Problem.build(scene, LOADS, constraints=[Hull(0.1)]),
+               "fixed_top_view": lambda: Problem.build(scene, LOADS, constraints=["fixed_top_view"])}[kind]()
+    with pytest.raises(InputError, match="nlopt backend does not support"):
+        NloptSimultaneous().solve(problem)
