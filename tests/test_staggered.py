@@ -10,17 +10,7 @@ from selfsupport.mesh import PolyMesh
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.scene import Scene
 from selfsupport.shapes import make_shape
-
-
-def independent_max_rel_error(V, E, w, L, sup) -> float:
-    """Paper's Table 1 metric with plain numpy, nothing from the project."""
-    r = np.zeros_like(V)
-    d = V[E[:, 1]] - V[E[:, 0]]
-    np.add.at(r, E[:, 0], w[:, None] * d)
-    np.add.at(r, E[:, 1], -w[:, None] * d)
-    r[:, 2] -= L
-    free = ~sup
-    return float((np.linalg.norm(r[free], axis=1) / np.abs(L[free])).max())
+from tests.conftest import max_relative_error
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +31,7 @@ def test_result_is_a_compressive_equilibrium_with_consistent_loads(case, request
     net = res.network
     assert res.status == "converged", res.message
     V, E, w, L = net.vertices, net.edges, net.weights, net.loads
-    err = independent_max_rel_error(V, E, w, L, scene.supports)
+    err = max_relative_error(V, E, w, L, scene.supports)
     assert err <= 1e-9
     assert err == pytest.approx(res.max_relative_error, rel=1e-6, abs=1e-15)
     active = ~(scene.supports[E[:, 0]] & scene.supports[E[:, 1]])
@@ -109,8 +99,8 @@ def test_scaled_scene_gives_scaled_network():
     np.testing.assert_allclose(b.network.vertices, k * a.network.vertices, rtol=0, atol=1e-9 * k)
     # loads scale with area (k²), weights ~ load / length (k)
     np.testing.assert_allclose(b.network.loads, k**2 * a.network.loads, rtol=1e-6)
-    err = independent_max_rel_error(b.network.vertices, b.network.edges, k * a.network.weights,
-                                    b.network.loads, scene.supports)
+    err = max_relative_error(b.network.vertices, b.network.edges, k * a.network.weights,
+                             b.network.loads, scene.supports)
     assert err <= 1e-8  # a's weights, scaled, balance b (weights themselves are not unique)
     assert b.max_relative_error <= 1e-9
 
@@ -123,7 +113,7 @@ def test_density_changes_weights_not_geometry():
     # the weights of a triangle network are not unique (more edges than equations), so assert
     # the physics: a third of b's weights balance a's network under a's loads
     na, nb = a.network, b.network
-    err = independent_max_rel_error(na.vertices, na.edges, nb.weights / 3, na.loads, scene.supports)
+    err = max_relative_error(na.vertices, na.edges, nb.weights / 3, na.loads, scene.supports)
     assert err <= 1e-8
 
 
@@ -143,7 +133,7 @@ def test_quad_mesh_with_free_edges_solves():
     res = StaggeredLinearization().solve(Scene(mesh=mesh, supports=sup), SelfWeight())
     assert res.status == "converged", res.message
     net = res.network
-    assert independent_max_rel_error(net.vertices, net.edges, net.weights, net.loads, sup) <= 1e-9
+    assert max_relative_error(net.vertices, net.edges, net.weights, net.loads, sup) <= 1e-9
     # the midpoint of a free edge has moved towards the centre in plan
     mid = n // 2
     assert abs(net.vertices[mid, 1]) < abs(V[mid, 1]) - 1e-3
@@ -167,7 +157,7 @@ def test_coupled_step_reaches_equilibrium_closer_to_the_reference(shape):
     assert coupled.status == "converged"
     net = coupled.network
     sup = np.asarray(net.supports, bool)
-    assert independent_max_rel_error(net.vertices, net.mesh.edges, np.asarray(net.weights), np.asarray(net.loads), sup) <= 1e-9
+    assert max_relative_error(net.vertices, net.mesh.edges, np.asarray(net.weights), np.asarray(net.loads), sup) <= 1e-9
     assert np.min(np.asarray(net.weights)[scene.active_edges]) > 0
     assert coupled.distance_mean <= plain.distance_mean
 
