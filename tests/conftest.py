@@ -59,6 +59,44 @@ def max_relative_error(V: Any, E: Any, w: Any, L: Any, sup: Any) -> float:
     return float(relative_residuals(V, E, w, L, sup).max())
 
 
+def roundoff_scale(V: Any, E: Any, w: Any, L: Any, sup: Any) -> np.ndarray:
+    """Per non-support vertex ``ε Σ_j w_ij (‖v_i‖ + ‖v_j‖) / |L_i|``: the relative error that
+    rounding the coordinates alone puts into :func:`relative_residuals` (each term w_ij (v_j − v_i)
+    carries ~ε w_ij (‖v_i‖ + ‖v_j‖)). No residual evaluated in floating point — and no network
+    computed in it — is reliably below a small multiple of this."""
+    V = np.asarray(V, float)
+    E = np.asarray(E, int)
+    w = np.abs(np.asarray(w, float))
+    size = np.linalg.norm(V, axis=1)
+    t = w * (size[E[:, 0]] + size[E[:, 1]])
+    s = np.zeros(len(V))
+    np.add.at(s, E[:, 0], t)
+    np.add.at(s, E[:, 1], t)
+    free = ~np.asarray(sup, bool)
+    return np.finfo(float).eps * s[free] / np.abs(np.asarray(L, float)[free])
+
+
+def hidden_displacement(V: Any, E: Any, w: Any, L: Any, sup: Any, rel: float) -> np.ndarray:
+    """Per non-support vertex, the largest coordinate change a relative residual ``rel`` can hide:
+    ``rel · K_ff⁻¹ |L_f|``, with ``K_ff`` the stress Laplacian of the free vertices
+    (``(K x)_i = Σ_j w_ij (x_i − x_j)``). With w ≥ 0 and every component tied to a support K_ff is
+    a nonsingular M-matrix, so K_ff⁻¹ ≥ 0 entrywise and a residual r with ‖r_i‖ ≤ rel |L_i|
+    moves each coordinate by |K_ff⁻¹ r| ≤ rel K_ff⁻¹ |L|. (With the supports at z = 0,
+    K_ff⁻¹ |L| is exactly the height of the network: the bound is ``rel`` × height.)"""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    V = np.asarray(V, float)
+    E = np.asarray(E, int)
+    w = np.asarray(w, float)
+    free = ~np.asarray(sup, bool)
+    n = len(V)
+    i, j = E[:, 0], E[:, 1]
+    K = sp.coo_matrix((np.r_[w, w, -w, -w], (np.r_[i, j, i, j], np.r_[i, j, j, i])), shape=(n, n)).tocsr()
+    Kff = K[free][:, free].tocsc()
+    return rel * spsolve(Kff, np.abs(np.asarray(L, float)[free]))
+
+
 def network_errors(net: Any, weights: Any = None) -> np.ndarray:
     """:func:`relative_residuals` of a network object (``vertices, edges, weights, loads,
     supports``), optionally with other ``weights``."""
