@@ -158,3 +158,23 @@ def test_scene_extras_are_added_once():
     res = Simultaneous().solve(scene, LOADS)
     assert res.status == "converged" and float(network_errors(res.network).max()) <= 1e-8
     np.testing.assert_allclose(res.network.loads, LOADS.nodal(scene.mesh, res.network.vertices) - 9.81 * mass)
+
+
+@pytest.mark.parametrize("algorithm", ["LD_LBFGS", "LD_SLSQP"])
+def test_nlopt_failure_is_a_labelled_status_not_a_crash(algorithm, monkeypatch):
+    """nlopt ≥ 2.8 raises ``nlopt.runtime_error`` (not a ``RuntimeError``) when a run fails; the
+    method returns the network it reached, labelled, and says it did not converge."""
+    nlopt = pytest.importorskip("nlopt")
+    exc = getattr(nlopt, "runtime_error", RuntimeError)
+    real = nlopt.opt.optimize
+
+    def optimize(self, *args):
+        self.set_maxeval(10)
+        real(self, *args)
+        raise exc("nlopt failure")
+
+    monkeypatch.setattr(nlopt.opt, "optimize", optimize)
+    res = NloptSimultaneous(algorithm=algorithm).solve(dome_scene(5), LOADS, time_limit=30)
+    assert res.status in STATUSES and res.status != "converged"
+    assert res.message
+    assert np.all(np.isfinite(res.network.vertices)) and np.all(res.network.weights >= 0)
