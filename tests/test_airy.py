@@ -4,7 +4,6 @@ staggered method on built-in shapes."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from selfsupport.io.axes import to_ours
 from selfsupport.mesh import PolyMesh
 from selfsupport.result import Network
 from selfsupport.shapes import disk_points, make_shape
+from tests.conftest import SHARED
 
 
 def J(v: np.ndarray) -> np.ndarray:
@@ -373,10 +373,10 @@ def test_vector_field_export_layout(tmp_path, solved):
     assert np.median(cosines.max(axis=1)) > 0.95
 
 
-@pytest.mark.skipif(not Path("/work/shared/paper-scenes/published/lilium-n-vf.txt").exists(),
-                    reason="paper scenes not available")
+@pytest.mark.skipif(not (SHARED / "paper-scenes" / "published" / "lilium-n-vf.txt").exists(),
+                    reason="the paper scenes (../shared) are not beside the repository")
 def test_published_vector_field_has_the_exported_layout():
-    rows = np.loadtxt("/work/shared/paper-scenes/published/lilium-n-vf.txt")
+    rows = np.loadtxt(SHARED / "paper-scenes" / "published" / "lilium-n-vf.txt")
     assert rows.shape[1] == 6
     ok = np.isfinite(rows).all(axis=1)  # like ours, the paper's file has nan where Φ is not strictly convex
     assert ok.mean() > 0.9

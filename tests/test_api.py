@@ -12,16 +12,7 @@ from selfsupport.io import write_network
 from selfsupport.loads import G
 from selfsupport.scene import Scene
 from selfsupport.shapes import make_shape
-
-
-def residual_rel(V, E, w, L, sup) -> np.ndarray:
-    """Relative equilibrium error per non-support vertex, recomputed here."""
-    r = np.zeros_like(V)
-    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
-    np.add.at(r, E[:, 0], f)
-    np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
-    return np.linalg.norm(r[~sup], axis=1) / np.abs(L[~sup])
+from tests.conftest import relative_residuals
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +30,7 @@ def test_solve_returns_a_network_in_equilibrium(barrel, barrel_result):
     res = barrel_result
     net = res.network
     assert res.status == "converged"
-    rel = residual_rel(net.vertices, net.edges, net.weights, net.loads, net.supports)
+    rel = relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports)
     assert rel.max() <= 1e-9 and rel.max() == pytest.approx(res.max_relative_error, rel=1e-6, abs=1e-15)
     assert net.weights[net.active_edges].min() > 0
     assert res.parameters["loads"] == {"type": "self_weight", "density": 2000.0, "thickness": 0.1, "g": G}
@@ -105,7 +96,7 @@ def test_simultaneous_methods_through_the_api_agree_with_staggered_on_a_dome(met
     assert r_m.status == "converged", r_m.message
     for r in (r_s, r_m):
         net = r.network
-        assert residual_rel(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-8
+        assert relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-8
         assert r.distance_max <= 1e-4
 
 
@@ -119,14 +110,14 @@ def test_check_finds_equilibrium_weights_of_solved_networks(shape):
     rep = api.check(res.network)
     assert rep.self_supporting and rep.max_relative_error <= 1e-10
     net = rep.network
-    assert residual_rel(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
+    assert relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
 
 
 def test_check_a_solved_network_is_self_supporting(barrel_result, tmp_path):
     rep = api.check(barrel_result.network)
     assert rep.self_supporting and rep.max_relative_error <= 1e-10
     net = rep.network  # fitted weights at the given positions, loads of that geometry
-    assert residual_rel(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
+    assert relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
     assert net.weights[net.active_edges].min() >= 0  # compression (the fit's ε may be undercut, see _refine)
     # through a file: the stored weights are evaluated as they are, too
     p = tmp_path / "n.json"

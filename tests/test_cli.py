@@ -17,41 +17,12 @@ import pytest
 from selfsupport import cli
 from selfsupport.io import write_mesh
 from selfsupport.shapes import make_shape
+from tests.conftest import SHARED, document_check, independent_check, requires_checker
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-CHECKER = SHARED / "tools" / "check_network.py"
 G = 9.81
 
 
 # ---------------------------------------------------------------------------- helpers
-def independent_check(d: dict) -> dict:
-    """Equilibrium of a network document recomputed from scratch (nothing from the project).
-
-    Returns the max relative error over non-supports, min weight, total load and the self-weight
-    of the written geometry per unit ρtg (faces triangulated as fans around their centroid, as the
-    shared checker does: non-planar quads have no other canonical area).
-    """
-    V = np.asarray(d["vertices"], float)
-    E = np.asarray(d["edges"], int)
-    w = np.asarray(d["weights"], float)
-    L = np.asarray(d["loads"], float)
-    sup = np.zeros(len(V), bool)
-    sup[np.asarray(d["supports"], int)] = True
-    r = np.zeros((len(V), 3))
-    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
-    np.add.at(r, E[:, 0], f)
-    np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
-    rel = np.linalg.norm(r[~sup], axis=1) / np.abs(L[~sup])
-    area = 0.0
-    for face in d["faces"]:
-        P = V[face]
-        c = P.mean(axis=0)
-        area += 0.5 * np.linalg.norm(np.cross(P - c, np.roll(P, -1, axis=0) - c), axis=1).sum()
-    return {"max_rel": float(rel.max()), "min_w": float(w.min()), "total_load": float(L.sum()), "area": area,
-            "supports": sup}
-
-
 def boundary_vertices(faces: list[list[int]], n: int) -> np.ndarray:
     """Vertices on edges used by exactly one face (computed here, not by the project)."""
     count: dict[tuple[int, int], int] = {}
@@ -101,7 +72,7 @@ def test_solve_writes_a_network_in_equilibrium_with_loads_of_its_geometry(solved
     out, code = solved
     assert code == 0
     d = json.loads(out.read_text())
-    chk = independent_check(d)
+    chk = document_check(d)
     assert d["status"] == "converged"
     assert chk["max_rel"] <= 1e-8
     assert chk["min_w"] >= 0.0
@@ -118,13 +89,12 @@ def test_solve_writes_a_network_in_equilibrium_with_loads_of_its_geometry(solved
     assert d["scene"]["supports_from"] == "boundary"
 
 
-@pytest.mark.skipif(not CHECKER.exists(), reason="shared independent checker not present")
+@requires_checker
 def test_solve_output_passes_the_shared_checker(solved):
     out, _ = solved
-    p = subprocess.run([sys.executable, str(CHECKER), str(out), "--tol", "1e-8", "--unit-weight", str(2000 * 0.1 * G),
-                        "--load-tol", "1e-9"], capture_output=True, text=True)
-    assert p.returncode == 0, p.stdout + p.stderr
-    assert p.stdout.strip().endswith("ok")
+    chk = independent_check(out, tol=1e-8, unit_weight=2000 * 0.1 * G, load_tol=1e-9)
+    assert chk.returncode == 0, chk.stdout
+    assert chk.ok
 
 
 def test_solve_summary_reports_the_written_numbers(barrel_obj, tmp_path, capsys):
@@ -133,7 +103,7 @@ def test_solve_summary_reports_the_written_numbers(barrel_obj, tmp_path, capsys)
                      "--density", "2400", "--thickness", "0.2"]) == 0
     text = capsys.readouterr().out
     d = json.loads(out.read_text())
-    chk = independent_check(d)
+    chk = document_check(d)
     assert chk["total_load"] == pytest.approx(-2400 * 0.2 * G * chk["area"], rel=1e-9)
     row = next(ln for ln in text.splitlines() if ln.startswith("max relative error"))
     assert float(row.split()[-1]) == pytest.approx(chk["max_rel"], rel=1e-3, abs=1e-15)
@@ -154,7 +124,7 @@ def test_iteration_limit_still_writes_the_network_labelled_and_exits_5(tmp_path,
     assert len(lines) == 1 and "NOT converge" in lines[0] and "--max-iter" in lines[0]
     # the stopped run is polished (weights frozen, positions exact), so the line must not claim
     # it is out of equilibrium when it is not
-    assert independent_check(d)["max_rel"] <= 1e-8
+    assert document_check(d)["max_rel"] <= 1e-8
     assert "in equilibrium" in lines[0] and "not the solution nearest" in lines[0]
 
 
@@ -174,7 +144,7 @@ def test_a_network_out_of_equilibrium_is_written_labelled_and_exits_4(tmp_path, 
     assert code == 4
     d = json.loads(out.read_text())
     assert d["status"] == "stalled"
-    assert independent_check(d)["max_rel"] == pytest.approx(fake.max_relative_error)
+    assert document_check(d)["max_rel"] == pytest.approx(fake.max_relative_error)
     assert len(err) == 1 and "NOT in equilibrium" in err[0] and "try" in err[0]
 
 
@@ -295,7 +265,7 @@ def test_sigint_in_a_real_process(tmp_path):
     if text != "precious":
         net = json.loads(text)
         assert net["status"] == "interrupted"
-        assert independent_check(net)["max_rel"] <= 1e-8
+        assert document_check(net)["max_rel"] <= 1e-8
     assert not [q for q in tmp_path.iterdir() if q.name.endswith(".tmp")]
 
 
@@ -308,7 +278,7 @@ def test_check_says_self_supporting_for_a_solved_network(solved, capsys):
     assert "self-supporting: compressive weights" in text
     # the stored weights are evaluated as they are, too
     stored = next(ln for ln in text.splitlines() if ln.startswith("stored weights: max relative error (stored"))
-    assert float(stored.split()[-1]) == pytest.approx(independent_check(json.loads(out.read_text()))["max_rel"],
+    assert float(stored.split()[-1]) == pytest.approx(document_check(json.loads(out.read_text()))["max_rel"],
                                                       rel=1e-3, abs=1e-15)
 
 
@@ -351,7 +321,7 @@ def test_demo_writes_network_and_report(tmp_path, capsys):
     text = capsys.readouterr().out
     assert rc == 0
     d = json.loads((out / "network.json").read_text())
-    chk = independent_check(d)
+    chk = document_check(d)
     assert d["status"] == "converged" and chk["max_rel"] <= 1e-8 and chk["min_w"] >= 0
     report = (out / "report.md").read_text()
     # one history row per record, plus the summary with the written error
@@ -368,7 +338,7 @@ def test_default_demo_is_fast_and_converges(tmp_path):
     elapsed = time.perf_counter() - t0
     assert p.returncode == 0, p.stderr
     assert elapsed < 30
-    assert independent_check(json.loads((tmp_path / "d" / "network.json").read_text()))["max_rel"] <= 1e-8
+    assert document_check(json.loads((tmp_path / "d" / "network.json").read_text()))["max_rel"] <= 1e-8
 
 
 # ----------------------------------------------------------------- registry, progress
@@ -425,7 +395,7 @@ def test_solve_a_paper_scene(tmp_path):
     out = tmp_path / "vp.json"
     p = run_cli("solve", str(SHARED / "paper-scenes" / "scenes" / "vault-pillar.sss"), "--out", str(out))
     assert p.returncode == 0, p.stderr
-    chk = independent_check(json.loads(out.read_text()))
+    chk = document_check(json.loads(out.read_text()))
     assert chk["max_rel"] <= 1e-8 and chk["min_w"] >= 0
     assert chk["total_load"] == pytest.approx(-2000 * 0.1 * G * chk["area"], rel=1e-9)
 

@@ -37,6 +37,7 @@ from selfsupport.mesh import PolyMesh
 from selfsupport.result import STATUSES
 from selfsupport.scene import Scene
 from selfsupport.shapes import disk
+from tests.conftest import document_errors
 
 G = 9.81
 TOL = 1e-9  # the staggered method's default required max relative error
@@ -82,21 +83,6 @@ def vertex_areas(V: np.ndarray, faces: list[list[int]]) -> np.ndarray:
                 A[f[(k + 1) % len(f)]] += t / 2
     return A
 
-
-def equilibrium_error(d: dict) -> float:
-    V = np.asarray(d["vertices"], float)
-    E = np.asarray(d["edges"], int)
-    w = np.asarray(d["weights"], float)
-    L = np.asarray(d["loads"], float)
-    sup = np.zeros(len(V), bool)
-    sup[np.asarray(d["supports"], int)] = True
-    r = np.zeros_like(V)
-    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
-    np.add.at(r, E[:, 0], f)
-    np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
-    with np.errstate(divide="ignore", invalid="ignore"):  # a zero load gives inf/nan: a failed comparison
-        return float((np.linalg.norm(r[~sup], axis=1) / np.abs(L[~sup])).max())
 
 
 # ------------------------------------------------------------------ generated scenes
@@ -184,7 +170,7 @@ def check_solve(scene: Scene, density: float, thickness: float, w_max: float | N
         d = json.loads(path.read_text())  # strict JSON: a non-finite number would have been written as null
     for key in ("vertices", "weights", "loads"):
         assert np.isfinite(np.asarray(d[key], float)).all(), key
-    err = equilibrium_error(d)
+    err = float(document_errors(d).max())
     assert d["status"] == res.status
     assert d["max_relative_error"] == pytest.approx(err, rel=1e-9, abs=1e-300)
     assert res.max_relative_error == pytest.approx(err, rel=1e-9, abs=1e-300)

@@ -32,6 +32,7 @@ from selfsupport.mesh import PolyMesh
 from selfsupport.result import Network
 from selfsupport.scene import Scene
 from selfsupport.shapes import make_shape
+from tests.conftest import max_relative_error
 
 POS_TOL = 1e-4  # of the bounding-box diagonal, see the module docstring
 #: Max relative error of the base solve's weights (transformed) on a transformed solve's geometry:
@@ -41,18 +42,8 @@ WEIGHT_TRANSFER_TOL = 1e-2
 TOL = 1e-9  # the method's required max relative error
 
 
-def independent_error(V: np.ndarray, E: np.ndarray, w: np.ndarray, L: np.ndarray, sup: np.ndarray) -> float:
-    """Max relative equilibrium error over free vertices, plain numpy."""
-    r = np.zeros_like(V)
-    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
-    np.add.at(r, E[:, 0], f)
-    np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
-    return float((np.linalg.norm(r[~sup], axis=1) / np.abs(L[~sup])).max())
-
-
 def roundoff_floor(V: np.ndarray, E: np.ndarray, w: np.ndarray, L: np.ndarray) -> float:
-    """Round-off level of :func:`independent_error`: each difference v_j − v_i carries an absolute
+    """Round-off level of :func:`~tests.conftest.max_relative_error`: each difference v_j − v_i carries an absolute
     error ~ε·max|v|, multiplied by Σ_j w_ij and divided by |L_i|."""
     d = np.zeros(len(V))
     np.add.at(d, E[:, 0], w)
@@ -96,7 +87,7 @@ def check_equivariant(base, res, f, s: float = 1.0) -> None:
     # the transformed network
     assert np.abs(net.vertices - f(b.network.vertices)).max() <= POS_TOL * diag * s
     # the same relative error: both meet the tolerance, recomputed here
-    err = independent_error(net.vertices, net.edges, net.weights, net.loads, net.supports)
+    err = max_relative_error(net.vertices, net.edges, net.weights, net.loads, net.supports)
     assert err <= TOL and b.max_relative_error <= TOL
     assert res.max_relative_error == pytest.approx(err, rel=1e-6, abs=1e-15)
     # the evidence itself is invariant: the base network, transformed, has the base's error
@@ -106,7 +97,7 @@ def check_equivariant(base, res, f, s: float = 1.0) -> None:
     assert abs(moved.max_relative_error() - b.max_relative_error) <= floor
     # loads of the transformed geometry, and the weights compared through equilibrium
     np.testing.assert_allclose(net.loads, s * s * b.network.loads, rtol=1e-3)
-    carried = independent_error(net.vertices, net.edges, s * b.network.weights, net.loads, net.supports)
+    carried = max_relative_error(net.vertices, net.edges, s * b.network.weights, net.loads, net.supports)
     assert carried <= WEIGHT_TRANSFER_TOL
     # the distance to the reference, in metres: scaled by s. (The reported numbers are relative to the
     # axis-aligned bounding-box diagonal, which a rotation about z changes: 37° grows it 1.39 times.)
@@ -148,7 +139,7 @@ def test_positions_at_micrometre_scale(base):
     assert res.status == "converged"
     assert np.abs(res.network.vertices - s * b.network.vertices).max() <= POS_TOL * diag * s
     net = res.network
-    assert independent_error(net.vertices, net.edges, net.weights, net.loads, net.supports) <= TOL
+    assert max_relative_error(net.vertices, net.edges, net.weights, net.loads, net.supports) <= TOL
 
 
 def test_vertex_and_face_reordering(base):
@@ -169,7 +160,7 @@ def test_vertex_and_face_reordering(base):
     assert res.status == "converged"
     assert np.abs(net.vertices - b.network.vertices[perm]).max() <= POS_TOL * diag
     np.testing.assert_allclose(net.loads, b.network.loads[perm], rtol=1e-3)
-    err = independent_error(net.vertices, net.edges, net.weights, net.loads, net.supports)
+    err = max_relative_error(net.vertices, net.edges, net.weights, net.loads, net.supports)
     assert err <= TOL and res.max_relative_error == pytest.approx(err, rel=1e-6, abs=1e-15)
     # the permuted base weights balance the permuted base network exactly (evidence invariance) ...
     k = edge_map(b.network.edges, net.edges, new_of_old)
@@ -179,7 +170,7 @@ def test_vertex_and_face_reordering(base):
     floor = roundoff_floor(permuted_base.vertices, permuted_base.edges, w_perm, permuted_base.loads)
     assert abs(permuted_base.max_relative_error() - b.max_relative_error) <= floor
     # ... and this solve's network up to the position tolerance
-    assert independent_error(net.vertices, net.edges, w_perm, net.loads, net.supports) <= WEIGHT_TRANSFER_TOL
+    assert max_relative_error(net.vertices, net.edges, w_perm, net.loads, net.supports) <= WEIGHT_TRANSFER_TOL
 
 
 def test_the_method_is_deterministic(base):

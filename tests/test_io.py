@@ -6,8 +6,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -22,10 +20,9 @@ from selfsupport.io.axes import UP_AXES, to_file, to_ours
 from selfsupport.mesh import PolyMesh
 from selfsupport.result import Network, SolveResult
 from selfsupport.scene import Scene
+from tests.conftest import SHARED, independent_check, requires_checker
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
 SCENES = SHARED / "paper-scenes" / "scenes"
-CHECKER = SHARED / "tools" / "check_network.py"
 
 
 # ---------------------------------------------------------------------------------- fixtures
@@ -311,18 +308,18 @@ def test_solve_result_fields_are_plain_json(tmp_path):
         network_to_dict(net, weights=[1])
 
 
-@pytest.mark.skipif(not CHECKER.exists(), reason="shared checker absent")
+@requires_checker
 def test_written_network_passes_the_independent_checker(tmp_path):
     p = tmp_path / "apex.json"
     write_network(p, apex_network())
-    r = subprocess.run([sys.executable, str(CHECKER), str(p), "--tol", "1e-12"], capture_output=True, text=True)
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert "ok" in r.stdout and "supports=4" in r.stdout
+    r = independent_check(p, tol=1e-12)
+    assert r.returncode == 0, r.stdout
+    assert r.ok and r["supports"] == 4
     # and it does fail a network out of equilibrium (the check is not vacuous)
     d = json.loads(p.read_text())
     d["loads"][4] = -17.0
     q = write(tmp_path, "bad.json", json.dumps(d))
-    r = subprocess.run([sys.executable, str(CHECKER), str(q), "--tol", "1e-12"], capture_output=True, text=True)
+    r = independent_check(q, tol=1e-12)
     assert r.returncode == 1
 
 

@@ -2,10 +2,6 @@
 against finite differences, its step against a dense KKT solve, and what it does to a network."""
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -19,8 +15,7 @@ from selfsupport.methods.refine import _linearize, _sqp_step
 from formulations import Fairness, Problem, ReferenceDistance
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.shapes import make_shape
-
-CHECKER = Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_network.py"
+from tests.conftest import independent_check, requires_checker
 
 
 @pytest.fixture(scope="module")
@@ -165,12 +160,11 @@ def test_refinement_is_off_by_default_and_the_plain_network_unchanged(solved):
     assert not any(h["iteration"] == "refine" for h in plain.history)
 
 
-@pytest.mark.skipif(not CHECKER.is_file(), reason="the shared checker is not beside the project")
+@requires_checker
 def test_the_independent_checker_accepts_a_refined_network(solved, tmp_path):
     _, _, refined = solved
     out = tmp_path / "refined.json"
     write_network(out, refined)
-    p = subprocess.run([sys.executable, str(CHECKER), str(out)], capture_output=True, text=True, timeout=120)
-    assert p.returncode == 0, p.stdout + p.stderr
-    err = float(next(t for t in p.stdout.split() if t.startswith("max_rel_error=")).split("=")[1])
-    assert err == pytest.approx(refined.max_relative_error, rel=1e-2, abs=1e-13)
+    p = independent_check(out)
+    assert p.returncode == 0, p.stdout
+    assert p.max_rel_error == pytest.approx(refined.max_relative_error, rel=1e-2, abs=1e-13)

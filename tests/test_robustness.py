@@ -36,33 +36,14 @@ from selfsupport.mesh import PolyMesh
 from selfsupport.scene import Scene
 from selfsupport.shapes import disk, make_shape
 from selfsupport.validate import scene_issues, top_view_winding, unbalanceable_vertices, validate_scene
+from tests.conftest import SHARED, document_errors, network_errors
 
 NOT_CONVERGED = {"stalled", "infeasible", "iteration_limit", "time_limit"}
 
 
 # ------------------------------------------------------------------------ independent checks
-def equilibrium_error(V: np.ndarray, E: np.ndarray, w: np.ndarray, L: np.ndarray, sup: np.ndarray) -> float:
-    """Max over free vertices of ‖Σ_j w_ij (v_j − v_i) − (0, 0, L_i)‖ / |L_i| (plain numpy)."""
-    r = np.zeros_like(V)
-    f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
-    np.add.at(r, E[:, 0], f)
-    np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
-    free = ~sup
-    return float((np.linalg.norm(r[free], axis=1) / np.abs(L[free])).max())
-
-
-def file_error(d: dict) -> float:
-    """:func:`equilibrium_error` of a network document as written."""
-    V = np.asarray(d["vertices"], float)
-    sup = np.zeros(len(V), bool)
-    sup[np.asarray(d["supports"], int)] = True
-    return equilibrium_error(V, np.asarray(d["edges"], int), np.asarray(d["weights"], float),
-                             np.asarray(d["loads"], float), sup)
-
-
 def net_error(net) -> float:
-    return equilibrium_error(net.vertices, net.edges, net.weights, net.loads, net.supports)
+    return float(network_errors(net).max())
 
 
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -607,7 +588,7 @@ def test_tiny_w_max_through_the_cli_exit_4_or_5_file_labelled(barrel, tmp_path, 
     assert d["status"] in NOT_CONVERGED
     assert code == cli.STATUS_EXIT[d["status"]] and code in (4, 5)
     assert len(err) == 1 and "NOT" in err[0] and "try" in err[0] and "Traceback" not in err[0]
-    assert d["max_relative_error"] == pytest.approx(file_error(d), rel=1e-6)
+    assert d["max_relative_error"] == pytest.approx(float(document_errors(d).max()), rel=1e-6)
 
 
 def _pillar_base_free() -> tuple[Scene, np.ndarray]:
@@ -653,7 +634,7 @@ def test_pillar_base_marked_free_through_the_cli(tmp_path, capsys):
     assert d["status"] in NOT_CONVERGED and code == cli.STATUS_EXIT[d["status"]] and code in (4, 5)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and d["status"] in err[0]
-    assert d["max_relative_error"] == pytest.approx(file_error(d), rel=1e-6)
+    assert d["max_relative_error"] == pytest.approx(float(document_errors(d).max()), rel=1e-6)
 
 
 @pytest.mark.parametrize("method", ["staggered", "ipopt"])
@@ -915,7 +896,7 @@ def test_ctrl_c_during_the_solve_writes_the_best_network_labelled(precious, monk
     d = json.loads(precious.read_text())
     assert code == 130 and d["status"] == "interrupted"
     assert len(err) == 1 and "interrupted" in err[0]
-    assert d["max_relative_error"] == pytest.approx(file_error(d), rel=1e-6, abs=1e-15)
+    assert d["max_relative_error"] == pytest.approx(float(document_errors(d).max()), rel=1e-6, abs=1e-15)
     assert not tmp_leftovers(precious.parent)
 
 
@@ -1020,7 +1001,7 @@ def test_issue_codes_are_documented():
         assert r.codes <= ISSUE_CODES
 
 
-PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper-scenes" / "scenes"
+PAPER = SHARED / "paper-scenes" / "scenes"
 
 
 @pytest.mark.skipif(not PAPER.exists(), reason="../shared/paper-scenes not present")

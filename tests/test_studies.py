@@ -19,10 +19,9 @@ import pytest
 from selfsupport.io import write_mesh
 from selfsupport.shapes import make_shape
 from studies import common, scaling, table1
+from tests.conftest import CHECKER, SHARED, document_errors
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
 PAPER_README = SHARED / "paper-scenes" / "README.md"
-CHECKER = SHARED / "tools" / "check_network.py"
 
 #: Table 1 as DESIGN.md §2 states it: figure -> (vertices, edges, time [s], iterations, max rel. error)
 DESIGN_TABLE1 = {
@@ -74,21 +73,6 @@ def test_paper_numbers_agree_with_the_paper_scenes_readme():
         assert (p.time_s, p.iterations, p.max_rel_error) == (float(t.group(1)), int(t.group(2)), float(t.group(3)))
         seen.add(name)
     assert seen == set(common.PAPER_TABLE1)
-
-
-def _independent_errors(d: dict) -> np.ndarray:
-    """Per free vertex ‖Σ_j w_ij (v_j − v_i) − (0,0,L_i)‖ / |L_i|, assembled per edge in a loop
-    (a third implementation, next to the project's and studies.common's)."""
-    V = np.asarray(d["vertices"], float)
-    res = np.zeros_like(V)
-    for (i, j), w in zip(d["edges"], d["weights"]):
-        res[i] += w * (V[j] - V[i])
-        res[j] += w * (V[i] - V[j])
-    L = np.asarray(d["loads"], float)
-    res[:, 2] -= L
-    free = np.ones(len(V), bool)
-    free[d["supports"]] = False
-    return np.linalg.norm(res[free], axis=1) / np.abs(L[free])
 
 
 @pytest.fixture(scope="module")
@@ -153,7 +137,7 @@ def test_table1_error_column_is_recomputed_from_the_saved_network(table_run):
     out = table_run["out"]
     for r in table_run["rows"]:
         d = json.loads((out / r["network"]).read_text(encoding="utf-8"))
-        rel = _independent_errors(d)
+        rel = document_errors(d)
         # equal up to the round-off of the residual sums (~1e-14 of the load)
         assert r["max_rel_error"] == pytest.approx(rel.max(), rel=1e-9, abs=1e-12)
         assert r["median_rel_error"] == pytest.approx(np.median(rel), rel=1e-9, abs=1e-12)
@@ -242,6 +226,6 @@ def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
         d = json.loads(path.read_text(encoding="utf-8"))
         assert rows[key]["status"] == "converged"
         assert d["parameters"]["objective"] == ("surface" if "surface" in key else None)
-        assert _independent_errors(d).max() <= 1e-8
+        assert document_errors(d).max() <= 1e-8
     surface, vertices = rows["simultaneous/ipopt-surface-warm"], rows["simultaneous/ipopt-warm"]
     assert surface["dist_ref_mean"] < 0.9 * vertices["dist_ref_mean"]

@@ -23,6 +23,7 @@ from selfsupport.errors import InputError
 from selfsupport.sweep import parse_spec, read_export, run_key, scene_digest
 from selfsupport.sweep.runner import STORE_NAME, plan_runs
 from selfsupport.sweep.store import COLUMN_NAMES, ResultStore
+from tests.conftest import SHARED
 
 pd = pytest.importorskip("pandas")
 pytest.importorskip("distributed")
@@ -339,7 +340,7 @@ def test_hard_time_limit_records_timeout_and_the_sweep_goes_on(client, tmp_path)
     assert again.by_status == {"converged": 2}
 
 
-PAPER_SCENES = Path(__file__).resolve().parents[2] / "shared" / "paper-scenes" / "scenes"
+PAPER_SCENES = SHARED / "paper-scenes" / "scenes"
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "studies").glob("*.toml")),

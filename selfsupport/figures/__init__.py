@@ -1,10 +1,19 @@
 """Figures of thrust networks (matplotlib, headless) and a self-contained interactive HTML view
 (plotly, JavaScript inlined). matplotlib and plotly are imported only when a figure is drawn.
 
+>>> import tempfile
+>>> from pathlib import Path
+>>> from selfsupport import api
 >>> from selfsupport.figures import FigureInput, render, write_view, write_report
->>> render("network", FigureInput(result.network, title="dome"), "dome.png")   # doctest: +SKIP
->>> write_view("dome.html", result.network)                                    # doctest: +SKIP
->>> write_report(result, "out/").markdown()                                    # doctest: +SKIP
+>>> from selfsupport.shapes import make_shape
+>>> result = api.solve(make_shape("dome", n_vertices=150))
+>>> out = Path(tempfile.mkdtemp())
+>>> render("network", FigureInput(result.network, title="dome"), out / "dome.png").name
+'dome.png'
+>>> write_view(out / "dome.html", result.network).layers[:2]
+('reference', 'network')
+>>> print(write_report(result, out / "report").markdown().splitlines()[0])
+## Figures
 """
 from .render import FIGURES, FigureInput, edge_forces, make_figure, render, render_png_bytes, signed_distances
 from .report import REPORT_KINDS, ReportFiles, write_report

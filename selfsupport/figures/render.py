@@ -16,8 +16,15 @@ Every figure kind is one function ``FigureInput -> matplotlib.figure.Figure`` re
 
 Example
 -------
+>>> import tempfile
+>>> from pathlib import Path
+>>> from selfsupport import api
 >>> from selfsupport.figures.render import FigureInput, render
->>> render("network", FigureInput(result.network, title="dome"), "dome.png")  # doctest: +SKIP
+>>> from selfsupport.shapes import make_shape
+>>> result = api.solve(make_shape("dome", n_vertices=150))
+>>> out = Path(tempfile.mkdtemp())
+>>> render("network", FigureInput(result.network, title="dome"), out / "dome.png").name
+'dome.png'
 """
 from __future__ import annotations
 

@@ -14,8 +14,15 @@ be toggled one by one (click the legend) or through the preset buttons:
 
 Example
 -------
+>>> import tempfile
+>>> from pathlib import Path
+>>> from selfsupport import api
 >>> from selfsupport.figures.viewer import write_view
->>> write_view("dome.html", result.network, title="dome")  # doctest: +SKIP
+>>> from selfsupport.shapes import make_shape
+>>> result = api.solve(make_shape("dome", n_vertices=150))
+>>> out = Path(tempfile.mkdtemp())
+>>> write_view(out / "dome.html", result.network, title="dome").layers[:3]
+('reference', 'network', 'supports')
 """
 from __future__ import annotations
 

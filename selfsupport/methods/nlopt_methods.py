@@ -31,6 +31,7 @@ from formulations import Hull, Problem, ThrustNetworkProblem
 from ..errors import BackendUnavailable, InputError
 from formulations.equilibrium import position_blocks, weight_matrix
 from .simultaneous import Simultaneous
+from .weightfit_backends import nlopt_failures
 
 #: Largest number of free vertices accepted, per formulation (see the module docstring).
 MAX_FREE_VERTICES = {"reduced": 300, "full": 50}
@@ -168,7 +169,7 @@ class NloptSimultaneous(Simultaneous):
             us, raw = None, "ROUNDOFF_LIMITED"
         except nlopt.ForcedStop:
             us, raw = None, "FORCED_STOP"
-        except (RuntimeError, ValueError, MemoryError):
+        except nlopt_failures(nlopt):  # NLOPT_FAILURE etc. (nlopt ≥ 2.8: not RuntimeError)
             us, raw = None, "FAILURE"
         seconds = time.perf_counter() - t0
         if us is not None:
@@ -238,7 +239,7 @@ class NloptSimultaneous(Simultaneous):
             us, raw = last["u"], "ROUNDOFF_LIMITED"
         except nlopt.ForcedStop:
             us, raw = last["u"], "FORCED_STOP"
-        except (RuntimeError, ValueError, MemoryError):
+        except nlopt_failures(nlopt):  # NLOPT_FAILURE etc. (nlopt ≥ 2.8: not RuntimeError)
             us, raw = last["u"], "FAILURE"
         seconds = time.perf_counter() - t0
         xs = np.clip(D * np.asarray(us, float), lb, ub)

@@ -43,6 +43,23 @@ def kkt_residual(*, A: sp.spmatrix, b: np.ndarray, w: np.ndarray, lower: np.ndar
     return float(np.abs(w - np.clip(w - g, lower, upper)).max(initial=0.0) / scale)
 
 
+def nlopt_failures(nlopt: Any) -> tuple[type[BaseException], ...]:
+    """Every exception ``nlopt.opt.optimize`` raises for a run that stopped without success.
+
+    Older wrappers raise the builtins (``RuntimeError`` for NLOPT_FAILURE, ``ValueError`` for
+    invalid arguments, ``MemoryError``); the SWIG wrapper of nlopt ≥ 2.8 raises its own
+    ``nlopt.runtime_error`` / ``nlopt.roundoff_limited`` …, which derive from ``nlopt.exception``
+    and *not* from ``RuntimeError``, next to ``nlopt.RoundoffLimited`` and ``nlopt.ForcedStop``
+    (plain ``Exception`` subclasses). Catch this tuple after the specific ones.
+    """
+    found = [RuntimeError, ValueError, MemoryError]
+    for name in ("exception", "RoundoffLimited", "ForcedStop"):
+        cls = getattr(nlopt, name, None)
+        if isinstance(cls, type) and issubclass(cls, Exception) and cls not in found:
+            found.append(cls)
+    return tuple(found)
+
+
 def _count_bounds(w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[int, int]:
     tol = 1e-8 * max(float(np.abs(w).max(initial=0.0)), 1e-300)
     return int(np.sum(w <= lower + tol)), int(np.sum(np.isfinite(upper) & (w >= upper - tol)))
@@ -299,15 +316,16 @@ class NloptFit(WeightFitBackend):
             opt.optimize(best["w"].copy())
         except nlopt.RoundoffLimited:
             pass  # the best point so far is usually fine; the KKT check below decides
-        except (RuntimeError, ValueError, MemoryError):
+        except nlopt_failures(nlopt):
+            # NLOPT_FAILURE (L-BFGS's line search gives up on an ill-conditioned fit: the
+            # structural scene's Step 2 does), invalid arguments, out of memory, forced stop:
+            # keep the best point evaluated; it is "optimal" only if it passes the KKT check
             failed = True
         w = np.clip(best["w"], lower, upper)
-        if failed:
-            status = "failed"
-        elif kkt_residual(A=A, b=b, w=w, lower=lower, upper=upper, w0=w0, prox=prox) <= o["kkt_tol"]:
+        if kkt_residual(A=A, b=b, w=w, lower=lower, upper=upper, w0=w0, prox=prox) <= o["kkt_tol"]:
             status = "optimal"
         else:
-            status = "max_iter"
+            status = "failed" if failed else "max_iter"
         return _finish(A, b, w, lower, upper, count[0], status, t0)
 
 
