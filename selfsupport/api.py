@@ -25,6 +25,7 @@ from __future__ import annotations
 import importlib
 import os
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -40,7 +41,7 @@ from .scene import Scene
 from .validate import validate_scene
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport",
-           "as_scene", "scene_loads", "fit_weights", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+           "as_scene", "scene_loads", "require_finite_loads", "fit_weights", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -195,6 +196,27 @@ def scene_loads(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: fl
     return with_scene_extras(SelfWeight(density=float(density), thickness=float(thickness)), scene)
 
 
+#: Largest nodal load magnitude [N] the arithmetic takes: forces are squared in norms and in the
+#: fits (1e150² = 1e300, below the double range 1.8e308), and the smallest nonzero one.
+LOAD_LIMIT = 1e150
+
+
+def require_finite_loads(scene: Scene, loads: LoadCase) -> None:
+    """Raise :class:`InputError` when the nodal loads at the reference overflow (or vanish in)
+    floating-point arithmetic — e.g. ``density=1e300`` — instead of letting the solve end in
+    ``inf``/``nan`` and a misleading "stalled"."""
+    with np.errstate(all="ignore"):
+        L = np.asarray(loads.nodal(scene.mesh, scene.mesh.vertices), float)
+        big = float(np.max(np.abs(L))) if L.size else 0.0
+    if not np.isfinite(L).all() or big > LOAD_LIMIT:
+        raise InputError(f"the loads overflow floating-point arithmetic (largest nodal load {big:.3g} N, the limit "
+                         f"is {LOAD_LIMIT:.0e} N: squared forces would be non-finite); check the units of --density, "
+                         "--thickness and the extra loads")
+    if not big > 1.0 / LOAD_LIMIT:
+        raise InputError(f"the loads vanish in floating-point arithmetic (largest nodal load {big:.3g} N, below "
+                         f"{1 / LOAD_LIMIT:.0e} N); check the units of --density, --thickness and the mesh")
+
+
 # -------------------------------------------------------------------------------- solve
 def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered", backend: str | None = None,
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: float | None = None,
@@ -242,13 +264,21 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     scene = as_scene(scene_or_path, supports=supports, up=up)
     issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
     loads = scene_loads(scene, density=density, thickness=thickness)
-    solver = make_method(method, backend)
+    require_finite_loads(scene, loads)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
         if method != "staggered":
             raise InputError(f"method options {sorted(options)} apply to the staggered method only, not {method!r}")
+        from .methods.staggered import StaggeredOptions
+        from .options import check_options
+
+        check_options(StaggeredOptions, options)  # before the work, with the allowed interval
         stops = {**dict(options), **stops}
-    result = solver.solve(scene, loads, eps=eps, w_max=w_max, progress=progress, **stops)
+    solver = make_method(method, backend)
+    # a support that belongs to no face has no neighbours: its umbrella-Laplacian row divides by 0 (harmlessly)
+    quiet = np.errstate(divide="ignore") if any(i.code == "isolated_vertices" for i in issues) else nullcontext()
+    with quiet:
+        result = solver.solve(scene, loads, eps=eps, w_max=w_max, progress=progress, **stops)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model,
                                        "input_issues": [i.as_dict() for i in issues]})
@@ -377,7 +407,9 @@ class CheckReport:
     ``max_relative_error``, ``E``, ``min_weight``, ``n_at_lower`` (weights at or below ε)
     describe the best compressive weights fitted at fixed positions with loads computed from
     the geometry; ``self_supporting`` is ``max_relative_error <= tol`` with all of them >= 0;
-    ``stored_*`` describe the weights a network file already carried (``None`` otherwise).
+    ``stored_*`` describe the weights a network file already carried (``None`` otherwise);
+    ``stored_self_supporting`` is their own verdict: max relative error with the stored loads
+    ``<= tol`` and no weight below 0.
     """
 
     name: str
@@ -398,6 +430,7 @@ class CheckReport:
     stored_max_relative_error: float | None = None  # stored weights with the stored loads
     stored_max_relative_error_recomputed: float | None = None  # stored weights with recomputed loads
     stored_min_weight: float | None = None
+    stored_self_supporting: bool | None = None
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) pairs for a summary table."""
@@ -411,8 +444,10 @@ class CheckReport:
             r += [("stored weights: max relative error (stored loads)", f"{self.stored_max_relative_error:.3e}"),
                   ("stored weights: max relative error (recomputed loads)",
                    f"{self.stored_max_relative_error_recomputed:.3e}"),
-                  ("stored weights: min weight", f"{self.stored_min_weight:.4g} N/m")]
-        r += [("self-supporting", f"{'yes' if self.self_supporting else 'NO'} (tol {self.tol:g})"),
+                  ("stored weights: min weight", f"{self.stored_min_weight:.4g} N/m"),
+                  ("stored weights: self-supporting", f"{'yes' if self.stored_self_supporting else 'NO'} "
+                                                      f"(tol {self.tol:g}, stored loads)")]
+        r += [("fitted weights: self-supporting", f"{'yes' if self.self_supporting else 'NO'} (tol {self.tol:g})"),
               ("time", f"{self.seconds:.2f} s")]
         return r
 
@@ -427,6 +462,18 @@ def _stored_load_model(path: Path) -> dict[str, Any]:
         return model if isinstance(model, dict) else {}
     except (OSError, ValueError, AttributeError):
         return {}
+
+
+def _has_network_keys(path: Path) -> bool:
+    """Whether a JSON file claims to be a network (has ``weights`` or ``edges``), rather than a
+    hand-made ``{"vertices", "faces", "supports"}`` scene."""
+    import json
+
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False  # the scene reader reports what is wrong with it
+    return isinstance(d, dict) and ("weights" in d or "edges" in d)
 
 
 def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any = None, up: str | None = None,
@@ -460,17 +507,17 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     elif isinstance(obj, (str, os.PathLike)) and Path(obj).suffix.lower() == ".json":
         from .io import read_network
 
-        try:
-            stored = read_network(obj)
-        except InputError:
-            stored = None  # a hand-made {"vertices", "faces", "supports"} scene: no weights to check
+        if _has_network_keys(Path(obj)):
+            stored = read_network(obj)  # a malformed network is an input error, not a scene
         model = _stored_load_model(Path(obj))
     scene = as_scene(obj, supports=supports, up=up)
     scene.mesh.validate()
     scene.check_supports()
     density = float(model.get("density", DEFAULT_DENSITY)) if density is None else density
     thickness = float(model.get("thickness", DEFAULT_THICKNESS)) if thickness is None else thickness
-    loads = scene_loads(scene, density=density, thickness=thickness).nodal(scene.mesh, scene.mesh.vertices)
+    case = scene_loads(scene, density=density, thickness=thickness)
+    require_finite_loads(scene, case)
+    loads = case.nodal(scene.mesh, scene.mesh.vertices)
     fit = fit_weights(scene, loads, eps=eps, w_max=w_max, backend=backend)
     weights = np.zeros(scene.mesh.n_edges)
     weights[scene.active_edges] = fit.weights
@@ -485,6 +532,7 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
                                                              supports=sup).max_relative_error()
         kw["stored_min_weight"] = Network(mesh=stored.mesh, weights=stored.weights, loads=loads,
                                           supports=sup).min_weight()
+        kw["stored_self_supporting"] = bool(kw["stored_max_relative_error"] <= tol and kw["stored_min_weight"] >= 0)
     return CheckReport(name=scene.name, n_vertices=scene.mesh.n_vertices, n_edges=scene.mesh.n_edges,
                        n_supports=int(scene.supports.sum()), self_supporting=bool(rel <= tol and net.min_weight() >= 0), tol=float(tol),
                        max_relative_error=rel, E=fit.E, min_weight=net.min_weight(), n_at_lower=fit.n_at_lower,
