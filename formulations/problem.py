@@ -38,6 +38,11 @@ from .scaling import Scaling, default_eps
 from .terms import TERMS, Scaled, Sum, Term, TermContext
 
 
+#: Largest nodal load magnitude [N] the arithmetic takes: forces are squared in norms and in the
+#: fits (1e150² = 1e300, below the double range 1.8e308); its inverse is the smallest.
+LOAD_LIMIT = 1e150
+
+
 # ------------------------------------------------------------------------------ bounds
 @dataclass(frozen=True, eq=False)
 class Bounds:
@@ -223,10 +228,16 @@ class Problem:
         mesh = scene.mesh
         top = Topology.build(mesh.n_vertices, mesh.edges[scene.active_edges], scene.supports)
         free = top.free
-        L = self.loads.nodal(mesh, mesh.vertices) if loads is None else np.atleast_2d(np.asarray(loads, float))
-        if not np.all(np.isfinite(L)):
-            raise InputError("the loads are not finite numbers (density or thickness too large?); "
-                             "give physical values")
+        with np.errstate(all="ignore"):
+            L = self.loads.nodal(mesh, mesh.vertices) if loads is None else np.atleast_2d(np.asarray(loads, float))
+            big = float(np.max(np.abs(L))) if L.size else 0.0
+        if not np.isfinite(L).all() or big > LOAD_LIMIT:
+            raise InputError(f"the loads overflow floating-point arithmetic (largest nodal load {big:.3g} N, the limit "
+                             f"is {LOAD_LIMIT:.0e} N: squared forces would be non-finite); check the units of "
+                             "--density, --thickness and the extra loads")
+        if not big > 1.0 / LOAD_LIMIT:
+            raise InputError(f"the loads vanish in floating-point arithmetic (largest nodal load {big:.3g} N, below "
+                             f"{1 / LOAD_LIMIT:.0e} N); check the units of --density, --thickness and the mesh")
         for name, Lc in zip(self.loads.names, L):
             if np.any(Lc[free] >= 0):
                 k = int(np.flatnonzero(free & (Lc >= 0))[0])

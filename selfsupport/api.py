@@ -284,10 +284,15 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
                      load_cases=load_cases)
     prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
                          constraints=constraints)
-    solver = make_method(method, backend)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
-    if options and method != "staggered":
-        raise InputError(f"method options {sorted(options)} apply to the staggered method only, not {method!r}")
+    if options:
+        if method != "staggered":
+            raise InputError(f"method options {sorted(options)} apply to the staggered method only, not {method!r}")
+        from .methods.staggered import StaggeredOptions
+        from .options import check_options
+
+        check_options(StaggeredOptions, options)  # before the work, with the allowed interval
+    solver = make_method(method, backend)
     result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
@@ -301,7 +306,9 @@ class CheckReport:
     ``max_relative_error``, ``E``, ``min_weight``, ``n_at_lower`` (weights at or below ε)
     describe the best compressive weights fitted at fixed positions with loads computed from
     the geometry; ``self_supporting`` is ``max_relative_error <= tol`` with all of them >= 0;
-    ``stored_*`` describe the weights a network file already carried (``None`` otherwise).
+    ``stored_*`` describe the weights a network file already carried (``None`` otherwise);
+    ``stored_self_supporting`` is their own verdict: max relative error with the stored loads
+    ``<= tol`` and no weight below 0.
     """
 
     name: str
@@ -323,6 +330,7 @@ class CheckReport:
     stored_max_relative_error_recomputed: float | None = None  # stored weights with recomputed loads
     stored_min_weight: float | None = None
     cases: tuple[dict[str, Any], ...] = ()  # per load case (several cases only): name, errors, min weights
+    stored_self_supporting: bool | None = None
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) pairs for a summary table."""
@@ -336,11 +344,13 @@ class CheckReport:
             r += [("stored weights: max relative error (stored loads)", f"{self.stored_max_relative_error:.3e}"),
                   ("stored weights: max relative error (recomputed loads)",
                    f"{self.stored_max_relative_error_recomputed:.3e}"),
-                  ("stored weights: min weight", f"{self.stored_min_weight:.4g} N/m")]
+                  ("stored weights: min weight", f"{self.stored_min_weight:.4g} N/m"),
+                  ("stored weights: self-supporting", f"{'yes' if self.stored_self_supporting else 'NO'} "
+                                                      f"(tol {self.tol:g}, stored loads)")]
         for c in self.cases:
             r.append((f"case {c['name']}: max relative error (fitted / stored)",
                       f"{c['max_relative_error']:.3e} / {c.get('stored_max_relative_error_recomputed', float('nan')):.3e}"))
-        r += [("self-supporting", f"{'yes' if self.self_supporting else 'NO'} (tol {self.tol:g})"),
+        r += [("fitted weights: self-supporting", f"{'yes' if self.self_supporting else 'NO'} (tol {self.tol:g})"),
               ("time", f"{self.seconds:.2f} s")]
         return r
 
@@ -402,11 +412,9 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     elif isinstance(obj, (str, os.PathLike)) and Path(obj).suffix.lower() == ".json":
         from .io import read_network
 
-        try:
-            stored = read_network(obj)
-        except InputError:
-            stored = None  # a hand-made {"vertices", "faces", "supports"} scene: no weights to check
         doc = _stored_document(Path(obj))
+        if "weights" in doc or "edges" in doc:  # not a hand-made {"vertices", "faces", "supports"} scene
+            stored = read_network(obj)  # a malformed network is an input error, not a scene
     scene = as_scene(obj, supports=supports, up=up)
     scene.mesh.validate()
     scene.check_supports()
@@ -449,6 +457,10 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
         kw["stored_max_relative_error_recomputed"] = max(c.get("stored_max_relative_error_recomputed", -np.inf)
                                                          for c in cases)
         kw["stored_min_weight"] = min(c.get("stored_min_weight", np.inf) for c in cases)
+        kw["stored_self_supporting"] = bool(kw["stored_max_relative_error"] <= tol
+                                            and all(c.get("stored_max_relative_error_recomputed", 0.0) <= tol
+                                                    for c in cases[1:])
+                                            and kw["stored_min_weight"] >= 0)
     return CheckReport(name=scene.name, n_vertices=scene.mesh.n_vertices, n_edges=scene.mesh.n_edges,
                        n_supports=int(scene.supports.sum()), self_supporting=bool(rel <= tol and min_w >= 0),
                        tol=float(tol), max_relative_error=rel, E=float(sum(f.E for f in fits)), min_weight=min_w,

@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
 import pkgutil
 import sys
 from dataclasses import dataclass
@@ -185,7 +184,7 @@ def stdout_console():
 
 
 def print_table(title: str, rows: Sequence[tuple[str, str]]) -> None:
-    """A two-column summary table on stdout."""
+    """A two-column summary table on stdout (no trailing spaces on its lines)."""
     from rich.table import Table
 
     t = Table(title=title, show_header=False, title_justify="left", box=None, pad_edge=False)
@@ -193,22 +192,37 @@ def print_table(title: str, rows: Sequence[tuple[str, str]]) -> None:
     t.add_column()
     for k, v in rows:
         t.add_row(k, v)
-    stdout_console().print(t)
+    console = stdout_console()
+    with console.capture() as cap:
+        console.print(t)
+    # rich pads every cell to its column's width; the padding of the last column is noise
+    sys.stdout.write("".join(line.rstrip() + "\n" for line in cap.get().splitlines()))
 
 
 def _err(message: str) -> None:
     print(f"{PROG}: {message}", file=sys.stderr)
 
 
-def _check_writable(path: Path) -> None:
-    """Fail before a long solve, not after it, when the output cannot be written."""
-    if path.is_dir():
-        raise InputError(f"--out {path} is a directory; give a file name such as {path / 'network.json'}")
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise InputError(f"cannot write {path}: {parent} is not writable")
+def scene_inputs(args: argparse.Namespace) -> list[tuple[str, str | None]]:
+    """The input files named by :func:`add_scene_arguments` (for
+    :func:`selfsupport.io.safety.check_outputs`: no output may be one of them)."""
+    scene = None if args.scene.startswith("shape:") else args.scene
+    sup = getattr(args, "supports", None)
+    return [("scene", scene), ("--supports file", None if sup in (None, "boundary") else sup)]
+
+
+def report_files() -> list[str]:
+    """The files ``--report DIR`` writes into DIR."""
+    from .figures.report import REPORT_KINDS
+
+    return [f"{k}.png" for k in REPORT_KINDS] + ["view.html"]
+
+
+def _print_input_warnings(result, codes: Sequence[str] = ("isolated_vertices",)) -> None:
+    """One stderr line per input warning of these codes (``parameters.input_issues``)."""
+    for issue in result.parameters.get("input_issues", ()):
+        if issue.get("code") in codes:
+            _err(f"warning: {issue.get('message')}")
 
 
 def summary_rows(result, scene) -> list[tuple[str, str]]:
@@ -276,6 +290,9 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a staggered-method setting, repeatable (e.g. coupled=true, shrink=0.5; "
                         "see StaggeredOptions)")
+    p.add_argument("--keep-partial", action="store_true",
+                   help="on Ctrl-C write the interrupted network to --out itself; by default it goes to "
+                        "NAME.interrupted.json next to it and an existing --out file is never replaced")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
 
 
@@ -284,10 +301,14 @@ def _run_solve(args: argparse.Namespace) -> int:
     from .io import write_network
     from .progress import ProgressDisplay
 
+    from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
 
     out = Path(args.out)
-    _check_writable(out)
+    inputs = scene_inputs(args)
+    check_outputs([("--out", out)], inputs)
+    if args.report:
+        check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
@@ -295,12 +316,17 @@ def _run_solve(args: argparse.Namespace) -> int:
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
                        options=options)
+    _print_input_warnings(result)
+    if result.status == "interrupted" and not args.keep_partial:
+        out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
+        check_outputs([("--out", out)], inputs)
     write_network(out, result, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
     if args.report:
         _write_figures(result, Path(args.report), scene.name)
     if not result.converged:
-        _err(_not_converged_line(result))
+        where = f"; the network so far is in {out}" if result.status == "interrupted" else ""
+        _err(_not_converged_line(result) + where)
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
 
 
@@ -338,13 +364,34 @@ def _run_check(args: argparse.Namespace) -> int:
     rep = api.check(target, supports=supports, up=up, density=args.density, thickness=args.thickness,
                     tol=args.tol, w_max=args.wmax)
     print_table(f"selfsupport check {spec}", rep.rows())
-    if rep.self_supporting:
-        print(f"self-supporting: compressive weights (min {rep.min_weight:.3g} N/m) balance the self-weight "
+    print(check_verdict(rep))
+    ok = rep.self_supporting and rep.stored_self_supporting is not False
+    return EXIT_CODES["ok"] if ok else EXIT_CODES["not_self_supporting"]
+
+
+def check_verdict(rep) -> str:
+    """The one-line verdict of ``check``: which weights were judged (fitted, and the stored ones
+    of a network file) and what they say. Exit 0 needs every judged set to say yes."""
+    fitted = (f"compressive weights fitted to this surface (min {rep.min_weight:.3g} N/m) balance the self-weight "
               f"to a max relative error of {rep.max_relative_error:.2e} <= {rep.tol:g}")
-        return EXIT_CODES["ok"]
-    print(f"NOT self-supporting: the best compressive weights leave a max relative error of "
-          f"{rep.max_relative_error:.2e} > {rep.tol:g}; 'selfsupport solve' finds a nearby surface that is")
-    return EXIT_CODES["not_self_supporting"]
+    if rep.stored_self_supporting is None:
+        if rep.self_supporting:
+            return f"self-supporting: {fitted}."
+        return (f"NOT self-supporting: the best compressive weights fitted to this surface leave a max relative "
+                f"error of {rep.max_relative_error:.2e} > {rep.tol:g}, so it cannot stand as it is; 'selfsupport "
+                "solve' finds a nearby surface that can.")
+    stored = (f"the stored weights (min {rep.stored_min_weight:.3g} N/m, max relative error "
+              f"{rep.stored_max_relative_error:.2e} with the stored loads)")
+    if rep.stored_self_supporting and rep.self_supporting:
+        return f"self-supporting: {stored} are compressive and in equilibrium, and {fitted}."
+    why = ("include tension (negative weights)" if rep.stored_min_weight < 0
+           else f"are not in equilibrium (> {rep.tol:g})") if not rep.stored_self_supporting else "are compressive and in equilibrium"
+    if rep.self_supporting:
+        return (f"NOT self-supporting as stored: {stored} {why}; {fitted}, so re-solving or refitting this "
+                "file gives a valid network.")
+    return (f"NOT self-supporting: {stored} {why}, and the best compressive weights fitted to this surface leave a "
+            f"max relative error of {rep.max_relative_error:.2e} > {rep.tol:g}; 'selfsupport solve' finds a "
+            "nearby surface that can stand.")
 
 
 # ------------------------------------------------------------------------------ demo
@@ -372,9 +419,10 @@ def _run_demo(args: argparse.Namespace) -> int:
     from .shapes import make_shape
     from .io.atomic import atomic_write_text
 
+    from .io.safety import check_output_dir
+
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file; give a directory")
+    check_output_dir(out, files=["network.json", "report.md", *report_files()])
     scene = make_shape(args.shape, n_vertices=args.vertices)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, density=args.density, thickness=args.thickness, progress=progress)

@@ -126,7 +126,11 @@ def run_airy(args: argparse.Namespace) -> int:
     from .io.axes import rotation
     from .io.network_json import to_jsonable
 
+    from .io.safety import check_outputs
+
     rotation(args.up, what="--up")  # fail before the work, with the valid names
+    check_outputs([("--out", args.out), ("--stress", args.stress), ("--reciprocal", args.reciprocal),
+                   ("--polar", args.polar), ("--vector-fields", args.vector_fields)], [("NET.json", args.network)])
     if args.vector_fields and args.no_directions:
         raise InputError("--vector-fields needs the principal directions; drop --no-directions")
     if not Path(args.network).exists():
@@ -235,8 +239,10 @@ def run_construct(args: argparse.Namespace) -> int:
     from .analysis import construct_detailed
     from .io import write_network
     from .loads import SelfWeight
+    from .io.safety import check_outputs
     from .shapes import disk_points
 
+    check_outputs([("--out", args.out)], [("--points", args.points), ("--phi-values", args.phi_values)])
     if args.disk is not None:
         pts = disk_points(args.disk, radius=args.radius)
     elif args.random is not None:

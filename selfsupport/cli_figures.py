@@ -50,6 +50,11 @@ def _reference(spec: str | None, up: str | None):
     return read_mesh(spec, up=up)
 
 
+def _inputs(args: argparse.Namespace) -> list[tuple[str, str | None]]:
+    ref = args.reference if args.reference and not args.reference.startswith("shape:") else None
+    return [("NET.json", args.network), ("--reference", ref)]
+
+
 def _title(doc: dict[str, Any], path: str, given: str | None) -> str:
     if given:
         return given
@@ -89,7 +94,9 @@ def run_render(args: argparse.Namespace) -> int:
     """Render one figure of a network file; prints what was written."""
     from .figures.render import FigureInput, render
     from .figures.report import stored_thickness
+    from .io.safety import check_outputs
 
+    check_outputs([("--out", args.out)], _inputs(args))
     net, doc = load_document(args.network)
     thickness = args.thickness
     if thickness is None and isinstance(doc.get("parameters"), dict):
@@ -116,7 +123,9 @@ def add_view_arguments(p: argparse.ArgumentParser) -> None:
 def run_view(args: argparse.Namespace) -> int:
     """Write the interactive HTML view of a network file."""
     from .figures.viewer import write_view
+    from .io.safety import check_outputs
 
+    check_outputs([("--out", args.out)], _inputs(args))
     net, doc = load_document(args.network)
     info = write_view(args.out, net, reference=_reference(args.reference, args.up),
                       title=_title(doc, args.network, args.title), with_analysis=not args.no_analysis)

@@ -49,9 +49,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scheduler and args.workers:
         raise InputError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
+    from .io.safety import check_output_dir
+
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out} is a file; give a folder")
+    check_output_dir(out, files=["results.sqlite", "results.csv", "results.parquet", "report.md"],
+                     inputs=[("SWEEP.toml", args.sweep)])
     spec = load_spec(args.sweep, scene_dir=args.scenes)
     outcome = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers, retry=args.retry,
                         progress=not args.quiet)

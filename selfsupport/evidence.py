@@ -145,6 +145,14 @@ def triangulate(mesh: PolyMesh) -> np.ndarray:
 
 
 def distance_stats(vertices: np.ndarray, reference: PolyMesh) -> tuple[float, float]:
-    """Mean and max distance to the reference surface, relative to its bounding-box diagonal."""
+    """Mean and max distance to the reference surface, relative to its bounding-box diagonal.
+
+    Vertices that belong to no face of the reference (supports that carry nothing, see
+    :mod:`selfsupport.validate`) are not part of the surface and are left out."""
+    vertices = np.asarray(vertices, float)
+    if len(vertices) == reference.n_vertices:
+        iso = reference.isolated_vertices
+        if iso.size:
+            vertices = np.delete(vertices, iso, axis=0)
     d = distance_to_surface(vertices, reference) / bbox_diagonal(reference.vertices)
     return float(d.mean()), float(d.max())

@@ -241,11 +241,16 @@ class PolyMesh:
             starts = np.bincount(self.face_vertices[is_b], minlength=n)
             if np.any(starts > 1):
                 out.append(f"vertex {int(np.argmax(starts > 1))} joins several boundary fans (non-manifold vertex); split it")
-        used = np.zeros(n, dtype=bool)
-        used[fv] = True
-        if not used.all():
-            out.append(f"{int((~used).sum())} vertices belong to no face (first: vertex {int(np.argmin(used))}); remove them")
+        # Vertices that belong to no face are not a mesh problem: they have no edges, and a scene
+        # may keep them as supports that carry nothing (validate.py refuses them when free).
         return out
+
+    @property
+    def isolated_vertices(self) -> np.ndarray:
+        """Indices of the vertices that belong to no face (no edges, no area)."""
+        used = np.zeros(self.n_vertices, dtype=bool)
+        used[self.face_vertices] = True
+        return np.flatnonzero(~used)
 
     def is_valid(self) -> bool:
         return not self.problems()

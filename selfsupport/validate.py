@@ -15,7 +15,8 @@ usable mesh. What each code means:
 
 Errors (raised)
     ``mesh``          :meth:`PolyMesh.problems`: no faces, NaN/inf, index out of range,
-                      non-manifold edge or vertex, inconsistent orientation, unreferenced vertices.
+                      non-manifold edge or vertex, inconsistent orientation; vertices that belong
+                      to no face and are not supports.
     ``scale``         coordinates beyond ±1e100 m or all vertices in one point: areas and loads
                       would overflow or vanish. Below that the methods are scale-free (scenes
                       1e-6 m and 1e6 m across are tested).
@@ -25,7 +26,13 @@ Errors (raised)
     ``top_view``      the surface faces down on at least :data:`FOLD_FRACTION` of its top view:
                       not a roof over the ground plane, almost always a wrong vertical axis.
 
+Every geometric test works on coordinates centred on the bounding box and divided by its
+diagonal, so a scene 1e12 m from the origin is judged like the same scene at the origin.
+
 Warnings (returned)
+    ``isolated_vertices``   supports that belong to no face (the original tool's .sss files have
+                            them): ignored by the solve (no edges, no load), kept in the output
+                            so that vertex indices stay those of the input.
     ``duplicate_vertices``  vertices closer than :data:`COINCIDENT` × bbox diagonal (a crack, or a
                             zero-length edge). The methods cope (they move them apart) but the
                             mesh was probably meant to be welded.
@@ -264,6 +271,12 @@ class _Context:
 
     scene: Scene
     diag: float = 0.0
+    #: the vertices centred on the bounding box and divided by its diagonal (set by the scale
+    #: check): every geometric test uses these, so far-off coordinates lose nothing more
+    V: np.ndarray | None = None
+
+    def vertices(self) -> np.ndarray:
+        return self.scene.mesh.vertices if self.V is None else self.V
 
 
 def _check_mesh(scene: Scene, ctx: _Context) -> list[Issue]:
@@ -271,6 +284,16 @@ def _check_mesh(scene: Scene, ctx: _Context) -> list[Issue]:
     if problems:
         return [_error("mesh", p + ("" if "; " in p else "; fix the mesh in your modelling tool"), MeshError)
                 for p in problems]
+    iso = scene.mesh.isolated_vertices
+    free = iso[~scene.supports[iso]]
+    if free.size:
+        return [_error("mesh", f"{free.size} vertices belong to no face and are not supports (vertices {_few(free)}); "
+                       "remove them, or pin them (a support that belongs to no face is ignored)", MeshError,
+                       vertices=tuple(free.tolist()))]
+    if iso.size:
+        return [_warning("isolated_vertices", f"{iso.size} vertices belong to no face (vertices {_few(iso)}): "
+                         "ignored by the solve (supports with no edges and no load), kept in the output with "
+                         "their indices", vertices=tuple(iso.tolist()))]
     return []
 
 
@@ -284,6 +307,7 @@ def _check_scale(scene: Scene, ctx: _Context) -> list[Issue]:
     ctx.diag = bbox_diagonal(v)
     if not ctx.diag > 0:
         return [_error("scale", "all vertices lie in one point; check the units and the file", InputError)]
+    ctx.V = (v - 0.5 * (v.min(axis=0) + v.max(axis=0))) / ctx.diag
     out = []
     if ctx.diag < PRECISION_LIMIT * big:
         out.append(_warning("precision", f"the object is {ctx.diag:.3g} m across but {big:.3g} m from the origin: "
@@ -313,9 +337,10 @@ def _check_extra_loads(scene: Scene, ctx: _Context) -> list[Issue]:
 
 def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
     mesh = scene.mesh
-    a = top_view_areas(mesh)
+    V = ctx.vertices()
+    a = top_view_areas(mesh, V)
     total = float(np.abs(a).sum())
-    area3d = float(face_areas(mesh).sum())
+    area3d = float(face_areas(mesh, V).sum())
     if not total > 1e-12 * area3d:
         return []  # a vertical surface (a wall in one plane): no top view to speak of
     up = 1.0 if a.sum() >= 0 else -1.0
@@ -331,7 +356,7 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
     out = []
     layered = np.zeros(mesh.n_faces, bool)
     if mesh.boundary_edge_mask.any():
-        wind = top_view_winding(mesh, _face_inner_points(mesh, mesh.vertices)) * int(up)
+        wind = top_view_winding(mesh, _face_inner_points(mesh, V), V) * int(up)
         layered = (wind >= 2) & ~down
     if down.any() or layered.any():
         f = np.flatnonzero(down | layered)
@@ -349,7 +374,8 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
 def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
     from scipy.spatial import cKDTree
 
-    pairs = cKDTree(scene.mesh.vertices).query_pairs(COINCIDENT * ctx.diag, output_type="ndarray")
+    pairs = cKDTree(ctx.vertices()).query_pairs(COINCIDENT * (1.0 if ctx.V is not None else ctx.diag),
+                                                output_type="ndarray")
     if not len(pairs):
         return []
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
@@ -365,7 +391,7 @@ def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
 
 
 def _check_zero_area(scene: Scene, ctx: _Context) -> list[Issue]:
-    ar = face_areas(scene.mesh)
+    ar = face_areas(scene.mesh, ctx.vertices())
     bad = np.flatnonzero(ar <= ZERO_AREA * float(np.median(ar)))
     if not bad.size:
         return []
@@ -376,7 +402,7 @@ def _check_zero_area(scene: Scene, ctx: _Context) -> list[Issue]:
 
 def _check_planarity(scene: Scene, ctx: _Context) -> list[Issue]:
     mesh = scene.mesh
-    v = mesh.vertices
+    v = ctx.vertices()
     sizes = mesh.face_sizes
     worst = np.zeros(mesh.n_faces)
     for k in np.unique(sizes[sizes > 3]):
@@ -397,7 +423,7 @@ def _check_planarity(scene: Scene, ctx: _Context) -> list[Issue]:
 
 
 def _check_stand(scene: Scene, ctx: _Context) -> list[Issue]:
-    low, one_sided = unbalanceable_vertices(scene)
+    low, one_sided = unbalanceable_vertices(scene, ctx.vertices())
     if not (low.size or one_sided.size):
         return []
     what = []
@@ -427,7 +453,7 @@ CHECKS: dict[str, Callable[[Scene, _Context], list[Issue]]] = {
 
 
 #: Every code an :class:`Issue` may carry (a check may report under more than one code).
-ISSUE_CODES = frozenset({"mesh", "scale", "precision", "supports", "extra_loads", "top_view", "overhang",
+ISSUE_CODES = frozenset({"mesh", "isolated_vertices", "scale", "precision", "supports", "extra_loads", "top_view", "overhang",
                          "duplicate_vertices", "zero_area_faces", "non_planar_faces", "cannot_stand_as_is"})
 
 
@@ -469,9 +495,10 @@ def require_rise(scene: Scene, w_max: float | None) -> None:
     if w_max is not None and not (np.ndim(w_max) == 0 and np.isinf(w_max)):
         return  # a bound (its value is the method's to check)
     V = scene.mesh.vertices
-    d = V - V.mean(axis=0)
-    normal = np.linalg.svd(d, full_matrices=False)[2][-1]  # of the best-fit (least-squares) plane
     diag = bbox_diagonal(V)
+    d = (V - V.mean(axis=0)) / (diag if diag > 0 else 1.0)  # centred and scaled: far-off or huge coordinates lose nothing
+    normal = np.linalg.svd(d, full_matrices=False)[2][-1]  # of the best-fit (least-squares) plane
+    diag = 1.0
     if (float(np.abs(d @ normal).max()) <= FLAT * diag and abs(float(normal[2])) > VERTICAL
             and _top_view_balanceable(scene)):
         from .errors import InfeasibleDesign

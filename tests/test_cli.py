@@ -275,7 +275,7 @@ def test_check_says_self_supporting_for_a_solved_network(solved, capsys):
     rc = cli.main(["check", str(out)])
     text = capsys.readouterr().out
     assert rc == 0
-    assert "self-supporting: compressive weights" in text
+    assert "self-supporting: the stored weights" in text and "compressive weights fitted" in text
     # the stored weights are evaluated as they are, too
     stored = next(ln for ln in text.splitlines() if ln.startswith("stored weights: max relative error (stored"))
     assert float(stored.split()[-1]) == pytest.approx(document_check(json.loads(out.read_text()))["max_rel"],

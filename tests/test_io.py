@@ -381,7 +381,7 @@ BAD_FILES = [
     ("e.sss", "v 0 0 0 0 1 0\nv 1 0 0 0 1 0\nv 0 0 1 0 0 0\n\nf 3 0 1 5\n", r":5: face 0 refers to vertex index 5"),
     ("f.sss", "v 0 0 0 0 1 0\nq 1\n", r":2: unknown .sss record 'q'"),
     ("g.sss", "v 0 0 0 0 1 0\nv 1 0 inf 0 1 0\nv 0 0 1 0 0 0\nf 3 0 1 2\n", r":2: vertex 1 has a NaN or infinite"),
-    ("h.sss", "v 0 0 0 0 1 0\nv 1 0 0 0 1 0\nv 0 0 1 0 0 0\nf 3 0 1 2\ne 0 1 0 0\n", r":5: edge record has 4 fields"),
+    ("h.sss", "v 0 0 0 0 1 0\nv 1 0 0 0 1 0\nv 0 0 1 0 0 0\nf 3 0 1 2\ne 0 1 0\n", r":5: edge record has 3 fields"),
     ("i.sss", "v 0 0 0 0 1 0\nv 1 0 0 0 1 0\nv 0 0 1 0 0 0\nf 3 0 1 2\ne 0 9 0 0 1\n", r":5: edge record"),
     ("a.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", "ends after 2 of the 3 vertices"),
     ("b.off", "OFF\n3 1 0\n0 0\n1 0 0\n0 1 0\n3 0 1 2\n", r":3: vertex record has 2 numbers"),

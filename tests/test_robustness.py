@@ -191,8 +191,6 @@ CORPUS: list[Bad] = [
     Bad("unknown OBJ record", _write("u.obj", TRI + "f 1 2 3\nfoo 1 2\n"), InputError, "unknown OBJ record 'foo'"),
     Bad("unknown .sss record", _write("u.sss", SSS_OK + "q 1 2\n"), InputError, "unknown .sss record 'q'"),
     Bad("unknown file type", _write("m.stl", "solid x\nendsolid x\n"), InputError, "unknown file type"),
-    Bad("UTF-8 byte-order mark (Windows tools)", _write("bom.obj", "\ufeff" + TRI + "f 1 2 3\nf 2 4 3\n"),
-        InputError, "unknown OBJ record"),
     # indices out of range
     Bad("face index out of range (OBJ)", _write("i.obj", TRI + "f 1 2 3\nf 2 5 3\n"), InputError,
         "refers to vertex index 5, outside 1..4"),
@@ -876,28 +874,53 @@ def _cli_solve(out: Path, *more: str, shape: str = "shape:dome:100") -> int:
     return cli.main(["solve", shape, "--out", str(out), "-q", *more])
 
 
-def test_ctrl_c_during_the_solve_writes_the_best_network_labelled(precious, monkeypatch, capsys):
-    """KeyboardInterrupt at the third iteration (as Ctrl-C would raise it): the solver stops,
-    the network so far is polished and written labelled 'interrupted', exit 130."""
+class _Interrupting:
+    """A progress display that raises KeyboardInterrupt at the third iteration (as Ctrl-C would)."""
+
+    def __init__(self, *a, **k):
+        self.n = 0
+
+    def __call__(self, rec):
+        self.n += 1
+        if self.n == 3:
+            raise KeyboardInterrupt
+
+
+def test_ctrl_c_never_replaces_out_and_writes_name_interrupted_json(precious, monkeypatch, capsys):
+    """Issue 16 item 3: the solver stops, the network so far is polished and written labelled
+    'interrupted' to NAME.interrupted.json; the existing --out file stays byte for byte; exit 130."""
     import selfsupport.progress as progress
 
-    class Interrupting:
-        def __init__(self, *a, **k):
-            self.n = 0
-
-        def __call__(self, rec):
-            self.n += 1
-            if self.n == 3:
-                raise KeyboardInterrupt
-
-    monkeypatch.setattr(progress, "ProgressDisplay", Interrupting)
+    monkeypatch.setattr(progress, "ProgressDisplay", _Interrupting)
+    before, ino = precious.read_bytes(), precious.stat().st_ino
     code = _cli_solve(precious, shape="shape:pillar_vault:300")  # 16 iterations to converge
     err = capsys.readouterr().err.strip().splitlines()
-    d = json.loads(precious.read_text())
-    assert code == 130 and d["status"] == "interrupted"
-    assert len(err) == 1 and "interrupted" in err[0]
+    assert code == 130
+    assert precious.read_bytes() == before and precious.stat().st_ino == ino
+    side = precious.with_name("net.interrupted.json")
+    d = json.loads(side.read_text())
+    assert d["status"] == "interrupted"
+    assert len(err) == 1 and "interrupted" in err[0] and str(side) in err[0]
     assert d["max_relative_error"] == pytest.approx(float(document_errors(d).max()), rel=1e-6, abs=1e-15)
     assert not tmp_leftovers(precious.parent)
+
+
+def test_ctrl_c_with_keep_partial_writes_out_itself(precious, monkeypatch, capsys):
+    import selfsupport.progress as progress
+
+    monkeypatch.setattr(progress, "ProgressDisplay", _Interrupting)
+    assert _cli_solve(precious, "--keep-partial", shape="shape:pillar_vault:300") == 130
+    assert json.loads(precious.read_text())["status"] == "interrupted"
+    assert not precious.with_name("net.interrupted.json").exists()
+
+
+def test_keep_partial_is_documented():
+    from selfsupport.cli import build_parser
+
+    sub = build_parser()._subparsers._group_actions[0].choices["solve"]
+    assert "interrupted.json" in " ".join(sub.format_help().split())
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "NAME.interrupted.json" in readme and "--keep-partial" in readme
 
 
 @pytest.mark.parametrize("exc, code", [(KeyboardInterrupt, 130), (RuntimeError, 1), (OSError, 2)])
@@ -1015,3 +1038,311 @@ def test_paper_scenes_pass_validation(name):
     kw = {"supports": str(PAPER / "structural.supports"), "up": "-y"} if p.suffix == ".obj" else {}
     issues = validate_scene(read_scene(p, **kw))
     assert ("overhang" in {i.code for i in issues}) == (name == "structural.obj")
+
+
+# ------------------------------------------------------------------ issue 16: never lose a user's file
+def _dome_files(folder: Path) -> tuple[Path, Path]:
+    """The small dome as OBJ and its supports file."""
+    d = small_dome()
+    obj, sup = folder / "dome.obj", folder / "dome.supports"
+    obj.write_text(obj_text(d.mesh.vertices, d.mesh.faces))
+    sup.write_text(" ".join(map(str, np.flatnonzero(d.supports))) + "\n")
+    return obj, sup
+
+
+def _alias(kind: str, target: Path) -> Path:
+    """Another name for ``target``: the same string, another spelling, a symlink, a hard link."""
+    if kind == "same":
+        return target
+    if kind == "spelling":
+        return target.parent / "." / ".." / target.parent.name / target.name
+    alias = target.with_name("alias" + target.suffix)
+    (alias.symlink_to if kind == "symlink" else alias.hardlink_to)(target)
+    return alias
+
+
+@pytest.mark.parametrize("kind", ["same", "spelling", "symlink", "hardlink"])
+@pytest.mark.parametrize("victim", ["scene", "supports"])
+def test_out_naming_an_input_is_refused(victim, kind, tmp_path, capsys):
+    """Item 1: --out resolving to the scene or the --supports file: exit 2, one line, the file
+    keeps its bytes and its inode, nothing else is written."""
+    obj, sup = _dome_files(tmp_path)
+    target = obj if victim == "scene" else sup
+    out = _alias(kind, target)
+    before, ino = target.read_bytes(), target.stat().st_ino
+    listing = sorted(p.name for p in tmp_path.iterdir())
+    code = cli.main(["solve", str(obj), "--supports", str(sup), "--out", str(out), "-q"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "is the input")
+    assert target.read_bytes() == before and target.stat().st_ino == ino
+    assert sorted(p.name for p in tmp_path.iterdir()) == listing
+
+
+def test_report_naming_an_input_is_refused_before_the_solve(tmp_path, capsys, monkeypatch):
+    """Item 1 and 12: --report DIR that is the scene file, or a file, is refused up front."""
+    obj, sup = _dome_files(tmp_path)
+    monkeypatch.setattr(api, "solve", lambda *a, **k: pytest.fail("solved before checking --report"))
+    before = obj.read_bytes()
+    code = cli.main(["solve", str(obj), "--supports", str(sup), "--out", str(tmp_path / "n.json"),
+                     "--report", str(obj), "-q"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "is a file, not a folder")
+    assert obj.read_bytes() == before and not (tmp_path / "n.json").exists()
+    # a report folder whose view.html is a hard link to the scene file
+    rep = tmp_path / "rep"
+    rep.mkdir()
+    (rep / "view.html").hardlink_to(obj)
+    code = cli.main(["solve", str(obj), "--supports", str(sup), "--out", str(tmp_path / "n.json"),
+                     "--report", str(rep), "-q"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "is the input")
+    assert obj.read_bytes() == before
+
+
+@pytest.fixture(scope="module")
+def small_network(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("net") / "net.json"
+    from selfsupport.io import write_network
+
+    write_network(p, api.solve(small_dome()))
+    return p
+
+
+def _writers(net: Path, out: Path) -> dict[str, list[str]]:
+    """Every command that writes a file, with ``out`` as that file."""
+    return {"solve": ["solve", "shape:dome:100", "--out", str(out), "-q"],
+            "render": ["render", str(net), "--out", str(out)],
+            "view": ["view", str(net), "--out", str(out), "--no-analysis"],
+            "airy": ["airy", str(net), "--out", str(out)],
+            "construct": ["construct", "--disk", "2", "--out", str(out)]}
+
+
+@pytest.mark.parametrize("command", ["solve", "render", "view", "airy", "construct"])
+def test_every_writer_refuses_a_fifo_and_leaves_it_a_fifo(command, small_network, tmp_path, capsys):
+    """Item 2: a FIFO is not replaced by a regular file (nor opened: that would block)."""
+    import os
+    import stat
+
+    fifo = tmp_path / "out.html"
+    os.mkfifo(fifo)
+    code = cli.main(_writers(small_network, fifo)[command])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "FIFO")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_airy_refuses_to_overwrite_its_input_network(small_network, tmp_path, capsys):
+    import shutil
+
+    net = tmp_path / "n.json"
+    shutil.copy(small_network, net)
+    before = net.read_bytes()
+    code = cli.main(["airy", str(net), "--out", str(tmp_path / "a.json"), "--stress", str(tmp_path / "." / "n.json")])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "is the input")
+    assert net.read_bytes() == before and not (tmp_path / "a.json").exists()
+
+
+def test_a_character_device_is_refused_and_stays_a_device(tmp_path, capsys):
+    """Item 2: as root, the atomic rename used to replace /dev/null by a regular file. A private
+    device node (same numbers as /dev/null) stands in for it, so a failure harms nothing."""
+    import os
+    import stat
+
+    dev = tmp_path / "null"
+    try:
+        os.mknod(dev, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    except (PermissionError, OSError) as e:
+        pytest.skip(f"cannot create a device node here ({e})")
+    code = cli.main(["solve", "shape:dome:100", "--out", str(dev), "-q"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "character device")
+    assert stat.S_ISCHR(os.lstat(dev).st_mode)
+    from selfsupport.io.atomic import atomic_write_text
+
+    with pytest.raises(InputError, match="character device"):
+        atomic_write_text(dev, "x")
+    assert stat.S_ISCHR(os.lstat(dev).st_mode)
+
+
+def test_a_symlink_is_written_through_and_stays_a_link(tmp_path, capsys):
+    """Item 2: the link's target gets the network; the link stays a link (also a dangling one,
+    whose target is created; and a relative link in another folder)."""
+    target = tmp_path / "target.json"
+    target.write_text("{}")
+    link = tmp_path / "link.json"
+    link.symlink_to("target.json")
+    assert cli.main(["solve", "shape:dome:100", "--out", str(link), "-q"]) == 0
+    assert link.is_symlink() and json.loads(target.read_text())["status"] == "converged"
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    dangling = sub / "d.json"
+    dangling.symlink_to("../new.json")
+    assert cli.main(["solve", "shape:dome:100", "--out", str(dangling), "-q"]) == 0
+    assert dangling.is_symlink() and json.loads((tmp_path / "new.json").read_text())["status"] == "converged"
+    assert not tmp_leftovers(tmp_path) and not tmp_leftovers(sub)
+
+
+def test_a_directory_as_out_is_refused_for_files_and_a_file_for_folders(tmp_path, capsys):
+    code = cli.main(["solve", "shape:dome:100", "--out", str(tmp_path), "-q"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "directory")
+    f = tmp_path / "f.txt"
+    f.write_text("keep")
+    code = cli.main(["demo", "--out", str(f), "-q", "--vertices", "50"])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "not a folder")
+    assert f.read_text() == "keep"
+
+
+def _isolated_sss(folder: Path) -> tuple[Path, np.ndarray, int]:
+    """The small dome as .sss as the original tool wrote some: a BOM, a Latin-1 byte in a comment,
+    4-field edge records, two pinned vertices that belong to no face (indices 3 and n+1)."""
+    from selfsupport.io.axes import rotation
+
+    d = small_dome()
+    V = d.mesh.vertices
+    n = len(V)
+    iso = np.array([[0.3, 0.2, 0.0], [-0.4, 0.1, 0.0]])
+    allv = np.vstack([V[:3], iso[:1], V[3:], iso[1:]])  # isolated at index 3 and at the end
+    old_to_new = np.r_[np.arange(3), np.arange(4, n + 1)]
+    pinned = np.r_[d.supports[:3], True, d.supports[3:], True]
+    fv = (allv @ rotation("-y"))
+    lines = ["# sc\xe8ne export\xe9e"]
+    lines += [f"v {x!r} {y!r} {z!r} 0 {int(p)} 0" for (x, y, z), p in zip(fv.tolist(), pinned.tolist())]
+    lines += ["f %d %s" % (len(f), " ".join(str(old_to_new[i]) for i in f)) for f in d.mesh.faces]
+    lines += [f"e {old_to_new[a]} {old_to_new[b]} 0 0" for a, b in d.mesh.edges.tolist()]
+    p = folder / "odd.sss"
+    p.write_bytes(b"\xef\xbb\xbf" + "\n".join(lines).encode("latin-1") + b"\n")
+    return p, allv, n + 2
+
+
+def test_sss_of_the_original_tool_bom_latin1_comment_4_field_edges_isolated_vertices(tmp_path, capsys):
+    """Item 6: accepted; one warning line on stderr; the output keeps every index of the file,
+    the isolated vertices as supports with load 0 and no edges; the network is in equilibrium."""
+    p, allv, n = _isolated_sss(tmp_path)
+    out = tmp_path / "odd.json"
+    assert cli.main(["solve", str(p), "--out", str(out), "-q"]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("selfsupport: warning: ") and "3, " in err[0] and "belong to no face" in err[0]
+    d = json.loads(out.read_text())
+    assert len(d["vertices"]) == n
+    np.testing.assert_allclose(d["vertices"][3], allv[3], atol=1e-12)
+    np.testing.assert_allclose(d["vertices"][n - 1], allv[-1], atol=1e-12)
+    assert {3, n - 1} <= set(d["supports"]) and d["loads"][3] == 0 and d["loads"][n - 1] == 0
+    assert not any(3 in e or n - 1 in e for e in d["edges"])
+    assert float(document_errors(d).max()) < 1e-9
+    codes = {i["code"] for i in d["parameters"]["input_issues"]}
+    assert "isolated_vertices" in codes
+    # the written network reads back and checks
+    assert cli.main(["check", str(out)]) == 0
+
+
+def test_sss_non_utf8_outside_a_comment_is_still_refused(tmp_path):
+    from selfsupport.io import read_scene
+
+    p = tmp_path / "x.sss"
+    p.write_bytes(b"v 0 0 0 0 1 0 # caf\xe9\nv 1 0 0 0 1 0\nv 0 \xe9 1 0 0 0\nf 3 0 1 2\n")
+    with pytest.raises(InputError, match=r":3: has a byte that is not UTF-8 outside a comment"):
+        read_scene(p)
+
+
+def test_a_free_vertex_that_belongs_to_no_face_is_still_refused():
+    d = small_dome()
+    V = np.vstack([d.mesh.vertices, [[0.0, 0.0, 9.0]]])
+    scene = Scene(mesh=PolyMesh.from_faces(V, d.mesh.faces), supports=np.r_[d.supports, False])
+    with pytest.raises(MeshError, match="belong to no face and are not supports"):
+        validate_scene(scene)
+
+
+@pytest.mark.parametrize("offset", [1e6, 1e9, 1e12])
+def test_coordinates_offset_up_to_1e12_are_accepted(offset):
+    """Item 7: the top-view tests used uncentred coordinates and called a dome 1e9 m from the
+    origin 'not a roof ... check the vertical axis'."""
+    d = small_dome()
+    far = replace(d, mesh=d.mesh.with_vertices(d.mesh.vertices + [offset, offset, 0]))
+    codes = {i.code for i in validate_scene(far)}
+    assert codes <= {"precision"}
+    assert ("precision" in codes) == (offset >= 1e12)  # a 14 m dome at 1e12 m keeps ~5 digits
+    if offset == 1e9:
+        res = api.solve(far)
+        assert res.status == "converged" and net_error(res.network) < 1e-9
+
+
+def _network_doc(net_path: Path) -> dict:
+    return json.loads(net_path.read_text())
+
+
+def test_check_with_weights_of_the_wrong_length_is_an_input_error(small_network, tmp_path, capsys):
+    """Item 8: it used to drop the stored weights silently."""
+    d = _network_doc(small_network)
+    d["weights"] = d["weights"][:-3]
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    code = cli.main(["check", str(p)])
+    assert_one_line_error(capsys.readouterr().err, code, 2, "'weights' has")
+    with pytest.raises(InputError, match="weights"):
+        api.check(p)
+
+
+def test_check_with_negative_stored_weights_says_no_and_which_weights(small_network, tmp_path, capsys):
+    """Item 8: the stored verdict is 'no'; the verdict line names the stored and the fitted weights."""
+    d = _network_doc(small_network)
+    d["weights"] = [-abs(w) for w in d["weights"]]
+    p = tmp_path / "neg.json"
+    p.write_text(json.dumps(d))
+    rep = api.check(p)
+    assert rep.stored_self_supporting is False and rep.stored_min_weight < 0
+    assert rep.self_supporting  # the surface itself stands: the fitted weights say so
+    code = cli.main(["check", str(p)])
+    out = capsys.readouterr().out.splitlines()
+    assert code == 1
+    assert any(ln.startswith("stored weights: self-supporting") and "NO" in ln for ln in out)
+    verdict = out[-1]
+    assert verdict.startswith("NOT self-supporting as stored: the stored weights") and "tension" in verdict
+    assert "fitted" in verdict and verdict.endswith(".")
+
+
+def test_option_ranges_are_checked_up_front(capsys, monkeypatch):
+    """Item 9: --option shrink=2 used to run and end 'stalled ... add supports'."""
+    from dataclasses import fields
+
+    from selfsupport.methods.staggered import StaggeredOptions
+
+    for f in fields(StaggeredOptions):
+        if f.type in ("float", "int"):
+            assert "range" in f.metadata, f.name
+            assert f.default is not None
+    monkeypatch.setattr(api, "make_method", lambda *a, **k: pytest.fail("the solve started"))
+    for opt, needle in [("shrink=2", "(0, 1)"), ("shrink=0", "(0, 1)"), ("alpha0=-1", "(0, inf)"),
+                        ("max_iter=0", "[1, inf)")]:
+        code = cli.main(["solve", "shape:dome:100", "--out", "/nonexistent-dir-i16/x.json", "-q", "--option", opt])
+        assert_one_line_error(capsys.readouterr().err, code, 2, needle)
+    with pytest.raises(InputError, match="out of range"):
+        api.solve(small_dome(), options={"shrink": 2.0})
+
+
+@pytest.mark.parametrize("density, needle", [("1e300", "overflow"), ("1e-300", "vanish")])
+def test_loads_that_overflow_are_refused_up_front(density, needle, tmp_path, capsys):
+    """Item 9: --density 1e300 used to end 'stalled ... max relative error inf ... add supports'."""
+    out = tmp_path / "x.json"
+    code = cli.main(["solve", "shape:dome:100", "--out", str(out), "-q", "--density", density])
+    assert_one_line_error(capsys.readouterr().err, code, 2, needle)
+    assert not out.exists()
+
+
+def test_summary_lines_have_no_trailing_spaces(tmp_path, capsys):
+    """Item 12."""
+    assert cli.main(["solve", "shape:dome:100", "--out", str(tmp_path / "x.json"), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip() and not [ln for ln in out.splitlines() if ln != ln.rstrip()]
+
+
+def test_the_not_verdict_of_check_is_a_complete_sentence(capsys):
+    """Item 12: it read '... finds a nearby surface that is'."""
+    code = cli.main(["check", "shape:pillar_vault:200"])
+    verdict = capsys.readouterr().out.splitlines()[-1]
+    assert code == 1 and verdict.startswith("NOT self-supporting: ")
+    assert verdict.endswith("a nearby surface that can.") and "cannot stand as it is" in verdict
+
+
+def test_the_view_page_has_a_title(small_network, tmp_path):
+    """Item 12."""
+    import re
+
+    out = tmp_path / "v.html"
+    assert cli.main(["view", str(small_network), "--out", str(out), "--no-analysis", "--title", "my <dome>"]) == 0
+    m = re.search(r"<title>(.*?)</title>", out.read_text())
+    assert m and m.group(1) == "my &lt;dome&gt; - selfsupport view"

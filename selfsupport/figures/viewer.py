@@ -292,10 +292,19 @@ def _airy_layers(fig, add, net: Network, airy: Any) -> None:
     fig.update_yaxes(title_text="∂φ/∂y [N]", scaleanchor="x", scaleratio=1, row=2, col=2)
 
 
-def view_html(fig) -> str:
-    """The complete HTML page of a view, plotly.js inlined (works offline)."""
-    return fig.to_html(include_plotlyjs=True, full_html=True, include_mathjax=False, div_id=_DIV_ID,
+def view_html(fig, title: str | None = None) -> str:
+    """The complete HTML page of a view, plotly.js inlined (works offline), with a ``<title>``
+    (``title``, else the figure's own title without its subtitle)."""
+    import html
+    import re
+
+    page = fig.to_html(include_plotlyjs=True, full_html=True, include_mathjax=False, div_id=_DIV_ID,
                        config={"displaylogo": False, "responsive": True, "scrollZoom": True})
+    if title is None:
+        text = fig.layout.title.text or ""
+        title = re.sub(r"<[^>]*>", " ", text.split("<br>")[0]).strip() or "thrust network"
+    tag = f"<title>{html.escape(title)} - selfsupport view</title>"
+    return page.replace("<head>", f"<head>{tag}", 1) if "<head>" in page else tag + page
 
 
 def write_view(path: str | Path, network: Network, *, reference: PolyMesh | None = None,
@@ -307,5 +316,5 @@ def write_view(path: str | Path, network: Network, *, reference: PolyMesh | None
     if path.suffix.lower() not in (".html", ".htm"):
         raise InputError(f"{path}: the view is an HTML page; give a file name ending in .html")
     fig, info = build_view(network, reference=reference, title=title, airy=airy, with_analysis=with_analysis)
-    atomic_write_text(path, view_html(fig))
+    atomic_write_text(path, view_html(fig, title=title or "thrust network"))
     return info

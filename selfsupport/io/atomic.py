@@ -5,6 +5,10 @@ The data goes to a temporary file in the target's directory (same file system, s
 If anything fails on the way — including an exception raised by a chunk generator while the
 content is still being produced — the temporary file is removed and an existing target is
 left untouched.
+
+What may be written is decided by :func:`selfsupport.io.safety.write_target`: a regular file or
+a new path; a symlink is written through to its target (the link stays a link); a directory,
+device, FIFO or socket is refused with an :class:`~selfsupport.errors.InputError`.
 """
 from __future__ import annotations
 
@@ -47,14 +51,15 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes | Iterable[bytes]) -
 
 
 def _atomic_write(path: Path, chunks: Iterable[bytes]) -> None:
+    from .safety import write_target
+
+    path = write_target(path)
     parent = path.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"cannot create directory {parent} for {path}: {e.strerror or e}; "
                          "check the path and permissions") from e
-    if path.is_dir():
-        raise InputError(f"cannot write {path}: it is a directory; give a file name")
     # Keep an existing file's permission bits; for a new file let the umask decide (0o666 & ~umask),
     # as a plain open() would — mkstemp's 0o600 would surprise users.
     try:

@@ -57,7 +57,7 @@ class Source:
     def read_text(self) -> str:
         data = self.read_bytes()
         try:
-            return data.decode("utf-8")
+            return data.decode("utf-8-sig")  # a leading byte-order mark is not content
         except UnicodeDecodeError as e:
             line = data[:e.start].count(b"\n") + 1
             raise self.error("is not a UTF-8 text file (undecodable byte)", "check the file format and suffix",

@@ -4,7 +4,13 @@ One record per line (DESIGN.md §4)::
 
     v x y z load pinned handled     pinned/handled are 0/1
     f n i_1 ... i_n                 0-based vertex indices
-    e i j crease creaseval weight   a stored edge weight
+    e i j crease creaseval weight   a stored edge weight (older files: ``e i j crease creaseval``)
+    # ...                           a comment: any bytes (Latin-1 and the like included)
+
+The text is UTF-8 (a leading byte-order mark is skipped); only what stands before a ``#``
+has to decode. Vertices that belong to no face (the original tool wrote some) are made
+supports that carry nothing, so that every index stays that of the file; the scene check
+warns about them (``isolated_vertices``).
 
 The vertical axis is y and points down (height = −y): file coordinates (X, Y, Z) become
 ours as (X, Z, −Y), the proper rotation ``axes.UP_AXES["-y"]``.
@@ -12,7 +18,7 @@ ours as (X, Z, −Y), the proper rotation ``axes.UP_AXES["-y"]``.
 ``load`` is the old tool's cached nodal load, recomputed there on every solve; it is never
 used as a load here (the solver recomputes self-weight from the geometry) but kept in
 ``meta["sss_loads"]``. The ``e`` records' weights are kept in ``meta["sss_edge_weights"]``
-as an ``(k, 3)`` array ``[i, j, w]``.
+as an ``(k, 3)`` array ``[i, j, w]`` (records without a weight are left out).
 """
 from __future__ import annotations
 
@@ -24,7 +30,7 @@ from ..errors import InputError
 from ..scene import Scene
 from .atomic import atomic_write_text
 from .axes import rotation
-from .meshfiles import LoadedMesh, RawMesh, Source, faces_to_csr, finish_mesh, strip_comment
+from .meshfiles import LoadedMesh, RawMesh, Source, faces_to_csr, finish_mesh
 
 __all__ = ["SSS_UP", "read_sss", "write_scene_sss"]
 
@@ -38,15 +44,15 @@ def read_sss(path: str | Path, up: str | None = None) -> LoadedMesh:
     if up not in (None, SSS_UP):
         raise InputError(f"{src.path}: .sss files have height = -y by definition, got up={up!r}; "
                          "leave --up out (or pass --up=-y)")
-    text = src.read_text()
+    lines = _decoded_lines(src)
     vrows: list[list[str]] = []
     vlines: list[int] = []
     faces: list[list[int]] = []
     flines: list[int] = []
     erows: list[list[str]] = []
     elines: list[int] = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        tok = strip_comment(line).split()
+    for lineno, line in lines:
+        tok = line.split()
         if not tok:
             continue
         kind = tok[0]
@@ -71,10 +77,10 @@ def read_sss(path: str | Path, up: str | None = None) -> LoadedMesh:
             faces.append(face)
             flines.append(lineno)
         elif kind == "e":
-            if len(tok) != 6:
-                raise src.error(f"edge record has {len(tok) - 1} fields, expected 5",
+            if len(tok) not in (5, 6):
+                raise src.error(f"edge record has {len(tok) - 1} fields, expected 5 (or 4 without the weight)",
                                 "write 'e i j crease creaseval weight'", lineno)
-            erows.append(tok[1:])
+            erows.append(tok[1:] + ["nan"] * (6 - len(tok)))  # nan: no stored weight
             elines.append(lineno)
         else:
             raise src.error(f"unknown .sss record {kind!r}", "only v, f and e records exist; remove that line", lineno)
@@ -118,16 +124,40 @@ def read_sss(path: str | Path, up: str | None = None) -> LoadedMesh:
                                     "write 'e i j crease creaseval weight' with numbers", ln) from None
             raise  # pragma: no cover
         ij = ew[:, :2]
-        bad = (ij != np.round(ij)).any(axis=1) | (ij < 0).any(axis=1) | (ij >= n).any(axis=1) | ~np.isfinite(ew).all(axis=1)
+        given = ~np.isnan(ew[:, 4])
+        bad = ((ij != np.round(ij)).any(axis=1) | (ij < 0).any(axis=1) | (ij >= n).any(axis=1)
+               | ~np.isfinite(ew[:, :4]).all(axis=1) | (given & ~np.isfinite(ew[:, 4])))
         if bad.any():
             k = int(np.argmax(bad))
             raise src.error(f"edge record {' '.join(erows[k])!r} has a vertex index outside 0..{n - 1} "
                             "or a non-finite number", "fix or remove that record", elines[k])
-        edge_weights = np.column_stack([ij, ew[:, 4]])
+        edge_weights = np.column_stack([ij, ew[:, 4]])[given]
     else:
         edge_weights = np.zeros((0, 3))
     meta = {"format": "sss", "up": SSS_UP, "sss_loads": vals[:, 3].copy(), "sss_edge_weights": edge_weights}
-    return LoadedMesh(mesh, supports=flags[:, 0] == 1.0, handles=flags[:, 1] == 1.0, meta=meta)
+    supports = flags[:, 0] == 1.0
+    isolated = mesh.isolated_vertices
+    if isolated.size:
+        supports[isolated] = True  # carry nothing; kept so that indices stay the file's
+        meta["isolated_vertices"] = isolated
+    return LoadedMesh(mesh, supports=supports, handles=flags[:, 1] == 1.0, meta=meta)
+
+
+def _decoded_lines(src: Source) -> list[tuple[int, str]]:
+    """``(line number, text before any '#')`` per line: a comment may hold any bytes, the rest
+    must be UTF-8 (a leading byte-order mark is dropped)."""
+    data = src.read_bytes()
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    out = []
+    for lineno, raw in enumerate(data.splitlines(), 1):
+        body = raw.split(b"#", 1)[0]
+        try:
+            out.append((lineno, body.decode("utf-8")))
+        except UnicodeDecodeError:
+            raise src.error("has a byte that is not UTF-8 outside a comment", "check the file format and suffix",
+                            lineno) from None
+    return out
 
 
 def write_scene_sss(path: str | Path, scene: Scene) -> None:

@@ -94,6 +94,7 @@ from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
 from ..linalg import spd_factor
 from ..loads import LoadCase
+from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .base import as_problem, case_networks, hull_report, term_values
@@ -109,40 +110,46 @@ from .weightfit import WeightFitBackend, make_backend
 DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0, "fairness": 100.0}
 
 
+def _setting(default: Any, interval: str) -> Any:
+    """A numeric setting with its allowed interval (checked by :func:`selfsupport.options.check_range`)."""
+    return field(default=default, metadata={"range": interval})
+
+
 @dataclass(frozen=True)
 class StaggeredOptions:
-    """Settings of the staggered method (general: no per-scene tuning)."""
+    """Settings of the staggered method (general: no per-scene tuning). Each numeric setting
+    carries its allowed interval (``--option`` values outside it are refused)."""
 
-    alpha0: float = 1.0  # weight of the objective (distance to the reference, ...) at the start
-    beta0: float = 0.01  # proximal penalty at the start
-    shrink: float = 0.5  # factor applied to α, β after an iteration that reduced the error
+    alpha0: float = _setting(1.0, "(0, inf)")  # weight of the objective (distance to the reference, ...) at the start
+    beta0: float = _setting(0.01, "(0, inf)")  # proximal penalty at the start
+    shrink: float = _setting(0.5, "(0, 1)")  # factor applied to α, β after an iteration that reduced the error
     # (and to α from the third rejected step in a row)
-    alpha_min: float = 1e-8
-    beta_min: float = 1e-8
-    max_rejections: int = 12  # consecutive rejected position steps before "stalled"
-    stall_window: int = 30  # iterations at alpha_min in which the fit error must halve, else "stalled"
-    # (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
-    reproject_every: int = 1  # closest-point re-projection onto the reference (0: never)
-    prox_w: float = 1e-8  # proximal weight of the Step-2 fit relative to its diagonal: makes the
-    # weights unique (A has more columns than rows) and reproducible during the iteration
-    prox_w_final: float = 1e-12  # ... and for the last fit before the polish
-    polish_tol: float = 1e-3  # fit error below which the weights are frozen and positions solved
+    alpha_min: float = _setting(1e-8, "(0, inf)")
+    beta_min: float = _setting(1e-8, "(0, inf)")
+    max_rejections: int = _setting(12, "[1, inf)")  # consecutive rejected position steps before "stalled"
+    stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
+    # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
+    reproject_every: int = _setting(1, "[0, inf)")  # closest-point re-projection onto the reference (0: never)
+    prox_w: float = _setting(1e-8, "(0, inf)")  # proximal weight of the Step-2 fit relative to its diagonal:
+    # makes the weights unique (A has more columns than rows) and reproducible during the iteration
+    prox_w_final: float = _setting(1e-12, "(0, inf)")  # ... and for the last fit before the polish
+    polish_tol: float = _setting(1e-3, "(0, inf)")  # fit error below which the weights are frozen, positions solved
     coupled: bool = False  # Step 3 moves the free weights with the positions (Gauss-Newton on min_w E):
     # up to 1.65x closer to the reference on the paper's scenes, 1.5-4x slower, and less reproducible
     # under rotation/scaling of the input (weights shift by up to ~1.5%); hence opt-in
-    coupled_damping: float = 1e-4  # coupled step: how strongly weights near ε are held (∝ 1/gap²)
-    finish_try: float = 0.1  # fit error below which the polish is tried after every accepted step
-    finish_slack: float = 0.05  # ... and kept if its mean distance to the reference grows by at most this
-    finish_screen: float = 0.25  # ... and not even polished when one stress-Laplacian solve with the
-    # iterate's loads already moves the mean distance up by more than this (see _try_finish)
+    coupled_damping: float = _setting(1e-4, "[0, inf)")  # coupled step: how strongly weights near ε are held
+    finish_try: float = _setting(0.1, "[0, inf)")  # fit error below which the polish is tried after every step
+    finish_slack: float = _setting(0.05, "[0, inf)")  # ... kept if its mean distance grows by at most this
+    finish_screen: float = _setting(0.25, "[0, inf)")  # ... and not even polished when one stress-Laplacian
+    # solve with the iterate's loads already moves the mean distance up by more than this (see _try_finish)
     try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
-    fit_rtol: float = 1e-3  # KKT tolerance a Step-2 backend may stop at while the fit error is above
-    # finish_try (those fits only steer the iteration; the fits the finish uses are exact)
-    refine: int = 0  # at most this many SQP steps towards the objective's optimum after convergence
-    # (refine.py; 0: the paper's method as it is)
-    tol: float = 1e-9  # required max relative error of the final network
-    max_iter: int = 200
-    time_limit: float = 600.0
+    fit_rtol: float = _setting(1e-3, "(0, inf)")  # KKT tolerance a Step-2 backend may stop at while the fit
+    # error is above finish_try (those fits only steer the iteration; the fits the finish uses are exact)
+    refine: int = _setting(0, "[0, inf)")  # at most this many SQP steps towards the objective's optimum after
+    # convergence (refine.py; 0: the paper's method as it is)
+    tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network
+    max_iter: int = _setting(200, "[1, inf)")
+    time_limit: float = _setting(600.0, "(0, inf)")
 
 
 def parse_option(text: str) -> tuple[str, Any]:
@@ -150,6 +157,9 @@ def parse_option(text: str) -> tuple[str, Any]:
 
     >>> parse_option("coupled=true"), parse_option("shrink=0.25")
     (('coupled', True), ('shrink', 0.25))
+
+    Values outside the interval in the field's ``metadata["range"]`` are refused
+    (:func:`selfsupport.options.check_range`).
     """
     key, sep, value = text.partition("=")
     key, value = key.strip().replace("-", "_"), value.strip()
@@ -167,6 +177,9 @@ def parse_option(text: str) -> tuple[str, Any]:
         raise InputError(f"--option {key} needs a {kind} value, got {value!r}") from None
     if not np.isfinite(number):
         raise InputError(f"--option {key} must be finite, got {value!r}")
+    from ..options import check_range
+
+    check_range(key, number, fields[key].metadata.get("range"))  # the interval next to the field
     return key, number
 
 
