@@ -29,14 +29,22 @@ How it is computed
   shortest path that prefers support–support edges, which carry no force — whose dual
   edges are left out of the least squares; the periods are read off across the cuts and
   reported per source (:class:`Period`). A free hole in equilibrium has zero period.
-* ``φ_i`` is the mean of the incident face planes at ``x_i``; ``vertex_spread`` says how far
-  they disagree (zero on exact input away from cuts with non-zero period). The gauge (Φ is
-  defined up to an affine function per component) is fixed by removing the best-fit
-  plane, as the original tool did.
+* **Φ on the cover.** Every corner takes its value from its own face's plane, so every face
+  of Φ is planar (``corner_phi``). The corners of a vertex form one vertex of Φ unless a cut with a
+  non-zero period separates them: there Φ is cut open and the vertex gets one copy per side
+  (``cover_vertex``, ``cover_phi``, ``cover_parent``; :meth:`AiryResult.stress_mesh`).
+  ``phi`` per vertex is the branch of its lowest-numbered face; ``vertex_spread`` says how
+  far the planes meeting at one vertex of Φ disagree (zero on exact input). The gauge (Φ is
+  defined up to an affine function per component) is fixed by removing the best-fit plane,
+  as the original tool did.
+* **Per-vertex quantities** (``Δ_φ φ``, reciprocal cells, eq. (6)) are sums over a vertex's
+  star; ``star_planes`` holds each corner's plane continued around its vertex from the
+  vertex's first face, the period applied across cut edges, so the star sums see one branch
+  (:func:`~selfsupport.analysis.reciprocal.cover_cells`).
 * Faces whose vertices are all supports carry nothing; they simply continue their
   neighbours' planes (the support–support edges between them have zero weight).
-* Polygon faces (quads …) get one plane each. When the vertex values of a polygon are
-  not coplanar (only possible on non-integrable input) the face is listed in
+* Polygon faces (quads …) get one plane each. When the values at the vertices of Φ of a
+  polygon are not coplanar (only possible on non-integrable input) the face is listed in
   ``nonplanar_faces`` and split by a fan of diagonals — edges the network does not have,
   i.e. zero-force edges of S — whose Φ-creases (the weights Φ would need there) are
   reported in ``split_edges`` / ``split_edge_weights``.

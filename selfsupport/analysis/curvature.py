@@ -2,7 +2,9 @@
 
 With the stress Laplacian ``Δ_φ f(v_i) = Σ_j w_ij (f_j − f_i)`` (the same matrix as
 :func:`selfsupport.methods.assembly.stress_laplacian`), equation (3) reads
-``Δ_φ s = A F`` and, per interior free vertex ``i``:
+``Δ_φ s = A F`` and, per free vertex ``i`` (interior or on a free boundary; the quantities of
+φ are taken on vertex ``i``'s branch of Φ, see :func:`~selfsupport.analysis.reciprocal.cover_cells`,
+so they hold next to cuts around holes and interior supports too):
 
 * ``Δ_φ φ (v_i) = 2 A*_i`` — twice the signed area of vertex ``i``'s cell in the reciprocal
   diagram (an identity of every network in horizontal equilibrium);
@@ -17,12 +19,17 @@ With the stress Laplacian ``Δ_φ f(v_i) = Σ_j w_ij (f_j − f_i)`` (the same m
   **per unit top-view area**: the network stores nodal loads ``A_i F_i`` [N]. The area
   cancels, so :attr:`Curvatures.balance_residual` compares
   ``2 A*_i Δ_φ s / Δ_φ φ`` with the nodal load ``A_i F_i``; it vanishes exactly when (3) holds
-  at ``i`` and the reciprocal cell closes (2).
+  at ``i`` and the reciprocal cell closes (2). Where Φ is flat to round-off (``K_Φ = 0``,
+  e.g. two collinear edges on a straight free boundary) ``H_rel`` is undefined and (6) is
+  judged in the form ``2 A*_i Δ_φ s = Δ_φ φ · A_i F_i`` relative to the cell's scale
+  (:data:`FLAT_TOL`, :attr:`Curvatures.flat`).
 
 Relative principal curvatures and directions are the eigenvalues and eigenvectors of
 ``(∇²φ)⁻¹ ∇²s`` (``½ (κ₁ + κ₂)`` is the smooth counterpart of ``H_rel``), with both Hessians
 estimated per vertex by a least-squares quadratic fit over the vertex's 2-ring in the top
-view. :func:`write_vector_fields` exports them per face like the paper's ``-vf.txt``.
+view. :func:`write_vector_fields` exports them per face like the paper's ``-vf.txt``. The φ fit
+still uses ``phi`` per vertex (one branch), so within two rings of a cut with a period the
+Hessian of φ mixes branches (not yet on the cover).
 """
 from __future__ import annotations
 
