@@ -13,7 +13,8 @@ diagram, H_rel, K_Φ and the balance (6); ``AIRY.json`` holds ``phi`` (per verte
 ``reciprocal_vertices`` (per face, network face order), ``H_rel``, ``K_phi``,
 ``balance_residual`` (per vertex; ``null`` where undefined), ``closure_residual`` (the worst
 relative horizontal imbalance), ``convex``, and more (periods around holes and interior supports,
-cut edges, crease weights, principal directions). ``construct`` builds a self-supporting
+cut edges, ``corner_phi`` and ``phi_copies`` — Φ on the cover, cut open along cuts with a period —,
+crease weights, principal directions). ``construct`` builds a self-supporting
 network from a convex Airy function (§2.5) and writes it in the network format.
 
 Exit codes: 0 on success; for ``airy`` also 0 when Φ is not convex (that is a finding, printed);
@@ -45,7 +46,8 @@ def add_airy_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("network", metavar="NET.json", help="network file (JSON, as written by 'selfsupport solve')")
     p.add_argument("--out", "-o", required=True, metavar="AIRY.json", help="analysis file to write (JSON)")
     p.add_argument("--stress", metavar="PHI.obj", default=None,
-                   help="also write the Airy stress surface (x, y, φ) as a mesh (.obj .ply .off)")
+                   help="also write the Airy stress surface (x, y, φ) as a mesh (.obj .ply .off); planar faces, vertices "
+                        "on cuts with a period appear once per side (appended after the network's)")
     p.add_argument("--reciprocal", metavar="RECIP.obj", default=None,
                    help="also write the reciprocal force diagram (one vertex per face, one cell per interior vertex)")
     p.add_argument("--polar", metavar="POLAR.obj", default=None,
@@ -77,6 +79,9 @@ def airy_document(network, res, rd, cv) -> dict[str, Any]:
                 "thrust": p.thrust, "moment": p.moment, "cut_edge": p.cut_edges} for p in res.periods]
     doc: dict[str, Any] = {
         "phi": res.phi,
+        "corner_phi": res.corner_phi,
+        "phi_copies": {"vertex": res.cover_parent[network.mesh.n_vertices:],
+                       "phi": res.cover_phi[network.mesh.n_vertices:]},
         "reciprocal_vertices": res.reciprocal_vertices,
         "face_offsets": res.face_offsets,
         "polar_vertices": rd.polar_vertices,
@@ -106,8 +111,11 @@ def airy_document(network, res, rd, cv) -> dict[str, Any]:
             "reciprocal_vertices": "gradient of Φ on each face (network face order); across interior edge k, "
                                    "R[left] - R[right] = w_k J (x_j - x_i) for edges[k] = (i, j), J = +90° rotation",
             "balance_residual": "|2 K_phi H_rel - F| / |F| with F = load / top-view vertex area (eq. 6), "
-                                "at interior free vertices",
+                                "at free vertices, summed over each vertex's star on its own branch of Φ",
             "closure_residual": "max over free vertices of |Σ_j w_ij (x_j - x_i)| / Σ_j |w_ij| |x_j - x_i|",
+            "phi": "per vertex, on the branch of its lowest-numbered face; corner_phi per corner (faces in order, "
+                   "corners concatenated) is single valued per face; phi_copies lists the second branches of the "
+                   "vertices on cuts with a period (the --stress mesh appends them as vertices n, n+1, ...)",
         },
     }
     if cv.principal_directions is not None:
@@ -167,7 +175,7 @@ def run_airy(args: argparse.Namespace) -> int:
             ("balance 2 K_Φ H_rel = F (eq. 6), max rel.", f"{cv.max_balance_residual:.2e}"),
             ("Δφ φ = 2 × reciprocal cell area, max rel.", f"{cv.max_identity_residual:.2e}"),
             ("periods (holes, interior supports)", str(len(res.periods))),
-            ("cut edges", str(res.cut_edges.size)),
+            ("cut edges / vertices of Φ copied along cuts", f"{res.cut_edges.size} / {res.n_cover_copies}"),
             ("non-planar polygon faces (split)", str(res.nonplanar_faces.size)),
             ("time", f"{seconds:.3f} s"),
             ("written", ", ".join(written))]

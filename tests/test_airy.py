@@ -157,7 +157,8 @@ def test_eq5_and_eq6_hold_to_round_off_on_random_and_solved_networks(solved):
         d = cv.defined
         assert d.sum() > 50
         # eq. (5): Δφ s / Δφ φ equals the mixed-area ratio A(Φ*, S*) / A(Φ*) on triangle meshes
-        np.testing.assert_allclose(cv.H_rel[d], cv.H_rel_mixed[d], rtol=1e-9, atol=0)
+        c = cv.closed
+        np.testing.assert_allclose(cv.H_rel[c], cv.H_rel_mixed[c], rtol=1e-9, atol=0)
         # eq. (6): 2 K_Φ H_rel = F_i, F_i the load per unit top-view area
         np.testing.assert_allclose(2 * cv.K_phi[d] * cv.H_rel[d], cv.load_density[d], rtol=1e-9, atol=0)
         assert cv.max_balance_residual < 1e-9
@@ -282,6 +283,101 @@ def test_interior_supports_have_periods_equal_to_their_reactions(solved):
     ev = xy[e[:, 1]] - xy[e[:, 0]]
     d = R[ef[live, 0]] - R[ef[live, 1]]
     assert np.abs(d - w[live, None] * J(ev[live])).max() <= 1e-9 * jump_scale(net)
+
+
+def holed_dome() -> Network:
+    """A dome with an off-centre hole whose rim is pinned and one pinned interior vertex, solved:
+    both sources have a non-zero period and their cuts run through free vertices."""
+    from selfsupport.loads import SelfWeight
+    from selfsupport.methods.staggered import StaggeredLinearization
+    from selfsupport.scene import Scene
+
+    m = make_shape("dome", rings=10).mesh
+    V = m.vertices
+    cen = np.array([V[f, :2].mean(axis=0) for f in m.faces])
+    faces = [f for f, c in zip(m.faces, cen) if np.hypot(c[0] - 1.6, c[1] - 0.7) > 1.2]
+    used = np.unique(np.concatenate(faces))
+    remap = np.full(len(V), -1)
+    remap[used] = np.arange(len(used))
+    mesh = PolyMesh.from_faces(V[used], [remap[f] for f in faces])
+    sup = mesh.boundary_vertex_mask.copy()
+    d = np.hypot(mesh.vertices[:, 0] + 2.0, mesh.vertices[:, 1] + 1.0)
+    d[sup] = np.inf
+    sup[np.argmin(d)] = True
+    res = StaggeredLinearization().solve(Scene(mesh=mesh, supports=sup, name="holed dome"), SelfWeight())
+    assert res.converged and res.network.max_relative_error() < 1e-11
+    return res.network
+
+
+@pytest.fixture(scope="module")
+def holed():
+    return holed_dome()
+
+
+def test_eq6_and_cell_identity_hold_next_to_cuts_of_supported_holes_and_interior_supports(holed):
+    net = holed
+    res = airy(net)
+    assert len(net.mesh.boundary_loops) == 2
+    assert sorted(p.kind for p in res.periods) == ["hole", "support"]
+    assert all(np.linalg.norm(p.gradient) > 1e-3 * jump_scale(net) for p in res.periods)
+    e = net.mesh.edges[res.cut_edges]
+    on_cut = np.unique(e[~net.supports[e]])
+    assert on_cut.size >= 5  # the cuts run through free vertices
+    cv = curvatures(net, res, directions=False)
+    free = ~net.supports
+    assert np.array_equal(cv.defined, free)
+    assert np.all(np.isfinite(cv.balance_residual[free])) and np.all(np.isfinite(cv.identity_residual[free]))
+    assert cv.max_balance_residual <= 1e-9 and cv.max_identity_residual <= 1e-9
+    assert not cv.flat.any()
+    np.testing.assert_allclose(2 * cv.K_phi[free] * cv.H_rel[free], cv.load_density[free], rtol=1e-9, atol=0)
+    # the star sums are Σ_j w_ij (φ_j − φ_i) with φ_j on vertex i's branch: off the cuts' vertices
+    # and their neighbours that is the plain stress Laplacian of φ
+    from formulations.equilibrium import Topology, stress_laplacian
+
+    L = stress_laplacian(Topology.build(net.mesh.n_vertices, net.edges, net.supports), net.weights)
+    near = np.zeros(net.mesh.n_vertices, bool)
+    near[np.unique(e)] = True
+    near[np.unique(net.edges[near[net.edges].any(axis=1)])] = True
+    far = free & ~near
+    np.testing.assert_allclose(cv.laplacian_phi[far], (L @ res.phi)[far], rtol=1e-9,
+                               atol=1e-12 * np.abs(cv.laplacian_phi).max())
+    rd = reciprocal(res)
+    inner = free & ~net.mesh.boundary_vertex_mask
+    np.testing.assert_allclose(2 * rd.cell_areas[inner], cv.laplacian_phi[inner], rtol=1e-9, atol=0)
+
+
+def test_exported_phi_is_cut_open_along_cuts_with_planar_faces(holed, tmp_path):
+    net = holed
+    res = airy(net)
+    n = net.mesh.n_vertices
+    assert res.n_cover_copies > 0 and res.nonplanar_faces.size == 0 and res.split_edges.size == 0
+    assert np.array_equal(res.cover_parent[:n], np.arange(n))
+    assert np.isin(res.cover_parent[n:], net.mesh.edges[res.cut_edges]).all()  # copies only on cuts
+    assert np.nanmax(res.vertex_spread) < 1e-10 * np.ptp(res.phi)
+    from selfsupport.io import read_mesh, write_mesh
+
+    write_mesh(tmp_path / "phi.obj", res.stress_mesh())
+    phi_mesh = read_mesh(tmp_path / "phi.obj")
+    assert phi_mesh.n_vertices == n + res.n_cover_copies and phi_mesh.n_faces == net.mesh.n_faces
+    np.testing.assert_allclose(phi_mesh.vertices[:n, 2], res.phi, rtol=0, atol=1e-12 * np.abs(res.phi).max())
+    # every face of Φ lies in its own plane, whose gradient is the reciprocal vertex
+    P = phi_mesh.vertices
+    for f, face in enumerate(phi_mesh.faces):
+        plane = P[face, :2] @ res.face_gradients[f] + res.face_offsets[f]
+        assert np.abs(P[face, 2] - plane).max() <= 1e-10 * np.ptp(res.phi)
+    # and its faces still meet along the network's edges off the cuts: the copies sit on cut vertices only
+    assert len(np.unique(P[:, :2].round(9), axis=0)) == n
+
+
+def test_free_boundary_vertices_balance_with_the_plane_beyond_the_boundary():
+    net = cheese_network()
+    res = airy(net)
+    cv = curvatures(net, res, directions=False)
+    rim = ~net.supports & net.mesh.boundary_vertex_mask
+    assert rim.sum() > 20
+    assert np.all(np.isfinite(cv.balance_residual[rim])) and cv.max_balance_residual < 1e-9
+    assert cv.max_identity_residual < 1e-9 and np.all(cv.reciprocal_areas[rim] > 0)
+    assert np.isnan(cv.H_rel_mixed[rim]).all()  # S has no plane beyond the boundary
 
 
 def test_reversed_faces_give_the_same_surface_and_diagram(solved):

@@ -29,14 +29,22 @@ How it is computed
   shortest path that prefers support–support edges, which carry no force — whose dual
   edges are left out of the least squares; the periods are read off across the cuts and
   reported per source (:class:`Period`). A free hole in equilibrium has zero period.
-* ``φ_i`` is the mean of the incident face planes at ``x_i``; ``vertex_spread`` says how far
-  they disagree (zero on exact input away from cuts with non-zero period). The gauge (Φ is
-  defined up to an affine function per component) is fixed by removing the best-fit
-  plane, as the original tool did.
+* **Φ on the cover.** Every corner takes its value from its own face's plane, so every face
+  of Φ is planar (``corner_phi``). The corners of a vertex form one vertex of Φ unless a cut with a
+  non-zero period separates them: there Φ is cut open and the vertex gets one copy per side
+  (``cover_vertex``, ``cover_phi``, ``cover_parent``; :meth:`AiryResult.stress_mesh`).
+  ``phi`` per vertex is the branch of its lowest-numbered face; ``vertex_spread`` says how
+  far the planes meeting at one vertex of Φ disagree (zero on exact input). The gauge (Φ is
+  defined up to an affine function per component) is fixed by removing the best-fit plane,
+  as the original tool did.
+* **Per-vertex quantities** (``Δ_φ φ``, reciprocal cells, eq. (6)) are sums over a vertex's
+  star; ``star_planes`` holds each corner's plane continued around its vertex from the
+  vertex's first face, the period applied across cut edges, so the star sums see one branch
+  (:func:`~selfsupport.analysis.reciprocal.cover_cells`).
 * Faces whose vertices are all supports carry nothing; they simply continue their
   neighbours' planes (the support–support edges between them have zero weight).
-* Polygon faces (quads …) get one plane each. When the vertex values of a polygon are
-  not coplanar (only possible on non-integrable input) the face is listed in
+* Polygon faces (quads …) get one plane each. When the values at the vertices of Φ of a
+  polygon are not coplanar (only possible on non-integrable input) the face is listed in
   ``nonplanar_faces`` and split by a fan of diagonals — edges the network does not have,
   i.e. zero-force edges of S — whose Φ-creases (the weights Φ would need there) are
   reported in ``split_edges`` / ``split_edge_weights``.
@@ -68,6 +76,7 @@ from ..errors import InputError
 from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
+from .stars import Stars, vertex_stars
 
 __all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "face_orientation", "top_view_jumps", "face_planes_through"]
 
@@ -134,7 +143,7 @@ class AiryResult:
     crease_weights: np.ndarray  # (m,): the weights Φ's creases stand for (NaN: boundary, cut)
     edge_residual: np.ndarray  # (m,): |∇Φ_L − ∇Φ_R − jump| (NaN: boundary)
     closure_residual: np.ndarray  # (n,): |Σ_j w_ij (x_j − x_i)| / Σ_j |w_ij| |x_j − x_i| at free vertices (NaN: supports)
-    vertex_spread: np.ndarray  # (n,): max − min of incident face planes at the vertex
+    vertex_spread: np.ndarray  # (n,): max − min of the face planes meeting at one vertex of Φ (cover)
     planarity_residual: np.ndarray  # (F,): max |φ_i − P_f(x_i)| over the face's corners
     cut_edges: np.ndarray  # mesh edge indices whose dual edges were left out
     periods: tuple[Period, ...]
@@ -144,6 +153,10 @@ class AiryResult:
     convex: bool
     face_component: np.ndarray  # (F,) dual component label (gauge per component)
     integration: str  # "tree" (integrable input, spanning-tree integration) or "least-squares"
+    cover_vertex: np.ndarray  # (C,): per corner (mesh.face_vertices order), its vertex of Φ
+    cover_phi: np.ndarray  # (n + k,): φ at the vertices of Φ; the first n are ``phi``
+    cover_parent: np.ndarray  # (n + k,): the network vertex of each vertex of Φ
+    star_planes: np.ndarray  # (C, 3): per corner (g, c), its face plane continued around the vertex
     scale: dict[str, float]
     seconds: float
 
@@ -179,16 +192,32 @@ class AiryResult:
         c = self.crease_weights[np.isfinite(self.crease_weights)]
         return float(c.min()) if c.size else 0.0
 
+    @property
+    def corner_phi(self) -> np.ndarray:
+        """``(C,)``: φ at every corner (``mesh.face_vertices`` order), from the corner's vertex of Φ."""
+        return self.cover_phi[self.cover_vertex]
+
+    @property
+    def n_cover_copies(self) -> int:
+        """Vertices of Φ beyond the network's: second (third …) copies of vertices on cuts."""
+        return len(self.cover_parent) - self.mesh.n_vertices
+
     def stress_mesh(self) -> PolyMesh:
-        """Φ as a mesh over the top view: vertices ``(x_i, y_i, φ_i)``, the network's faces."""
-        v = np.c_[self.mesh.vertices[:, :2], self.phi]
-        return self.mesh.with_vertices(v)
+        """Φ as a mesh over the top view: vertices ``(x_i, y_i, φ_i)`` and the network's faces.
+
+        Where a cut with a non-zero period passes, Φ is cut open: the vertices there appear
+        once per side (``cover_parent`` says whose copy), so every face keeps its own plane.
+        The first ``n`` vertices are the network's, in order, with ``phi``.
+        """
+        v = np.c_[self.mesh.vertices[self.cover_parent, :2], self.cover_phi]
+        return PolyMesh(v, self.cover_vertex, self.mesh.face_offsets)
 
     def summary(self) -> dict[str, Any]:
         return {"convex": bool(self.convex), "orientation": self.orientation,
                 "max_closure_residual": self.max_closure_residual, "max_edge_residual": self.max_edge_residual,
                 "max_vertex_spread": float(np.nanmax(self.vertex_spread)) if self.vertex_spread.size else 0.0,
                 "min_crease_weight": self.min_crease_weight, "n_cut_edges": int(self.cut_edges.size),
+                "n_cover_copies": self.n_cover_copies,
                 "n_periods": len(self.periods), "n_nonplanar_faces": int(self.nonplanar_faces.size),
                 "integration": self.integration,
                 "seconds": self.seconds}
@@ -227,6 +256,12 @@ def face_planes_through(mesh: PolyMesh, xy: np.ndarray, values: np.ndarray
     Returns ``(g (F, 2), c (F,), residual (F,))`` with the residual the max deviation over the
     corners (zero for triangles). Batched 3 × 3 normal equations around each face centroid.
     """
+    return _planes_through_corners(mesh, xy, np.asarray(values, float)[mesh.face_vertices])
+
+
+def _planes_through_corners(mesh: PolyMesh, xy: np.ndarray, corner_values: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`face_planes_through` with one value per corner (``mesh.face_vertices`` order)."""
     face_of, _, _ = mesh.corner_data
     sizes = mesh.face_sizes
     fv = mesh.face_vertices
@@ -234,8 +269,8 @@ def face_planes_through(mesh: PolyMesh, xy: np.ndarray, values: np.ndarray
     np.add.at(cen, face_of, xy[fv])
     cen /= sizes[:, None]
     d = xy[fv] - cen[face_of]
-    vmean = np.bincount(face_of, weights=values[fv], minlength=mesh.n_faces) / sizes
-    dv = values[fv] - vmean[face_of]
+    vmean = np.bincount(face_of, weights=corner_values, minlength=mesh.n_faces) / sizes
+    dv = corner_values - vmean[face_of]
     M = np.zeros((mesh.n_faces, 2, 2))
     r = np.zeros((mesh.n_faces, 2))
     for a in range(2):
@@ -245,14 +280,14 @@ def face_planes_through(mesh: PolyMesh, xy: np.ndarray, values: np.ndarray
     g = np.linalg.solve(M, r[..., None])[..., 0]
     c = vmean - np.einsum("fi,fi->f", g, cen)
     res = np.zeros(mesh.n_faces)
-    np.maximum.at(res, face_of, np.abs(values[fv] - (np.einsum("ci,ci->c", g[face_of], xy[fv]) + c[face_of])))
+    np.maximum.at(res, face_of, np.abs(corner_values - (np.einsum("ci,ci->c", g[face_of], xy[fv]) + c[face_of])))
     return g, c, res
 
 
-def _split_fans(mesh: PolyMesh, faces: np.ndarray, xy: np.ndarray, phi: np.ndarray, sigma: int
+def _split_fans(mesh: PolyMesh, faces: np.ndarray, xy: np.ndarray, phi_c: np.ndarray, sigma: int
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Fan-split the given polygon faces at their first corner; return the diagonals
-    ``(k, 2)`` and the crease weights Φ (through the vertex values) has across them."""
+    ``(k, 2)`` and the crease weights Φ (through the corner values ``phi_c``) has across them."""
     if faces.size == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     fo, fv = mesh.face_offsets, mesh.face_vertices
@@ -261,9 +296,10 @@ def _split_fans(mesh: PolyMesh, faces: np.ndarray, xy: np.ndarray, phi: np.ndarr
     owner = np.repeat(np.arange(len(faces)), ntri)
     k = np.arange(int(ntri.sum())) - np.repeat(np.cumsum(ntri) - ntri, ntri) + 1  # 1 .. size-2
     start = fo[faces][owner]
-    t = np.stack([fv[start], fv[start + k], fv[start + k + 1]], axis=1)
+    tc = np.stack([start, start + k, start + k + 1], axis=1)  # corners
+    t = fv[tc]
     Mt = np.stack([xy[t[:, 1]] - xy[t[:, 0]], xy[t[:, 2]] - xy[t[:, 0]]], axis=1)
-    rt = np.stack([phi[t[:, 1]] - phi[t[:, 0]], phi[t[:, 2]] - phi[t[:, 0]]], axis=1)
+    rt = np.stack([phi_c[tc[:, 1]] - phi_c[tc[:, 0]], phi_c[tc[:, 2]] - phi_c[tc[:, 0]]], axis=1)
     g = np.linalg.solve(Mt, rt[..., None])[..., 0]
     # diagonal v0 -> v_k+1 between fan triangle k (right of it) and k+1 (left of it)
     nxt = np.r_[owner[1:] == owner[:-1], False]
@@ -278,6 +314,70 @@ def _split_fans(mesh: PolyMesh, faces: np.ndarray, xy: np.ndarray, phi: np.ndarr
 def _loop_area(xy: np.ndarray, loop: np.ndarray) -> float:
     p = xy[loop]
     return 0.5 * float(_cross2(p, np.roll(p, -1, axis=0)).sum())
+
+
+# ---------------------------------------------------------------------------------- cover
+def _segment_exclusive_sum(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Per position, the sum of ``values`` at the earlier positions of the same segment."""
+    cs = np.cumsum(values, axis=0) - values
+    start = np.repeat(offsets[:-1], np.diff(offsets))
+    return cs - cs[start]
+
+
+def _star_shifts(mesh: PolyMesh, stars: Stars, mismatch: np.ndarray, xy: np.ndarray, tol: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Continue the face planes around every vertex across cut edges.
+
+    ``mismatch[e] = P_L − P_R − (prescribed jump)`` on cut edges (zero elsewhere). Returns
+    ``shift`` ``(C, 3)`` per corner — added to the corner's face plane, it gives the plane as
+    continued from the vertex's first ring face — and ``sector`` ``(C,)``: corners of one vertex
+    with the same sector share a vertex of Φ; a new sector starts where a crossed cut changes
+    the value at the vertex by more than ``tol``.
+    """
+    face_of, _, _ = mesh.corner_data
+    ef = mesh.edge_faces
+    fv = mesh.face_vertices
+    corners = stars.corners
+    nxt = stars.next_position()
+    has_next = nxt >= 0
+    e = stars.after[corners]
+    m = mismatch[e]
+    # crossing R -> L continues with +jump: P_L + shift = P_R + rhs  =>  shift grows by −mismatch
+    into_left = ef[e, 0] == face_of[corners[np.where(has_next, nxt, 0)]]
+    step = np.where(into_left[:, None], -m, m) * has_next[:, None]
+    v = fv[corners]
+    jump_at_v = np.abs(np.einsum("ci,ci->c", m[:, :2], xy[v]) + m[:, 2])
+    split = has_next & (jump_at_v > tol)
+    shift_pos = _segment_exclusive_sum(step, stars.offsets)
+    label = _segment_exclusive_sum(split.astype(np.int64), stars.offsets)
+    # a closed ring whose wrap-around crossing is no split: its last sector is its first
+    last = stars.last
+    lv = v[last]
+    wrap_joins = np.zeros(mesh.n_vertices, dtype=bool)
+    wrap_joins[lv] = stars.closed[lv] & ~split[last]
+    last_label = np.zeros(mesh.n_vertices, dtype=np.int64)
+    last_label[lv] = label[last]
+    label = np.where(wrap_joins[v] & (label == last_label[v]), 0, label)
+    shift = np.empty_like(shift_pos)
+    shift[corners] = shift_pos
+    sector = np.empty_like(label)
+    sector[corners] = label
+    return shift, sector
+
+
+def _cover_vertices(n: int, fv: np.ndarray, sector: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex of Φ per corner: sector 0 keeps the vertex's index, other sectors get copies
+    numbered from ``n``. Returns ``(cover_vertex (C,), parent (n + copies,))``."""
+    cover = fv.copy()
+    extra = sector > 0
+    if extra.any():
+        key = fv[extra] * (int(sector.max()) + 1) + sector[extra]
+        uniq, inv = np.unique(key, return_inverse=True)
+        cover[extra] = n + inv
+        parent = np.r_[np.arange(n), uniq // (int(sector.max()) + 1)]
+    else:
+        parent = np.arange(n)
+    return cover, parent
 
 
 # ---------------------------------------------------------------------------------- cuts
@@ -530,29 +630,50 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
     gauge[ok] = np.linalg.solve(M[ok], r[ok][..., None])[..., 0]
     P = P - gauge[label]
 
-    # per-vertex φ: mean of the live incident planes (all planes where none is live)
+    jump_scale = float(np.mean(np.sqrt(elen2[interior]) * np.abs(w[interior]))) if interior.any() else 1.0
+    jump_scale = jump_scale if jump_scale > 0 else 1.0
+    h_mean = float(np.sqrt(elen2).mean())
+    value_tol = planarity_tol * jump_scale * h_mean
+
+    # Φ on the cover: every corner keeps its face's plane; around each vertex the planes are
+    # continued across cut edges (the period applied), and the corners of a vertex are one
+    # vertex of Φ unless a cut with a non-zero period separates them
+    stars = vertex_stars(mesh, sigma)
+    cut_mismatch = np.zeros((m, 3))
+    on_cut = tree.cut & interior
+    cut_mismatch[on_cut] = P[ef[on_cut, 0]] - P[ef[on_cut, 1]] - rhs_all[on_cut]
+    shift, sector = _star_shifts(mesh, stars, cut_mismatch, xy, value_tol)
+    cover_vertex, cover_parent = _cover_vertices(n, fv, sector)
+    ncov = len(cover_parent)
+
+    # φ per cover vertex: mean of the live incident planes (all planes where none is live)
     cv = corner_values(P)
     live_c = live_face[face_of]
-    has_live = np.zeros(n, dtype=bool)
-    np.logical_or.at(has_live, fv, live_c)
-    use = live_c | ~has_live[fv]
-    cnt = np.bincount(fv[use], minlength=n)
-    phi = np.bincount(fv[use], weights=cv[use], minlength=n) / np.maximum(cnt, 1)
-    hi_v = np.full(n, -np.inf)
-    lo_v = np.full(n, np.inf)
-    np.maximum.at(hi_v, fv[use], cv[use])
-    np.minimum.at(lo_v, fv[use], cv[use])
-    spread = np.where(cnt > 0, hi_v - lo_v, 0.0)
+    has_live = np.zeros(ncov, dtype=bool)
+    np.logical_or.at(has_live, cover_vertex, live_c)
+    use = live_c | ~has_live[cover_vertex]
+    cnt = np.bincount(cover_vertex[use], minlength=ncov)
+    cover_phi = np.bincount(cover_vertex[use], weights=cv[use], minlength=ncov) / np.maximum(cnt, 1)
+    hi_v = np.full(ncov, -np.inf)
+    lo_v = np.full(ncov, np.inf)
+    np.maximum.at(hi_v, cover_vertex[use], cv[use])
+    np.minimum.at(lo_v, cover_vertex[use], cv[use])
+    spread = np.zeros(n)
+    np.maximum.at(spread, cover_parent, np.where(cnt > 0, hi_v - lo_v, 0.0))
+    phi = cover_phi[:n]
+    phi_c = cover_phi[cover_vertex]
 
     if not live_face.all():
-        g_d, c_d, _ = face_planes_through(mesh, xy, phi)
+        g_d, c_d, _ = _planes_through_corners(mesh, xy, phi_c)
         dead = ~live_face
         P[dead, :2], P[dead, 2] = g_d[dead], c_d[dead]
 
     g = P[:, :2]
     c = P[:, 2]
     planar = np.zeros(F)
-    np.maximum.at(planar, face_of, np.abs(phi[fv] - corner_values(P)))
+    np.maximum.at(planar, face_of, np.abs(phi_c - corner_values(P)))
+    star = P[face_of] + shift
+    star_planes = np.c_[star[:, :2], star[:, 2] - star[:, :2] @ center]  # network coordinates
 
     # the jump condition as achieved, and the weights Φ's creases stand for
     diff = np.full((m, 2), np.nan)
@@ -574,10 +695,6 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
     needs = ~supports
     closure = np.full(n, np.nan)
     closure[needs] = np.linalg.norm(hsum[needs], axis=1) / np.maximum(mag[needs], 1e-300)
-
-    jump_scale = float(np.mean(np.sqrt(elen2[interior]) * np.abs(w[interior]))) if interior.any() else 1.0
-    jump_scale = jump_scale if jump_scale > 0 else 1.0
-    h_mean = float(np.sqrt(elen2).mean())
 
     # periods: mismatch across each cut edge, minus what the sources beyond it contribute
     periods: list[Period] = []
@@ -601,8 +718,8 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
 
     # non-planar polygons: split by fan diagonals (zero-force edges of S), report their creases
     sizes = mesh.face_sizes
-    bad = np.flatnonzero((sizes > 3) & (planar > planarity_tol * jump_scale * h_mean))
-    split_e, split_w = _split_fans(mesh, bad, xy, phi, sigma)
+    bad = np.flatnonzero((sizes > 3) & (planar > value_tol))
+    split_e, split_w = _split_fans(mesh, bad, xy, phi_c, sigma)
 
     wmax = float(np.abs(w).max()) if w.size else 0.0
     judged = interior & ~tree.cut & np.isfinite(crease) & ~(supports[e[:, 0]] & supports[e[:, 1]])
@@ -616,6 +733,7 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
         cut_edges=np.flatnonzero(tree.cut), periods=tuple(periods), nonplanar_faces=bad,
         split_edges=split_e, split_edge_weights=split_w,
         convex=convex, face_component=label, integration=integration,
+        cover_vertex=cover_vertex, cover_phi=cover_phi, cover_parent=cover_parent, star_planes=star_planes,
         scale={"center_x": float(center[0]), "center_y": float(center[1]), "diagonal": diag,
                "jump": jump_scale, "edge_length": h_mean},
         seconds=time.perf_counter() - t0)

@@ -2,7 +2,9 @@
 
 With the stress Laplacian ``Δ_φ f(v_i) = Σ_j w_ij (f_j − f_i)`` (the same matrix as
 :func:`formulations.equilibrium.stress_laplacian`), equation (3) reads
-``Δ_φ s = A F`` and, per interior free vertex ``i``:
+``Δ_φ s = A F`` and, per free vertex ``i`` (interior or on a free boundary; the quantities of
+φ are taken on vertex ``i``'s branch of Φ, see :func:`~selfsupport.analysis.reciprocal.cover_cells`,
+so they hold next to cuts around holes and interior supports too):
 
 * ``Δ_φ φ (v_i) = 2 A*_i`` — twice the signed area of vertex ``i``'s cell in the reciprocal
   diagram (an identity of every network in horizontal equilibrium);
@@ -17,12 +19,17 @@ With the stress Laplacian ``Δ_φ f(v_i) = Σ_j w_ij (f_j − f_i)`` (the same m
   **per unit top-view area**: the network stores nodal loads ``A_i F_i`` [N]. The area
   cancels, so :attr:`Curvatures.balance_residual` compares
   ``2 A*_i Δ_φ s / Δ_φ φ`` with the nodal load ``A_i F_i``; it vanishes exactly when (3) holds
-  at ``i`` and the reciprocal cell closes (2).
+  at ``i`` and the reciprocal cell closes (2). Where Φ is flat to round-off (``K_Φ = 0``,
+  e.g. two collinear edges on a straight free boundary) ``H_rel`` is undefined and (6) is
+  judged in the form ``2 A*_i Δ_φ s = Δ_φ φ · A_i F_i`` relative to the cell's scale
+  (:data:`FLAT_TOL`, :attr:`Curvatures.flat`).
 
 Relative principal curvatures and directions are the eigenvalues and eigenvectors of
 ``(∇²φ)⁻¹ ∇²s`` (``½ (κ₁ + κ₂)`` is the smooth counterpart of ``H_rel``), with both Hessians
 estimated per vertex by a least-squares quadratic fit over the vertex's 2-ring in the top
-view. :func:`write_vector_fields` exports them per face like the paper's ``-vf.txt``.
+view. :func:`write_vector_fields` exports them per face like the paper's ``-vf.txt``. The φ fit
+still uses ``phi`` per vertex (one branch), so within two rings of a cut with a period the
+Hessian of φ mixes branches (not yet on the cover).
 """
 from __future__ import annotations
 
@@ -40,18 +47,24 @@ from formulations.equilibrium import Topology, stress_laplacian
 from ..result import Network
 from .airy import AiryResult, airy, face_planes_through, freeze_arrays
 from .construction import AREA_RULES
-from .reciprocal import mixed_cell_areas
+from .reciprocal import cover_cells
 
-__all__ = ["Curvatures", "curvatures", "vertex_hessians", "relative_principal", "face_principal_directions",
+#: A free vertex counts as flat (K_Φ = 0, eq. (6) reads 0 · ∞ = F) when 2 |A*_i| and |Δ_φ φ| are below
+#: this fraction of its cell scale (Σ_j |w_ij| |e'_ij|)²: e.g. a straight free boundary, two collinear edges.
+FLAT_TOL = 1e-10
+
+__all__ = ["FLAT_TOL", "Curvatures", "curvatures", "vertex_hessians", "relative_principal", "face_principal_directions",
            "write_vector_fields"]
 
 
 @dataclass(frozen=True, eq=False)
 class Curvatures:
-    """Per-vertex curvature quantities; ``NaN`` where a quantity is not defined (supports and
-    boundary vertices for the cell-based ones, see :attr:`defined`)."""
+    """Per-vertex curvature quantities; ``NaN`` where a quantity is not defined (supports, see
+    :attr:`defined`; also free boundary vertices for ``H_rel_mixed``, see :attr:`closed`)."""
 
-    defined: np.ndarray  # interior vertices that must be in equilibrium
+    defined: np.ndarray  # free vertices (interior and free boundary): they must be in equilibrium
+    closed: np.ndarray  # free vertices whose faces close around them (where H_rel_mixed is defined)
+    flat: np.ndarray  # free vertices where Φ is flat to round-off (K_Φ = 0): H_rel undefined
     areas: np.ndarray  # top-view A_i
     load_density: np.ndarray  # F_i = loads / A_i [N/m²]
     laplacian_s: np.ndarray  # Δ_φ s
@@ -59,7 +72,7 @@ class Curvatures:
     reciprocal_areas: np.ndarray  # A*_i (signed)
     mixed_areas: np.ndarray  # A_i(Φ*, S*)
     H_rel: np.ndarray  # Δ_φ s / Δ_φ φ (eq. 5)
-    H_rel_mixed: np.ndarray  # A(Φ*, S*) / A(Φ*)
+    H_rel_mixed: np.ndarray  # A(Φ*, S*) / A(Φ*), interior free vertices
     K_phi: np.ndarray  # A*_i / A_i
     balance: np.ndarray  # 2 K_Φ H_rel − F_i [N/m²]
     balance_residual: np.ndarray  # |2 K_Φ H_rel − F_i| / |F_i|
@@ -199,28 +212,38 @@ def curvatures(network: Network, airy_result: AiryResult | None = None, *, areas
     L = stress_laplacian(top, network.weights)
     s = mesh.vertices[:, 2]
     lap_s = L @ s
-    lap_phi = L @ res.phi
-    defined = ~network.supports & ~mesh.boundary_vertex_mask
-    sigma = res.orientation
-    g = res.face_gradients
     xy = mesh.vertices[:, :2]
     grad_s, _, _ = face_planes_through(mesh, xy, s)
-    a_star = mixed_cell_areas(mesh, g, g, sigma)
-    a_mix = mixed_cell_areas(mesh, g, grad_s, sigma)
+    cells = cover_cells(res, grad_s)
+    lap_phi, a_star, a_mix = cells.laplacian_phi, cells.areas, cells.mixed_areas
+    defined = ~network.supports
+    closed = defined & ~mesh.boundary_vertex_mask
+    # cell scale: (perimeter of the force polygon)² bounds 4π |A*_i| and sets the round-off of both sums
+    e = mesh.edges
+    fl = np.abs(network.weights) * np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
+    cell_scale = np.bincount(e.ravel(), weights=np.repeat(fl, 2), minlength=n) ** 2
+    flat = defined & (2 * np.abs(a_star) <= FLAT_TOL * cell_scale) & (np.abs(lap_phi) <= FLAT_TOL * cell_scale)
+    sharp = defined & ~flat
     nan = np.full(n, np.nan)
+    loads = network.loads
     with np.errstate(divide="ignore", invalid="ignore"):
-        H = np.where(defined, lap_s / lap_phi, nan)
-        H_mixed = np.where(defined, a_mix / a_star, nan)
+        H = np.where(sharp, lap_s / lap_phi, nan)
+        H_mixed = np.where(closed & ~flat, a_mix / a_star, nan)
         K = np.where(defined, a_star / A, nan)
-        F = network.loads / A
-        bal = np.where(defined, 2 * K * H - F, nan)
-        bal_res = np.where(defined, np.abs(2 * a_star * lap_s / lap_phi - network.loads) / np.abs(network.loads), nan)
-        ident = np.where(defined, np.abs(lap_phi - 2 * a_star) / np.abs(lap_phi), nan)
+        F = loads / A
+        bal = np.where(sharp, 2 * K * H - F, nan)
+        # where Φ is flat (K_Φ = 0, H_rel = ∞) eq. (6) is judged as 2 A*_i Δs = Δφ A_i F_i
+        bal_res = np.where(sharp, np.abs(2 * a_star * lap_s / lap_phi - loads) / np.abs(loads),
+                           np.abs(2 * a_star * lap_s - lap_phi * loads) / (cell_scale * np.abs(loads)))
+        bal_res = np.where(defined, bal_res, nan)
+        ident = np.where(sharp, np.abs(lap_phi - 2 * a_star) / np.abs(lap_phi),
+                         np.abs(lap_phi - 2 * a_star) / cell_scale)
+        ident = np.where(defined, ident, nan)
     Hp = Hs = kap = dirs = None
     if directions:
         Hp, Hs = vertex_hessians(mesh, [res.phi, s], rings=rings)
         kap, dirs = relative_principal(Hp, Hs)
-    return Curvatures(defined=defined, areas=A, load_density=F, laplacian_s=lap_s, laplacian_phi=lap_phi,
+    return Curvatures(defined=defined, closed=closed, flat=flat, areas=A, load_density=F, laplacian_s=lap_s, laplacian_phi=lap_phi,
                       reciprocal_areas=np.where(defined, a_star, nan), mixed_areas=np.where(defined, a_mix, nan),
                       H_rel=H, H_rel_mixed=H_mixed, K_phi=K, balance=bal, balance_residual=bal_res,
                       identity_residual=ident, hessian_phi=Hp, hessian_s=Hs, principal_curvatures=kap,

@@ -23,60 +23,26 @@ import numpy as np
 from ..mesh import PolyMesh
 from ..result import Network
 from .airy import AiryResult, _cross2, airy, freeze_arrays
+from .stars import vertex_stars
 
-__all__ = ["ReciprocalDiagram", "reciprocal", "vertex_face_rings", "cell_areas", "mixed_cell_areas"]
+__all__ = ["ReciprocalDiagram", "reciprocal", "vertex_face_rings", "cell_areas", "mixed_cell_areas", "CoverCells",
+           "cover_cells"]
 
 
 def vertex_face_rings(mesh: PolyMesh, orientation: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """The faces around every vertex, in counter-clockwise top-view order.
 
     ``orientation`` is the faces' top-view orientation (+1: counter-clockwise). Open fans
-    (boundary vertices) start at a boundary edge. Vectorised (pointer doubling), no Python
-    loop over vertices.
+    (boundary vertices) start at a boundary edge (see :func:`~selfsupport.analysis.stars.vertex_stars`).
 
     Returns
     -------
     offsets, faces
         CSR layout: the ring of vertex ``v`` is ``faces[offsets[v]:offsets[v + 1]]``.
     """
-    n = mesh.n_vertices
-    face_of, nxt, prv = mesh.corner_data
-    fv = mesh.face_vertices
-    C = len(fv)
-    key = fv * n + nxt  # the half-edge leaving each corner
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-
-    def corner_of(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        q = a * n + b
-        pos = np.clip(np.searchsorted(skey, q), 0, C - 1)
-        return np.where(skey[pos] == q, order[pos], -1)
-
-    # for counter-clockwise faces the next face counter-clockwise around v holds the half-edge v -> prv
-    succ = corner_of(fv, prv)
-    pred = np.full(C, -1)
-    pred[succ[succ >= 0]] = np.flatnonzero(succ >= 0)
-    if orientation < 0:
-        succ, pred = pred, succ
-    # on a manifold mesh the corners of an interior vertex form one cycle, of a boundary vertex one
-    # chain: break every cycle at the vertex's first corner
-    verts, first = np.unique(fv, return_index=True)
-    rep = first[~mesh.boundary_vertex_mask[verts]]
-    succ = succ.copy()
-    succ[pred[rep]] = -1
-    # rank = distance to the chain's end (list ranking by pointer doubling)
-    d = (succ >= 0).astype(np.int64)
-    jump = succ.copy()
-    while np.any(jump >= 0):
-        ok = jump >= 0
-        d[ok] += d[jump[ok]]
-        jnext = np.full(C, -1)
-        jnext[ok] = jump[jump[ok]]
-        jump = jnext
-    ring_order = np.lexsort((-d, fv))
-    offsets = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(fv, minlength=n), out=offsets[1:])
-    return offsets, face_of[ring_order]
+    st = vertex_stars(mesh, orientation)
+    face_of, _, _ = mesh.corner_data
+    return st.offsets, face_of[st.corners]
 
 
 def cell_areas(mesh: PolyMesh, gradients: np.ndarray, orientation: int) -> np.ndarray:
@@ -102,6 +68,85 @@ def mixed_cell_areas(mesh: PolyMesh, g: np.ndarray, h: np.ndarray, orientation: 
 
 
 @dataclass(frozen=True, eq=False)
+class CoverCells:
+    """Per-vertex sums over the stars of Φ on the cover (see :func:`cover_cells`)."""
+
+    laplacian_phi: np.ndarray  # (n,) Δ_φ φ = Σ_j w_ij (φ_j − φ_i), φ_j on vertex i's branch
+    areas: np.ndarray  # (n,) signed reciprocal cell area A*_i (NaN at boundary supports)
+    mixed_areas: np.ndarray | None  # (n,) A_i(Φ*, S*) at interior vertices (NaN on the boundary)
+
+    def __post_init__(self) -> None:
+        freeze_arrays(self)
+
+
+def cover_cells(res: AiryResult, surface_gradients: np.ndarray | None = None) -> CoverCells:
+    """``Δ_φ φ``, the reciprocal cell areas and mixed areas, computed on the cover of Φ.
+
+    Around holes and interior supports Φ has a period, so a vertex next to a cut sees the
+    faces beyond the cut on another branch. Each vertex's sums use its star's planes continued
+    across the cut (:attr:`AiryResult.star_planes`): the cell around vertex ``i`` is the polygon
+    of those gradients, and ``Δ_φ φ (v_i) = 2 A*_i`` holds at every vertex in horizontal
+    equilibrium. At a free boundary vertex the cell is closed by the plane Φ continues with
+    beyond the boundary (its gradient differs from the last face's by ``w J e'`` of the boundary
+    edge; over a free hole in equilibrium this is one plane), so the identity and eq. (6) hold
+    there too.
+
+    Parameters
+    ----------
+    res
+        The Airy result.
+    surface_gradients
+        ``(F, 2)`` face gradients of a second surface (e.g. the network's heights ``s``) for the
+        mixed areas ``A_i(Φ*, S*)``; only at interior vertices (S has no plane beyond the boundary).
+    """
+    mesh = res.mesh
+    n = mesh.n_vertices
+    st = vertex_stars(mesh, res.orientation)
+    face_of, _, _ = mesh.corner_data
+    fv = mesh.face_vertices
+    e = mesh.edges
+    xy = mesh.vertices[:, :2]
+    w = res.weights
+    c = st.corners
+    v = fv[c]
+    nxt = st.next_position()
+    inner = nxt >= 0
+    start = np.repeat(st.offsets[:-1], np.diff(st.offsets))
+    # each star in the gauge of its first face (Φ is defined up to an affine function): a
+    # horizontal imbalance then perturbs the sums by |cell| × defect, not |∇Φ| × defect
+    G = res.star_planes[c, :2]
+    G = G - G[start]
+    # consecutive pairs (a -> b) across an edge: inside the ring, then, for open rings, the last
+    # face -> the plane beyond the boundary -> the first face
+    k_in = np.flatnonzero(inner)
+    k_open = np.flatnonzero(~inner)
+    e_last = st.after[c[k_open]]
+    e_first = st.before[c[start[k_open]]]
+
+    def other(edges: np.ndarray, verts: np.ndarray) -> np.ndarray:
+        return np.where(e[edges, 0] == verts, e[edges, 1], e[edges, 0])
+
+    d_last = xy[other(e_last, v[k_open])] - xy[v[k_open]]
+    G_ext = G[k_open] + w[e_last, None] * np.c_[-d_last[:, 1], d_last[:, 0]]
+    pv = np.r_[v[k_in], v[k_open], v[k_open]]
+    pe = np.r_[st.after[c[k_in]], e_last, e_first]
+    Ga = np.r_[G[k_in], G[k_open], G_ext]
+    Gb = np.r_[G[nxt[k_in]], G_ext, G[start[k_open]]]
+    d = xy[other(pe, pv)] - xy[pv]
+    lap = np.bincount(pv, weights=w[pe] * np.einsum("ki,ki->k", 0.5 * (Ga + Gb), d), minlength=n)
+    area = 0.5 * np.bincount(pv, weights=_cross2(Ga, Gb), minlength=n)
+    area[mesh.boundary_vertex_mask & res.supports] = np.nan
+    mixed = None
+    if surface_gradients is not None:
+        H = np.asarray(surface_gradients, float)[face_of[c]]
+        H = H - H[start]
+        mixed = 0.25 * np.bincount(v[k_in], weights=_cross2(G[k_in], H[nxt[k_in]]) + _cross2(H[k_in], G[nxt[k_in]]),
+                                   minlength=n)
+        mixed[mesh.boundary_vertex_mask] = np.nan
+    return CoverCells(laplacian_phi=lap, areas=area, mixed_areas=mixed)
+
+
+@dataclass(frozen=True, eq=False)
 class ReciprocalDiagram:
     """The reciprocal diagram and the polar dual of a network's Airy surface.
 
@@ -116,7 +161,7 @@ class ReciprocalDiagram:
     cell_vertex: np.ndarray  # primal vertex of each cell (interior vertices)
     cell_offsets: np.ndarray  # CSR offsets of cells into cell_faces
     cell_faces: np.ndarray  # faces (= diagram vertices) of each cell, counter-clockwise
-    cell_areas: np.ndarray  # (n,) signed area of each vertex's cell (NaN on the boundary)
+    cell_areas: np.ndarray  # (n,) signed cell areas on the cover (cover_cells; NaN at boundary supports)
     primal_edges: np.ndarray  # interior edge indices
     dual_edges: np.ndarray  # (k, 2): (R, L) per interior edge
     expected: np.ndarray  # (k, 2): w J e'
@@ -167,5 +212,5 @@ def reciprocal(source: AiryResult | Network) -> ReciprocalDiagram:
     ev = mesh.vertices[e[interior, 1], :2] - mesh.vertices[e[interior, 0], :2]
     expected = res.weights[interior, None] * np.stack([-ev[:, 1], ev[:, 0]], axis=1)
     return ReciprocalDiagram(vertices=g, polar_vertices=np.c_[g, -res.face_offsets], cell_vertex=verts,
-                             cell_offsets=cell_offsets, cell_faces=faces[keep], cell_areas=cell_areas(mesh, g, sigma),
+                             cell_offsets=cell_offsets, cell_faces=faces[keep], cell_areas=cover_cells(res).areas,
                              primal_edges=interior, dual_edges=dual, expected=expected, orientation=sigma)
