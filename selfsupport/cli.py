@@ -243,6 +243,15 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                            f"({result.distance_mean * diag:.3g} m)"),
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
                                           f"({result.distance_max * diag:.3g} m)")]
+    for name, value in result.terms.items():  # the objective, term by term (SI units: m²)
+        rows.append((f"objective {name}", f"{value:.4g} m^2"))
+    for name, case in result.cases:
+        rows.append((f"load case {name}", f"max relative error {case.max_relative_error():.3e}, "
+                                          f"total load {float(case.loads.sum()):.6g} N"))
+    hull = result.parameters.get("hull")
+    if hull:
+        rows.append(("masonry hull", f"t = {hull['thickness']:g} m: {hull['outside']} free vertices outside "
+                                     f"(max excess {hull['max_excess']:.3g} m)"))
     return rows
 
 
@@ -290,10 +299,51 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                    help="a staggered-method setting, repeatable (e.g. coupled=true, shrink=0.5; "
                         "see StaggeredOptions)")
+    add_problem_arguments(p)
     p.add_argument("--keep-partial", action="store_true",
                    help="on Ctrl-C write the interrupted network to --out itself; by default it goes to "
                         "NAME.interrupted.json next to it and an existing --out file is never replaced")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+
+
+def add_problem_arguments(p: argparse.ArgumentParser) -> None:
+    """The rest of the problem: objective terms, extra loads, load cases, constraints."""
+    from formulations import TERMS
+
+    p.add_argument("--objective", action="append", default=[], metavar="NAME=WEIGHT",
+                   help="an objective term and its weight, repeatable; NAME one of "
+                        f"{', '.join(sorted(TERMS))} (default: the method's own objective: staggered "
+                        "reference=1 fairness=100, ipopt vertices=1)")
+    p.add_argument("--point-load", action="append", default=[], metavar="VERTEX:NEWTONS",
+                   help="a load on a vertex in N, positive downward (V:5000 hangs 5 kN), on every load case; "
+                        "repeatable")
+    p.add_argument("--extra-mass", action="append", default=[], metavar="VERTEX:KG",
+                   help="extra mass on a vertex in kg, on every load case; repeatable")
+    p.add_argument("--load-cases", metavar="FILE", default=None,
+                   help="TOML file of named load cases ([cases.NAME] with self_weight, uniform_mass [kg/m^2], "
+                        "point_loads, extra_mass); one geometry must stand under every case, with one weight "
+                        "vector each")
+    p.add_argument("--hull", action="store_true",
+                   help="keep every free vertex within +-thickness/2 of the reference (the masonry hull)")
+    p.add_argument("--fixed-top-view", action="store_true",
+                   help="keep x and y of the free vertices: only the heights move (thrust network analysis)")
+
+
+def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """:func:`selfsupport.api.solve` keywords from :func:`add_problem_arguments`."""
+    from .io.loadcases import parse_vertex_value
+
+    def vertex_map(items: Sequence[str], what: str) -> dict[int, float]:
+        out: dict[int, float] = {}
+        for text in items:
+            v, x = parse_vertex_value(text, what)
+            out[v] = out.get(v, 0.0) + x
+        return out
+
+    constraints = [name for name, on in (("hull", args.hull), ("fixed_top_view", args.fixed_top_view)) if on]
+    return {"objective": list(args.objective) or None, "point_loads": vertex_map(args.point_load, "--point-load"),
+            "extra_mass": vertex_map(args.extra_mass, "--extra-mass"), "load_cases": args.load_cases,
+            "constraints": constraints}
 
 
 def _run_solve(args: argparse.Namespace) -> int:
@@ -305,7 +355,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     from .methods.staggered import parse_option
 
     out = Path(args.out)
-    inputs = scene_inputs(args)
+    inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
     check_outputs([("--out", out)], inputs)
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
@@ -315,7 +365,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
-                       options=options)
+                       options=options, **problem_kwargs(args))
     _print_input_warnings(result)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)

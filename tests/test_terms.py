@@ -121,3 +121,20 @@ def test_per_edge_bounds_and_their_errors():
         Problem.build(scene, w_max=np.ones(3)).scaled()
     with pytest.raises(InputError, match="must exceed"):
         Problem.build(scene, eps=5.0, w_max=1.0).scaled()
+
+
+@pytest.mark.parametrize("name", sorted(n for n, c in TERMS.items() if c.vertex_local))
+def test_vertex_blocks_are_the_gauss_newton_normal_equations(name):
+    """Step 3 takes vertex-local terms as 3×3 blocks without sparse products: ``B = JᵢᵀJᵢ`` and
+    ``b = Jᵢᵀ(Jᵢ vᵢ − rᵢ)`` must be what the generic linearization gives."""
+    from formulations.terms.base import Term
+
+    mesh = MESHES["mixed"]
+    term = all_terms(mesh)[name]
+    V = mesh.vertices + 0.05 * np.random.default_rng(8).standard_normal(mesh.vertices.shape)
+    idx, B, b = type(term).vertex_blocks(term, V)
+    idx_g, B_g, b_g = Term.vertex_blocks(term, V)  # the generic form, from linearize()
+    keep = np.isin(idx, idx_g)
+    assert np.array_equal(idx[keep], idx_g) and np.abs(B[~keep]).max(initial=0) <= 1e-14  # (zero blocks)
+    np.testing.assert_allclose(B[keep], B_g, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b[keep], b_g, rtol=0, atol=1e-12)

@@ -119,6 +119,19 @@ class Term:
         raise InputError(f"term {cls.name!r} cannot be built from a problem; construct it directly")
 
     # -------------------------------------------------------------- shared
+    def vertex_blocks(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For ``vertex_local`` terms: the Gauss–Newton normal equations per vertex, ``(idx,
+        B (k, 3, 3), b (k, 3))`` with ``B = J_iᵀJ_i`` and ``b = J_iᵀ(J_i v_i − r_i)`` (unweighted) —
+        what ``linearize`` gives, without sparse matrices (Step 3 calls it every iteration)."""
+        r, J = self.linearize(V)
+        n = self.n_vertices
+        G = (J.T @ J).tocoo()
+        B = np.zeros((n, 3, 3))
+        np.add.at(B, (G.row // 3, G.row % 3, G.col % 3), G.data)
+        b = (J.T @ (J @ np.asarray(V, float).ravel() - r)).reshape(n, 3)
+        idx = np.flatnonzero(np.abs(B).sum(axis=(1, 2)) > 0)
+        return idx, B[idx], b[idx]
+
     def at(self, V: np.ndarray, projection: tuple | None = None) -> "Term":
         """This term with its moving data (closest points) taken at ``V``; most terms: itself.
         ``projection``: the closest points, distances and normals of ``V`` on the reference when
@@ -307,6 +320,13 @@ class PlaneDistance(Term):
             d = ca.mtimes(to_dm(self._coordinate_rows), X_all) - self.points[idx].ravel()
             r = ca.vertcat(r, np.sqrt(self.tangential) * d)
         return r
+
+    def vertex_blocks(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # r is linear, r = J (v − p): B = (1 − τ) n nᵀ + τ I, b = B p
+        idx = self.idx
+        n = self.normals[idx]
+        B = (1.0 - self.tangential) * n[:, :, None] * n[:, None, :] + self.tangential * np.eye(3)[None]
+        return idx, B, np.einsum("kij,kj->ki", B, self.points[idx])
 
     def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         idx = self.idx

@@ -78,6 +78,14 @@ class HullPenalty(Term):
     def residual_expr(self, X_all):
         return ca.fmax(0, ca.fabs(self.signed_distance_expr(X_all)) - self.half_thickness)
 
+    def vertex_blocks(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # rows outside the slab only: B = n nᵀ, b = n (n·v − sign(s) r) = n (n·p + sign(s) h)
+        s = self.signed_distance(V)
+        out = np.abs(s) > self.half_thickness
+        idx, n = self.idx[out], self.normals[self.idx[out]]
+        target = np.einsum("ij,ij->i", n, self.points[idx]) + np.sign(s[out]) * self.half_thickness
+        return idx, n[:, :, None] * n[:, None, :], n * target[:, None]
+
     def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         s = self.signed_distance(V)
         r = np.maximum(np.abs(s) - self.half_thickness, 0.0)

@@ -26,10 +26,14 @@ Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
         relative residual into a length. Without an objective in the problem the method uses
         :data:`DEFAULT_OBJECTIVE`: the distance to the reference surface (tangent-plane
         linearization at the closest point ``p_i``, normal ``n_i``, re-projected as the vertex
-        slides, with a weak tangential hold τ) and a smooth displacement
-        (γ ‖U (v − v_ref)‖², U the umbrella Laplacian, γ/α = 100: keeps vertices whose weights
-        sit at ε from being thrown far away — the original tool smoothed the same way). All
-        terms are lengths relative to the bounding-box diagonal, so the weights are dimensionless.
+        slides, with a weak tangential hold τ). Whatever the objective, the step also asks for a
+        smooth displacement (option ``smoothing``: γ ‖U (v − v_ref)‖², U the umbrella Laplacian,
+        γ/α = 100, the :class:`~formulations.terms.Fairness` term). It belongs to the method, not
+        to the problem: it keeps vertices whose weights sit at ε from being thrown far away
+        along the penalty path (with the vertex-distance objective alone a concave disk ended
+        1.5 diagonals away), as the original tool's smoothing did; the refinement and the
+        reported objective use the problem's terms only. All terms are lengths relative to the
+        bounding-box diagonal, so the weights are dimensionless.
         Terms that act on x, y, z alike (fairness, vertex distance) enter one n×n matrix; terms
         whose rows each involve one vertex (reference distance, hull) enter 3×3 blocks; the
         system is solved by CG preconditioned with one n×n factorization (:func:`_solve_blocks`).
@@ -88,7 +92,7 @@ import scipy.sparse as sp
 from formulations import LoadCases, Problem, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from formulations.scaling import Scaling
-from formulations.terms import HullPenalty, Term
+from formulations.terms import TERMS, HullPenalty, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
@@ -105,9 +109,8 @@ from .refine import refine as _refine
 from .weightfit import WeightFitBackend, make_backend
 
 #: The objective when the problem leaves it to the method: distance to the reference surface
-#: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`) and a smooth
-#: displacement, γ/α = 100 (the original tool's smoothing).
-DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0, "fairness": 100.0}
+#: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`).
+DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0}
 
 
 def _setting(default: Any, interval: str) -> Any:
@@ -129,6 +132,8 @@ class StaggeredOptions:
     max_rejections: int = _setting(12, "[1, inf)")  # consecutive rejected position steps before "stalled"
     stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
     # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
+    smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
+    # term on v − v_ref, the original tool's smoothing; see the module docstring)
     reproject_every: int = _setting(1, "[0, inf)")  # closest-point re-projection onto the reference (0: never)
     prox_w: float = _setting(1e-8, "(0, inf)")  # proximal weight of the Step-2 fit relative to its diagonal:
     # makes the weights unique (A has more columns than rows) and reproducible during the iteration
@@ -264,6 +269,10 @@ class _Run:
         self.hull = next((t for t in (self.objective.parts() if self.objective is not None else ())
                           if isinstance(t, HullPenalty)), None)
         self.joint = self.C > 1 or self.fixed_xy or self.hull is not None
+        # what Step 3 linearizes: the objective plus the method's own smoothing
+        smooth = TERMS["fairness"].build(self.ctx, weight=opt.smoothing) if opt.smoothing > 0 else None
+        parts = (self.objective.parts() if self.objective is not None else ()) + ((smooth,) if smooth else ())
+        self.step3_terms: Term | None = (None if not parts else parts[0] if len(parts) == 1 else Sum(parts))
         method.backend.reset()
         # one backend per load case: each keeps its own warm start (active set, factor patterns)
         self.backends = [method.backend] + [type(method.backend)(**getattr(method.backend, "options", {}))
@@ -345,7 +354,7 @@ class _Run:
             w = cur["w"][0]
             movable = (w > self.lower) & (w < self.upper)
             G, gap = cur["As"][0][:, movable], (w - self.lower)[movable]
-        return _position_step(self.top, X, cur["w"], cur["L"], self.objective, alpha, beta, G=G, prox_dw=beta,
+        return _position_step(self.top, X, cur["w"], cur["L"], self.step3_terms, alpha, beta, G=G, prox_dw=beta,
                               gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
                               fixed_xy=self.fixed_xy)
 
@@ -447,8 +456,8 @@ class _Run:
                         break
                     # Step 3: positions, with the weights of the current fit
                     t0 = time.perf_counter()
-                    if opt.reproject_every and it > 1 and it % opt.reproject_every == 0 and self.objective is not None:
-                        self.objective = self.objective.at(X, projection=proj)
+                    if opt.reproject_every and it > 1 and it % opt.reproject_every == 0 and self.step3_terms:
+                        self.step3_terms = self.step3_terms.at(X, projection=proj)
                     Xt = self.position_step(X, cur, alpha, beta, coupled=opt.coupled)
                     rec["t_positions"] = time.perf_counter() - t0
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
@@ -611,6 +620,8 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
     if objective is None:
         return H1, rhs1, blocks, rhs3, Gg, rhsg
     cols3 = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
+    fi = np.cumsum(free) - 1
+    fi[~free] = -1  # vertex -> free index
     Xf = X[free]
     for t in objective.parts():
         mu = c * t.weight * (1.0 if t.constraint else alpha)
@@ -626,16 +637,18 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
             H1 = mu * JtJ if H1 is None else H1 + mu * JtJ
             rhs1 += mu * (J1f.T @ (J1f @ Xf - r1))
             continue
+        if t.vertex_local:  # 3×3 blocks straight from the term (no sparse products per iteration)
+            idx, B, b = t.vertex_blocks(X)
+            k = fi[idx]
+            on = k >= 0  # (rows at supports do not move anything)
+            np.add.at(blocks, k[on], mu * B[on])
+            np.add.at(rhs3, k[on], mu * b[on])
+            continue
         r, J = t.linearize(X)
         Jf = J[:, cols3].tocsr()
-        rhs = mu * (Jf.T @ (Jf @ Xf.ravel() - r))
-        JtJ = (Jf.T @ Jf).tocoo()
-        if t.vertex_local:
-            np.add.at(blocks, (JtJ.row // 3, JtJ.row % 3, JtJ.col % 3), mu * JtJ.data)
-            rhs3 += rhs.reshape(nf, 3)
-        else:
-            Gg = mu * JtJ.tocsr() if Gg is None else (Gg + mu * JtJ).tocsr()
-            rhsg += rhs
+        rhsg += mu * (Jf.T @ (Jf @ Xf.ravel() - r))
+        JtJ = (Jf.T @ Jf).tocsr()
+        Gg = mu * JtJ if Gg is None else (Gg + mu * JtJ).tocsr()
     return H1, rhs1, blocks, rhs3, Gg, rhsg
 
 
