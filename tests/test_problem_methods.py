@@ -1,8 +1,10 @@
-"""The simultaneous methods on shared problem factories (rockit-style): every factory builds a
-:class:`formulations.Problem` on a generated mesh, IPOPT solves it, and each load case of each
-result passes the independent checker (``../shared/tools/check_network.py``), the bounds, the
-problem's constraints and a KKT check of IPOPT's own answer. Evidence is recomputed here, never
-read from the result."""
+"""Every method on shared problem factories (rockit-style): every factory builds a
+:class:`formulations.Problem` on a generated mesh; the staggered method, the staggered method
+with its refinement and IPOPT solve it; each load case of each result passes the independent
+checker (``../shared/tools/check_network.py``), the bounds and the problem's constraints; IPOPT's
+own answer passes a KKT check; where two methods solve the same problem to optimality (IPOPT and
+the refinement, on the same objective) they agree. Evidence is recomputed here, never read from
+the result."""
 from __future__ import annotations
 
 import json
@@ -23,6 +25,7 @@ from selfsupport.loads import PointLoad, SelfWeight
 from selfsupport.methods.base import term_values
 from selfsupport.methods.nlopt_methods import NloptSimultaneous
 from selfsupport.methods.simultaneous import Simultaneous
+from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.scene import Scene
 from selfsupport.shapes import make_shape
 
@@ -54,6 +57,14 @@ def _wobbly_quad_vault() -> Scene:
     return Scene(s.mesh.with_vertices(V), s.supports, name="wobbly barrel vault")
 
 
+def _dented_dome() -> Scene:
+    """A dome whose free heights are perturbed: the nearest network must move every vertex."""
+    s = _dome()
+    V = s.mesh.vertices.copy()
+    V[s.free, 2] += 0.05 * np.random.default_rng(0).standard_normal(int(s.free.sum()))
+    return Scene(s.mesh.with_vertices(V), s.supports, name="dented dome")
+
+
 def _w_max(scene: Scene) -> np.ndarray:
     return np.where(np.arange(scene.mesh.n_edges) % 2 == 0, W_MAX_LOW, W_MAX_HIGH)
 
@@ -66,16 +77,54 @@ FACTORIES: dict[str, Callable[[], Problem]] = {
     "quad_vault_planarity": lambda: Problem.build(_wobbly_quad_vault(), LOADS,
                                                   objective={"vertices": 1.0, "planarity": 10.0}),
     "w_max_per_edge": lambda: Problem.build(_dome(), LOADS, w_max=_w_max(_dome())),
-    "fixed_top_view": lambda: Problem.build(_dome(), LOADS, constraints=[FixedTopView()]),
+    "fixed_top_view": lambda: Problem.build(_dented_dome(), LOADS, constraints=[FixedTopView()]),
     "hull": lambda: Problem.build(_dome(), LOADS + _apex_load(_dome()), constraints=[Hull(HULL_T)]),
+    "hull_moderate": lambda: Problem.build(_dome(), LOADS + _apex_load(_dome(), 0.05), constraints=[Hull(0.05)]),
+}
+
+#: (factory, method) pairs that fail today, with the reason (strict: a pass is reported too).
+KNOWN_FAILURES = {
+    ("hull", "staggered"): "with an apex load of 20% of the weight the staggered descent stalls in a 2 cm hull "
+                           "(fit error ~0.5; also at 5-20 cm) where IPOPT converges: Step 3 moves positions with "
+                           "the weights fixed, and the hull's active set leaves it no descent direction",
+}
+KNOWN_FAILURES[("hull", "staggered_refine")] = KNOWN_FAILURES[("hull", "staggered")]
+
+
+class _StaggeredRun:
+    """The staggered method's result in the shape of ``Simultaneous.run``'s (no IPOPT answer)."""
+
+    def __init__(self, result):
+        self.result, self.answer = result, None
+
+
+#: method name -> solve(problem) returning an object with ``.result`` (and IPOPT's ``.answer``)
+METHODS_UNDER_TEST: dict[str, Callable] = {
+    "ipopt": lambda p: Simultaneous().run(p),
+    "staggered": lambda p: _StaggeredRun(StaggeredLinearization().solve(p)),
+    "staggered_refine": lambda p: _StaggeredRun(StaggeredLinearization(refine=20).solve(p)),
 }
 
 
-@pytest.fixture(scope="module", params=sorted(FACTORIES))
+@pytest.fixture(scope="module", params=[(f, m) for f in sorted(FACTORIES) for m in METHODS_UNDER_TEST],
+                ids=lambda fm: f"{fm[0]}-{fm[1]}")
 def solved(request):
-    problem = FACTORIES[request.param]()
-    run = Simultaneous().run(problem)
-    return request.param, problem, run
+    name, method = request.param
+    problem = FACTORIES[name]()
+    return name, problem, METHODS_UNDER_TEST[method](problem), method
+
+
+def known_failure(name: str, method: str, check: Callable[[], None]) -> None:
+    """Run ``check``; for a pair in :data:`KNOWN_FAILURES` expect it to fail (and say so when it
+    passes: the entry is then stale)."""
+    if (name, method) not in KNOWN_FAILURES:
+        check()
+        return
+    try:
+        check()
+    except AssertionError:
+        pytest.xfail(KNOWN_FAILURES[name, method])
+    pytest.fail(f"{name} with {method} passes now: remove it from KNOWN_FAILURES")
 
 
 def check_cases(result, tmp_path: Path) -> list[float]:
@@ -96,20 +145,24 @@ def check_cases(result, tmp_path: Path) -> list[float]:
 
 
 def test_every_case_passes_the_independent_checker(solved, tmp_path):
-    name, problem, run = solved
-    res = run.result
-    assert res.status == "converged", (name, res.message)
-    errors = check_cases(res, tmp_path)
-    assert len(errors) == len(problem.loads)
-    assert max(errors) <= 1e-9, (name, errors)
-    # each case's loads are its load model at the final geometry
-    for (case_name, model), (net_name, net) in zip(problem.loads, res.case_networks):
-        assert case_name == net_name
-        np.testing.assert_allclose(net.loads, model.nodal(net.mesh, net.vertices), rtol=1e-12, atol=0)
+    name, problem, run, method = solved
+
+    def check() -> None:
+        res = run.result
+        assert res.status == "converged", (name, res.message)
+        errors = check_cases(res, tmp_path)
+        assert len(errors) == len(problem.loads)
+        assert max(errors) <= 1e-9, (name, errors)
+        # each case's loads are its load model at the final geometry
+        for (case_name, model), (net_name, net) in zip(problem.loads, res.case_networks):
+            assert case_name == net_name
+            np.testing.assert_allclose(net.loads, model.nodal(net.mesh, net.vertices), rtol=1e-12, atol=0)
+
+    known_failure(name, method, check)
 
 
 def test_weights_within_bounds(solved):
-    name, problem, run = solved
+    name, problem, run, method = solved
     res = run.result
     act = problem.scene.active_edges
     eps = res.parameters["eps"]
@@ -125,22 +178,30 @@ def test_weights_within_bounds(solved):
 
 
 def test_problem_constraints_hold(solved):
-    name, problem, run = solved
-    scene, net = problem.scene, run.result.network
-    free = scene.free
-    if problem.fixed_top_view:
-        diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
-        np.testing.assert_allclose(net.vertices[free, :2], scene.mesh.vertices[free, :2], rtol=0, atol=1e-13 * diag)
-        assert np.abs(net.vertices[free, 2] - scene.mesh.vertices[free, 2]).max() > 0  # heights did move
-    if problem.constraint(Hull) is not None:
-        n = vertex_normals(scene.mesh)
-        s = np.einsum("ij,ij->i", n, net.vertices - scene.mesh.vertices)[free]
-        assert np.abs(s).max() <= HULL_T / 2 * (1 + 1e-9)
-        assert np.abs(s).max() >= HULL_T / 2 * (1 - 1e-6)  # the hull is active here
+    name, problem, run, method = solved
+
+    def check() -> None:
+        scene, net = problem.scene, run.result.network
+        free = scene.free
+        if problem.fixed_top_view:
+            diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+            np.testing.assert_allclose(net.vertices[free, :2], scene.mesh.vertices[free, :2], rtol=0, atol=1e-13 * diag)
+            assert np.abs(net.vertices[free, 2] - scene.mesh.vertices[free, 2]).max() > 0  # heights did move
+        if problem.constraint(Hull) is not None:
+            n = vertex_normals(scene.mesh)
+            s = np.einsum("ij,ij->i", n, net.vertices - scene.mesh.vertices)[free]
+            t = problem.hull_thickness()
+            assert np.abs(s).max() <= t / 2 * (1 + 1e-9)
+            if name == "hull":
+                assert np.abs(s).max() >= t / 2 * (1 - 1e-6)  # the hull is active here
+
+    check()  # (the hull holds even where the staggered descent stalls)
 
 
 def test_ipopt_answer_satisfies_kkt(solved):
-    name, problem, run = solved
+    name, problem, run, method = solved
+    if run.answer is None:
+        pytest.skip("the staggered method has no multipliers to check (its optimality is checked by agreement)")
     a = run.answer
     assert a is not None and a.raw_status == "Solve_Succeeded"
     assert kkt_residual(a.nlp, a.x, a.p, a.lam_x, a.lam_g) <= 1e-6, name
@@ -148,18 +209,41 @@ def test_ipopt_answer_satisfies_kkt(solved):
     assert kkt_residual(a.nlp, a.x, a.p, a.lam_x, 1.01 * a.lam_g) > 1e-3
 
 
-def test_planarity_term_lowers_the_non_planarity():
+@pytest.mark.parametrize("method", ["ipopt", "staggered_refine"])
+def test_planarity_term_lowers_the_non_planarity(method):
+    """(The staggered method's penalty path relaxes the objective towards the end; its
+    refinement is what minimises the objective on the equilibrium manifold.)"""
     problem = FACTORIES["quad_vault_planarity"]()
-    with_term = Simultaneous().solve(problem)
-    default = Simultaneous().solve(Problem.build(problem.scene, LOADS))
+    solve = METHODS_UNDER_TEST[method]
+    with_term = solve(problem).result
+    default = solve(Problem.build(problem.scene, LOADS)).result
     assert with_term.status == default.status == "converged"
     before = term_values(problem, default.network)["planarity"]
     after = with_term.terms["planarity"]
     assert after < 0.5 * before, (before, after)
 
 
-def test_two_cases_have_distinct_weights():
-    res = Simultaneous().solve(FACTORIES["two_load_cases"]())
+def test_refinement_and_ipopt_agree_on_the_same_objective():
+    """Both end at the optimum of min Σ‖v − v_ref‖² s.t. equilibrium, w ≥ ε: the refinement run to
+    its step limit (refine_gain=0) and IPOPT (whose tiny weight regulariser, 1e-6 of the natural
+    weight scale, is the one difference in the problems) agree on the objective to 2% and on the
+    positions to 1e-3 of the bounding-box diagonal (measured: 0.6% and 2.1e-4; the plain
+    staggered network, a point on its penalty path, is 6% and 6e-4 off)."""
+    problem = Problem.build(_dented_dome(), LOADS, objective={"vertices": 1.0})
+    a = Simultaneous().solve(problem)
+    b = StaggeredLinearization(refine=60, refine_gain=0.0).solve(problem)
+    assert a.status == b.status == "converged"
+    fa, fb = a.terms["vertices"], b.terms["vertices"]
+    assert abs(fa - fb) <= 0.02 * fa, (fa, fb)
+    diag = np.linalg.norm(np.ptp(a.network.vertices, axis=0))
+    assert np.abs(a.network.vertices - b.network.vertices).max() <= 1e-3 * diag
+    plain = StaggeredLinearization().solve(problem)
+    assert plain.terms["vertices"] > fb  # the refinement did lower the objective
+
+
+@pytest.mark.parametrize("method", ["ipopt", "staggered"])
+def test_two_cases_have_distinct_weights(method):
+    res = METHODS_UNDER_TEST[method](FACTORIES["two_load_cases"]()).result
     (n0, a), (n1, b) = res.case_networks
     assert (n0, n1) == ("empty", "point")
     np.testing.assert_array_equal(a.vertices, b.vertices)  # one geometry stands for both

@@ -152,6 +152,8 @@ class StaggeredOptions:
     # error is above finish_try (those fits only steer the iteration; the fits the finish uses are exact)
     refine: int = _setting(0, "[0, inf)")  # at most this many SQP steps towards the objective's optimum after
     # convergence (refine.py; 0: the paper's method as it is)
+    refine_gain: float = _setting(1e-2, "[0, 1)")  # ... stopping after a step that lowers √objective by less
+    # than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
     tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network
     max_iter: int = _setting(200, "[1, inf)")
     time_limit: float = _setting(600.0, "(0, inf)")
@@ -270,8 +272,10 @@ class _Run:
                           if isinstance(t, HullPenalty)), None)
         self.joint = self.C > 1 or self.fixed_xy or self.hull is not None
         # what Step 3 linearizes: the objective plus the method's own smoothing
+        # (the hull is not a penalty here: every trial is projected into it, see position_step)
         smooth = TERMS["fairness"].build(self.ctx, weight=opt.smoothing) if opt.smoothing > 0 else None
-        parts = (self.objective.parts() if self.objective is not None else ()) + ((smooth,) if smooth else ())
+        parts = tuple(t for t in (self.objective.parts() if self.objective is not None else ())
+                      if not isinstance(t, HullPenalty)) + ((smooth,) if smooth else ())
         self.step3_terms: Term | None = (None if not parts else parts[0] if len(parts) == 1 else Sum(parts))
         method.backend.reset()
         # one backend per load case: each keeps its own warm start (active set, factor patterns)
@@ -354,9 +358,26 @@ class _Run:
             w = cur["w"][0]
             movable = (w > self.lower) & (w < self.upper)
             G, gap = cur["As"][0][:, movable], (w - self.lower)[movable]
-        return _position_step(self.top, X, cur["w"], cur["L"], self.step3_terms, alpha, beta, G=G, prox_dw=beta,
-                              gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
-                              fixed_xy=self.fixed_xy)
+        active = np.zeros(0, dtype=np.int64)
+        for _ in range(6):
+            # the masonry hull as hard bounds, by an active set: vertices a step carries out of the
+            # hull are pinned to its face (normal part only) and the step solved again; what a
+            # last round still leaves outside is projected (a penalty of any weight either lets
+            # vertices out or, stiff, stalls the descent: a dome with an apex load in a 2 cm hull
+            # stalled at fit error 0.78; projection alone stalled there too)
+            pinned = _hull_faces(self.hull, X, active) if active.size else None
+            Xt = _position_step(self.top, X, cur["w"], cur["L"], self.step3_terms, alpha, beta, G=G, prox_dw=beta,
+                                gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
+                                fixed_xy=self.fixed_xy, pinned=pinned)
+            if self.hull is None:
+                return Xt
+            s = self.hull.signed_distance(Xt)
+            out = self.hull.idx[np.abs(s) > self.hull.half_thickness]
+            grown = np.union1d(active, out)
+            if grown.size == active.size:
+                break
+            active = grown
+        return _into_hull(self.hull, Xt, fixed_xy=self.fixed_xy)
 
     # ---------------------------------------------------------------- results
     def networks(self, X: np.ndarray, ws: list[np.ndarray]) -> tuple[Network, tuple[tuple[str, Network], ...]]:
@@ -574,7 +595,8 @@ class _Run:
         Xn[self.scene.supports] = self.X0[self.scene.supports]
         wn = sc.weight(net.weights[self.scene.active_edges])
         ref = _refine(self.top, Xn, wn, self.loads.primary, self.mesh0, sc, self.objective, self.lower, self.upper,
-                      max_steps=opt.refine, tol=opt.tol, deadline=self.t_start + opt.time_limit,
+                      max_steps=opt.refine, tol=opt.tol, min_gain=opt.refine_gain,
+                      deadline=self.t_start + opt.time_limit,
                       workspace=self.polish_ws)
         applied = False
         if ref.steps:
@@ -591,6 +613,40 @@ class _Run:
         return net, cases, err
 
 
+#: Weight of the hull's face pins in Step 3, relative to the objective's unit (a quasi-equality).
+HULL_PIN = 1e6
+
+
+def _hull_faces(hull: HullPenalty, X: np.ndarray, active: np.ndarray) -> Term:
+    """Pins of the ``active`` vertices' normal coordinates to the hull face they are nearest (on
+    the side ``X`` is on), as a plane-distance term of weight :data:`HULL_PIN`."""
+    from formulations.terms import PlaneDistance
+
+    n = hull.normals[active]
+    side = np.sign(np.einsum("ij,ij->i", n, X[active] - hull.points[active]))
+    side[side == 0] = 1.0
+    P, N = hull.points.copy(), hull.normals.copy()
+    P[active] = hull.points[active] + (side * hull.half_thickness)[:, None] * n
+    return PlaneDistance(points=P, normals=N, mask=active, weight=HULL_PIN)
+
+
+def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> np.ndarray:
+    """``X`` with every hull vertex moved along its normal (or, with a fixed top view, vertically)
+    onto the hull's face where it lies outside ``±h``."""
+    s = hull.signed_distance(X)
+    excess = s - np.clip(s, -hull.half_thickness, hull.half_thickness)
+    out = np.flatnonzero(excess)
+    if out.size == 0:
+        return X
+    X = X.copy()
+    idx, n = hull.idx[out], hull.normals[hull.idx[out]]
+    if fixed_xy:  # along z, by the amount that brings ⟨n, v − p⟩ back to ±h
+        X[idx, 2] -= excess[out] / np.where(np.abs(n[:, 2]) > 1e-12, n[:, 2], np.inf)
+    else:
+        X[idx] -= excess[out][:, None] * n
+    return X
+
+
 def _max_error(cases) -> float:
     return max(n.max_relative_error() for _, n in cases)
 
@@ -605,7 +661,7 @@ def _si_bound(sc: Scaling, b: np.ndarray) -> Any:
 
 # -------------------------------------------------------------------- Step 3 assembly
 def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: float, c: float,
-                ws: dict) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix | None,
+                ws: dict, pinned: Term | None = None) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix | None,
                                   np.ndarray]:
     """The objective's Gauss–Newton model at ``X`` over the free positions, weighted by ``c α``
     (constraint terms by ``c``): ``Σ μ ‖r + J Δx‖²`` split into a per-coordinate matrix ``H₁``
@@ -617,14 +673,16 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
     H1, rhs1 = None, np.zeros((nf, 3))
     blocks, rhs3 = np.zeros((nf, 3, 3)), np.zeros((nf, 3))
     Gg, rhsg = None, np.zeros(3 * nf)
-    if objective is None:
+    if objective is None and pinned is None:
         return H1, rhs1, blocks, rhs3, Gg, rhsg
+    objective = objective if objective is not None else pinned
     cols3 = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
     fi = np.cumsum(free) - 1
     fi[~free] = -1  # vertex -> free index
     Xf = X[free]
-    for t in objective.parts():
-        mu = c * t.weight * (1.0 if t.constraint else alpha)
+    fixed = set(map(id, pinned.parts())) if pinned is not None else set()
+    for t in objective.parts() + (pinned.parts() if pinned is not None else ()):
+        mu = c * t.weight * (1.0 if t.constraint or id(t) in fixed else alpha)
         if mu == 0.0:
             continue
         if not t.couples_xyz:
@@ -655,7 +713,8 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
 def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
                    objective: Term | None, alpha: float, beta: float, G: sp.spmatrix | None = None,
                    prox_dw: float = 0.0, gap: np.ndarray | None = None, damping: float = 0.0,
-                   workspace: dict | None = None, fixed_xy: bool = False) -> np.ndarray:
+                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None
+                   ) -> np.ndarray:
     """Step 3: the SPD least-squares update of the free positions (see the module docstring).
 
     ``weights`` and ``L`` hold one weight vector and one load vector per load case. The residual
@@ -695,7 +754,7 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
         if Kt0 is None:
             Kt0, target0 = Kt, target
     c = float(np.mean(cvals))
-    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp)
+    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp, pinned)
     if H1 is not None:
         H = (H + H1).tocsr()
     blocks = blocks + (c * beta) * np.eye(3)[None]
