@@ -42,7 +42,7 @@ from .validate import validate_scene
 from formulations import Problem
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "load_spec", "as_scene", "scene_loads", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+           "load_spec", "as_scene", "scene_loads", "sensitivity", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -467,3 +467,15 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
                        n_at_lower=int(sum(f.n_at_lower for f in fits)), eps=fits[0].eps, fit_status=fits[0].status,
                        total_load=float(L[0].sum()), seconds=time.perf_counter() - t0, network=nets[0],
                        cases=tuple(cases) if len(cases) > 1 else (), **kw)
+
+
+# -------------------------------------------------------------------------- sensitivity
+def sensitivity(result: Any, parameter: str, *, problem: Problem | None = None) -> Any:
+    """dV/dθ and dw/dθ of a converged ``method="ipopt"`` solve with respect to one parameter
+    (``"density"``, ``"thickness"``, ``"w_max"``, ``"point_load:V"``, ``"objective:NAME"``): a
+    :class:`~selfsupport.methods.sensitivity.Sensitivity` (SI units). ``problem``: the solved
+    problem (default: rebuilt from the result's parameters). See
+    :func:`selfsupport.methods.sensitivity.sensitivity`."""
+    from .methods.sensitivity import sensitivity as _sensitivity
+
+    return _sensitivity(result, parameter, problem=problem)

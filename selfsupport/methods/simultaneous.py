@@ -299,26 +299,15 @@ class Simultaneous:
         self._check_problem(problem)
         scene = problem.scene
         mesh0 = scene.mesh
-        top_free = scene.free
 
         V = _start_vertices(scene, opts.warm_start)
-        sp_ = problem.scaled(problem.loads.nodal(mesh0, V))
-        sc, top = sp_.scaling, sp_.top
+        form, sc = self.formulation(problem, V)
+        top = form.topology
         free = top.free
         C = len(problem.loads)
-        ctx = TermContext(vertices=sc.pos(V), reference=mesh0.with_vertices(sp_.X), free=top_free)
-        total = problem.terms(ctx, scaling=sc, default=DEFAULT_OBJECTIVE)
-        parts = total.parts() if total is not None else ()
-        hull = next((t for t in parts if isinstance(t, HullPenalty)), None) if problem.hull_thickness() else None
-        kept = [t for t in parts if not (hull is not None and t.constraint)]  # the hull is hard here
-        objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
-        h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
-        form = ThrustNetworkProblem(top, sc.pos(V), sp_.L, WeightBounds(sp_.lower, sp_.upper), objective=objective_term,
-                                    weight_regularization=WEIGHT_REGULARIZATION, weight_scale=1.0 / h ** 2,
-                                    hull=hull, fixed_xy=sp_.X[free, :2] if problem.fixed_top_view else None,
-                                    case_names=problem.loads.names)
+        hull = form.hull
         W0 = _start_weights(opts.warm_start, scene, C, sc) if opts.warm_start is not None else \
-            np.full((C, top.m), COLD_START_FACTOR / h ** 2)
+            np.full((C, top.m), COLD_START_FACTOR * form.weight_scale)  # weight_scale = 1 / h²
         W0 = np.clip(W0, form.lower, form.upper)
         x = form.pack(sc.pos(V), W0)
 
@@ -331,7 +320,7 @@ class Simultaneous:
         answer: IpoptAnswer | None = None
         status, message, iterations = "failed", "", 0
         tol = opts.tol
-        L_cur = sp_.L
+        L_cur = form.loads
         mixer = _Anderson(ANDERSON_DEPTH, accept=lambda Lm: bool(np.all(Lm.reshape(C, -1)[:, free] < 0)))
         polish = False
         x_ok = None  # last iterate of a converged round
@@ -437,6 +426,32 @@ class Simultaneous:
                         "problem": problem.describe(), "load_cases": list(problem.loads.names),
                         "warm_start": opts.warm_start is not None, "load_rounds": len(history),
                         "solver_options": dict(self.options)}), answer)
+
+    # ------------------------------------------------------------------ formulation
+    @staticmethod
+    def formulation(problem: Problem, start: np.ndarray) -> tuple[ThrustNetworkProblem, Scaling]:
+        """The NLP this method solves for ``problem`` started at ``(n, 3)`` positions ``start``
+        [m], and its scaling: lengths / the reference's bounding-box diagonal, forces / the mean
+        nodal load of the first case *at the start* (so the default lower bound and the weight
+        regulariser, stated in these units, follow the loads). Also used by
+        :mod:`selfsupport.methods.sensitivity` to differentiate the optimum."""
+        scene = problem.scene
+        mesh0 = scene.mesh
+        sp_ = problem.scaled(problem.loads.nodal(mesh0, start))
+        sc, top = sp_.scaling, sp_.top
+        ctx = TermContext(vertices=sc.pos(start), reference=mesh0.with_vertices(sp_.X), free=scene.free)
+        total = problem.terms(ctx, scaling=sc, default=DEFAULT_OBJECTIVE)
+        parts = total.parts() if total is not None else ()
+        hull = next((t for t in parts if isinstance(t, HullPenalty)), None) if problem.hull_thickness() else None
+        kept = [t for t in parts if not (hull is not None and t.constraint)]  # the hull is hard here
+        objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
+        h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
+        form = ThrustNetworkProblem(top, sc.pos(start), sp_.L, WeightBounds(sp_.lower, sp_.upper),
+                                    objective=objective_term, weight_regularization=WEIGHT_REGULARIZATION,
+                                    weight_scale=1.0 / h ** 2, hull=hull,
+                                    fixed_xy=sp_.X[top.free, :2] if problem.fixed_top_view else None,
+                                    case_names=problem.loads.names)
+        return form, sc
 
     # ------------------------------------------------------------------ hooks
     def _check_problem(self, problem: Problem) -> None:
