@@ -156,3 +156,28 @@ def distance_stats(vertices: np.ndarray, reference: PolyMesh) -> tuple[float, fl
             vertices = np.delete(vertices, iso, axis=0)
     d = distance_to_surface(vertices, reference) / bbox_diagonal(reference.vertices)
     return float(d.mean()), float(d.max())
+
+
+def face_nonplanarity(mesh: PolyMesh) -> np.ndarray:
+    """Per quad face: the distance between its two diagonals over its mean edge length (0 for a
+    planar quad; the fabrication measure of the paper's §5). Other faces get NaN.
+
+    >>> import numpy as np
+    >>> V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.1], [0, 1, 0.]])
+    >>> m = PolyMesh.from_faces(V, [[0, 1, 2, 3]])
+    >>> round(float(face_nonplanarity(m)[0]), 4)  # diagonals 0.0499 apart, edges 1.0025 long
+    0.0498
+    """
+    V = mesh.vertices
+    out = np.full(mesh.n_faces, np.nan)
+    quads = np.flatnonzero(mesh.face_sizes == 4)
+    if quads.size == 0:
+        return out
+    Q = np.array([mesh.faces[f] for f in quads], dtype=np.int64)
+    a, b, c, d = (V[Q[:, k]] for k in range(4))
+    n = np.cross(c - a, d - b)  # common normal of the diagonals a-c and b-d
+    nn = np.linalg.norm(n, axis=1)
+    dist = np.abs(np.einsum("ij,ij->i", b - a, n)) / np.where(nn > 0, nn, np.inf)
+    ell = np.mean([np.linalg.norm(V[np.roll(Q, -1, axis=1)[:, k]] - V[Q[:, k]], axis=1) for k in range(4)], axis=0)
+    out[quads] = dist / ell
+    return out
