@@ -3,6 +3,7 @@
     python -m studies.table1 --scenes ../shared/paper-scenes/scenes --out OUT
         [--published DIR] [--methods staggered/active-set simultaneous/ipopt ...]
         [--time-limit S] [--only lilium,cas] [--checker PATH] [--no-warmup] [--repeat N]
+        [--objective NAME=W ...]
 
 For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`) and every
 variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, its
@@ -149,7 +150,8 @@ def _warmup(variant: Variant) -> None:
 
 
 def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, time_limit: float,
-              warm_from: str | None = None, warmup: bool = True, repeat: int = 1) -> dict[str, Any]:
+              warm_from: str | None = None, warmup: bool = True, repeat: int = 1,
+              objective: Sequence[str] | None = None) -> dict[str, Any]:
     """Worker: solve one scene with one variant, save the network, return the row's numbers.
 
     Runs in its own process (see :func:`studies.common.run_isolated`). The time is the
@@ -163,6 +165,8 @@ def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, 
     loads = _loads(scene)
     row: dict[str, Any] = {"vertices": scene.mesh.n_vertices, "edges": scene.mesh.n_edges}
     kw: dict[str, Any] = {"time_limit": float(time_limit), **dict(v.solve_kw)}
+    if objective:  # the same objective for every method ("NAME=W" items, formulations.TERMS)
+        kw["objective"] = list(objective)
     if v.warm_start:
         if warm_from and Path(warm_from).is_file():
             kw["warm_start"] = read_network(warm_from)
@@ -290,7 +294,7 @@ def _complete(row: dict[str, Any], out: Path, checker: Path | None) -> dict[str,
 
 def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, variants: Sequence[str],
               scenes: Sequence[str], time_limit: float | None, checker: Path | None, warmup: bool = True,
-              repeat: int = 1,
+              repeat: int = 1, objective: Sequence[str] | None = None,
               echo: Callable[[str], None] = print,
               on_scene: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """Run every (scene, variant) row and the published comparisons; return the rows.
@@ -312,7 +316,7 @@ def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, varian
                              {"scenes_dir": str(scenes_dir), "scene_name": name, "variant": key,
                               "out_json": str(out_json), "time_limit": tl,
                               "warm_from": str(ref_json) if ref_json else None, "warmup": warmup,
-                              "repeat": repeat},
+                              "repeat": repeat, "objective": list(objective) if objective else None},
                              hard_timeout=hard)
             r.update({"scene": name, "method": v.method, "backend": v.backend, "time_limit_s": tl})
             _complete(r, out, checker)
@@ -403,6 +407,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve in each row process")
     p.add_argument("--repeat", type=int, default=1, metavar="N",
                    help="solve each row N times in its process and report the median time (and the fastest)")
+    p.add_argument("--objective", action="append", default=[], metavar="NAME=WEIGHT",
+                   help="objective term for every method, repeatable (formulations.TERMS; default: each "
+                        "method's own)")
     return p
 
 
@@ -434,6 +441,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     rows = run_table(scenes_dir=a.scenes.resolve(), out=a.out.resolve(), published_dir=published,
                      variants=variants, scenes=scenes, time_limit=a.time_limit,
                      checker=checker if checker.is_file() else None, warmup=not a.no_warmup, repeat=a.repeat,
+                     objective=a.objective or None,
                      on_scene=lambda rs: write_outputs(rs, a.out, scenes_dir=a.scenes, variants=variants))
     md = write_outputs(rows, a.out, scenes_dir=a.scenes, variants=variants)
     print(md)

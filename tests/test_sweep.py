@@ -58,13 +58,41 @@ def test_expansion_counts_and_defaults(tmp_path):
     # scenes x methods x grid (3 x 2) x zip rows (2) x options (2) x repetitions (2)
     assert len(runs) == 2 * 1 * 6 * 2 * 2 * 2
     p = runs[0].param_dict
-    assert set(p) == {"density", "thickness", "w_max", "eps", "tol", "max_iter"}
-    assert p["eps"] is None and p["max_iter"] is None
+    assert set(p) == {"density", "thickness", "w_max", "eps", "tol", "max_iter", "objective"}
+    assert p["eps"] is None and p["max_iter"] is None and p["objective"] is None
     # zip rows stay paired
     assert {(r.param_dict["thickness"], r.param_dict["tol"]) for r in runs} == {(0.1, 1e-9), (0.2, 1e-8)}
     assert {r.param_dict["w_max"] for r in runs} == {None, 2e4}
     # the staggered method's default backend is resolved, so "staggered" == "staggered:active-set"
     assert {r.backend for r in runs} == {"active-set"}
+
+
+def test_objective_grid_is_read_by_name_and_reaches_the_solve(tmp_path, monkeypatch):
+    """A sweep varies the objective like any parameter; names come from the term registry."""
+    from selfsupport.methods.staggered import StaggeredLinearization
+    from selfsupport.shapes import make_shape
+    from selfsupport.sweep.runner import execute_run
+
+    text = sweep_text(grid='objective = ["default", "reference=1, planarity=10"]')
+    runs = parse_spec(text, scene_dir=tmp_path).expand()
+    assert {r.param_dict["objective"] for r in runs} == {None, "reference=1 planarity=10"}
+    with pytest.raises(InputError, match="unknown objective term"):
+        parse_spec(sweep_text(grid='objective = ["smoothness=1"]'), scene_dir=tmp_path)
+    run = next(r for r in runs if r.param_dict["objective"])
+    seen = []
+    real = StaggeredLinearization.solve
+
+    def spy(self, *a, **k):
+        res = real(self, *a, **k)
+        seen.append(res.terms)
+        return res
+
+    monkeypatch.setattr(StaggeredLinearization, "solve", spy)
+    out = execute_run(make_shape("barrel_vault", n_vertices=100),
+                      {"key": "k", "method": run.method, "backend": run.backend, "params": run.param_dict,
+                       "options": run.option_dict, "time_budget": 60.0})
+    assert out["status"] == "converged", out
+    assert set(seen[0]) == {"reference", "planarity"}  # the solve minimised the sweep's objective
 
 
 def test_keys_depend_on_content_and_parameters_only(tmp_path):

@@ -125,7 +125,7 @@ def execute_run(scene: Scene, run: dict[str, Any]) -> dict[str, Any]:
         The scene (shared by all runs on it).
     run
         ``key``, ``method``, ``backend``, ``params`` (density, thickness, w_max, eps, tol,
-        max_iter), ``options``, ``time_budget``.
+        max_iter, objective), ``options``, ``time_budget``.
     """
     from ..api import METHODS
     from ..loads import SelfWeight
@@ -146,9 +146,10 @@ def execute_run(scene: Scene, run: dict[str, Any]) -> dict[str, Any]:
             ctor["backend"] = run["backend"]
         stops = {"max_iter": p["max_iter"]} if p["max_iter"] is not None else {}
         # the methods add the scene's own extra masses / point loads to the load case themselves
+        objective = p.get("objective")
         res = cls(**ctor).solve(scene, SelfWeight(density=p["density"], thickness=p["thickness"]),
                                 eps=p["eps"], w_max=p["w_max"], tol=p["tol"], time_limit=run["time_budget"],
-                                **stops, **solve_kw)
+                                objective=objective.split() if objective else None, **stops, **solve_kw)
         out.update(status=res.status, backend=res.backend, iterations=int(res.iterations), message=res.message,
                    max_rel_error=_finite(res.max_relative_error), min_weight=_finite(res.min_weight),
                    distance_mean=_finite(res.distance_mean), distance_max=_finite(res.distance_max))

@@ -31,7 +31,9 @@ the report wanted::
              {kind = "time_vs_size"}, {kind = "success_rate"}]
 
 Run parameters (:data:`PARAMETERS`): ``density`` [kg/m³], ``thickness`` [m], ``w_max`` and
-``eps`` [N/m] (``"none"``: no bound / the method's default), ``tol``, ``max_iter``. The scene
+``eps`` [N/m] (``"none"``: no bound / the method's default), ``tol``, ``max_iter``, ``objective``
+(``"reference=1 planarity=10"``: terms of :data:`formulations.TERMS` and their weights;
+``"default"``: the method's own). The scene
 folder is, in order of precedence: the ``scene_dir`` argument of :func:`load_spec` (CLI
 ``--scenes``), the environment variable :data:`SCENES_ENV`, ``[sweep] scene_dir`` (relative to
 the sweep file), the sweep file's own folder.
@@ -90,6 +92,19 @@ def _optional_count(name: str, v: Any) -> int | None:
     return int(v)
 
 
+def _objective(name: str, v: Any) -> str | None:
+    """An objective as ``"NAME=W NAME=W"`` (terms of :data:`formulations.TERMS`), or ``"default"``
+    / ``"none"`` for the method's own; kept as a normalised string (a table column)."""
+    if not isinstance(v, str):
+        raise InputError(f"parameter {name} must be a string such as \"reference=1 planarity=10\", got {v!r}")
+    if v.strip().lower() in _NONE_WORDS | {"default"}:
+        return None
+    from formulations import parse_objective
+
+    terms = parse_objective(v.replace(",", " ").split())
+    return " ".join(f"{t.name}={t.weight:g}" for t in terms)
+
+
 @dataclass(frozen=True)
 class Parameter:
     """A run parameter: how to check a value, and its value when the sweep does not set it."""
@@ -107,6 +122,7 @@ PARAMETERS: dict[str, Parameter] = {
     "eps": Parameter(_optional_bound, None, "lower weight bound [N/m] (none: the scale-free default)"),
     "tol": Parameter(_positive_float, 1e-9, "required max relative error"),
     "max_iter": Parameter(_optional_count, None, "iteration limit (none: the method's default)"),
+    "objective": Parameter(_objective, None, "objective terms \"NAME=W ...\" (default: the method's own)"),
 }
 
 
