@@ -294,9 +294,9 @@ class Pillar(Edit):
             ground = float(self.ground)
         if self.hole:
             before = mesh.boundary_vertex_mask
+            keep = _kept_vertices(mesh, np.logical_or.reduceat(sel[mesh.face_vertices], mesh.face_offsets[:-1]))
             design = remove_faces(design, np.logical_or.reduceat(sel[mesh.face_vertices], mesh.face_offsets[:-1]))
             sc, mesh = design.scene, design.scene.mesh
-            keep = design.origin
             was_boundary = np.where(keep >= 0, before[np.maximum(keep, 0)], False)
             handles = mesh.boundary_vertex_mask & ~was_boundary
             if not handles.any():
@@ -346,9 +346,10 @@ class Delete(Edit):
     def apply(self, design: Design) -> Design:
         mesh = design.scene.mesh
         before = mesh.boundary_vertex_mask
-        out = remove_faces(design, self.select.face_mask(mesh))
+        faces = self.select.face_mask(mesh)
+        out = remove_faces(design, faces)
         if self.support:
-            o = out.origin
+            o = _kept_vertices(mesh, faces)
             rim = out.scene.mesh.boundary_vertex_mask & ~np.where(o >= 0, before[np.maximum(o, 0)], False)
             out = _with(out, scene=replace(out.scene, supports=out.scene.supports | rim))
         return out
@@ -466,6 +467,15 @@ def remove_faces(design: Design, faces: np.ndarray) -> Design:
     new_index[used] = np.arange(int(used.sum()))
     new_mesh = PolyMesh.from_faces(mesh.vertices[used], [[int(new_index[i]) for i in f] for f in kept])
     return _reindexed(design, new_mesh, np.flatnonzero(used))
+
+
+def _kept_vertices(mesh: PolyMesh, faces: np.ndarray) -> np.ndarray:
+    """Old index of each vertex :func:`remove_faces` keeps."""
+    used = np.zeros(mesh.n_vertices, bool)
+    fo = mesh.face_offsets
+    for f in np.flatnonzero(~np.asarray(faces, bool)):
+        used[mesh.face_vertices[fo[f]:fo[f + 1]]] = True
+    return np.flatnonzero(used)
 
 
 def _reindexed(design: Design, mesh: PolyMesh, origin: np.ndarray) -> Design:
@@ -587,8 +597,11 @@ def cut_along(design: Design, chain: np.ndarray, *, support: bool = False) -> De
 
 # ------------------------------------------------------------------------------ helpers
 def _with(design: Design, **kw: Any) -> Design:
-    if "origin" not in kw and "scene" in kw and kw["scene"].mesh.n_vertices == design.scene.mesh.n_vertices:
-        kw["origin"] = np.arange(design.scene.mesh.n_vertices)
+    if kw.get("origin") is not None and design.origin is not None:  # compose: back to the stage's start
+        o = np.asarray(kw["origin"])
+        kw["origin"] = np.where(o >= 0, design.origin[np.maximum(o, 0)], -1)
+    elif "origin" not in kw and design.origin is None and "scene" in kw:
+        kw["origin"] = np.arange(kw["scene"].mesh.n_vertices)
     return replace(design, **kw)
 
 
