@@ -218,7 +218,7 @@ class StaggeredLinearization:
 
     def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | LoadCase | LoadCases | None = None, *,
               progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None,
-              w_max: Any = None, objective: Any = None, **overrides: Any) -> SolveResult:
+              w_max: Any = None, objective: Any = None, warm_start: Any = None, **overrides: Any) -> SolveResult:
         """Solve for the thrust network of ``problem`` (see :mod:`formulations.problem`).
 
         Parameters
@@ -231,20 +231,24 @@ class StaggeredLinearization:
             :class:`StaggeredOptions` fields for this solve only (also as keywords).
         progress
             Called with the history record of each iteration.
+        warm_start
+            A previous network (:class:`~selfsupport.methods.warm.WarmStart`, a network or a solve
+            result): its offset from its reference and its weights are the starting iterate and
+            the first fit's warm start (transferred by position when the topology changed).
         """
         if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
                                                            and all(isinstance(v, LoadCase) for v in options.values())):
             loads, options = options, None
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
-        return _Run(self, problem, opt, progress).solve()
+        return _Run(self, problem, opt, progress, warm_start).solve()
 
 
 class _Run:
     """One solve: the problem in scaled units, the state of the iteration, and the named steps."""
 
     def __init__(self, method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
-                 progress: Callable[[dict], None] | None) -> None:
+                 progress: Callable[[dict], None] | None, warm_start: Any = None) -> None:
         self.t_start = time.perf_counter()
         problem.validate()  # mesh, supports; a flat reference needs w_max, else no nearest network exists
         self.method, self.problem, self.opt, self.progress = method, problem, opt, progress
@@ -278,6 +282,16 @@ class _Run:
                       if not isinstance(t, HullPenalty)) + ((smooth,) if smooth else ())
         self.step3_terms: Term | None = (None if not parts else parts[0] if len(parts) == 1 else Sum(parts))
         method.backend.reset()
+        self.X_start, self.w_warm, self.warm_info = self.X0, None, None
+        if warm_start is not None:  # a previous network as the starting iterate (methods/warm.py)
+            from .warm import as_warm_start, transfer
+
+            V, w, same = transfer(as_warm_start(warm_start), self.scene)
+            self.X_start = self.sc.pos(V)
+            self.w_warm = [np.clip(self.sc.weight(w[self.scene.active_edges]), self.lower, self.upper)] * self.C
+            self.warm_info = {"same_topology": same}
+            if same:  # its active set seeds the first fit (PDAS then needs a few factorizations)
+                method.backend.warm(self.w_warm[0], self.lower, self.upper)
         # one backend per load case: each keeps its own warm start (active set, factor patterns)
         self.backends = [method.backend] + [type(method.backend)(**getattr(method.backend, "options", {}))
                                             for _ in range(self.C - 1)]
@@ -409,7 +423,7 @@ class _Run:
     # ---------------------------------------------------------------- the iteration
     def solve(self) -> SolveResult:
         opt, top, sc = self.opt, self.top, self.sc
-        X = self.X0.copy()
+        X = self.X_start.copy()
         alpha, beta = opt.alpha0, opt.beta0
         history: list[dict[str, Any]] = []
         status, message = "iteration_limit", ""
@@ -420,7 +434,14 @@ class _Run:
             b0 = load_vector(top, self.L0[c])
             w_uniform = float(A0 @ b0 / max(float(A0 @ A0), 1e-300))
             w_start.append(np.clip(np.full(top.m, w_uniform), self.lower, self.upper))
-        cur = self.fit(X, w_start)
+        cur = self.fit(X, self.w_warm) if self.w_warm is not None else None
+        if cur is not None and cur["max_rel_error"] <= opt.finish_try:
+            self.warm_info["used"] = True
+        else:  # (a warm start this far from equilibrium measured slower than a cold one: 1.0-1.9x on lilium)
+            if self.w_warm is not None:
+                self.warm_info.update(used=False, first_error=cur["max_rel_error"] if cur else None)
+                X = self.X0.copy()
+            cur = self.fit(X, w_start)
         if cur is None:
             raise InfeasibleDesign("no weights can be fitted to the reference as it is (degenerate geometry, e.g. a flat "
                                    "network cannot carry vertical loads); give the surface some rise or check the mesh")
@@ -572,7 +593,7 @@ class _Run:
                 f"balance: {[int(v) for v in worst]}; try more supports there, a larger w_max, or a pillar")
         params: dict[str, Any] = {**asdict(opt), "eps": _si_bound(sc, self.lower), "w_max": _si_bound(sc, self.upper),
                                   "scaling": asdict(sc), "problem": self.problem.describe(),
-                                  "load_cases": list(self.loads.names)}
+                                  "load_cases": list(self.loads.names), "warm_start": self.warm_info}
         hull = hull_report(self.problem, net)
         if hull is not None:
             params["hull"] = hull

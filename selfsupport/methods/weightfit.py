@@ -57,6 +57,9 @@ class WeightFitBackend:
     def reset(self) -> None:
         """Forget warm-start state (new problem)."""
 
+    def warm(self, w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Seed the warm-start state from weights of a previous solve (default: nothing)."""
+
 
 def _objective(A: sp.spmatrix, b: np.ndarray, w: np.ndarray) -> float:
     r = A @ w - b
@@ -220,6 +223,11 @@ class ActiveSetFit(WeightFitBackend):
         self._active = None
         self._ipm_warm = None
         self._factor = None
+
+    def warm(self, w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        # the previous solve's bounds as PDAS's first guess (weights within round-off of a bound)
+        tol = 1e-9 * np.maximum(np.abs(lower), 1e-300)
+        self._active = (w <= lower + tol, np.isfinite(upper) & (w >= upper - tol))
 
     def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None):
         t0 = time.perf_counter()

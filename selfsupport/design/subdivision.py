@@ -1,0 +1,190 @@
+"""Catmull–Clark subdivision of polygon meshes with boundaries and creases (paper §4: upsample a
+coarse design, then polish it with the solver).
+
+One step turns every n-gon into n quads. New points (Catmull & Clark 1978, with the usual
+boundary and crease rules, DeRose et al. 1998):
+
+* face point   ``f = `` centroid of the face's vertices;
+* edge point   ``(a + b + f₁ + f₂) / 4`` for a smooth interior edge, the midpoint ``(a + b)/2``
+  for a boundary or crease edge;
+* vertex point ``(Q + 2R + (n − 3) S) / n`` for a smooth vertex of valence n (Q the mean of the
+  adjacent face points, R the mean of the incident edges' midpoints, S the vertex);
+  ``(a + 6 S + b) / 8`` on a boundary or crease curve through exactly two crease edges (the
+  cubic B-spline rule; a ``corner`` vertex and one with more than two crease edges stays put).
+
+Boundary vertices in only one face (the corners of a quad grid) are corners by default, so
+the outline keeps its corners. Crease edges default to the edges between two supports: a
+support curve is refined as a curve, not smoothed into the surface. Supports carry over: old
+supports, edge points of support–support edges and face points of all-support faces.
+
+Written here: libigl's Python bindings have Loop and midpoint upsampling for triangles only,
+trimesh's subdivision triangulates, and neither keeps polygon faces, creases or attributes.
+
+Example
+-------
+>>> import numpy as np
+>>> from selfsupport.mesh import PolyMesh
+>>> quad = PolyMesh.from_faces(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.]]), [[0, 1, 2, 3]])
+>>> sub = catmull_clark(quad)
+>>> sub.mesh.n_vertices, sub.mesh.n_faces, sub.mesh.vertices[-1].tolist()
+(9, 4, [0.5, 0.5, 0.0])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import InputError
+from ..mesh import PolyMesh
+from ..scene import Scene
+
+__all__ = ["Subdivision", "catmull_clark", "subdivide_scene"]
+
+
+@dataclass(frozen=True, eq=False)
+class Subdivision:
+    """One Catmull–Clark step: the new mesh (old vertices first, in their order, then one point
+    per old edge in ``mesh.edges`` order, then one per face) and what carries over.
+
+    Attributes
+    ----------
+    mesh
+        The refined mesh.
+    crease
+        Mask of the refined mesh's crease edges (children of crease edges), for the next level.
+    corner
+        Mask of the refined mesh's corner vertices.
+    n_old, n_edges, n_faces
+        Sizes of the coarse mesh (the index blocks of the new vertices).
+    """
+
+    mesh: PolyMesh
+    crease: np.ndarray
+    corner: np.ndarray
+    n_old: int
+    n_edges: int
+    n_faces: int
+
+    def edge_point(self, k: np.ndarray | int) -> np.ndarray | int:
+        """Index of the point of coarse edge ``k``."""
+        return self.n_old + np.asarray(k)
+
+    def face_point(self, f: np.ndarray | int) -> np.ndarray | int:
+        """Index of the point of coarse face ``f``."""
+        return self.n_old + self.n_edges + np.asarray(f)
+
+
+def catmull_clark(mesh: PolyMesh, *, crease: np.ndarray | None = None, corner: np.ndarray | None = None,
+                  grid_corners: bool = True) -> Subdivision:
+    """One Catmull–Clark step (see the module docstring).
+
+    Parameters
+    ----------
+    mesh
+        A valid polygon mesh (triangles, quads, mixed).
+    crease
+        Mask over ``mesh.edges`` of interior edges to keep sharp (boundary edges always are).
+    corner
+        Mask of vertices that stay where they are.
+    grid_corners
+        Also keep boundary vertices that belong to a single face.
+    """
+    mesh.validate()
+    V = mesh.vertices
+    n, m, F = mesh.n_vertices, mesh.n_edges, mesh.n_faces
+    E = mesh.edges
+    crease_m = mesh.boundary_edge_mask.copy()
+    if crease is not None:
+        c = np.asarray(crease, bool)
+        if c.shape != (m,):
+            raise InputError(f"crease mask has {c.shape} entries for {m} edges")
+        crease_m |= c
+    corner_m = np.zeros(n, bool) if corner is None else np.asarray(corner, bool).copy()
+    if corner_m.shape != (n,):
+        raise InputError(f"corner mask has {corner_m.shape} entries for {n} vertices")
+    fv, fo = mesh.face_vertices, mesh.face_offsets
+    sizes = np.diff(fo)
+    face_of, _, _ = mesh.corner_data
+    he_edge = mesh.halfedge_data["halfedge_edge"]  # corner c -> edge (v_c, v_next)
+    pos = np.arange(fo[-1]) - fo[face_of]
+    prev_corner = fo[face_of] + (pos - 1) % sizes[face_of]
+
+    # face points
+    FP = np.add.reduceat(V[fv], fo[:-1], axis=0) / sizes[:, None]
+    # edge points
+    mid = 0.5 * (V[E[:, 0]] + V[E[:, 1]])
+    ef = mesh.edge_faces
+    smooth_e = ~crease_m & (ef >= 0).all(axis=1)
+    EP = mid.copy()
+    EP[smooth_e] = 0.5 * mid[smooth_e] + 0.25 * (FP[ef[smooth_e, 0]] + FP[ef[smooth_e, 1]])
+    # vertex points: the smooth rule everywhere first
+    valence = np.bincount(E.ravel(), minlength=n).astype(float)
+    nfaces = np.bincount(fv, minlength=n).astype(float)
+    Q = np.zeros((n, 3))
+    np.add.at(Q, fv, FP[face_of])
+    R = np.zeros((n, 3))
+    np.add.at(R, E[:, 0], mid)
+    np.add.at(R, E[:, 1], mid)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        Q /= nfaces[:, None]
+        R /= valence[:, None]
+        k = valence[:, None]
+        VP = (Q + 2.0 * R + (k - 3.0) * V) / k
+    # crease curves: exactly two crease edges -> cubic B-spline; more -> corner
+    ncrease = np.bincount(E[crease_m].ravel(), minlength=n)
+    nbsum = np.zeros((n, 3))
+    ce = E[crease_m]
+    np.add.at(nbsum, ce[:, 0], V[ce[:, 1]])
+    np.add.at(nbsum, ce[:, 1], V[ce[:, 0]])
+    curve = ncrease == 2
+    VP[curve] = (6.0 * V[curve] + nbsum[curve]) / 8.0
+    fixed = corner_m | (ncrease > 2) | (nfaces == 0)
+    if grid_corners:
+        fixed |= mesh.boundary_vertex_mask & (nfaces == 1)
+    VP[fixed] = V[fixed]
+
+    # new faces: corner c of face f -> (v_c, edge point of (v_c, next), face point, edge point of (prev, v_c))
+    quads = np.stack([fv, n + he_edge, n + m + face_of, n + he_edge[prev_corner]], axis=1)
+    new = PolyMesh(np.vstack([VP, EP, FP]), quads.ravel(), np.arange(0, 4 * len(quads) + 1, 4))
+    # crease children: (a, e_k) and (e_k, b) for every crease edge k
+    ks = np.flatnonzero(crease_m)
+    child = np.r_[np.stack([E[ks, 0], n + ks], 1), np.stack([n + ks, E[ks, 1]], 1)]
+    keys = np.sort(child, axis=1)
+    NE = new.edges
+    nk = new.n_vertices + 1
+    crease_new = np.isin(NE[:, 0] * nk + NE[:, 1], keys[:, 0] * nk + keys[:, 1])
+    corner_new = np.r_[fixed, np.zeros(m + F, bool)]
+    return Subdivision(mesh=new, crease=crease_new, corner=corner_new, n_old=n, n_edges=m, n_faces=F)
+
+
+def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = True) -> Scene:
+    """``levels`` Catmull–Clark steps of a scene's mesh, carrying supports and creases.
+
+    Edges between two supports are creases (``crease_supports``); support vertices that do not
+    lie on exactly two such edges (isolated pins, ends of support chains) are corners and stay
+    put. Supports carry over as in the module docstring; handles, extra masses and point loads
+    stay on the old vertices (new vertices get none), so a total extra load is unchanged.
+    """
+    if int(levels) < 0:
+        raise InputError(f"subdivision levels must be >= 0, got {levels}")
+    mesh, sup = scene.mesh, np.asarray(scene.supports, bool)
+    extras = {k: getattr(scene, k) for k in ("handles", "extra_mass", "point_loads")}
+    crease = corner = None
+    for _ in range(int(levels)):
+        E = mesh.edges
+        ss = sup[E[:, 0]] & sup[E[:, 1]]
+        crease = (ss if crease is None else (crease | ss)) if crease_supports else crease
+        nc = np.bincount(E[ss].ravel(), minlength=mesh.n_vertices)
+        pin_corner = sup & (nc != 2) & ~mesh.boundary_vertex_mask
+        corner = pin_corner if corner is None else (corner | pin_corner)
+        s = catmull_clark(mesh, crease=crease, corner=corner)
+        fv, fo = mesh.face_vertices, mesh.face_offsets
+        face_sup = np.logical_and.reduceat(sup[fv], fo[:-1])
+        sup = np.r_[sup, ss, face_sup]
+        extra_n = s.mesh.n_vertices - mesh.n_vertices
+        for k, a in extras.items():
+            if a is not None:
+                extras[k] = np.r_[a, np.zeros(extra_n, dtype=a.dtype)]
+        mesh, crease, corner = s.mesh, s.crease, s.corner
+    return replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{levels}", **extras)

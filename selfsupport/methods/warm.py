@@ -1,0 +1,94 @@
+"""Warm starts of a re-solve after a design edit: the previous network as the starting iterate.
+
+A previous network (positions ``N``, weights ``w``) was solved for a reference ``R_old``; the
+edited scene has the reference ``R_new``. What carries over is the network's *offset* from its
+reference and its weights:
+
+* same topology (same vertex count and edges): ``X₀ = R_new + (N − R_old)`` vertex by vertex
+  and the weights as they are — after a small handle move only the region that moved is out
+  of equilibrium;
+* changed topology (cuts, holes, subdivision): by position — every new vertex takes the offset
+  of the nearest old reference vertex, every new edge the weight of the old edge with the
+  nearest midpoint (weights are force per length: under refinement a smooth stress field keeps
+  them, it does not split them).
+
+Supports start on the new reference (the staggered method never moves them).
+
+Example
+-------
+>>> import numpy as np
+>>> from selfsupport.shapes import make_shape
+>>> from selfsupport.result import Network
+>>> s = make_shape("dome", n_vertices=80)
+>>> net = Network(mesh=s.mesh, weights=np.ones(s.mesh.n_edges), loads=-np.ones(80), supports=s.supports,
+...               reference=s.mesh)
+>>> X, w, same = transfer(WarmStart(net), s)
+>>> same, bool(np.allclose(X, s.mesh.vertices))
+(True, True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..mesh import PolyMesh
+from ..result import Network, SolveResult
+from ..scene import Scene
+
+__all__ = ["WarmStart", "transfer", "as_warm_start"]
+
+
+@dataclass(frozen=True, eq=False)
+class WarmStart:
+    """A previous network and the reference it was solved for (default ``network.reference``;
+    ``None`` there too: its own positions, i.e. a zero offset)."""
+
+    network: Network
+    reference: PolyMesh | None = None
+
+    @property
+    def old_reference(self) -> np.ndarray:
+        ref = self.reference if self.reference is not None else self.network.reference
+        return (ref if ref is not None else self.network.mesh).vertices
+
+
+def as_warm_start(obj: WarmStart | Network | SolveResult) -> WarmStart:
+    """A :class:`WarmStart` from a warm start, a network or a solve result."""
+    if isinstance(obj, WarmStart):
+        return obj
+    if isinstance(obj, SolveResult):
+        return WarmStart(obj.network)
+    if isinstance(obj, Network):
+        return WarmStart(obj)
+    raise TypeError(f"warm_start takes a WarmStart, Network or SolveResult, not a {type(obj).__name__}")
+
+
+def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Starting positions (n, 3) [m] and weights per ``scene.mesh`` edge [N/m] for ``scene``, and
+    whether the topology was the same (see the module docstring)."""
+    net = warm.network
+    old_ref = warm.old_reference
+    mesh = scene.mesh
+    R = mesh.vertices
+    offset_old = net.vertices - old_ref
+    same = (net.mesh.n_vertices == mesh.n_vertices and net.mesh.n_edges == mesh.n_edges
+            and np.array_equal(net.mesh.edges, mesh.edges))
+    if same:
+        X, w = R + offset_old, np.asarray(net.weights, float).copy()
+    else:
+        from scipy.spatial import cKDTree
+
+        _, iv = cKDTree(old_ref).query(R)
+        X = R + offset_old[iv]
+        Eo, En = net.mesh.edges, mesh.edges
+        mid_old = 0.5 * (old_ref[Eo[:, 0]] + old_ref[Eo[:, 1]])
+        _, ie = cKDTree(mid_old).query(0.5 * (R[En[:, 0]] + R[En[:, 1]]))
+        w = np.asarray(net.weights, float)[ie]
+        # edges whose nearest old edge carried nothing (between two old supports) get the median
+        carried = w > 0
+        if carried.any():
+            w[~carried] = float(np.median(w[carried]))
+    sup = np.asarray(scene.supports, bool)
+    X[sup] = R[sup]
+    return X, w, same
