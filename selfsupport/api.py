@@ -278,6 +278,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     MeshError, SupportError, InputError
         Unusable input (see :func:`~selfsupport.validate.validate_scene`), before any solving.
     """
+    t_entry = time.perf_counter()  # the time limit covers the validation too (2 s at 200k vertices)
     scene = as_scene(scene_or_path, supports=supports, up=up)
     issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
@@ -293,7 +294,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
     solver = make_method(method, backend)
-    result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress)
+    # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
+    # time that building and writing the result will take, so that the whole run ends near its limit
+    from .methods.deadline import finish_reserve
+
+    until = {} if time_limit is None else {
+        "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices)}
+    result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues]})
