@@ -285,6 +285,9 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                    help="iteration limit (staggered: outer iterations, default 200; ipopt: per load round)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit in seconds (default: the method's, 600 s staggered / 120 s ipopt)")
+    p.add_argument("--max-memory", type=positive_float, default=None, metavar="GIB",
+                   help="memory the solve may use, in GiB (default: what the machine has available); a mesh "
+                        "estimated to need more is refused before any work")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="also write the figures (network, deviation, airy, reciprocal, directions, history) and view.html into DIR")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -303,6 +306,7 @@ def _run_solve(args: argparse.Namespace) -> int:
 
     from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
+    from .memory import check_scene_spec
 
     out = Path(args.out)
     inputs = scene_inputs(args)
@@ -310,12 +314,13 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
+    check_scene_spec(args.scene, args.method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
-                       options=options)
+                       options=options, max_memory=args.max_memory)
     _print_input_warnings(result)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)

@@ -138,3 +138,55 @@ def test_ipopt_fit_stops_inside_its_iterations():
     fit = be.fit(**kw, deadline=time.perf_counter() + 1e-4)  # passes during the first iterations
     assert fit.status == "time_limit" and fit.iterations < 5, (fit.status, fit.iterations)
     assert be.fit(**kw).status == "optimal" and be._stop.eval == original  # the next fit is unaffected
+
+
+# ------------------------------------------------------------------ item 5: the size guard
+def test_absurd_built_in_shapes_are_refused_up_front(capsys):
+    t0 = time.perf_counter()
+    code = cli.main(["solve", "shape:dome:1000000000", "--out", "/nonexistent-dir/x.json"])
+    assert time.perf_counter() - t0 < 5.0  # nothing of that size was allocated (it was killed at 21 GB)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1
+    assert "needs about" in err[0] and "GiB" in err[0] and "--max-memory or a coarser mesh" in err[0]
+    from selfsupport.errors import InputError
+    from selfsupport.shapes import MAX_SHAPE_VERTICES
+
+    with pytest.raises(InputError, match="use fewer vertices"):
+        make_shape("dome", n_vertices=MAX_SHAPE_VERTICES + 1)  # also for the API and every command
+
+
+def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
+    from selfsupport import memory
+    from selfsupport.errors import TooLarge
+
+    # pretend the machine has 100 MB free: the refusal must come from the estimate, not an allocation
+    monkeypatch.setattr(memory, "available_bytes", lambda: 100e6)
+    called = []
+    monkeypatch.setattr(api, "validate_scene", lambda *a, **k: called.append(1))
+    with pytest.raises(TooLarge, match=r"needs about 0\.\d+ GiB, this machine has 0\.093 GiB available"):
+        api.solve(make_shape("dome", n_vertices=2000))
+    assert not called  # refused before the validation, the first work proportional to the mesh
+    out = tmp_path / "x.json"
+    code = cli.main(["solve", "shape:dome:2000", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1 and "coarser mesh" in err[0] and not out.exists()
+
+
+def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsys):
+    from selfsupport import memory
+
+    out = tmp_path / "x.json"
+    assert cli.main(["solve", "shape:dome:3000", "--max-memory", "0.05", "--out", str(out), "-q"]) == 2
+    assert "needs about 0.18 GiB, --max-memory allows 0.05 GiB" in capsys.readouterr().err and not out.exists()
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1e6)  # the user knows better than the estimate
+    assert cli.main(["solve", "shape:dome:100", "--max-memory", "4", "--out", str(out), "-q"]) == 0
+    assert out.exists()
+
+
+def test_the_estimate_covers_the_measured_peaks():
+    from selfsupport.memory import estimate_solve_bytes
+
+    measured = {("staggered", 20_000): 313e6, ("staggered", 50_000): 705e6, ("staggered", 200_000): 2.16e9,
+                ("ipopt", 2_000): 212e6, ("ipopt", 8_000): 654e6}  # peak RSS, see selfsupport.memory
+    for (method, n), peak in measured.items():
+        assert peak < estimate_solve_bytes(n, method) < 2.5 * peak, (method, n)
