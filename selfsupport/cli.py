@@ -218,11 +218,13 @@ def report_files() -> list[str]:
     return [f"{k}.png" for k in REPORT_KINDS] + ["view.html"]
 
 
-def _print_input_warnings(result, codes: Sequence[str] = ("isolated_vertices",)) -> None:
-    """One stderr line per input warning of these codes (``parameters.input_issues``)."""
-    for issue in result.parameters.get("input_issues", ()):
-        if issue.get("code") in codes:
-            _err(f"warning: {issue.get('message')}")
+def print_warnings(result, scene) -> None:
+    """One stderr line per warning of :func:`selfsupport.diagnostics.solve_warnings` (input
+    issues, a network far from its reference, one that leaves the masonry hull)."""
+    from .diagnostics import solve_warnings
+
+    for line in solve_warnings(result, scene):
+        _err(f"warning: {line}")
 
 
 def summary_rows(result, scene) -> list[tuple[str, str]]:
@@ -321,7 +323,7 @@ def _run_solve(args: argparse.Namespace) -> int:
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
                        options=options, max_memory=args.max_memory)
-    _print_input_warnings(result)
+    print_warnings(result, scene)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
         check_outputs([("--out", out)], inputs)
@@ -431,6 +433,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     scene = make_shape(args.shape, n_vertices=args.vertices)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, density=args.density, thickness=args.thickness, progress=progress)
+    print_warnings(result, scene)
     net_path, report_path = out / "network.json", out / "report.md"
     write_network(net_path, result, scene={"name": scene.name, "input": f"shape:{args.shape}:{args.vertices}"})
     reread = read_network(net_path).max_relative_error()
