@@ -6,8 +6,8 @@ Each is one line (the CLI prints them as ``selfsupport: warning: ...`` on stderr
 * a converged network far from its reference: mean distance above :data:`FAR_FROM_REFERENCE`
   of the bounding-box diagonal (an upside-down dome read with the wrong ``--up`` converges
   to a network 0.42 of the diagonal away and said nothing);
-* most free vertices outside the masonry hull, reference ± t/2 (:data:`HULL_MAJORITY`; the demo
-  left 504 of 652 outside, which only a figure showed).
+* a converged network with most free vertices outside the masonry hull, reference ± t/2
+  (:data:`HULL_MAJORITY`; the demo left 504 of 652 outside, which only a figure showed).
 """
 from __future__ import annotations
 
@@ -30,7 +30,9 @@ def solve_warnings(result: Any, scene: Any) -> list[str]:
         out.append(f"the network is in equilibrium but far from its reference: mean distance "
                    f"{result.distance_mean:.2f} of the bounding-box diagonal (warned above {FAR_FROM_REFERENCE:g}); "
                    "check the vertical axis (--up) and the supports, or the shape cannot stand near its design")
-    hull = _hull(result, scene)
+    # (a network that is not in equilibrium gets its own line from the caller; where it sits
+    # in the hull says nothing then)
+    hull = _hull(result, scene) if result.converged else None
     if hull is not None and hull["free"] and hull["outside"] > HULL_MAJORITY * hull["free"]:
         out.append(f"{hull['outside']} of {hull['free']} free vertices lie outside the masonry hull (reference "
                    f"± t/2, t = {hull['thickness']:.3g} m; up to {hull['max_excess']:.3g} m beyond it): the network "
