@@ -110,7 +110,7 @@ def test_deadline_helpers():
     assert finish_reserve(200_000) == pytest.approx(8.0) and finish_reserve(1000) < 0.1
 
 
-@pytest.mark.parametrize("backend", ["ipopt", "nlopt"])
+@pytest.mark.parametrize("backend", ["ipopt", "nlopt", "osqp"])
 def test_other_step_2_backends_stop_at_a_passed_deadline(backend):
     import scipy.sparse as sp
 
@@ -120,6 +120,10 @@ def test_other_step_2_backends_stop_at_a_passed_deadline(backend):
                                               upper=np.full(60, np.inf), w0=np.ones(60),
                                               deadline=time.perf_counter() - 1.0)
     assert fit.status == "time_limit"
+    later = weightfit.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
+                                                upper=np.full(60, np.inf), w0=np.ones(60),
+                                                deadline=time.perf_counter() + 60.0)
+    assert later.status in ("optimal", "max_iter")  # a deadline far off changes nothing
 
 
 def test_ipopt_fit_stops_inside_its_iterations():

@@ -213,10 +213,12 @@ class OsqpFit(WeightFitBackend):
         q = np.r_[-float(prox) * w0, np.zeros(rows)]
         w_start = np.clip(w0, lower, upper)
         x0 = np.r_[w_start, A @ w_start - b]
-        # OSQP's own time_limit [s] (0: none) holds the deadline; the solver is rebuilt for it
+        # the osqp package's own time_limit [s] (0: none) holds the deadline inside a run; CasADi's
+        # OSQP interface does not accept that setting (3.8: "Not recognised"), so through CasADi
+        # the deadline is only checked before the run
         limit = remaining(deadline, 0.0) if deadline is not None else 0.0
         if self._impl == "casadi":
-            w, it, ret = self._fit_casadi(A, H, C, q, b, lower, upper, x0, limit)
+            w, it, ret = self._fit_casadi(A, H, C, q, b, lower, upper, x0)
         else:
             w, it, ret = self._fit_python(H, C, q, b, lower, upper, x0, m, limit)
         status = self.STATUS.get(ret, "failed")
@@ -224,19 +226,16 @@ class OsqpFit(WeightFitBackend):
             status = "time_limit"
         return _finish(A, b, w[:m], lower, upper, it, status, t0)
 
-    def _fit_casadi(self, A, H, C, q, b, lower, upper, x0, limit=0.0):
+    def _fit_casadi(self, A, H, C, q, b, lower, upper, x0):
         import casadi as ca
 
         rows, m = A.shape
-        key = (_pattern_key(A), limit)  # (a deadline makes every call's limit, hence its solver, new)
+        key = _pattern_key(A)
         if key not in self._solvers:
             osqp_opts = {k: v for k, v in self.options.items()}
-            if limit:
-                osqp_opts["time_limit"] = max(limit, 1e-3)
             # H's structure must not depend on prox (zeros are kept as structural entries)
             self._solvers.clear()
-            if key[0] not in self._warm:  # (a new pattern: the old multipliers are of no use)
-                self._warm.clear()
+            self._warm.clear()
             self._solvers[key] = ca.conic("weightfit_osqp", "osqp",
                                           {"h": ca.Sparsity.diag(m + rows), "a": ca.DM(C).sparsity()},
                                           {"osqp": osqp_opts, "error_on_fail": False})
@@ -244,9 +243,9 @@ class OsqpFit(WeightFitBackend):
         Hd = ca.DM(ca.Sparsity.diag(m + rows), H.diagonal())
         args = {"h": Hd, "g": q, "a": ca.DM(C), "lba": b, "uba": b,
                 "lbx": np.r_[lower, np.full(rows, -np.inf)], "ubx": np.r_[upper, np.full(rows, np.inf)], "x0": x0}
-        args.update(self._warm.get(key[0], {}))
+        args.update(self._warm.get(key, {}))
         sol = solver(**args)
-        self._warm[key[0]] = {"lam_x0": sol["lam_x"], "lam_a0": sol["lam_a"]}
+        self._warm[key] = {"lam_x0": sol["lam_x"], "lam_a0": sol["lam_a"]}
         st = solver.stats()
         ret = str(st.get("return_status", "unknown")).lower()
         it = max(int(st.get("iter_count", 0) or 0), 0)  # CasADi's OSQP interface reports -1 (unknown)
