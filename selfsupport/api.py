@@ -234,8 +234,8 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
           time_limit: float | None = None, supports: Any = None, up: str | None = None,
           progress: Callable[[dict], None] | None = None, options: Mapping[str, Any] | None = None,
           objective: Any = None, point_loads: Mapping[int, float] | None = None,
-          extra_mass: Mapping[int, float] | None = None, load_cases: Any = None, constraints: Any = ()
-          ) -> SolveResult:
+          extra_mass: Mapping[int, float] | None = None, load_cases: Any = None, constraints: Any = (),
+          max_memory: float | None = None) -> SolveResult:
     """Find the thrust network nearest to a reference surface.
 
     Parameters
@@ -265,6 +265,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         :class:`~selfsupport.methods.staggered.StaggeredOptions`, e.g. ``{"coupled": True}``).
     objective, point_loads, extra_mass, load_cases, constraints
         The rest of the problem (see :func:`problem`).
+    max_memory
+        Memory the solve may use [GiB] (default: what the machine has available now); a mesh
+        whose estimated need exceeds it is refused before any work
+        (:func:`~selfsupport.memory.check_memory`).
 
     Returns
     -------
@@ -277,8 +281,14 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     ------
     MeshError, SupportError, InputError
         Unusable input (see :func:`~selfsupport.validate.validate_scene`), before any solving.
+    TooLarge
+        The solve would need more memory than ``max_memory`` / the machine has.
     """
+    t_entry = time.perf_counter()  # the time limit covers the validation too (2 s at 200k vertices)
     scene = as_scene(scene_or_path, supports=supports, up=up)
+    from .memory import check_memory
+
+    check_memory(scene.mesh.n_vertices, method, max_memory)  # before the solve allocates its matrices
     issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
                      load_cases=load_cases)
@@ -293,7 +303,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
     solver = make_method(method, backend)
-    result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress)
+    # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
+    # time that building and writing the result will take, so that the whole run ends near its limit
+    from .methods.deadline import finish_reserve
+
+    until = {} if time_limit is None else {
+        "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices)}
+    result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues]})

@@ -218,11 +218,13 @@ def report_files() -> list[str]:
     return [f"{k}.png" for k in REPORT_KINDS] + ["view.html"]
 
 
-def _print_input_warnings(result, codes: Sequence[str] = ("isolated_vertices",)) -> None:
-    """One stderr line per input warning of these codes (``parameters.input_issues``)."""
-    for issue in result.parameters.get("input_issues", ()):
-        if issue.get("code") in codes:
-            _err(f"warning: {issue.get('message')}")
+def print_warnings(result, scene) -> None:
+    """One stderr line per warning of :func:`selfsupport.diagnostics.solve_warnings` (input
+    issues, a network far from its reference, one that leaves the masonry hull)."""
+    from .diagnostics import solve_warnings
+
+    for line in solve_warnings(result, scene):
+        _err(f"warning: {line}")
 
 
 def summary_rows(result, scene) -> list[tuple[str, str]]:
@@ -294,6 +296,9 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                    help="iteration limit (staggered: outer iterations, default 200; ipopt: per load round)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit in seconds (default: the method's, 600 s staggered / 120 s ipopt)")
+    p.add_argument("--max-memory", type=positive_float, default=None, metavar="GIB",
+                   help="memory the solve may use, in GiB (default: what the machine has available); a mesh "
+                        "estimated to need more is refused before any work")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="also write the figures (network, deviation, airy, reciprocal, directions, history) and view.html into DIR")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -353,6 +358,7 @@ def _run_solve(args: argparse.Namespace) -> int:
 
     from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
+    from .memory import check_scene_spec
 
     out = Path(args.out)
     inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
@@ -360,13 +366,14 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
+    check_scene_spec(args.scene, args.method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
-                       options=options, **problem_kwargs(args))
-    _print_input_warnings(result)
+                       options=options, max_memory=args.max_memory, **problem_kwargs(args))
+    print_warnings(result, scene)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
         check_outputs([("--out", out)], inputs)
@@ -476,6 +483,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     scene = make_shape(args.shape, n_vertices=args.vertices)
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, density=args.density, thickness=args.thickness, progress=progress)
+    print_warnings(result, scene)
     net_path, report_path = out / "network.json", out / "report.md"
     write_network(net_path, result, scene={"name": scene.name, "input": f"shape:{args.shape}:{args.vertices}"})
     reread = read_network(net_path).max_relative_error()

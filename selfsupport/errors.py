@@ -35,3 +35,7 @@ class InfeasibleDesign(SelfSupportError):
     """No compressive network exists near the design with the given bounds."""
 
     exit_code = 4
+
+
+class TooLarge(InputError):
+    """The problem would need more memory than the machine (or ``--max-memory``) allows."""

@@ -426,6 +426,11 @@ _RESOLUTION: dict[str, Callable[[int, dict], dict]] = {
 }
 
 
+#: Most vertices :func:`make_shape` builds: a solve of that size already needs ~150 GiB
+#: (:mod:`selfsupport.memory`); ``shape:dome:1000000000`` was killed by the kernel at ~21 GB.
+MAX_SHAPE_VERTICES = 10_000_000
+
+
 def make_shape(name: str, *, n_vertices: int | None = None, **kw) -> Scene:
     """Build the registered shape ``name``; with ``n_vertices``, choose its resolution so
     that the mesh has about that many vertices (within 4% from 1,000 vertices up, 13% from
@@ -436,6 +441,10 @@ def make_shape(name: str, *, n_vertices: int | None = None, **kw) -> Scene:
         raise InputError(f"unknown shape {name!r}; known shapes: {', '.join(sorted(SHAPES))}")
     if n_vertices is not None:
         target = _count("n_vertices", n_vertices, 1)
+        if target > MAX_SHAPE_VERTICES:  # refused before any array of that size is made
+            raise InputError(f"{target:,} vertices is beyond the {MAX_SHAPE_VERTICES:,} a built-in shape is made with "
+                             f"(building the mesh alone would need ~{target * 200 / 1024 ** 3:.0f} GiB); use fewer "
+                             "vertices")
         res = _RESOLUTION[name](target, kw)
         clash = sorted(set(res) & set(kw))
         if clash:

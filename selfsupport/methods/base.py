@@ -61,21 +61,28 @@ def term_values(problem: Problem, network: Network, default: Any = None) -> dict
     return out
 
 
-def hull_report(problem: Problem, network: Network) -> dict[str, Any] | None:
+def hull_report(problem: Problem, network: Network, thickness: float | None = None) -> dict[str, Any] | None:
+    """Where the network sits in the masonry hull (see :func:`hull_excess`) of the problem's hull
+    constraint, else of ``thickness`` (for a diagnosis of a problem without the constraint);
+    ``None`` without either."""
+    t = problem.hull_thickness() if problem.hull_thickness() is not None else thickness
+    return None if t is None else hull_excess(problem.scene, network, t)
+
+
+def hull_excess(scene: Scene, network: Network, thickness: float) -> dict[str, Any]:
     """Where the network sits in the masonry hull (reference ± t/2 along the reference vertex
-    normals), when the problem has one: thickness, max excess beyond t/2 [m], vertices outside."""
-    t = problem.hull_thickness()
-    if t is None:
-        return None
+    normals): thickness, max excess beyond t/2 [m], free vertices outside (count, the first 20)
+    and free vertices in all. The one computation behind the ``hull`` record of a solve and
+    the warning of :mod:`selfsupport.diagnostics`."""
     from formulations.terms import HullPenalty
 
-    scene = problem.scene
+    t = float(thickness)
     ctx = TermContext(vertices=scene.mesh.vertices, reference=scene.mesh, free=scene.free, thickness=t)
     term = HullPenalty.build(ctx)
     excess = np.abs(term.signed_distance(network.vertices)) - 0.5 * t
     outside = term.idx[excess > 1e-9 * t]
     return {"thickness": t, "max_excess": float(max(excess.max(initial=-np.inf), 0.0)),
-            "outside": int(outside.size), "outside_vertices": outside[:20].tolist()}
+            "outside": int(outside.size), "outside_vertices": outside[:20].tolist(), "free": int(term.idx.size)}
 
 
 def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np.ndarray]

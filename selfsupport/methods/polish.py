@@ -28,6 +28,7 @@ import scipy.sparse as sp
 
 from ..linalg import spd_factor
 from ..loads import LoadCase
+from .deadline import DeadlineReached, out_of_time
 from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
 from formulations.nlp import ThrustNetworkProblem
 from formulations.scaling import Scaling
@@ -35,14 +36,18 @@ from formulations.scaling import Scaling
 
 def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, sc: Scaling,
            max_rounds: int = 60, newton: bool = True, workspace: dict | None = None,
-           fallbacks: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+           fallbacks: bool = True, deadline: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Positions in equilibrium with the frozen weights ``w`` (scaled units), the scaled loads
     of those positions, and the rounds taken: Newton steps, plus Anderson rounds and
     Newton–Krylov's evaluations of G when it came to those. ``max_rounds`` bounds Newton's
     steps and Anderson's rounds; ``workspace`` (a dict kept by the caller) caches the colouring.
     ``fallbacks=False``: Newton only, its last point returned when it does not converge (a
-    cheap trial; the fixed-point fallbacks can take hundreds of load evaluations)."""
+    cheap trial; the fixed-point fallbacks can take hundreds of load evaluations). Past
+    ``deadline`` (``time.perf_counter()``) every method returns its best point so far: ``X``
+    itself when the deadline has passed on entry (not even x, y are solved)."""
     free = top.free
+    if out_of_time(deadline):
+        return X.copy(), sc.load(loads.nodal(mesh0, sc.pos_back(X))), 0
     Kff, Kfs = position_blocks(top, w)
     K = (-Kff).tocsc()
     chol = spd_factor(K)
@@ -66,12 +71,12 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         if "colouring" not in ws and not constant:
             ws["colouring"] = load_colouring(mesh0, free)
         z, rounds, converged = _newton(K, zs, loads_at, chol, z_start, ws.get("colouring"), ftol, max_rounds,
-                                       constant=constant)
-    if not converged and fallbacks:
-        z, r2, converged = _anderson(G, z_start, ftol, max_rounds)
+                                       constant=constant, deadline=deadline)
+    if not converged and fallbacks and not out_of_time(deadline):
+        z, r2, converged = _anderson(G, z_start, ftol, max_rounds, deadline=deadline)
         rounds += r2
-    if not converged and fallbacks:
-        z, r3 = _newton_krylov(G, z_start, z, ftol)
+    if not converged and fallbacks and not out_of_time(deadline):
+        z, r3 = _newton_krylov(G, z_start, z, ftol, deadline=deadline)
         rounds += r3
     Xn[free, 2] = z
     L = sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))
@@ -79,12 +84,13 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
 
 
 def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.ndarray,
-            colouring: tuple | None, ftol: float, max_steps: int, constant: bool = False
-            ) -> tuple[np.ndarray, int, bool]:
+            colouring: tuple | None, ftol: float, max_steps: int, constant: bool = False,
+            deadline: float | None = None) -> tuple[np.ndarray, int, bool]:
     """Chord Newton on ``R(z) = K z − z_s + L(z)`` with a backtracking line search on the
     fixed-point residual ``f(z) = max |G(z) − z|`` (``G(z) − z = −K⁻¹ R(z)``), which is also the
     convergence test (``f ≤ ftol``). J is refreshed when the chord contracts slowly or a step
-    fails; a step that fails with a fresh J ends the method. Returns z, steps, converged."""
+    fails; a step that fails with a fresh J ends the method, and so does ``deadline`` (checked before each step with the duration of the
+    last). Returns z, steps, converged."""
     from scipy.sparse.linalg import splu
 
     def state(zc: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -95,11 +101,13 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
 
     Lz, R, f = state(z)
     lu, fresh, stale, refreshed = None, False, False, 0
+    t_step = 0.0
     for step in range(1, max_steps + 1):
         if f <= ftol:
             return z, step - 1, True
-        if not np.isfinite(f):
+        if not np.isfinite(f) or out_of_time(deadline, t_step):
             return z, step - 1, False
+        t0 = time.perf_counter()
         if lu is None or (stale and not fresh):
             if refreshed >= 8:
                 return z, step - 1, False
@@ -124,6 +132,7 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
             continue
         stale = ft > 0.25 * f  # the chord (an old J) contracts slowly: refresh it
         z, Lz, R, f, fresh = zt, Lt, Rt, ft, False
+        t_step = time.perf_counter() - t0
     return z, max_steps, f <= ftol
 
 
@@ -177,13 +186,18 @@ def _colour_graph(C: sp.csr_matrix) -> np.ndarray:
     return colour
 
 
-def _anderson(G: Callable, z: np.ndarray, ftol: float, max_rounds: int) -> tuple[np.ndarray, int, bool]:
-    """Anderson-accelerated fixed-point iteration (depth 5); gives up when it diverges."""
+def _anderson(G: Callable, z: np.ndarray, ftol: float, max_rounds: int,
+              deadline: float | None = None) -> tuple[np.ndarray, int, bool]:
+    """Anderson-accelerated fixed-point iteration (depth 5); gives up when it diverges or at
+    ``deadline`` (then it returns its start: only a converged Anderson point is known to be better)."""
     dz_hist: list[np.ndarray] = []
     df_hist: list[np.ndarray] = []
     f_prev = z_prev = None
     f_first = np.inf
+    z_start = z
     for rounds in range(1, max_rounds + 1):
+        if out_of_time(deadline):
+            return z_start, rounds - 1, False
         gz = G(z)
         f = gz - z
         fmax = float(np.abs(f).max())
@@ -206,14 +220,18 @@ def _anderson(G: Callable, z: np.ndarray, ftol: float, max_rounds: int) -> tuple
     return z, max_rounds, False
 
 
-def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: float) -> tuple[np.ndarray, int]:
+def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: float,
+                   deadline: float | None = None) -> tuple[np.ndarray, int]:
     """scipy's Newton–Krylov on ``z − G(z)``; returns whichever of its result and ``z_best``
-    has the smaller fixed-point residual, and the number of evaluations of G it made."""
+    has the smaller fixed-point residual, and the number of evaluations of G it made
+    (``z_best`` when ``deadline`` passes during the run)."""
     from scipy.optimize import NoConvergence, newton_krylov
 
     count = [0]
 
     def F(v: np.ndarray) -> np.ndarray:
+        if out_of_time(deadline):
+            raise DeadlineReached
         count[0] += 1
         return G(v) - v
 
@@ -223,7 +241,7 @@ def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: f
         zk = newton_krylov(F, z_start, f_tol=100 * ftol, maxiter=30)
     except NoConvergence as e:  # its last iterate, usually converged to round-off
         zk = np.asarray(e.args[0], float)
-    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError, DeadlineReached):
         return z_best, count[0]
     if np.all(np.isfinite(zk)) and float(np.abs(G(zk) - zk).max()) < float(np.abs(G(z_best) - z_best).max()):
         return zk, count[0]
@@ -280,7 +298,8 @@ def max_rel_error(top: Topology, V: np.ndarray, W: np.ndarray, L: np.ndarray) ->
 def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                  loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
                  max_iter: int = JOINT_POLISH_MAX_ITER,
-                 load_jacobian: Callable[[np.ndarray, np.ndarray], list] | None = None) -> tuple[np.ndarray, np.ndarray, int, float, bool]:
+                 load_jacobian: Callable[[np.ndarray, np.ndarray], list] | None = None,
+                 deadline: float | None = None) -> tuple[np.ndarray, np.ndarray, int, float, bool]:
     """Every load case in equilibrium to round-off, with loads of the final geometry.
 
     Gauss–Newton with minimum-norm steps on the system ``r_c(X, w_c; L_c(V)) = 0`` (all cases,
@@ -300,6 +319,9 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
         ``(n, 3)`` positions and ``(n_cases, m)`` active weights to correct (scaled units).
     loads_at
         ``V -> (n_cases, n)`` scaled loads of a geometry.
+    deadline
+        ``time.perf_counter()`` value: no step starts that would end after it (the duration
+        of the last step predicts the next); the best iterate so far is returned.
 
     Returns
     -------
@@ -319,7 +341,9 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     err = np.inf
     best = (np.inf, V.copy(), W.copy())
     since, best_before = 0, np.inf
+    t_step = 0.0
     for k in range(max_iter + 1):
+        t0 = time.perf_counter()
         L = loads_at(V)
         err = max_rel_error(top, V, W, L)
         if err < best[0]:
@@ -328,7 +352,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             return V, W, k, err, True
         since = since + 1 if err > 0.9 * best_before else 0
         best_before = min(best_before, err)
-        if k == max_iter or (k >= 5 and err > 0.9 * best[0] and best[0] < 1e3 * tol) or since >= 4:
+        if (k == max_iter or (k >= 5 and err > 0.9 * best[0] and best[0] < 1e3 * tol) or since >= 4
+                or out_of_time(deadline, t_step)):
             break  # round-off floor reached, or no progress for 4 steps (far from a solution: the
             # caller iterates on and polishes from closer): keep the best iterate
         S = form.row_scale(L)  # (C, nf)
@@ -383,5 +408,6 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
         dX[xcols] = d[:len(xcols)]
         V[free] += dX.reshape(-1, 3)
         W = np.clip(Wn, lo, up)
+        t_step = time.perf_counter() - t0
     err, V, W = best
     return V, W, k, err, err <= tol

@@ -100,7 +100,8 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         wt = np.clip(w + dw, lower, upper)
         Xt = X.copy()
         Xt[free] += dx
-        Xp, Lp, _ = polish(top, Xt, wt, loads, mesh0, sc, workspace=ws, fallbacks=False)
+        Xp, Lp, _ = polish(top, Xt, wt, loads, mesh0, sc, workspace=ws, fallbacks=False,
+                           deadline=None if np.isinf(deadline) else deadline)
         ok = bool(np.all(np.isfinite(Xp)))
         err = float((np.linalg.norm(residual(top, Xp, wt, Lp), axis=1) / np.abs(Lp[free])).max()) if ok else np.inf
         obj_p, F_p = objective_value(objective, Xp) if ok else (None, np.inf)

@@ -68,6 +68,7 @@ from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .base import as_problem, case_networks, term_values
+from .deadline import out_of_time
 from .polish import HULL_ACTIVE_REL, polish_joint
 from .polish import max_rel_error as _max_rel_error
 
@@ -264,7 +265,8 @@ class Simultaneous:
 
     def run(self, problem: Problem | Scene, options: SimultaneousOptions | Mapping[str, Any] | Any = None, *,
             progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None, w_max: Any = None,
-            objective: Any = None, constraints: Any = (), **option_kw: Any) -> SimultaneousRun:
+            objective: Any = None, constraints: Any = (), deadline: float | None = None,
+            **option_kw: Any) -> SimultaneousRun:
         """Solve ``problem`` and also return IPOPT's last answer (multipliers included).
 
         Parameters
@@ -279,6 +281,10 @@ class Simultaneous:
             :class:`SimultaneousOptions` or a mapping of its fields (a :class:`Problem` only).
         progress
             Called with the history record of every round (``stage`` "ipopt" or "polish").
+        deadline
+            ``time.perf_counter()`` value at which the solve stops (default: ``time_limit``
+            seconds from now): each IPOPT round gets what is left as ``max_wall_time``, the
+            polish stops there too.
         **option_kw
             Fields of :class:`SimultaneousOptions` (``tol``, ``max_iter``, ``time_limit``,
             ``warm_start``, ``verbose``).
@@ -294,6 +300,7 @@ class Simultaneous:
                 start = problem.mesh.vertices if ws is None else _start_vertices(problem, ws)
                 named, objective = objective, OBJECTIVES[objective](problem, start)
         opts = SimultaneousOptions.of(options, **option_kw)
+        deadline = t_start + opts.time_limit if deadline is None else deadline
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
         problem.validate()
         self._check_problem(problem)
@@ -326,7 +333,7 @@ class Simultaneous:
         x_ok = None  # last iterate of a converged round
         best = (np.inf, x)  # (load change, iterate) of the most load-consistent converged round
         for rnd in range(1, MAX_LOAD_ROUNDS + 1):
-            remaining = opts.time_limit - (time.perf_counter() - t_start)
+            remaining = deadline - time.perf_counter()
             if remaining <= 0:
                 status, message = "time_limit", f"time limit {opts.time_limit:g} s reached before load round {rnd}"
                 polish = x_ok is not None
@@ -352,7 +359,7 @@ class Simultaneous:
                 message = f"{self.backend} returned {out['raw']} in load round {rnd}"
                 if status == "infeasible" and hull is not None:
                     message = self._hull_diagnosis(form, x, L_cur, hull, sc, tol=tol,
-                                                   remaining=opts.time_limit - (time.perf_counter() - t_start))
+                                                   remaining=deadline - time.perf_counter())
                 elif x_ok is not None:
                     x, polish = x_ok, True
                     message += "; the last converged round's result is returned, polished"
@@ -384,10 +391,11 @@ class Simultaneous:
             L_before = loads_at(Vp)
             joint = C > 1 or hull is not None or problem.fixed_top_view
             if joint:
-                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at)
+                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at, deadline=deadline)
                 what = f"max relative error {perr:.1e}"
             else:
-                Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc)
+                Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc,
+                                                 deadline=deadline)
                 what = f"load change {perr:.1e}"
             switch = history[-1]["load_change"] if status == "converged" else float("nan")
             if ok:
@@ -401,6 +409,10 @@ class Simultaneous:
                 progress(rec)
             if status != "converged":
                 pass  # keep the solver's status and message
+            elif not ok and out_of_time(deadline):
+                status = "time_limit"
+                message = (f"time limit {opts.time_limit:g} s reached in the final polish; the last {self.backend} "
+                           "round's network is returned with loads of its own geometry")
             elif not ok:
                 status = "stalled"
                 message = (f"the final polish did not reach equilibrium to round-off (still {what} after {k} "
@@ -461,10 +473,13 @@ class Simultaneous:
                         sc: Scaling, *, tol: float, remaining: float) -> str:
         """Message for an infeasible hull: the equilibrium network closest to the hull (hull
         penalty minimised, hull rows dropped) and how many free vertices it puts outside."""
+        if remaining <= 0:  # (no time left for the search of the closest network)
+            return (f"no compressive network in equilibrium within the masonry hull was found ({self.backend} "
+                    "reported it infeasible; the time limit left no time to find how far outside it must go)")
         relaxed = dataclasses.replace(form, objective=hull * 1.0, hull=None)
         relaxed.__post_init__()
         out = self._solve_round(relaxed, relaxed.nlp(), x, L, None, tol=tol, max_iter=3000,
-                                remaining=max(remaining, 5.0), verbose=False)
+                                remaining=remaining, verbose=False)
         Vs, _ = relaxed.unpack_cases(out["x"])
         d = np.abs(hull.signed_distance(Vs)) - hull.half_thickness
         outside = d > HULL_ACTIVE_REL * hull.half_thickness + 1e-12
@@ -577,13 +592,15 @@ class _Anderson:
 
 
 def polish_heights(top: Topology, V: np.ndarray, w: np.ndarray, *, loads: LoadCase, mesh, scaling: Scaling,
-                   tol: float = LOAD_TOL, max_iter: int = POLISH_MAX_ITER) -> tuple[np.ndarray, int, float, bool]:
+                   tol: float = LOAD_TOL, max_iter: int = POLISH_MAX_ITER,
+                   deadline: float | None = None) -> tuple[np.ndarray, int, float, bool]:
     """Exact equilibrium for fixed weights, with loads consistent with the geometry.
 
     In scaled units: the x, y rows of (2) do not involve loads, ``K_ff X_f = −K_fs X_s``;
     the z rows give ``K_ff z_f = L_f(V) − K_fs z_s``, iterated with the loads re-estimated until
     they change by less than ``tol`` (relative). ``K_ff`` (stress Laplacian at free vertices,
     supports eliminated) is positive definite for positive weights.
+    Stops (not converged) at ``deadline`` (``time.perf_counter()``).
     Returns ``(V, solves, last load change, converged)``.
     """
     Kff, Kfs = position_blocks(top, w)
@@ -599,6 +616,8 @@ def polish_heights(top: Topology, V: np.ndarray, w: np.ndarray, *, loads: LoadCa
     change = np.inf
     z = V[free, 2].copy()
     for k in range(1, max_iter + 1):
+        if out_of_time(deadline):
+            return V, k - 1, change, False
         Gz = lu.solve(L[free] - rhs_s)
         z = mixer.next(z, Gz)
         V[free, 2] = z

@@ -102,6 +102,7 @@ from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from .base import as_problem, case_networks, hull_report, term_values
+from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import load_colouring, load_jacobian_xyz
 from .polish import polish_joint as _polish_joint
@@ -221,7 +222,8 @@ class StaggeredLinearization:
 
     def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | LoadCase | LoadCases | None = None, *,
               progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None,
-              w_max: Any = None, objective: Any = None, warm_start: Any = None, **overrides: Any) -> SolveResult:
+              w_max: Any = None, objective: Any = None, warm_start: Any = None, deadline: float | None = None,
+              **overrides: Any) -> SolveResult:
         """Solve for the thrust network of ``problem`` (see :mod:`formulations.problem`).
 
         Parameters
@@ -238,21 +240,28 @@ class StaggeredLinearization:
             A previous network (:class:`~selfsupport.methods.warm.WarmStart`, a network or a solve
             result): its offset from its reference and its weights are the starting iterate and
             the first fit's warm start (transferred by position when the topology changed).
+        deadline
+            A ``time.perf_counter()`` value at which the solve stops (status ``"time_limit"``,
+            its best network so far); default: ``time_limit`` seconds from now. Every inner
+            loop (Step 2, Step 3's CG, the polish, the refinement) honours it.
         """
         if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
                                                            and all(isinstance(v, LoadCase) for v in options.values())):
             loads, options = options, None
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
-        return _Run(self, problem, opt, progress, warm_start).solve()
+        return _Run(self, problem, opt, progress, warm_start, deadline).solve()
 
 
 class _Run:
     """One solve: the problem in scaled units, the state of the iteration, and the named steps."""
 
     def __init__(self, method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
-                 progress: Callable[[dict], None] | None, warm_start: Any = None) -> None:
+                 progress: Callable[[dict], None] | None, warm_start: Any = None,
+                 deadline: float | None = None) -> None:
         self.t_start = time.perf_counter()
+        # the one deadline every inner loop is given (see selfsupport.methods.deadline)
+        self.deadline = self.t_start + opt.time_limit if deadline is None else deadline
         problem.validate()  # mesh, supports; a flat reference needs w_max, else no nearest network exists
         self.method, self.problem, self.opt, self.progress = method, problem, opt, progress
         self.scene, self.loads = problem.scene, problem.loads
@@ -326,7 +335,7 @@ class _Run:
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
-                                         rtol=rtol)
+                                         rtol=rtol, deadline=self.deadline)
             except (ValueError, RuntimeError, ArithmeticError):  # singular systems of a degenerate geometry
                 return None
             if not np.all(np.isfinite(f.w)):
@@ -337,7 +346,7 @@ class _Run:
             fits.append(f)
         worst_case = int(np.argmax([r.max() if r.size else 0.0 for r in rels]))
         worst = np.argsort(rels[worst_case])[::-1][:10]
-        status = "inexact" if any(f.status == "inexact" for f in fits) else fits[-1].status
+        status = next((s for s in ("time_limit", "inexact") if any(f.status == s for f in fits)), fits[-1].status)
         return {"L": L, "w": ws, "As": As_all, "E": float(sum(r @ r for r in rels)),
                 "max_rel_error": float(max(r.max() for r in rels)),
                 "worst_vertices": [int(v) for v in self.free_idx[worst]],
@@ -385,7 +394,7 @@ class _Run:
             pinned = _hull_faces(self.hull, X, active) if active.size else None
             Xt = _position_step(self.top, X, cur["w"], cur["L"], self.step3_terms, alpha, beta, G=G, prox_dw=beta,
                                 gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
-                                fixed_xy=self.fixed_xy, pinned=pinned)
+                                fixed_xy=self.fixed_xy, pinned=pinned, deadline=self.deadline)
             if self.hull is None:
                 return Xt
             s = self.hull.signed_distance(Xt)
@@ -396,6 +405,10 @@ class _Run:
             active = grown
         return _into_hull(self.hull, Xt, fixed_xy=self.fixed_xy)
 
+    def time_message(self) -> str:
+        """The message of a solve stopped by its deadline."""
+        return f"time limit {self.opt.time_limit:g} s reached"
+
     # ---------------------------------------------------------------- results
     def networks(self, X: np.ndarray, ws: list[np.ndarray]) -> tuple[Network, tuple[tuple[str, Network], ...]]:
         return case_networks(self.problem, self.sc, X, ws)
@@ -405,7 +418,7 @@ class _Run:
         (X, ws, L, rounds)."""
         if not self.joint:
             Xp, L, rounds = _polish(self.top, X, ws[0], self.loads.primary, self.mesh0, self.sc,
-                                    workspace=self.polish_ws, fallbacks=fallbacks)
+                                    workspace=self.polish_ws, fallbacks=fallbacks, deadline=self.deadline)
             return Xp, ws, L[None], rounds
         top = self.top
         h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
@@ -420,7 +433,8 @@ class _Run:
             return [load_jacobian_xyz(m, self.mesh0, self.sc, V, L[c], self.free_idx, ws_["colouring"])
                     if m.depends_on_geometry else None for c, m in enumerate(self.loads.models)]
 
-        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at, load_jacobian=load_jacobian)
+        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at, load_jacobian=load_jacobian,
+                                            deadline=self.deadline)
         return Xp, list(W), self.loads_at(Xp), rounds
 
     # ---------------------------------------------------------------- the iteration
@@ -471,12 +485,12 @@ class _Run:
                         history.append(rec)
                         break
                     if (can_finish_early and fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
-                            and cur["fit_status"] != "inexact"):
+                            and cur["fit_status"] not in ("inexact", "time_limit")):
                         # (a trial fitted loosely that landed below finish_try waits one step: the
                         # next fit is exact, and the finish polishes exact weights only)
                         proj = proj if proj is not None else closest_points(X, self.reference)
                         early = _try_finish(top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, sc,
-                                            self.reference, proj[1], opt, self.polish_ws)
+                                            self.reference, proj[1], opt, self.polish_ws, deadline=self.deadline)
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
                             status = "converged"
@@ -495,8 +509,8 @@ class _Run:
                             f"{len(released) - 1} iterations)")
                         history.append(rec)
                         break
-                    if time.perf_counter() - self.t_start > opt.time_limit:
-                        status, message = "time_limit", f"time limit {opt.time_limit:g} s reached"
+                    if out_of_time(self.deadline):
+                        status, message = "time_limit", self.time_message()
                         history.append(rec)
                         break
                     # Step 3: positions, with the weights of the current fit
@@ -538,6 +552,8 @@ class _Run:
                             break
             except KeyboardInterrupt:  # Ctrl-C: stop cleanly with the best network so far
                 status, message = "interrupted", "interrupted by the user; the network is the best one so far"
+            except DeadlineReached:  # inside Step 3: the current iterate is the best network
+                status, message = "time_limit", self.time_message()
 
             if status not in ("converged", "interrupted"):
                 message = (f"{message or status}; vertices hardest to balance: {cur['worst_vertices'][:5]} "
@@ -550,7 +566,8 @@ class _Run:
                 Xp, _, load_rounds, _ = early
                 ws = cur["w"]
             else:
-                last = self.fit(X, cur["w"], opt.prox_w_final)
+                # (past the deadline a fit would return at once: keep the current weights)
+                last = None if out_of_time(self.deadline) else self.fit(X, cur["w"], opt.prox_w_final)
                 ws = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
                 # Polish: weights frozen (or, with several cases, moved least), positions exact
                 t0 = time.perf_counter()
@@ -574,7 +591,7 @@ class _Run:
                 message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
                             "of the bounding-box diagonal, so this network may be far from the design")
             if (status == "converged" and early is None and not err <= opt.tol and polish_tol > 1e-9
-                    and it < opt.max_iter and time.perf_counter() - self.t_start < opt.time_limit):
+                    and it < opt.max_iter and not out_of_time(self.deadline)):
                 # the polish did not reach equilibrium (the load fixed point stalled, e.g. on a
                 # kink of the area model): iterate on to a much tighter fit and polish again
                 history.append({**final, "kept": False, "retry": True})
@@ -620,7 +637,7 @@ class _Run:
         wn = sc.weight(net.weights[self.scene.active_edges])
         ref = _refine(self.top, Xn, wn, self.loads.primary, self.mesh0, sc, self.objective, self.lower, self.upper,
                       max_steps=opt.refine, tol=opt.tol, min_gain=opt.refine_gain,
-                      deadline=self.t_start + opt.time_limit,
+                      deadline=self.deadline,
                       workspace=self.polish_ws)
         applied = False
         if ref.steps:
@@ -737,8 +754,8 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
 def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
                    objective: Term | None, alpha: float, beta: float, G: sp.spmatrix | None = None,
                    prox_dw: float = 0.0, gap: np.ndarray | None = None, damping: float = 0.0,
-                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None
-                   ) -> np.ndarray:
+                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None,
+                   deadline: float | None = None) -> np.ndarray:
     """Step 3: the SPD least-squares update of the free positions (see the module docstring).
 
     ``weights`` and ``L`` hold one weight vector and one load vector per load case. The residual
@@ -798,7 +815,7 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
         Xn[free, 2] = wsp["factor_z"].solve(rz)
         return Xn
     if Gg is None and (G is None or G.shape[1] == 0):  # (with every weight at a bound the coupled step is the plain one)
-        sol = _solve_blocks(H, blocks, rhs, wsp)
+        sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline)
         if sol is not None:
             Xn[free] = sol
             return Xn
@@ -829,11 +846,12 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
 
 
 def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, rtol: float = 1e-10,
-                  maxiter: int = 200) -> np.ndarray | None:
+                  maxiter: int = 200, deadline: float | None = None) -> np.ndarray | None:
     """``(H ⊗ I₃ + ⊕ B_i) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG (scipy), the
     preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
     ``⊕ B_i − λ_min ⊗ I`` is PSD, so the preconditioned system's eigenvalues are ≥ 1); None if CG
-    does not converge."""
+    does not converge. Raises :class:`~selfsupport.methods.deadline.DeadlineReached` when the
+    next CG iteration would end past ``deadline`` (a partial step is no step)."""
     from scipy.sparse.linalg import LinearOperator, cg
 
     k = H.shape[0]
@@ -847,14 +865,24 @@ def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dic
     op = LinearOperator((3 * k, 3 * k), matvec=matvec, dtype=float)
     prec = LinearOperator((3 * k, 3 * k), matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel(), dtype=float)
     count = [0]
+    last = [time.perf_counter(), 0.0]  # end of the last iteration, its duration
+
+    def callback(_: np.ndarray) -> None:
+        count[0] += 1
+        now = time.perf_counter()
+        last[:] = [now, now - last[0]]
+        if out_of_time(deadline, last[1]):
+            raise DeadlineReached
+
     x, info = cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
-                 callback=lambda _: count.__setitem__(0, count[0] + 1))
+                 callback=callback)
     ok = info == 0 and np.all(np.isfinite(x))
     ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
     return x.reshape(k, 3) if ok else None
 
 def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, L_it: np.ndarray, loads: LoadCase, mesh0,
-                sc: Scaling, reference, d_it: np.ndarray, opt: StaggeredOptions, workspace: dict | None = None):
+                sc: Scaling, reference, d_it: np.ndarray, opt: StaggeredOptions, workspace: dict | None = None,
+                deadline: float | None = None):
     """Polish with the current weights and keep the result if it is in equilibrium and no
     farther from the reference than the iterate itself (mean within ``finish_slack``, max
     within 4× that): finishing then costs no closeness, further iterations could only drift.
@@ -882,7 +910,8 @@ def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, L_it: np.ndarray, l
     if screen > 1 + opt.finish_screen:
         return None, None, 0, {"ok": False, "screened": screen}
     # Newton only: a try that Newton cannot finish is retried later, or left to the final polish
-    Xp, L, rounds = _polish(top, X, w, loads, mesh0, sc, workspace=workspace, fallbacks=bool(opt.try_fallbacks))
+    Xp, L, rounds = _polish(top, X, w, loads, mesh0, sc, workspace=workspace, fallbacks=bool(opt.try_fallbacks),
+                            deadline=deadline)
     if not np.all(np.isfinite(Xp)):
         return None
     err = float((np.linalg.norm(residual(top, Xp, w, L), axis=1) / np.abs(L[free])).max())

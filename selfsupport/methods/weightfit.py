@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..linalg import spd_factor
+from .deadline import out_of_time
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,7 @@ class WeightFit:
     objective: float  # ½‖A w − b‖² (without the proximal term)
     iterations: int
     status: str  # "optimal" | "inexact" (stopped at the caller's looser rtol) | "max_iter" | "failed"
+    # | "time_limit" (stopped at the caller's deadline: the point reached so far)
     seconds: float
     n_lower: int = 0
     n_upper: int = 0
@@ -49,9 +51,12 @@ class WeightFitBackend:
         self.options = {**self.defaults, **options}
 
     def fit(self, *, A: sp.spmatrix, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-            w0: np.ndarray, prox: float = 0.0, rtol: float | None = None) -> WeightFit:  # pragma: no cover - abstract
+            w0: np.ndarray, prox: float = 0.0, rtol: float | None = None,
+            deadline: float | None = None) -> WeightFit:  # pragma: no cover - abstract
         """Solve the fit. ``rtol``: a looser relative KKT tolerance the caller accepts for this
-        fit (``None``: the backend's own); a backend may ignore it."""
+        fit (``None``: the backend's own); a backend may ignore it. ``deadline``: a
+        ``time.perf_counter()`` value; past it the backend returns the point it has, status
+        ``"time_limit"`` (``None``: no deadline)."""
         raise NotImplementedError
 
     def reset(self) -> None:
@@ -108,11 +113,14 @@ class _LowerQ:
 
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
                 tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
-                lowq: _LowerQ | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
+                lowq: _LowerQ | None = None, deadline: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
     """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
 
     One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
-    structure of Q. Returns the point, the multipliers of both bounds, iterations, status.
+    structure of Q. Returns the point, the multipliers of both bounds, iterations, status
+    (``"time_limit"`` when the next iteration would end past ``deadline``: the iterate is
+    strictly inside the box, a usable if inexact fit).
     """
     lowq = lowq if lowq is not None else _LowerQ(Q)
     fin = np.isfinite(upper)
@@ -147,13 +155,17 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
     has_up = bool(fin.any())  # (y = 0 and t = 1 wherever the upper bound is infinite)
     zero = np.zeros_like(w)
     it = 0
+    t_iter = 0.0  # duration of the last iteration (predicts the next one for the deadline)
     for it in range(1, max_iter + 1):
+        t_it = time.perf_counter()
         g = Q @ w - c  # the gradient, shared by the test and both directions
         s_ = w - lower
         t_ = np.where(fin, upper - w, 1.0) if has_up else 1.0
         mu = (float(s_ @ z) + (float(t_[fin] @ y[fin]) if has_up else 0.0)) / n_con
         if np.abs(g - z + y).max() <= tol * gs and mu <= tol * gs * scale_w:
             return w, z, y, it, "optimal"
+        if out_of_time(deadline, t_iter):
+            return w, z, y, it - 1, "time_limit"
         with np.errstate(divide="ignore", invalid="ignore"):
             zs, yt = z / s_, (y / t_ if has_up else zero)
             D = zs + yt
@@ -182,6 +194,7 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         dw, dz, dy = direction(sigma * mu, dw * dz, -dw * dy if has_up else 0.0)
         a = min(1.0, 0.995 * max_step(dw, dz, dy))
         w, z, y = w + a * dw, z + a * dz, (y + a * dy if has_up else y)
+        t_iter = time.perf_counter() - t_it
     return w, z, y, it, "max_iter"
 
 
@@ -229,8 +242,12 @@ class ActiveSetFit(WeightFitBackend):
         tol = 1e-9 * np.maximum(np.abs(lower), 1e-300)
         self._active = (w <= lower + tol, np.isfinite(upper) & (w >= upper - tol))
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None):
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None):
         t0 = time.perf_counter()
+        if out_of_time(deadline):  # not even the normal equations: the starting point as it is
+            w = np.clip(np.asarray(w0, float), lower, upper)
+            return WeightFit(w=w, objective=_objective(A, b, w), iterations=0, status="time_limit",
+                             seconds=time.perf_counter() - t0)
         A = sp.csc_matrix(A)
         Q = (A.T @ A).tocsc()
         if prox > 0:
@@ -240,11 +257,13 @@ class ActiveSetFit(WeightFitBackend):
         lowq = _LowerQ(Q, self._factor)  # (spd_factor starts afresh when the size changed)
         guess = None
         if self._active is not None and self._active[0].shape == w0.shape:
-            w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active)
-        if status != "optimal":
+            w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active, deadline=deadline)
+        wi = z = None
+        if status not in ("optimal", "time_limit"):
             loose = rtol is not None and rtol > self.options["tol"]
             wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, rtol if loose else self.options["tol"],
-                                                   self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq)
+                                                   self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq,
+                                                   deadline=deadline)
             # crossover: bounds whose multiplier dominates their slack start PDAS
             ws = max(float(np.median(np.abs(wi))), 1e-300)
             gs = max(float(np.abs(c).max()), 1e-300)
@@ -254,11 +273,16 @@ class ActiveSetFit(WeightFitBackend):
             if loose and st_ipm == "optimal":  # the caller accepts this accuracy: no crossover
                 it += it_ipm
                 w, status = wi, "inexact"
+            elif st_ipm == "time_limit":  # no time for the crossover: the interior point as it is
+                it += it_ipm
+                w, status = wi, "time_limit"
             else:
-                wp, it_pd, st_pd, guess = self._pdas(lowq, Q, c, lower, upper, lo, up)
+                wp, it_pd, st_pd, guess = self._pdas(lowq, Q, c, lower, upper, lo, up, deadline=deadline)
                 it += it_ipm + it_pd
                 w, status = (wp, st_pd) if st_pd == "optimal" else (wi, st_ipm)
         self._factor = lowq.factor
+        if w is None:  # stopped before PDAS solved anything
+            w = np.asarray(w0, float)
         w = np.clip(w, lower, upper)
         g = Q @ w - c
         if status == "optimal" or guess is None:
@@ -266,20 +290,27 @@ class ActiveSetFit(WeightFitBackend):
         # next call's warm starts: this active set (for an interior point: the crossover's guess)
         self._active = guess
         # (an inexact fit's own interior point and multipliers; else the point and its gradient)
-        self._ipm_warm = (wi, z) if status == "inexact" else (w, np.maximum(g, 0.0))
+        self._ipm_warm = (wi, z) if status in ("inexact", "time_limit") and wi is not None \
+            else (w, np.maximum(g, 0.0))
         return WeightFit(w=w, objective=_objective(A, b, w), iterations=it, status=status,
                          seconds=time.perf_counter() - t0, n_lower=int(guess[0].sum()), n_upper=int(guess[1].sum()))
 
-    def _pdas(self, lowq, Q, c, lower, upper, lo, up):
+    def _pdas(self, lowq, Q, c, lower, upper, lo, up, deadline=None):
         """PDAS from the guess (lo, up): fix those bounds, solve for the rest, release bounds
         whose multiplier has the wrong sign and fix variables that left the box; stop when the
         guess repeats (then the KKT conditions hold exactly), or give up when the number of
-        changed bounds stops halving (then it would cycle). Returns w, iterations, status and
-        the last guess."""
+        changed bounds stops halving (then it would cycle), or when the next solve would end past
+        ``deadline`` (status ``"time_limit"``, ``w`` None if none was made). Returns w,
+        iterations, status and the last guess."""
         w = None
         changes = []
+        t_solve = 0.0
         for it in range(1, self.options["max_pdas"] + 1):
+            if out_of_time(deadline, t_solve):
+                return w, it - 1, "time_limit", (lo, up)
+            t_it = time.perf_counter()
             w = self._reduced_solve(lowq, Q, c, lower, upper, lo, up)
+            t_solve = time.perf_counter() - t_it
             g = Q @ w - c
             lo_n = np.where(lo, g > 0, w < lower)
             up_n = np.where(up, g < 0, w > upper) & ~lo_n

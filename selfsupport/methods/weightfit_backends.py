@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import BackendUnavailable
+from .deadline import ipopt_stop_callback, out_of_time, remaining
 from .weightfit import WeightFit, WeightFitBackend, _objective
 
 
@@ -92,11 +93,12 @@ class IpoptFit(WeightFitBackend):
     #: IPOPT return_status -> WeightFit status (anything else: "failed").
     STATUS = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "max_iter",
               "Maximum_Iterations_Exceeded": "max_iter", "Maximum_WallTime_Exceeded": "max_iter",
-              "Maximum_CpuTime_Exceeded": "max_iter"}
+              "Maximum_CpuTime_Exceeded": "max_iter", "User_Requested_Stop": "time_limit"}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         self._solvers: dict[tuple, Any] = {}
+        self._stop = None  # the iteration callback of the cached solver (it carries the deadline)
 
     def reset(self) -> None:
         self._solvers.clear()
@@ -120,18 +122,25 @@ class IpoptFit(WeightFitBackend):
             opts = {k: v for k, v in self.options.items()}
             opts.update({"hessian_constant": "yes", "jac_c_constant": "yes", "sb": "yes"})
             self._solvers.clear()  # one pattern at a time: a new topology replaces the old
+            # the solver is built once, so its max_wall_time cannot follow each fit's deadline:
+            # a callback checks the deadline at every IPOPT iteration
+            self._stop = ipopt_stop_callback(m + rows, rows, A.nnz + rows + m + 1)
             self._solvers[key] = ca.nlpsol("weightfit", "ipopt", nlp,
-                                           {"ipopt": opts, "print_time": False, "error_on_fail": False})
+                                           {"ipopt": opts, "print_time": False, "error_on_fail": False,
+                                            "iteration_callback": self._stop})
         return self._solvers[key]
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
+        if out_of_time(deadline):
+            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         rows, m = A.shape
         solver = self._solver(A)
+        self._stop.deadline = deadline
         w_start = np.clip(np.asarray(w0, float), lower, upper)
         x0 = np.concatenate([w_start, A @ w_start - b])
         p = np.concatenate([A.data, b, np.asarray(w0, float), [float(prox)]])
@@ -190,23 +199,32 @@ class OsqpFit(WeightFitBackend):
         C = sp.hstack([A, -sp.identity(rows)], format="csc")
         return H, C
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
         w0 = np.asarray(w0, float)
+        if out_of_time(deadline):
+            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         rows, m = A.shape
         H, C = self._lifted(A, prox)
         q = np.r_[-float(prox) * w0, np.zeros(rows)]
         w_start = np.clip(w0, lower, upper)
         x0 = np.r_[w_start, A @ w_start - b]
+        # the osqp package's own time_limit [s] (0: none) holds the deadline inside a run; CasADi's
+        # OSQP interface does not accept that setting (3.8: "Not recognised"), so through CasADi
+        # the deadline is only checked before the run
+        limit = remaining(deadline, 0.0) if deadline is not None else 0.0
         if self._impl == "casadi":
             w, it, ret = self._fit_casadi(A, H, C, q, b, lower, upper, x0)
         else:
-            w, it, ret = self._fit_python(H, C, q, b, lower, upper, x0, m)
-        return _finish(A, b, w[:m], lower, upper, it, self.STATUS.get(ret, "failed"), t0)
+            w, it, ret = self._fit_python(H, C, q, b, lower, upper, x0, m, limit)
+        status = self.STATUS.get(ret, "failed")
+        if status != "optimal" and out_of_time(deadline):
+            status = "time_limit"
+        return _finish(A, b, w[:m], lower, upper, it, status, t0)
 
     def _fit_casadi(self, A, H, C, q, b, lower, upper, x0):
         import casadi as ca
@@ -233,7 +251,7 @@ class OsqpFit(WeightFitBackend):
         it = max(int(st.get("iter_count", 0) or 0), 0)  # CasADi's OSQP interface reports -1 (unknown)
         return np.asarray(sol["x"]).ravel(), it, ret
 
-    def _fit_python(self, H, C, q, b, lower, upper, x0, m):  # pragma: no cover - casadi has osqp here
+    def _fit_python(self, H, C, q, b, lower, upper, x0, m, limit=0.0):  # pragma: no cover - casadi has osqp here
         import osqp
 
         n = H.shape[0]
@@ -244,6 +262,8 @@ class OsqpFit(WeightFitBackend):
         u = np.r_[b, upper]
         prob = osqp.OSQP()
         opts = {k: v for k, v in self.options.items()}
+        if limit:
+            opts["time_limit"] = max(limit, 1e-3)
         prob.setup(sp.triu(H, format="csc"), q, Aq, l, u, **opts)
         prob.warm_start(x=x0)
         res = prob.solve()
@@ -273,7 +293,7 @@ class NloptFit(WeightFitBackend):
             raise BackendUnavailable("the 'nlopt' weight-fit backend needs the nlopt package: "
                                      "`pip install nlopt`") from None
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None) -> WeightFit:  # rtol: own tol used
+    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
         import nlopt
 
         t0 = time.perf_counter()
@@ -308,7 +328,7 @@ class NloptFit(WeightFitBackend):
         opt.set_ftol_rel(o["ftol_rel"])
         opt.set_xtol_rel(o["xtol_rel"])
         opt.set_maxeval(int(o["maxeval"]))
-        opt.set_maxtime(float(o["maxtime"]))
+        opt.set_maxtime(float(max(min(o["maxtime"], remaining(deadline)), 1e-3)))
         if o["algorithm"] == "LD_LBFGS":
             opt.set_vector_storage(int(o["vector_storage"]))
         failed = False
@@ -325,7 +345,7 @@ class NloptFit(WeightFitBackend):
         if kkt_residual(A=A, b=b, w=w, lower=lower, upper=upper, w0=w0, prox=prox) <= o["kkt_tol"]:
             status = "optimal"
         else:
-            status = "failed" if failed else "max_iter"
+            status = "time_limit" if out_of_time(deadline) else "failed" if failed else "max_iter"
         return _finish(A, b, w, lower, upper, count[0], status, t0)
 
 

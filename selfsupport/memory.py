@@ -1,0 +1,94 @@
+"""The size guard: refuse a solve whose memory would exceed the machine before allocating it.
+
+A solve's peak memory grows with the mesh (the Step-2 normal equations and their Cholesky
+factor dominate in the staggered method, MUMPS's factor of the KKT system in IPOPT), so it
+is estimated from the vertex count with rates measured on domes (peak resident set size of
+``selfsupport solve``, 2-core machine, 2026-11):
+
+==========  ==========  ===========  ======================
+method      vertices    peak RSS     rate between sizes
+==========  ==========  ===========  ======================
+staggered   20k / 50k   313 / 705 MB 13 KB per vertex
+staggered   200k        2.16 GB      9.7 KB per vertex
+ipopt       2k / 8k     212 / 654 MB 74 KB per vertex
+==========  ==========  ===========  ======================
+
+:data:`BYTES_PER_VERTEX` rounds those rates up; an estimate above the memory available (or
+``--max-memory``) is refused with one line instead of ending in an out-of-memory kill (the
+kernel killed ``shape:dome:1000000000`` at ~21 GB after 63 s, without a word).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .errors import TooLarge
+
+GIB = 1024.0 ** 3
+#: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
+BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "ipopt": 100e3, "nlopt": 100e3}
+#: The interpreter and libraries before any mesh (measured: 96 MB).
+BASE_BYTES = 150e6
+
+
+def estimate_solve_bytes(n_vertices: int, method: str = "staggered") -> float:
+    """Estimated peak memory [bytes] of solving a mesh of ``n_vertices`` with ``method``.
+
+    >>> round(estimate_solve_bytes(200_000) / 1e9, 2)  # measured: 2.16 GB
+    3.35
+    """
+    return BASE_BYTES + BYTES_PER_VERTEX.get(method, max(BYTES_PER_VERTEX.values())) * float(n_vertices)
+
+
+def available_bytes() -> float:
+    """Memory this process may still use [bytes]: the kernel's ``MemAvailable``, capped by a
+    cgroup (v2 or v1) limit minus its usage when one is set; ``inf`` when unknown."""
+    avail = float("inf")
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                avail = float(line.split()[1]) * 1024.0
+                break
+    except OSError:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            limit = Path(limit_file).read_text().strip()
+            if limit != "max" and float(limit) < 1e18:  # (v1 writes a huge number for "none")
+                avail = min(avail, float(limit) - float(Path(usage_file).read_text().strip()))
+        except (OSError, ValueError):
+            continue
+    return avail
+
+
+def check_memory(n_vertices: int, method: str = "staggered", max_memory: float | None = None) -> float:
+    """Refuse (:class:`~selfsupport.errors.TooLarge`, one line) a solve whose estimated memory
+    exceeds ``max_memory`` [GiB] or, without it, the memory available now. Returns the estimate
+    [bytes]."""
+    need = estimate_solve_bytes(n_vertices, method)
+    has = available_bytes() if max_memory is None else float(max_memory) * GIB
+    if need > has:
+        where = (f"--max-memory allows {_gib(has)} GiB" if max_memory is not None
+                 else f"this machine has {_gib(has)} GiB available")
+        raise TooLarge(f"a {method} solve of {n_vertices:,} vertices needs about {_gib(need)} GiB, {where}; "
+                       "use --max-memory or a coarser mesh")
+    return need
+
+
+def _gib(n_bytes: float) -> str:
+    """GiB with one decimal, small amounts with two significant digits (0.05, not 0.1)."""
+    x = n_bytes / GIB
+    return f"{x:.1f}" if x >= 1 else f"{x:.2g}"
+
+
+def check_scene_spec(spec: str, method: str = "staggered", max_memory: float | None = None) -> None:
+    """:func:`check_memory` for a built-in shape ``shape:NAME:VERTICES`` before it is built
+    (building it is already an allocation of its size); files are checked once read."""
+    parts = spec.split(":")
+    if spec.startswith("shape:") and len(parts) == 3 and parts[2].strip().isdigit():
+        check_memory(int(parts[2]), method, max_memory)

@@ -1,0 +1,196 @@
+"""Limits that hold (issue 16, items 4 and 5): the time limit inside every inner loop, and the
+memory guard before any allocation.
+
+The whole-run test slows Step 2 down on purpose instead of solving a 200k-vertex mesh: each
+factorization of the interior point sleeps 0.3 s, so that one fit (15-30 iterations) takes far
+longer than the limit, as at 200k vertices (44 s for the first fit), while the test stays
+small and its timing does not depend on the machine's speed.
+"""
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from selfsupport import api, cli
+from selfsupport.loads import SelfWeight
+from selfsupport.methods import weightfit
+from selfsupport.methods.deadline import DeadlineReached, finish_reserve, out_of_time
+from selfsupport.shapes import make_shape
+
+#: The bound the issue sets on a run with a time limit T: it ends within 10% + 1 s of T.
+def _bound(limit: float) -> float:
+    return 1.1 * limit + 1.0
+
+
+@pytest.fixture
+def slow_step2(monkeypatch):
+    """Every factorization of the Step-2 interior point / PDAS takes 0.3 s longer."""
+    original = weightfit._LowerQ._factor
+
+    def slow(self, data):
+        time.sleep(0.3)
+        return original(self, data)
+
+    monkeypatch.setattr(weightfit._LowerQ, "_factor", slow)
+
+
+def test_a_slow_step_2_fit_stops_at_the_limit_and_the_network_is_written(slow_step2, tmp_path, capsys):
+    out = tmp_path / "net.json"
+    limit = 1.0
+    t0 = time.perf_counter()
+    code = cli.main(["solve", "shape:pillar_vault:300", "--time-limit", str(limit), "--out", str(out), "-q"])
+    took = time.perf_counter() - t0
+    assert took <= _bound(limit), took  # unpatched-deadline code: >= 0.3 s x 20+ iterations x 2 fits
+    assert code == cli.EXIT_CODES["limit"]
+    doc = json.loads(out.read_text())
+    assert doc["status"] == "time_limit" and "time limit" in doc["message"]
+    assert len(doc["weights"]) == len(doc["edges"]) and np.all(np.isfinite(doc["vertices"]))
+    assert "time_limit" in capsys.readouterr().err
+
+
+def test_the_api_limit_holds_inside_the_first_fit(slow_step2):
+    scene = make_shape("pillar_vault", n_vertices=300)
+    t0 = time.perf_counter()
+    res = api.solve(scene, time_limit=0.5)
+    assert time.perf_counter() - t0 <= _bound(0.5)
+    assert res.status == "time_limit"
+    assert res.history[0]["fit_status"] == "time_limit"  # stopped inside Step 2, not after it
+
+
+def test_interior_point_returns_an_interior_point_at_its_deadline():
+    rng = np.random.default_rng(1)
+    import scipy.sparse as sp
+
+    A = sp.random(60, 90, density=0.1, random_state=rng, format="csc") + sp.eye(60, 90)
+    b = rng.normal(size=60)
+    lo, up = np.full(90, 1e-3), np.full(90, np.inf)
+    fit = weightfit.ActiveSetFit().fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(90), prox=1e-8,
+                                       deadline=time.perf_counter() - 1.0)
+    assert fit.status == "time_limit" and fit.iterations == 0 and np.all(fit.w >= lo)
+    done = weightfit.ActiveSetFit().fit(A=A, b=b, lower=lo, upper=up, w0=np.ones(90), prox=1e-8,
+                                        deadline=time.perf_counter() + 60.0)
+    assert done.status == "optimal"
+
+
+def test_step_3_cg_and_the_polishes_honour_a_passed_deadline():
+    from formulations import Problem
+    from selfsupport.methods.polish import polish, polish_joint
+    from selfsupport.methods.staggered import _solve_blocks
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(0)
+    H = sp.diags(np.linspace(1.0, 1e2, 50)).tocsr()
+    Q = np.linalg.qr(rng.normal(size=(50, 3, 3)))[0]
+    blocks = Q @ (np.array([1e-3, 1.0, 1e3])[None, :, None] * np.transpose(Q, (0, 2, 1)))  # anisotropic: CG iterates
+    with pytest.raises(DeadlineReached):
+        _solve_blocks(H, blocks, np.ones((50, 3)), {}, deadline=time.perf_counter() - 1.0)
+    assert _solve_blocks(H, blocks, np.ones((50, 3)), {}, deadline=time.perf_counter() + 60) is not None
+
+    scene = make_shape("dome", n_vertices=100)
+    prob = Problem.build(scene, SelfWeight())
+    sp_ = prob.scaled()
+    w = np.ones(sp_.top.m)
+    X, L, rounds = polish(sp_.top, sp_.X, w, SelfWeight(), scene.mesh, sp_.scaling, deadline=time.perf_counter() - 1)
+    assert rounds == 0 and np.array_equal(X, sp_.X)  # past the deadline: the input, untouched
+
+    from formulations import ThrustNetworkProblem, WeightBounds
+
+    form = ThrustNetworkProblem(sp_.top, sp_.X, sp_.L, WeightBounds(sp_.lower, sp_.upper))
+    loads_at = lambda V: sp_.scaling.load(prob.loads.nodal(scene.mesh, sp_.scaling.pos_back(V)))  # noqa: E731
+    V, W, k, err, ok = polish_joint(form, sp_.X, w[None], loads_at=loads_at, deadline=time.perf_counter() - 1)
+    assert k == 0 and not ok and np.array_equal(V, sp_.X)
+
+
+def test_deadline_helpers():
+    assert not out_of_time(None) and out_of_time(time.perf_counter() - 1e-3)
+    assert out_of_time(time.perf_counter() + 1.0, step_seconds=2.0)  # the next step would end past it
+    assert finish_reserve(200_000) == pytest.approx(8.0) and finish_reserve(1000) < 0.1
+
+
+@pytest.mark.parametrize("backend", ["ipopt", "nlopt", "osqp"])
+def test_other_step_2_backends_stop_at_a_passed_deadline(backend):
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(2)
+    A = sp.random(40, 60, density=0.2, random_state=rng, format="csc") + sp.eye(40, 60)
+    fit = weightfit.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
+                                              upper=np.full(60, np.inf), w0=np.ones(60),
+                                              deadline=time.perf_counter() - 1.0)
+    assert fit.status == "time_limit"
+    later = weightfit.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
+                                                upper=np.full(60, np.inf), w0=np.ones(60),
+                                                deadline=time.perf_counter() + 60.0)
+    assert later.status in ("optimal", "max_iter")  # a deadline far off changes nothing
+
+
+def test_ipopt_fit_stops_inside_its_iterations():
+    """The cached IPOPT solver cannot change its max_wall_time per fit: its iteration callback
+    holds the deadline (User_Requested_Stop)."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(3)
+    A = sp.random(400, 600, density=0.02, random_state=rng, format="csc") + sp.eye(400, 600)
+    b = rng.normal(size=400)
+    be = weightfit.make_backend("ipopt")
+    kw = dict(A=A, b=b, lower=np.full(600, 1e-3), upper=np.full(600, np.inf), w0=np.ones(600))
+    assert be.fit(**kw).status == "optimal"  # builds the solver
+    be._stop.deadline = None
+    original = be._stop.eval
+    fit = be.fit(**kw, deadline=time.perf_counter() + 1e-4)  # passes during the first iterations
+    assert fit.status == "time_limit" and fit.iterations < 5, (fit.status, fit.iterations)
+    assert be.fit(**kw).status == "optimal" and be._stop.eval == original  # the next fit is unaffected
+
+
+# ------------------------------------------------------------------ item 5: the size guard
+def test_absurd_built_in_shapes_are_refused_up_front(capsys):
+    t0 = time.perf_counter()
+    code = cli.main(["solve", "shape:dome:1000000000", "--out", "/nonexistent-dir/x.json"])
+    assert time.perf_counter() - t0 < 5.0  # nothing of that size was allocated (it was killed at 21 GB)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1
+    assert "needs about" in err[0] and "GiB" in err[0] and "--max-memory or a coarser mesh" in err[0]
+    from selfsupport.errors import InputError
+    from selfsupport.shapes import MAX_SHAPE_VERTICES
+
+    with pytest.raises(InputError, match="use fewer vertices"):
+        make_shape("dome", n_vertices=MAX_SHAPE_VERTICES + 1)  # also for the API and every command
+
+
+def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
+    from selfsupport import memory
+    from selfsupport.errors import TooLarge
+
+    # pretend the machine has 100 MB free: the refusal must come from the estimate, not an allocation
+    monkeypatch.setattr(memory, "available_bytes", lambda: 100e6)
+    called = []
+    monkeypatch.setattr(api, "validate_scene", lambda *a, **k: called.append(1))
+    with pytest.raises(TooLarge, match=r"needs about 0\.\d+ GiB, this machine has 0\.093 GiB available"):
+        api.solve(make_shape("dome", n_vertices=2000))
+    assert not called  # refused before the validation, the first work proportional to the mesh
+    out = tmp_path / "x.json"
+    code = cli.main(["solve", "shape:dome:2000", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1 and "coarser mesh" in err[0] and not out.exists()
+
+
+def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsys):
+    from selfsupport import memory
+
+    out = tmp_path / "x.json"
+    assert cli.main(["solve", "shape:dome:3000", "--max-memory", "0.05", "--out", str(out), "-q"]) == 2
+    assert "needs about 0.18 GiB, --max-memory allows 0.05 GiB" in capsys.readouterr().err and not out.exists()
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1e6)  # the user knows better than the estimate
+    assert cli.main(["solve", "shape:dome:100", "--max-memory", "4", "--out", str(out), "-q"]) == 0
+    assert out.exists()
+
+
+def test_the_estimate_covers_the_measured_peaks():
+    from selfsupport.memory import estimate_solve_bytes
+
+    measured = {("staggered", 20_000): 313e6, ("staggered", 50_000): 705e6, ("staggered", 200_000): 2.16e9,
+                ("ipopt", 2_000): 212e6, ("ipopt", 8_000): 654e6}  # peak RSS, see selfsupport.memory
+    for (method, n), peak in measured.items():
+        assert peak < estimate_solve_bytes(n, method) < 2.5 * peak, (method, n)
