@@ -85,8 +85,9 @@ class Bounds:
 @dataclass(frozen=True)
 class Hull:
     """Every free vertex within ±t/2 of the reference mid-surface, along the reference normal.
-    ``thickness=None``: the self-weight's thickness. ``penalty``: weight of the hull term in
-    methods that treat it as a penalty (the staggered method), relative to the objective."""
+    ``thickness=None``: the self-weight's thickness. ``penalty``: weight of the hull's penalty
+    term among the objective's terms (zero inside the hull; both methods hold the hull as hard
+    bounds: IPOPT as inequality rows, the staggered method by an active set in Step 3)."""
 
     thickness: float | None = None
     penalty: float = 1e4

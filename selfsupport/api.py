@@ -309,7 +309,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
 
     until = {} if time_limit is None else {
         "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices)}
-    result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **until)
+    if prob.hull_thickness() is not None:
+        # the masonry hull: search for a certifying network, or the verdict "infeasible"
+        from .stability import solve_in_hull
+
+        result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress)
+    else:
+        result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues]})

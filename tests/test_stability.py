@@ -1,0 +1,189 @@
+"""Will it stand (issue 17): the masonry hull, added loads, the maximum load, destruction.
+
+Generated shells only (:func:`selfsupport.shapes.make_shape`). "Inside the hull" is checked by a
+distance computed here (brute-force point-to-triangle distances in numpy), never by the
+solver's own numbers; equilibrium by the shared independent checker.
+"""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from selfsupport import api
+from selfsupport.destruction import destroy, sub_scene
+from selfsupport.methods.base import HULL_TOL
+from selfsupport.shapes import make_shape
+from selfsupport.stability import max_load, solve_in_hull, stability_series
+from tests.conftest import independent_check, requires_checker
+
+
+# ------------------------------------------------------------------ an independent distance
+def point_triangle_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Distance from each point P (k, 3) to each triangle (m, 3) -> (k, m), by projecting onto
+    the plane and, when the projection falls outside, taking the nearest edge point (Ericson's
+    region test replaced by the min over the three edges, which is exact as well)."""
+    P = P[:, None, :]
+    n = np.cross(B - A, C - A)
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    dp = np.einsum("kmj,mj->km", P - A, n)
+    Q = P - dp[..., None] * n  # projection onto each plane
+
+    def inside(Q):
+        c1 = np.einsum("kmj,mj->km", np.cross(B - A, Q - A), n)
+        c2 = np.einsum("kmj,mj->km", np.cross(C - B, Q - B), n)
+        c3 = np.einsum("kmj,mj->km", np.cross(A - C, Q - C), n)
+        return (c1 >= 0) & (c2 >= 0) & (c3 >= 0)
+
+    def seg(P, U, W):
+        d = W - U
+        s = np.clip(np.einsum("kmj,mj->km", P - U, d) / np.einsum("mj,mj->m", d, d), 0, 1)
+        return np.linalg.norm(P - (U + s[..., None] * d), axis=2)
+
+    edge = np.minimum(np.minimum(seg(P, A, B), seg(P, B, C)), seg(P, C, A))
+    return np.where(inside(Q), np.abs(dp), edge)
+
+
+def distance_to_mesh(points: np.ndarray, mesh) -> np.ndarray:
+    """Unsigned distance of each point to a triangle mesh (fans for polygons), brute force."""
+    tris = []
+    for f in mesh.faces:
+        tris += [(f[0], f[k], f[k + 1]) for k in range(1, len(f) - 1)]
+    T = mesh.vertices[np.asarray(tris)]
+    return point_triangle_distance(np.asarray(points, float), T[:, 0], T[:, 1], T[:, 2]).min(axis=1)
+
+
+def assert_inside_hull(network, reference, t: float) -> None:
+    d = distance_to_mesh(network.vertices, reference)
+    free = ~np.asarray(network.supports)
+    assert d[free].max() <= 0.5 * t * (1 + HULL_TOL), f"a free vertex is {d[free].max():.4g} m from the reference"
+
+
+def test_independent_distance_is_right_on_a_triangle():
+    A, B, C = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])
+    P = np.array([[0.2, 0.2, 0.5], [2.0, 0.0, 0.0], [-1.0, -1.0, 1.0]])
+    assert np.allclose(point_triangle_distance(P, A, B, C)[:, 0], [0.5, 1.0, np.sqrt(3.0)])
+
+
+# ------------------------------------------------------------------ the hull
+@requires_checker
+def test_pillar_vault_solve_with_hull_stays_within_half_thickness(tmp_path, capsys):
+    """The issue's acceptance line: ``solve shape:pillar_vault --hull --thickness 0.5``."""
+    from selfsupport.cli import main
+    from selfsupport.io import read_network
+
+    out = tmp_path / "n.json"
+    assert main(["solve", "shape:pillar_vault", "--hull", "--thickness", "0.5", "--out", str(out), "-q"]) == 0
+    assert "stands: yes, certified by a network inside the hull" in " ".join(capsys.readouterr().out.split())
+    net = read_network(out)
+    ref = make_shape("pillar_vault").mesh
+    assert_inside_hull(net, ref, 0.5)
+    doc = json.loads(out.read_text())
+    hull = doc["parameters"]["hull"]
+    assert len(hull["signed_distance"]) == len(hull["inside"]) == ref.n_vertices and all(hull["inside"])
+    assert independent_check(out).ok
+
+
+def test_thin_hemisphere_is_reported_infeasible():
+    """Heyman (1977): a hemispherical dome needs t/R >= 0.042 under self-weight (no tension, thrust
+    anywhere in the section). Here the supports even hold the thrust at the mid-surface, which can
+    only raise that minimum, so at t/R = 0.02 no compressive network fits the hull; the discrete
+    slack (chord sag ~h²/8R = 0.005 R at 8 rings) does not close the gap."""
+    scene = make_shape("dome", rings=8, radius=5.0, height=5.0)
+    res = solve_in_hull(api.problem(scene, thickness=0.1, constraints=["hull"]))
+    hull = res.parameters["hull"]
+    assert res.status == "infeasible" and not hull["certified"]
+    assert hull["outside"] > 0 and hull["max_excess"] > 0.05
+    assert len(hull["outside_vertices"]) == len(hull["outside_excess"]) == hull["outside"]
+    assert "outside" in res.message and "stands: not certified" in hull["stands"]
+    # and the thick one (t/R = 0.1) is certified, inside by the independent distance
+    thick = solve_in_hull(api.problem(scene, thickness=0.5, constraints=["hull"]))
+    assert thick.status == "converged" and thick.parameters["hull"]["certified"]
+    assert_inside_hull(thick.network, scene.mesh, 0.5)
+    assert thick.max_relative_error <= 1e-6 and thick.min_weight > 0
+
+
+# ------------------------------------------------------------------ added loads
+def test_thick_dome_carries_an_apex_load_a_thin_one_does_not():
+    scene = make_shape("dome", rings=6, radius=5.0, height=3.0)
+    thin, = stability_series(scene, thickness=0.1, loads_kg=[5000.0], density=2000.0, at=[0])
+    thick, = stability_series(scene, thickness=0.3, loads_kg=[5000.0], density=2000.0, at=[0])
+    assert not thin.certified and thin.result.status == "infeasible"
+    assert thick.certified
+    assert_inside_hull(thick.result.network, scene.mesh, 0.3)
+    # the added mass is in the loads: 5000 kg g more than the self-weight alone
+    sw = api.problem(scene, thickness=0.3).loads.nodal(scene.mesh, thick.result.network.vertices)[0]
+    assert thick.result.network.loads.sum() - sw.sum() == pytest.approx(-5000.0 * 9.81, rel=1e-9)
+
+
+@pytest.mark.slow
+def test_max_load_grows_with_thickness():
+    scene = make_shape("dome", rings=6, radius=5.0, height=3.0)
+    m1 = max_load(scene, thickness=0.1, density=2000.0, at=[0], start_kg=500.0, rel_tol=0.1)
+    m3 = max_load(scene, thickness=0.3, density=2000.0, at=[0], start_kg=500.0, rel_tol=0.1)
+    assert m1.kg is not None and m3.kg is not None and m3.kg > 2 * m1.kg
+    assert m1.upper_kg - m1.kg <= 0.1 * m1.upper_kg  # the stated tolerance
+    assert m3.certificate.parameters["hull"]["certified"]
+    assert_inside_hull(m3.certificate.network, scene.mesh, 0.3)
+
+
+@requires_checker
+def test_stability_cli_max_load_line(tmp_path, capsys):
+    from selfsupport.cli import main
+
+    rc = main(["stability", "shape:dome:127", "--thickness", "0.3", "--density", "2000", "--load-at", "0",
+               "--loads", "4000", "--max-load", "--load-tol", "0.5", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    lines = [ln for ln in out.splitlines() if ln.startswith("max load:")]
+    assert len(lines) == 1
+    kg = float(re.fullmatch(r"max load: (\S+) kg", lines[0]).group(1))
+    assert kg > 0
+    doc = json.loads((tmp_path / "max-load.json").read_text())
+    assert doc["added_mass_kg"] == kg and doc["parameters"]["hull"]["certified"]
+    assert independent_check(tmp_path / "max-load.json").ok
+
+
+# ------------------------------------------------------------------ holes, several boundary loops
+def _oculus_dome():
+    """A dome with its central cap removed: two boundary loops, the inner one free."""
+    scene = make_shape("dome", rings=7, radius=5.0, height=3.0)
+    keep = [k for k, f in enumerate(scene.mesh.faces) if not (set(f) & set(range(7)))]
+    sc, _ = sub_scene(scene, keep)
+    return sc
+
+
+@requires_checker
+def test_a_dome_with_an_oculus_stands_in_its_hull():
+    sc = _oculus_dome()
+    assert len(sc.mesh.boundary_loops) == 2 and sc.mesh.isolated_vertices.size == 0
+    res = solve_in_hull(api.problem(sc, thickness=0.3, constraints=["hull"]))
+    assert res.parameters["hull"]["certified"]
+    assert_inside_hull(res.network, sc.mesh, 0.3)
+    assert independent_check(res).ok
+
+
+# ------------------------------------------------------------------ destruction
+@requires_checker
+def test_destruction_is_deterministic_without_orphans_and_every_stage_is_in_equilibrium():
+    scene = make_shape("barrel_vault", nx=8, ny=6, gables_supported=False)
+    v = int(np.argmin(np.linalg.norm(scene.mesh.vertices[:, :2] - scene.mesh.vertices[:, :2].mean(0), axis=1)))
+    a = destroy(scene, [v], thickness=0.05, density=2000.0)
+    b = destroy(scene, [v], thickness=0.05, density=2000.0)
+    assert [(s.faces, s.removed, s.vertices, s.status) for s in a] == [(s.faces, s.removed, s.vertices, s.status)
+                                                                       for s in b]
+    assert a[0].status == "stands" and len(a) > 2 and a[1].n_faces < a[0].n_faces
+    assert all(x.n_faces > y.n_faces for x, y in zip(a, a[1:]))
+    for s in a:
+        if s.result is None:
+            assert s.status == "empty" and not s.faces
+            continue
+        mesh = s.result.network.mesh
+        assert mesh.isolated_vertices.size == 0  # never a vertex without faces
+        used = sorted({u for k in s.faces for u in scene.mesh.faces[k]})
+        assert list(s.vertices) == used
+        assert independent_check(s.result).ok, f"stage {s.index}"
+        if s.status == "stands":
+            assert_inside_hull(s.result.network, s.scene.mesh, 0.05)
