@@ -156,8 +156,8 @@ class StaggeredOptions:
     # error is above finish_try (those fits only steer the iteration; the fits the finish uses are exact)
     refine: int = _setting(0, "[0, inf)")  # at most this many SQP steps towards the objective's optimum after
     # convergence (refine.py; 0: the paper's method as it is)
-    refine_gain: float = _setting(1e-2, "[0, 1)")  # ... stopping after a step that lowers √objective by less
-    # than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
+    refine_gain: float = _setting(1e-2, "[0, 1)")  # ... stopping after two steps that each lower the objective
+    # by less than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
     tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network
     max_iter: int = _setting(200, "[1, inf)")
     time_limit: float = _setting(600.0, "(0, inf)")
