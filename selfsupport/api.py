@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
-import scipy.sparse as sp
 
 from .errors import BackendUnavailable, InputError
 from .loads import G, LoadCase, SelfWeight, with_scene_extras
@@ -200,7 +199,7 @@ def scene_loads(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: fl
 # ------------------------------------------------------------------------------ problem
 def load_spec(*, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS,
               point_loads: Mapping[int, float] | None = None, extra_mass: Mapping[int, float] | None = None,
-              load_cases: Any = None) -> "LoadSpec":
+              load_cases: Any = None) -> Any:
     """The load model: self-weight ρ [kg/m³], t [m]; ``point_loads`` {vertex: N, positive down}
     and ``extra_mass`` {vertex: kg} on every case; ``load_cases`` a TOML file or a sequence of
     :class:`~selfsupport.io.loadcases.CaseSpec` (see :mod:`selfsupport.io.loadcases`)."""

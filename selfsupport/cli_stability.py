@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+
 
 from .cli import EXIT_CODES, Command, add_scene_arguments, load_scene, positive_float, print_table
 from .errors import InputError
@@ -118,7 +118,7 @@ def _run_stability(args: argparse.Namespace) -> int:
         write_network(out / "max-load.json", m.certificate, scene=info, added_mass_kg=m.kg,
                       refused_mass_kg=m.upper_kg, bisection_tolerance_kg=m.tolerance_kg)
         if m.upper_kg is None:
-            print(f"(every probe up to the cap was certified; the answer is a lower bound)")
+            print("(every probe up to the cap was certified; the answer is a lower bound)")
         else:
             print(f"bracket: certified at {m.kg:g} kg, not at {m.upper_kg:g} kg (tolerance {m.tolerance_kg:g} kg)")
         print(f"max load: {m.kg:g} kg")

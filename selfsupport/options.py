@@ -34,10 +34,10 @@ def check_range(name: str, value: Any, spec: str | None) -> None:
     """Raise :class:`InputError` when ``value`` is not finite or lies outside the interval ``spec``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
-    if not math.isfinite(value):
+    if math.isnan(value) or (spec is None and math.isinf(value)):
         raise InputError(f"option {name}={value!r} is not a finite number; give a finite value")
     if spec is None:
-        return
+        return  # (an infinity passes only an interval closed at inf, e.g. "[0, inf]")
     lo, hi, lo_c, hi_c = parse_interval(spec)
     inside = (value >= lo if lo_c else value > lo) and (value <= hi if hi_c else value < hi)
     if not inside:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
+
 from pathlib import Path
 
 import numpy as np

@@ -55,6 +55,13 @@ def points_array(a: np.ndarray, what: str) -> np.ndarray:
     return a
 
 
+def normal_rows(normals: np.ndarray, idx: np.ndarray, n: int) -> sp.csr_matrix:
+    """``(len(idx), 3 n)`` matrix whose row ``k`` takes ``⟨normals[idx[k]], v_idx[k]⟩``."""
+    r = np.repeat(np.arange(len(idx)), 3)
+    c = (3 * idx[:, None] + np.arange(3)).ravel()
+    return sp.csr_matrix((normals[idx].ravel(), (r, c)), shape=(len(idx), 3 * n))
+
+
 def selection(idx: np.ndarray, n: int) -> sp.csr_matrix:
     """``(len(idx), n)`` matrix picking the rows ``idx``."""
     idx = np.asarray(idx, np.int64)
@@ -270,8 +277,21 @@ class Scaled(Term):
         return dataclasses.replace(self, term=self.term.at(self._back(V)))  # (a projection in other units)
 
 
+class OnPoints:
+    """For terms holding per-vertex ``points`` and a vertex ``mask``: the vertex count and the
+    selected indices."""
+
+    @property
+    def n_vertices(self) -> int:
+        return self.points.shape[0]
+
+    @cached_property
+    def idx(self) -> np.ndarray:
+        return vertex_indices(self.mask, self.n_vertices)
+
+
 @dataclass(frozen=True, eq=False)
-class PlaneDistance(Term):
+class PlaneDistance(OnPoints, Term):
     """``Σ_i (1 − τ) ⟨n_i, v_i − p_i⟩² + τ ‖v_i − p_i‖²`` with points ``p_i`` and unit normals
     ``n_i``: the squared distance to the tangent planes, plus a weak hold ``τ`` against sliding
     along them. Residual per selected vertex: ``[√(1−τ) ⟨n, d⟩, √τ d]`` (``τ = 0``: the first only)."""
@@ -293,20 +313,9 @@ class PlaneDistance(Term):
         object.__setattr__(self, "points", p)
         object.__setattr__(self, "normals", nrm)
 
-    @property
-    def n_vertices(self) -> int:
-        return self.points.shape[0]
-
-    @cached_property
-    def idx(self) -> np.ndarray:
-        return vertex_indices(self.mask, self.n_vertices)
-
     @cached_property
     def _normal_rows(self) -> sp.csr_matrix:
-        idx = self.idx
-        r = np.repeat(np.arange(len(idx)), 3)
-        c = (3 * idx[:, None] + np.arange(3)).ravel()
-        return sp.csr_matrix((self.normals[idx].ravel(), (r, c)), shape=(len(idx), 3 * self.n_vertices))
+        return normal_rows(self.normals, self.idx, self.n_vertices)
 
     @cached_property
     def _coordinate_rows(self) -> sp.csr_matrix:

@@ -12,11 +12,11 @@ import scipy.sparse as sp
 from selfsupport.errors import InputError
 
 from ..equilibrium import to_dm
-from .base import Term, TermContext, points_array, vertex_indices
+from .base import OnPoints, Term, TermContext, normal_rows, points_array
 
 
 @dataclass(frozen=True, eq=False)
-class HullPenalty(Term):
+class HullPenalty(OnPoints, Term):
     """``Σ_i max(0, |⟨n_i, v_i − p_i⟩| − h)²``: zero inside the slab of half-thickness ``h``
     around the tangent plane at ``p_i`` (the reference vertex, normal ``n_i``), quadratic outside.
 
@@ -50,20 +50,9 @@ class HullPenalty(Term):
         return cls(points=ctx.reference.vertices, normals=vertex_normals(ctx.reference), half_thickness=0.5 * t,
                    mask=ctx.free, weight=weight, **params)
 
-    @property
-    def n_vertices(self) -> int:
-        return self.points.shape[0]
-
-    @cached_property
-    def idx(self) -> np.ndarray:
-        return vertex_indices(self.mask, self.n_vertices)
-
     @cached_property
     def _rows(self) -> sp.csr_matrix:
-        idx = self.idx
-        r = np.repeat(np.arange(len(idx)), 3)
-        c = (3 * idx[:, None] + np.arange(3)).ravel()
-        return sp.csr_matrix((self.normals[idx].ravel(), (r, c)), shape=(len(idx), 3 * self.n_vertices))
+        return normal_rows(self.normals, self.idx, self.n_vertices)
 
     def signed_distance_expr(self, X_all):
         """``⟨n_i, v_i − p_i⟩`` of the selected vertices (CasADi): the hard constraint's body."""

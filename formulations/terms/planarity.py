@@ -25,7 +25,23 @@ def _face_lengths(mesh: PolyMesh, faces: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class Planarity(Term):
+class _FaceTerm(Term):
+    """A term of the faces of ``mesh`` (the reference, whose edge lengths set each face's scale)."""
+
+    mesh: PolyMesh
+    weight: float = 1.0
+
+    @classmethod
+    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "_FaceTerm":
+        return cls(mesh=ctx.reference, weight=weight, **params)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.mesh.n_vertices
+
+
+@dataclass(frozen=True, eq=False)
+class Planarity(_FaceTerm):
     """``Σ_f ℓ_f² (2π − θ_f)²`` over faces with four or more corners, ``θ_f`` the sum of the
     face's corner angles (paper §5), ``ℓ_f`` its mean edge length on ``mesh`` (a constant that
     makes the residual a length, like every other term's).
@@ -36,17 +52,7 @@ class Planarity(Term):
     Registered as ``"planarity"``.
     """
 
-    mesh: PolyMesh
-    weight: float = 1.0
     name: ClassVar[str] = "planarity"
-
-    @classmethod
-    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "Planarity":
-        return cls(mesh=ctx.reference, weight=weight, **params)
-
-    @property
-    def n_vertices(self) -> int:
-        return self.mesh.n_vertices
 
     @cached_property
     def _data(self) -> dict[str, Any] | None:
@@ -104,7 +110,7 @@ class Planarity(Term):
 
 
 @dataclass(frozen=True, eq=False)
-class PlanarityVolume(Term):
+class PlanarityVolume(_FaceTerm):
     """Scale-free planarity of quads: ``Σ_f (det[v₁ − v₀, v₂ − v₀, v₃ − v₀] / ℓ_f²)²`` — six
     times the volume of the quad's tetrahedron over its squared mean edge length ``ℓ_f`` (on
     ``mesh``), i.e. the distance between the diagonals times their sine: a polynomial, free of
@@ -112,17 +118,7 @@ class PlanarityVolume(Term):
     Registered as ``"planarity_volume"``.
     """
 
-    mesh: PolyMesh
-    weight: float = 1.0
     name: ClassVar[str] = "planarity_volume"
-
-    @classmethod
-    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "PlanarityVolume":
-        return cls(mesh=ctx.reference, weight=weight, **params)
-
-    @property
-    def n_vertices(self) -> int:
-        return self.mesh.n_vertices
 
     @cached_property
     def _data(self) -> tuple[np.ndarray, np.ndarray] | None:

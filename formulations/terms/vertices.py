@@ -5,7 +5,6 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 

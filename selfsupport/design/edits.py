@@ -36,7 +36,7 @@ Example
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
@@ -529,7 +529,7 @@ def cut_along(design: Design, chain: np.ndarray, *, support: bool = False) -> De
         if k not in all_keys:
             raise InputError(f"cut: vertices {a} and {b} are not joined by an edge")
         cut_keys.add(k)
-    fv, fo = mesh.face_vertices, mesh.face_offsets
+    fv = mesh.face_vertices
     face_of, nxt, prv = mesh.corner_data
     faces = [list(f) for f in mesh.faces]
     V = list(mesh.vertices)

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from .deadline import DeadlineReached, out_of_time
-from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
+from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
 from formulations.nlp import ThrustNetworkProblem
 from formulations.scaling import Scaling
 
@@ -329,14 +329,13 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     """
     top = form.topology
     free = top.free
-    nf, m, C = top.n_free, top.m, form.n_cases
+    nf, C = top.n_free, form.n_cases
     V, W = np.array(V, float), np.array(W, float)
     s_w = form.weight_scale * WEIGHT_STEP_PREFERENCE
     coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
     xcols = (3 * np.arange(nf)[:, None] + coords).ravel()  # movable entries of X (flattened free positions)
     hull = form.hull
     if hull is not None:
-        fi = top.free_index[hull.idx]
         hull_rows_all = hull._rows[:, (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()]  # on free X
     err = np.inf
     best = (np.inf, V.copy(), W.copy())

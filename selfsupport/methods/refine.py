@@ -46,7 +46,6 @@ from formulations.equilibrium import Topology, block_diagonal, load_vector, posi
 from formulations.scaling import Scaling
 from formulations.terms import Term
 
-from ..evidence import closest_points
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from .polish import load_colouring, load_jacobian_xyz, polish

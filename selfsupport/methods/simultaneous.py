@@ -53,17 +53,15 @@ from typing import Any, Callable, Mapping
 
 import casadi as ca
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from formulations import (TERMS, PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem,
                           WeightBounds)
-from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
+from formulations.equilibrium import Topology, position_blocks
 from formulations.scaling import Scaling
 from formulations.terms import HullPenalty, Sum
 
 from ..errors import InputError
-from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene

@@ -149,7 +149,7 @@ class StaggeredOptions:
     coupled_damping: float = _setting(1e-4, "[0, inf)")  # coupled step: how strongly weights near ε are held
     finish_try: float = _setting(0.1, "[0, inf)")  # fit error below which the polish is tried after every step
     finish_slack: float = _setting(0.05, "[0, inf)")  # ... kept if its mean distance grows by at most this
-    finish_screen: float = _setting(0.25, "[0, inf)")  # ... and not even polished when one stress-Laplacian
+    finish_screen: float = _setting(0.25, "[0, inf]")  # ... and not even polished when one stress-Laplacian
     # solve with the iterate's loads already moves the mean distance up by more than this (see _try_finish)
     try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
     fit_rtol: float = _setting(1e-3, "(0, inf)")  # KKT tolerance a Step-2 backend may stop at while the fit
@@ -160,7 +160,7 @@ class StaggeredOptions:
     # by less than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
     tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network
     max_iter: int = _setting(200, "[1, inf)")
-    time_limit: float = _setting(600.0, "(0, inf)")
+    time_limit: float = _setting(600.0, "[0, inf)")  # (0: stop after the first fit, with the network so far)
 
 
 def parse_option(text: str) -> tuple[str, Any]:
@@ -188,8 +188,6 @@ def parse_option(text: str) -> tuple[str, Any]:
         raise InputError(f"--option {key} needs a {kind} value, got {value!r}") from None
     if not np.isfinite(number):
         raise InputError(f"--option {key} must be finite, got {value!r}")
-    from ..options import check_range
-
     check_range(key, number, fields[key].metadata.get("range"))  # the interval next to the field
     return key, number
 
@@ -199,6 +197,7 @@ def _options(base: StaggeredOptions, overrides: Mapping[str, Any]) -> StaggeredO
     if unknown:
         raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: "
                          f"{sorted(StaggeredOptions.__dataclass_fields__)}")
+    check_options(StaggeredOptions, overrides)
     return replace(base, **overrides) if overrides else base
 
 
