@@ -321,7 +321,7 @@ def add_problem_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--objective", action="append", default=[], metavar="NAME=WEIGHT",
                    help="an objective term and its weight, repeatable; NAME one of "
                         f"{', '.join(sorted(TERMS))} (default: the method's own objective: staggered "
-                        "reference=1 fairness=100, ipopt vertices=1)")
+                        "reference=1, ipopt vertices=1)")
     p.add_argument("--point-load", action="append", default=[], metavar="VERTEX:NEWTONS",
                    help="a load on a vertex in N, positive downward (V:5000 hangs 5 kN), on every load case; "
                         "repeatable")

@@ -20,8 +20,9 @@ Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
 
         the equilibrium residual of every load case ``c`` (rows scaled by ``1 / |A_i F_i|``, the
         error the fit measures), plus the problem's objective terms (:mod:`formulations.terms`,
-        each Gauss–Newton-linearized at the iterate, weight ``μ_t``) relaxed by α, plus constraint
-        penalties (the masonry hull) that are not relaxed, plus a proximal step β. The penalties
+        each Gauss–Newton-linearized at the iterate, weight ``μ_t``) relaxed by α, plus a
+        proximal step β; the masonry hull is held as hard bounds (vertices a step carries out are
+        pinned to its face and the step solved again, then projected). The penalties
         are multiplied by the mean ``(d_i / |A_i F_i|)²``, ``d_i = Σ_j w_ij``, which turns the
         relative residual into a length. Without an objective in the problem the method uses
         :data:`DEFAULT_OBJECTIVE`: the distance to the reference surface (tangent-plane
@@ -287,7 +288,7 @@ class _Run:
                           if isinstance(t, HullPenalty)), None)
         self.joint = self.C > 1 or self.fixed_xy or self.hull is not None
         # what Step 3 linearizes: the objective plus the method's own smoothing
-        # (the hull is not a penalty here: every trial is projected into it, see position_step)
+        # (the hull is no penalty here but hard bounds, an active set: see position_step)
         smooth = TERMS["fairness"].build(self.ctx, weight=opt.smoothing) if opt.smoothing > 0 else None
         parts = tuple(t for t in (self.objective.parts() if self.objective is not None else ())
                       if not isinstance(t, HullPenalty)) + ((smooth,) if smooth else ())
