@@ -77,7 +77,7 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load-tol", type=positive_float, default=0.05, metavar="R",
                    help="--max-load stops when the bracket is within R of its upper end (default 0.05)")
     p.add_argument("--method", choices=["staggered", "ipopt"], default="staggered",
-                   help="staggered (hull as a penalty ladder) or ipopt (hard hull rows; warm-started from the "
+                   help="staggered (no hull, then the hull as an active set) or ipopt (hard hull rows; warm-started from the "
                         "previous load)")
     p.add_argument("--out", "-o", required=True, metavar="DIR", help="output folder")
 

@@ -113,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "with load in them, 0, is pinned in the .sss)" if P0 is not None else "")
     notes = [f"dome2.sss ({scene.mesh.n_vertices} vertices), ρ = {DENSITY:g} kg/m³, added mass at the handled "
              f"vertices {list(np.flatnonzero(scene.handles)) if scene.handles is not None else []}; hull search: "
-             "selfsupport.stability.solve_in_hull (staggered, penalty ladder)",
+             "selfsupport.stability.solve_in_hull (staggered: no hull, then the hull as an active set)",
              "paper (Figs. 9–10): the thin dome admits no network inside its hull under the added load, the thick "
              "one carries it", *pub_note,
              f"command: python -m studies.stability_dome --scenes {args.scenes} --out {args.out}"]
