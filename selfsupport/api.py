@@ -41,7 +41,7 @@ from .validate import validate_scene
 from formulations import Problem
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "load_spec", "as_scene", "scene_loads", "sensitivity", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+           "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -188,6 +188,54 @@ def as_scene(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: A
     raise InputError(f"cannot make a scene of a {type(obj).__name__}; pass a Scene, Network, PolyMesh or a file path")
 
 
+#: scene.meta keys of a network file's stored reference and network (see design_of)
+_STORED_KEYS = ("reference_vertices", "reference_faces", "stored_network")
+
+
+def design_of(scene: Scene) -> tuple[Scene, Network | None]:
+    """The design a solve of ``scene`` is for, and the network to start it from.
+
+    A network file written by ``selfsupport solve`` stores the reference it was solved for
+    (``reference_vertices`` / ``reference_faces``) beside the network. Re-solving the file
+    solves for that reference — the design — starting from the stored network; taking the
+    network's own vertices as the reference instead would move the target on every re-solve
+    and lose the design. Any other scene is its own design and has no start.
+
+    Parameters
+    ----------
+    scene
+        A scene, e.g. from :func:`as_scene` of a ``.json`` file (its ``meta`` then holds what
+        the file stored).
+
+    Returns
+    -------
+    (Scene, Network or None)
+        The scene with the stored reference as its mesh (same supports, handles and extras:
+        they index the same vertices) and ``meta["design"]`` saying what was used; and the
+        stored network with its weights, or ``None`` when there is nothing to start from (no
+        stored reference, or a hand-made file without weights: the solve then starts from
+        the reference). A stored reference with another vertex count than the network
+        cannot carry its supports: the network's vertices stay the reference, and
+        ``meta["design"]["note"]`` says why.
+    """
+    meta = scene.meta
+    if "reference_vertices" not in meta:
+        return scene, None
+    rest = {k: v for k, v in meta.items() if k not in _STORED_KEYS}
+    source = meta.get("source", scene.name)
+    ref_v = np.asarray(meta["reference_vertices"], float)
+    n = scene.mesh.n_vertices
+    if len(ref_v) != n:
+        note = (f"{source}: its reference_vertices has {len(ref_v)} vertices and the network {n}, so the "
+                "supports cannot be carried over; solving with the network's own vertices as the reference")
+        return replace(scene, meta={**rest, "design": {"reference": "stored network", "note": note}}), None
+    reference = PolyMesh.from_faces(ref_v, meta["reference_faces"])
+    stored = meta.get("stored_network")
+    design = {"reference": "stored reference_vertices",
+              "start": "stored network" if stored is not None else "reference (the file stores no weights)"}
+    return replace(scene, mesh=reference, meta={**rest, "design": design}), stored
+
+
 def scene_loads(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS) -> LoadCase:
     """Self-weight ρ·t·g plus the scene's extra masses and point loads."""
     for name, v in (("density", density), ("thickness", thickness)):
@@ -234,13 +282,15 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
           progress: Callable[[dict], None] | None = None, options: Mapping[str, Any] | None = None,
           objective: Any = None, point_loads: Mapping[int, float] | None = None,
           extra_mass: Mapping[int, float] | None = None, load_cases: Any = None, constraints: Any = (),
-          max_memory: float | None = None) -> SolveResult:
+          max_memory: float | None = None, warm_start: Network | SolveResult | None = None) -> SolveResult:
     """Find the thrust network nearest to a reference surface.
 
     Parameters
     ----------
     scene_or_path
-        A :class:`Scene` or a scene/mesh file (see :func:`as_scene`).
+        A :class:`Scene` or a scene/mesh file (see :func:`as_scene`). A network file (``.json``)
+        that stores its reference is solved for that reference, starting from the stored
+        network (:func:`design_of`).
     method
         A name in :data:`METHODS`: ``"staggered"`` (default), ``"ipopt"``, ``"nlopt"``.
     backend
@@ -268,6 +318,12 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         Memory the solve may use [GiB] (default: what the machine has available now); a mesh
         whose estimated need exceeds it is refused before any work
         (:func:`~selfsupport.memory.check_memory`).
+    warm_start
+        A network to start from instead of the reference (default: the stored network of a
+        network file, else none). Used by the staggered method (its offset from its own
+        reference and its weights, :mod:`~selfsupport.methods.warm`) and by IPOPT (same mesh);
+        the nlopt method, and the staggered method under the masonry hull, start from the
+        reference. ``parameters["design"]`` records what was used.
 
     Returns
     -------
@@ -284,7 +340,8 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         The solve would need more memory than ``max_memory`` / the machine has.
     """
     t_entry = time.perf_counter()  # the time limit covers the validation too (2 s at 200k vertices)
-    scene = as_scene(scene_or_path, supports=supports, up=up)
+    scene, stored = design_of(as_scene(scene_or_path, supports=supports, up=up))
+    start = warm_start if warm_start is not None else stored
     from .memory import check_memory
 
     check_memory(scene.mesh.n_vertices, method, max_memory)  # before the solve allocates its matrices
@@ -308,16 +365,37 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
 
     until = {} if time_limit is None else {
         "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices)}
+    design = dict(scene.meta.get("design", {}))
+    start_kw, started = _start_keywords(method, start, hull=prob.hull_thickness() is not None,
+                                        name="stored network" if start is stored else "warm_start network")
+    if start is not None:
+        design["start"] = started
     if prob.hull_thickness() is not None:
         # the masonry hull: search for a certifying network, or the verdict "infeasible"
         from .stability import solve_in_hull
 
-        result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress)
+        result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress,
+                               **start_kw)
+    elif method == "ipopt":
+        result = solver.solve(prob, {**dict(options or {}), **stops, **start_kw}, progress=progress, **until)
     else:
-        result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **until)
+        result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **start_kw, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
+    extra = {"design": design} if design else {}
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
-                                       "input_issues": [i.as_dict() for i in issues]})
+                                       "input_issues": [i.as_dict() for i in issues], **extra})
+
+
+def _start_keywords(method: str, start: Any, *, hull: bool, name: str) -> tuple[dict[str, Any], str]:
+    """How ``method`` is handed the starting network ``start`` (``warm_start=``, an option for
+    IPOPT), and what the solve then starts from, in words for ``parameters["design"]``
+    (``name``: what ``start`` is)."""
+    if start is None:
+        return {}, "reference"
+    if (method == "staggered" and not hull) or method == "ipopt":
+        return {"warm_start": start}, name
+    why = "the staggered hull search starts there" if method == "staggered" else f"{method} takes no start"
+    return {}, f"reference ({why})"
 
 
 @dataclass(frozen=True, eq=False)

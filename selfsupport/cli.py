@@ -245,6 +245,9 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                            f"({result.distance_mean * diag:.3g} m)"),
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
                                           f"({result.distance_max * diag:.3g} m)")]
+    design = result.parameters.get("design")
+    if design and "start" in design:  # a re-solved network file: say what the solve was for and began at
+        rows += [("reference", design["reference"]), ("start", design["start"])]
     for name, value in result.terms.items():  # the objective, term by term (SI units: m²)
         rows.append((f"objective {name}", f"{value:.4g} m^2"))
     for name, case in result.cases:
@@ -283,6 +286,11 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
     from .api import METHODS
 
     add_scene_arguments(p)
+    # what a network file means as input (api.design_of): said here, where a user re-solving looks
+    p.epilog = ("A network file (.json) written by 'solve' is solved for the reference it stores "
+                "(reference_vertices), starting from the stored network and its weights (staggered, ipopt; "
+                "nlopt and the staggered --hull search start from the reference); its reference_vertices "
+                "are written unchanged. A file without a stored reference is its own reference.")
     p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
     p.add_argument("--method", choices=list(METHODS), default="staggered",
                    help="solution method (default staggered)")
@@ -376,6 +384,12 @@ def _run_solve(args: argparse.Namespace) -> int:
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
                        options=options, max_memory=args.max_memory, **problem_kwargs(args))
+    # a network file is solved for its stored reference (api.design_of): distances, the hull
+    # warning and the summary's scale refer to that design, not to the stored network
+    scene, _ = api.design_of(scene)
+    note = scene.meta.get("design", {}).get("note")
+    if note:
+        _err(f"warning: {note}")
     print_warnings(result, scene)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)

@@ -343,3 +343,148 @@ def test_write_report(solved, tmp_path):
     files = write_report(bare, tmp_path / "bare", dpi=40, kinds=("network", "deviation", "history"), view=False)
     assert set(files.figures) == {"network"}
     assert "reference" in files.skipped["deviation"] and "history" in files.skipped["history"]
+
+
+# ------------------------------------------------------------------------------ layout and units
+def _drawn_texts(fig, renderer) -> list[tuple[str, object]]:
+    """(role, artist) of every non-empty text the figure draws.
+
+    Tick labels count only for ticks inside the axis' view interval: 3D axes keep label
+    artists for the ticks outside it, never drawn, at meaningless positions.
+    """
+    out = []
+
+    def add(role, t):
+        if t is not None and t.get_visible() and t.get_text().strip():
+            out.append((role, t))
+
+    title = fig.get_suptitle()
+    for t in fig.texts:
+        add("suptitle" if t.get_text() == title else "figure text", t)
+    for ax in fig.axes:
+        add("axes title", ax.title)
+        for t in ax.texts:
+            add("axes text", t)
+        if ax.get_legend() is not None:
+            for t in ax.get_legend().get_texts():
+                add("legend", t)
+        for axis in (ax.xaxis, ax.yaxis, getattr(ax, "zaxis", None)):
+            if axis is None or not axis.get_visible():
+                continue
+            add("axis label", axis.label)
+            add("offset text", axis.get_offset_text())
+            lo, hi = sorted(axis.get_view_interval())
+            eps = 1e-9 * max(hi - lo, 1e-300)
+            for tick in axis.get_major_ticks():
+                if tick.get_loc() is not None and lo - eps <= tick.get_loc() <= hi + eps:
+                    add("tick label", tick.label1)
+                    add("tick label", tick.label2)
+    return out
+
+
+def _available_kinds() -> list[str]:
+    kinds = ["network", "deviation", "history", "reciprocal", "airy", "directions"]
+    if not _analysis_available():
+        kinds = [k for k in kinds if k not in ("airy", "reciprocal", "directions")]
+    elif not _directions_available():
+        kinds.remove("directions")
+    return kinds
+
+
+LONG_TITLE = ("a_scene_read_from/a/rather/deep/directory/of/the/user/lilium-pillar-refined-variant-3.sss "
+              "(staggered, converged)")
+
+
+@pytest.mark.parametrize("title", ["pillar_vault(n=25) (staggered, converged)", LONG_TITLE])
+@pytest.mark.parametrize("kind", _available_kinds())
+def test_every_text_is_on_the_canvas_and_the_title_covers_nothing(solved, kind, title):
+    """Issue 16: the deviation title ran off both edges of the PNG. Every drawn text lies
+    inside the canvas, and the title overlaps neither another text nor any axes' drawn extent
+    (its labels, ticks and legend included), for a usual and for a very long scene name."""
+    inp = FigureInput(solved.network, history=solved.history, title=title, thickness=0.1, dpi=DPI)
+    fig = make_figure(kind, inp)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    texts = _drawn_texts(fig, renderer)
+    roles = [r for r, _ in texts]
+    assert roles.count("suptitle") == 1 and "axis label" in roles and "tick label" in roles
+    for role, t in texts:
+        bb = t.get_window_extent(renderer)
+        assert bb.x0 >= -0.5 and bb.y0 >= -0.5 and bb.x1 <= width + 0.5 and bb.y1 <= height + 0.5, \
+            f"{kind}: {role} {t.get_text()!r} at {bb.extents} leaves the {width:g} x {height:g} canvas"
+    sup = next(t for r, t in texts if r == "suptitle").get_window_extent(renderer)
+    for role, t in texts:
+        if role != "suptitle":
+            assert not sup.overlaps(t.get_window_extent(renderer)), f"{kind}: the title covers {role} {t.get_text()!r}"
+    for ax in fig.axes:
+        assert ax.get_tightbbox(renderer).y1 <= sup.y0 + 0.5, f"{kind}: the title covers an axes"
+
+
+def test_the_same_figure_is_the_same_png(solved):
+    """The title fitting measures text with Agg: deterministic, the PNG is byte-identical."""
+    inp = FigureInput(solved.network, history=solved.history, title=LONG_TITLE, thickness=0.1, dpi=DPI)
+    assert render_png_bytes("deviation", inp) == render_png_bytes("deviation", inp)
+
+
+def test_unit_prefix_is_chosen_once_per_quantity():
+    from selfsupport.figures.render import Unit
+
+    assert Unit.for_magnitude(52_000.0, "N·m") == Unit(1e3, "kN·m")
+    assert Unit.for_magnitude(650.0, "N·m") == Unit(1.0, "N·m")
+    assert Unit.for_magnitude(0.05, "m") == Unit(1e-3, "mm")
+    assert Unit.for_magnitude(0.0, "N") == Unit(1.0, "N")
+    assert Unit.for_values([-3.2e6, 1.0], "N") == Unit(1e6, "MN")
+    fmt = Unit(1e3, "kN").formatter()
+    assert [fmt(v) for v in (-20_000.0, 0.0, -0.0, 39_999.999999999, 2_500.0)] == ["−20", "0", "0", "40", "2.5"]
+
+
+def _tick_texts(axis) -> list[str]:
+    lo, hi = sorted(axis.get_view_interval())
+    return [t.label1.get_text() for t in axis.get_major_ticks() if lo <= t.get_loc() <= hi]
+
+
+@needs_airy
+def test_airy_figure_writes_phi_in_one_unit(solved):
+    """Issue 16: airy.png labelled its φ axis N·m with ticks 20000, 40000 next to a colorbar
+    in kN·m. Now the φ axis, the colorbar and the units note name one unit, tick labels are
+    plain numbers in it, and a tick reads its location divided by the unit's scale."""
+    import re
+
+    from selfsupport.figures.render import airy_of
+
+    net = solved.network
+    peak = float(np.abs(airy_of(net).phi).max())
+    # φ is linear in the weights: the same network with all forces scaled so that |φ| peaks
+    # at 500 N·m, and at 50 kN·m (the demo's range, which showed both units)
+    cases = [(_with_weights(net, k * net.weights, k * net.loads), symbol)
+             for k, symbol in ((500.0 / peak, "N·m"), (5e4 / peak, "kN·m"))]
+    for net, symbol in cases:
+        fig = make_figure("airy", FigureInput(net, dpi=DPI))
+        fig.canvas.draw()
+        ax, cax = fig.axes
+        labels = [ax.get_zlabel(), cax.get_ylabel()] + [t.get_text() for t in fig.texts if "units" in t.get_text()]
+        assert len(labels) == 3
+        units = {u for text in labels for u in re.findall(r"[kMGmµ]?N·m", text)}
+        assert units == {symbol}, labels
+        scale = {"N·m": 1.0, "kN·m": 1e3}[symbol]
+        for axis in (ax.zaxis, cax.yaxis):
+            lo, hi = sorted(axis.get_view_interval())
+            ticks = [t for t in axis.get_major_ticks() if lo <= t.get_loc() <= hi]
+            assert len(ticks) >= 2
+            for t in ticks:
+                text = t.label1.get_text()
+                assert re.fullmatch(r"−?\d+(\.\d+)?", text), text  # no prefix, no unit in a tick
+                assert float(text.replace("−", "-")) * scale == pytest.approx(t.get_loc(), rel=1e-6, abs=1e-9)
+
+
+@needs_airy
+def test_reciprocal_figure_writes_forces_in_one_unit(solved):
+    fig = make_figure("reciprocal", FigureInput(solved.network, dpi=DPI))
+    fig.canvas.draw()
+    ax, cax = fig.axes
+    import re
+
+    units = {u for text in (ax.get_xlabel(), ax.get_ylabel(), cax.get_ylabel()) for u in re.findall(r"\[(.*?)\]", text)}
+    assert len(units) == 1 and units <= {"N", "kN", "MN"}
+    assert all(re.fullmatch(r"−?\d+(\.\d+)?", s) for s in _tick_texts(ax.xaxis) + _tick_texts(cax.yaxis))

@@ -1349,3 +1349,77 @@ def test_the_view_page_has_a_title(small_network, tmp_path):
     assert cli.main(["view", str(small_network), "--out", str(out), "--no-analysis", "--title", "my <dome>"]) == 0
     m = re.search(r"<title>(.*?)</title>", out.read_text())
     assert m and m.group(1) == "my &lt;dome&gt; - selfsupport view"
+
+
+# ---------------------------------------------------------------------------- re-solving a network file
+@pytest.fixture(scope="module")
+def vault_network(tmp_path_factory) -> Path:
+    """A solved network that lies measurably off its reference (a dome would not: it already stands)."""
+    p = tmp_path_factory.mktemp("resolve") / "vault.json"
+    assert cli.main(["solve", "shape:pillar_vault:200", "--out", str(p), "-q"]) == 0
+    return p
+
+
+def test_resolving_a_network_keeps_its_reference_and_starts_from_the_network(vault_network, tmp_path, capsys):
+    """Item 12: ``solve net.json`` used to take the network's own vertices as the reference, so
+    the written reference_vertices were the old network and the design was lost. Now the stored
+    reference is the design and the stored network the start: the same network comes back (in
+    an iteration or two) with the input's reference_vertices, and the summary says so."""
+    capsys.readouterr()
+    a = _network_doc(vault_network)
+    out = tmp_path / "again.json"
+    assert cli.main(["solve", str(vault_network), "--out", str(out), "-q"]) == 0
+    summary = capsys.readouterr().out.splitlines()
+    b = _network_doc(out)
+    ref_a = np.asarray(a["reference_vertices"])
+    assert np.array_equal(np.asarray(b["reference_vertices"]), ref_a)
+    assert b["reference_faces"] == a["reference_faces"]
+    diag = float(np.linalg.norm(ref_a.max(axis=0) - ref_a.min(axis=0)))
+    va, vb = np.asarray(a["vertices"]), np.asarray(b["vertices"])
+    assert np.abs(vb - va).max() <= 1e-6 * diag
+    wa, wb = np.asarray(a["weights"]), np.asarray(b["weights"])
+    assert np.abs(wb - wa).max() <= 1e-4 * np.abs(wa).max()
+    # the network is off its reference: taking it as the reference would have reset this to ~0
+    da, db = a["distance_to_reference"]["mean"], b["distance_to_reference"]["mean"]
+    assert da > 1e-3 and db == pytest.approx(da, rel=1e-4)
+    assert b["status"] == "converged" and b["iterations"] <= 3
+    assert b["parameters"]["design"] == {"reference": "stored reference_vertices", "start": "stored network"}
+    assert b["parameters"]["warm_start"]["used"] is True
+    rows = {ln.split(None, 1)[0]: ln.split(None, 1)[1] for ln in summary[1:] if len(ln.split(None, 1)) == 2}
+    assert rows["reference"] == "stored reference_vertices" and rows["start"] == "stored network"
+    # the API does the same from the path; check still judges the stored geometry as it is
+    res = api.solve(vault_network)
+    np.testing.assert_allclose(res.network.reference.vertices, ref_a, rtol=0, atol=0)
+    assert np.abs(res.network.vertices - va).max() <= 1e-6 * diag
+    rep = api.check(vault_network)
+    np.testing.assert_array_equal(rep.network.vertices, va)
+
+
+def test_design_of_a_network_file_without_weights_or_with_a_foreign_reference(vault_network, tmp_path, capsys):
+    """A hand-made file with a reference and no weights: that reference is the design, the
+    solve starts from it. A reference with another vertex count cannot carry the supports: the
+    vertices stay the reference and a warning says why."""
+    from selfsupport.io import read_scene
+
+    a = _network_doc(vault_network)
+    bare = {k: a[k] for k in ("vertices", "faces", "supports", "reference_vertices", "reference_faces")}
+    p = tmp_path / "bare.json"
+    p.write_text(json.dumps(bare))
+    design, start = api.design_of(read_scene(p))
+    assert start is None
+    np.testing.assert_array_equal(design.mesh.vertices, a["reference_vertices"])
+    assert design.meta["design"]["start"].startswith("reference")
+    assert api.design_of(design) == (design, None)  # idempotent: the stored keys are consumed
+
+    foreign = dict(a, reference_vertices=a["reference_vertices"][:-1])
+    del foreign["reference_faces"]
+    foreign["reference_faces"] = [[0, 1, 2]]
+    q = tmp_path / "foreign.json"
+    q.write_text(json.dumps(foreign))
+    design, start = api.design_of(read_scene(q))
+    assert start is None and "cannot be carried over" in design.meta["design"]["note"]
+    np.testing.assert_array_equal(design.mesh.vertices, a["vertices"])
+    out = tmp_path / "f.json"
+    assert cli.main(["solve", str(q), "--out", str(out), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "reference_vertices has" in err and "cannot be carried over" in err

@@ -123,7 +123,16 @@ window.__ss = {errors: [], warnings: []};
       traces: gd && gd._fullData ? gd._fullData.length : 0,
       canvases: canvases.map((c) => [c.width, c.height]),
       legend: gd ? Array.from(gd.querySelectorAll('.legendtext')).map((t) => t.textContent) : [],
-      svg_children: gd ? gd.querySelectorAll('.main-svg *').length : 0};
+      svg_children: gd ? gd.querySelectorAll('.main-svg *').length : 0,
+      rects: {}};
+    // page boxes of the pieces that must not overlap (viewport pixels: left, top, right, bottom)
+    const boxes = {title: '.gtitle', subtitle: '.gtitle-subtitle', button: '.updatemenu-button',
+                   subplot_title: '.annotation', axis_title: '.g-xtitle, .g-ytitle', legend: '.legend',
+                   xy_ticks: '.xtick, .ytick', scene: '.gl-container > div'};
+    for (const [k, sel] of Object.entries(boxes)) {
+      s.rects[k] = gd ? Array.from(gd.querySelectorAll(sel)).filter((e) => e.textContent.trim() || k === 'scene')
+        .map((e) => { const b = e.getBoundingClientRect(); return [b.left, b.top, b.right, b.bottom]; }) : [];
+    }
     document.documentElement.setAttribute('data-ss-status', JSON.stringify(s));
   }, 200);
 })();
@@ -160,6 +169,31 @@ def _run_chromium(html: Path, shot: Path, profile: Path, *, attempts: int = 2,
     pytest.fail(f"headless chromium did not finish within {timeout:g} s in {attempts} attempts")
 
 
+def _overlap(a, b, tol: float = 0.5) -> bool:
+    return min(a[2], b[2]) - max(a[0], b[0]) > tol and min(a[3], b[3]) - max(a[1], b[1]) > tol
+
+
+def _check_layout(rects: dict[str, list], *, width: int, height: int) -> None:
+    """The page's text sits inside the window and nothing covers anything else: the title
+    and subtitle, the preset buttons, the subplot titles, the 2D axis titles and the legend
+    are pairwise disjoint, and the reciprocal panel's tick labels and axis titles stay off the
+    3D scenes (they used to be drawn over the network's y axis)."""
+    assert rects["title"] and len(rects["button"]) >= 2 and len(rects["subplot_title"]) == 3, rects
+    assert len(rects["scene"]) == 2 and len(rects["axis_title"]) == 2, rects
+    labels = [(k, r) for k in ("title", "subtitle", "button", "subplot_title", "axis_title", "legend")
+              for r in rects[k]]
+    for k, r in labels + [("xy_ticks", r) for r in rects["xy_ticks"]]:
+        assert -0.5 <= r[0] and r[2] <= width + 0.5 and -0.5 <= r[1] and r[3] <= height + 0.5, (k, r)
+    for i, (ka, a) in enumerate(labels):
+        for kb, b in labels[i + 1:]:
+            assert not _overlap(a, b), f"{ka} {a} overlaps {kb} {b}"
+    for k, r in [("axis_title", r) for r in rects["axis_title"]] + [("xy_ticks", r) for r in rects["xy_ticks"]]:
+        for scene in rects["scene"]:
+            assert not _overlap(r, scene), f"{k} {r} is drawn over a 3D scene {scene}"
+    # the buttons sit below the title block, not beside it
+    assert min(b[1] for b in rects["button"]) >= max(r[3] for r in rects["title"] + rects["subtitle"])
+
+
 @pytest.mark.browser
 @pytest.mark.skipif(not Path(CHROMIUM).exists(),
                     reason=f"{CHROMIUM} is not installed (Debian package 'chromium'; .ci/run installs it)")
@@ -185,6 +219,7 @@ def test_view_renders_offline_in_headless_chromium(solved, tmp_path):
     assert status["svg_children"] > 50
     assert "WebGL is not supported" not in dom.split("</script>")[-1]
     assert "net::ERR" not in log, "the page tried to load something from the network"
+    _check_layout(status["rects"], width=1400, height=900)
 
     img = mpimg.imread(shot)[..., :3]
     assert img.shape[:2] == (900, 1400)

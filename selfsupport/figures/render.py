@@ -41,7 +41,7 @@ from ..evidence import closest_points, triangulate
 from ..mesh import PolyMesh
 from ..result import Network
 
-__all__ = ["FigureInput", "FIGURES", "HISTORY_SERIES", "make_figure", "render", "render_png_bytes",
+__all__ = ["FigureInput", "FIGURES", "HISTORY_SERIES", "Unit", "make_figure", "render", "render_png_bytes",
            "edge_forces", "signed_distances",
            "reciprocal_segments", "airy_of", "directions_of"]
 
@@ -121,11 +121,71 @@ def signed_distances(points: np.ndarray, reference: PolyMesh) -> np.ndarray:
     return np.where(side < 0, -dist, dist)
 
 
-def _summary_title(inp: FigureInput, what: str) -> str:
+def _summary_title(inp: FigureInput, what: str, detail: str | None = None) -> str:
+    """``"<title> — <what>"`` over a line of mesh size and error (``detail`` appended to it):
+    the figure-specific numbers go on the second line so that the first stays short."""
     net = inp.network
     head = inp.title or "thrust network"
-    return (f"{head} — {what}\n{net.mesh.n_vertices} vertices, {net.mesh.n_edges} edges, "
-            f"max rel. error {net.max_relative_error():.1e}")
+    facts = (f"{net.mesh.n_vertices} vertices, {net.mesh.n_edges} edges, "
+             f"max rel. error {net.max_relative_error():.1e}")
+    return f"{head} — {what}\n{facts}" + (f"; {detail}" if detail else "")
+
+
+#: smallest title font [pt] before the title is wrapped instead of shrunk further
+_TITLE_MIN_FONTSIZE = 8.0
+#: free space kept around the title and at the canvas edges [points]
+_TITLE_PAD_PT = 4.0
+
+
+def _set_title(fig, text: str, *, fontsize: float = 10.0):
+    """Put ``text`` above the figure so that it fits the canvas and clears every axes.
+
+    Fixed rectangles place the axes (see below), so nothing else would stop a long scene
+    name from running off the canvas or a third title line from covering a legend: the
+    title is measured with the figure's own renderer, shrunk to at most
+    ``_TITLE_MIN_FONTSIZE``, then wrapped; axes whose drawn extent (labels and legends
+    included) reaches into the title are lowered from the top. Deterministic: the
+    measurements are Agg's, which depend only on the text, the font and the dpi.
+
+    Parameters
+    ----------
+    fig
+        The figure, with all its axes already added (they are measured).
+    text
+        The title; lines separated by ``"\\n"``.
+    fontsize
+        Font size [pt] when the title fits as it is.
+
+    Returns
+    -------
+    matplotlib.text.Text
+        The title artist.
+    """
+    import textwrap
+
+    renderer = fig.canvas.get_renderer()
+    pad = _TITLE_PAD_PT * fig.dpi / 72.0
+    limit = fig.bbox.width - 2 * pad
+    title = fig.suptitle(text, fontsize=fontsize, y=1.0 - pad / fig.bbox.height, va="top")
+    width = title.get_window_extent(renderer).width
+    if width > limit:  # first shrink (up to the minimum), then wrap what still does not fit
+        title.set_fontsize(max(_TITLE_MIN_FONTSIZE, fontsize * limit / width))
+    for _ in range(4):
+        width = title.get_window_extent(renderer).width
+        if width <= limit:
+            break
+        lines = title.get_text().split("\n")
+        longest = max(lines, key=len)
+        chars = max(10, int(len(longest) * limit / width) - 1)
+        title.set_text("\n".join(w for line in lines
+                                 for w in (textwrap.wrap(line, chars, break_long_words=True) or [""])))
+    bottom = title.get_window_extent(renderer).y0 - pad
+    for ax in fig.axes:
+        top = ax.get_tightbbox(renderer).y1
+        if top > bottom:
+            pos = ax.get_position()
+            ax.set_position([pos.x0, pos.y0, pos.width, pos.height - (top - bottom) / fig.bbox.height])
+    return title
 
 
 # ---------------------------------------------------------------------------------- scaffolding
@@ -181,14 +241,70 @@ def _axes3d(fig, inp: FigureInput, points: np.ndarray, *, z_scale: float | None 
     return ax
 
 
-def _colorbar(fig, mappable, label: str, *, unit: str | None = None, extend: str = "neither"):
-    from matplotlib.ticker import EngFormatter
+#: SI prefixes a figure may use, largest first
+_PREFIXES: tuple[tuple[float, str], ...] = ((1e9, "G"), (1e6, "M"), (1e3, "k"), (1.0, ""), (1e-3, "m"),
+                                            (1e-6, "µ"))
 
+
+@dataclass(frozen=True)
+class Unit:
+    """The one unit in which a figure writes a quantity: ``value_SI / scale`` in ``symbol``.
+
+    Tick labels used to carry their own prefixes (``0 N``, ``8 kN``; ``20000`` on an axis
+    labelled N·m next to a colorbar in kN·m): one prefix per quantity, named once in the
+    label, reads unambiguously. The data stay in SI units; only the labels are scaled.
+
+    Attributes
+    ----------
+    scale
+        SI value of one displayed unit (1e3 for kN).
+    symbol
+        The unit as written in labels (``"kN·m"``).
+    """
+
+    scale: float
+    symbol: str
+
+    @classmethod
+    def for_magnitude(cls, magnitude: float, base: str) -> "Unit":
+        """The largest prefix of ``base`` that keeps ``magnitude`` ≥ 1 (e.g. 52 000 N·m → kN·m)."""
+        m = abs(float(magnitude)) if math.isfinite(magnitude) else 0.0
+        if m == 0.0:
+            return cls(1.0, base)
+        for scale, prefix in _PREFIXES:
+            if m >= scale:
+                return cls(scale, prefix + base)
+        return cls(_PREFIXES[-1][0], _PREFIXES[-1][1] + base)
+
+    @classmethod
+    def for_values(cls, values: Any, base: str) -> "Unit":
+        """:meth:`for_magnitude` of the largest finite ``|value|``."""
+        v = np.abs(np.asarray(values, float))
+        v = v[np.isfinite(v)]
+        return cls.for_magnitude(float(v.max()) if v.size else 0.0, base)
+
+    def label(self, text: str) -> str:
+        """``"text [symbol]"``."""
+        return f"{text} [{self.symbol}]"
+
+    def formatter(self):
+        """A tick formatter writing ``value / scale`` as a plain number (no prefix, no unit)."""
+        from matplotlib.ticker import FuncFormatter
+
+        def fmt(x: float, _pos: Any = None) -> str:
+            v = float(f"{x / self.scale:.6g}")  # 39.99999999 -> 40, and no "-0"
+            return f"{v + 0.0:g}".replace("-", "\N{MINUS SIGN}")
+
+        return FuncFormatter(fmt)
+
+
+def _colorbar(fig, mappable, label: str, *, unit: Unit | None = None, extend: str = "neither"):
     cax = fig.add_axes(_CBAR_RECT)
     cb = fig.colorbar(mappable, cax=cax, extend=extend)
     if unit is not None:
-        cb.formatter = EngFormatter(unit=unit, places=None)
+        cb.formatter = unit.formatter()
         cb.update_ticks()
+        label = unit.label(label)
     cb.set_label(label)
     cax.tick_params(labelsize=8)
     return cb
@@ -255,8 +371,9 @@ def figure_network(inp: FigureInput):
                                          linewidths=_line_widths(fa[order], len(fa)), zorder=3,
                                          capstyle="round"))
     _supports(ax, net)
-    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "edge force |w| ‖e‖", unit="N")
-    fig.suptitle(_summary_title(inp, "edge forces"), fontsize=10)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "edge force |w| ‖e‖",
+              unit=Unit.for_magnitude(max(abs(norm.vmin), abs(norm.vmax)), "N"))
+    _set_title(fig, _summary_title(inp, "edge forces"))
     return fig
 
 
@@ -281,13 +398,13 @@ def figure_deviation(inp: FigureInput):
         cmap = cmap.with_extremes(over=ABOVE_HULL, under=BELOW_HULL)
         outside = np.abs(d) > half
         extend = "both"
-        what = (f"distance to reference; {int(outside[~net.supports].sum())} of {int((~net.supports).sum())} "
-                f"free vertices outside ± t/2 = ± {half:.3g} m")
+        detail = (f"{int(outside[~net.supports].sum())} of {int((~net.supports).sum())} "
+                  f"free vertices outside ± t/2 = ± {half:.3g} m")
     else:
         half = max(float(np.abs(d).max()), 1e-12)
         outside = np.zeros(len(d), dtype=bool)
         extend = "neither"
-        what = f"distance to reference (max {half:.3g} m)"
+        detail = f"max distance {half:.3g} m"
     norm = _norm(d, -half, half)
     e = net.edges
     de = 0.5 * (d[e[:, 0]] + d[e[:, 1]])
@@ -299,9 +416,9 @@ def figure_deviation(inp: FigureInput):
         q = p[outside]
         ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=float(np.clip(3000.0 / len(q), 5.0, 28.0)), marker="x", c="black",
                    linewidths=0.6, depthshade=False, zorder=5, gid="outside-hull")
-    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "signed distance to reference (+ above)", unit="m",
-              extend=extend)
-    fig.suptitle(_summary_title(inp, what), fontsize=10)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "signed distance to reference (+ above)",
+              unit=Unit.for_magnitude(half, "m"), extend=extend)
+    _set_title(fig, _summary_title(inp, "distance to reference", detail))
     return fig
 
 
@@ -347,7 +464,10 @@ def figure_airy(inp: FigureInput):
     P = np.c_[net.vertices[:, :2], phi]
     fig = _figure(inp)
     ax = _axes3d(fig, inp, P, z_scale=0.55)
-    ax.set_zlabel("φ [N·m]")
+    # φ on the vertical axis and on the colorbar in the same unit, chosen once
+    unit = Unit.for_values(phi, "N·m")
+    ax.set_zlabel(unit.label("φ"))
+    ax.zaxis.set_major_formatter(unit.formatter())
     tri = triangulate(net.mesh)
     cmap = colormaps["viridis"]
     norm = _norm(phi)
@@ -363,8 +483,11 @@ def figure_airy(inp: FigureInput):
     col[:, :3] *= shade[:, None]
     ax.add_collection3d(Poly3DCollection(P[tri], facecolors=col, edgecolors="none", zorder=1))
     ax.add_collection3d(Line3DCollection(P[net.edges], colors="0.15", linewidths=0.35, zorder=2))
-    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "Airy stress function φ", unit="N·m")
-    fig.suptitle(_summary_title(inp, "Airy stress surface Φ"), fontsize=10)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "Airy stress function φ", unit=unit)
+    # φ has its own units (force × length): the vertical axis is scaled to a fixed share of the box
+    fig.text(0.01, 0.01, f"units: x, y in m; φ in {unit.symbol} (vertical axis not to scale)",
+             fontsize=7, color="0.3", ha="left", va="bottom")
+    _set_title(fig, _summary_title(inp, "Airy stress surface Φ"))
     return fig
 
 
@@ -411,11 +534,15 @@ def figure_reciprocal(inp: FigureInput):
     if not seg.size:
         raise InputError("the network has no interior edge carrying a weight: its reciprocal diagram is empty")
     _equal_2d(ax)
-    ax.set_xlabel("∂φ/∂x [N]")
-    ax.set_ylabel("∂φ/∂y [N]")
+    # coordinates and dual edge lengths are both forces: one unit for the whole figure
+    unit = Unit.for_values(np.r_[R.ravel(), hforce], "N")
+    ax.set_xlabel(unit.label("∂φ/∂x"))
+    ax.set_ylabel(unit.label("∂φ/∂y"))
+    ax.xaxis.set_major_formatter(unit.formatter())
+    ax.yaxis.set_major_formatter(unit.formatter())
     ax.tick_params(labelsize=8)
-    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "horizontal force |w| ‖e′‖ (dual edge length)", unit="N")
-    fig.suptitle(_summary_title(inp, "reciprocal force diagram"), fontsize=10)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "horizontal force |w| ‖e′‖", unit=unit)
+    _set_title(fig, _summary_title(inp, "reciprocal force diagram", "dual edge length = horizontal force"))
     return fig
 
 
@@ -462,8 +589,9 @@ def figure_directions(inp: FigureInput):
     ax.tick_params(labelsize=8)
     # above the axes: inside, it would hide part of the plan
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, fontsize=7, frameon=False)
-    _colorbar(fig, ScalarMappable(norm=norm, cmap=_truncated(cmap, 0.15, 0.6)), "height z (shading)", unit="m")
-    fig.suptitle(_summary_title(inp, "relative principal directions (top view)"), fontsize=10)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=_truncated(cmap, 0.15, 0.6)), "height z (shading)",
+              unit=Unit(1.0, "m"))  # heights in the unit of the x and y axes
+    _set_title(fig, _summary_title(inp, "relative principal directions (top view)"))
     return fig
 
 
@@ -542,7 +670,7 @@ def figure_history(inp: FigureInput):
     last.xaxis.get_major_locator().set_params(integer=True)
     for ax in list(axes.values())[:-1]:
         ax.tick_params(labelbottom=False)
-    fig.suptitle(_summary_title(inp, f"convergence ({len(hist)} records)"), fontsize=10)
+    _set_title(fig, _summary_title(inp, f"convergence ({len(hist)} records)"))
     return fig
 
 

@@ -38,7 +38,7 @@ from ..evidence import residuals, triangulate
 from ..geometry import bbox_diagonal
 from ..mesh import PolyMesh
 from ..result import Network
-from .render import airy_of, edge_forces, reciprocal_segments
+from .render import Unit, airy_of, edge_forces, reciprocal_segments
 
 __all__ = ["LAYERS", "PRESETS", "ViewInfo", "build_view", "view_html", "write_view"]
 
@@ -64,6 +64,19 @@ HIDDEN_AT_START = ("loads",)
 
 _FORCE_BINS = 6  # plotly lines have one width per trace: edges are binned by force
 _DIV_ID = "selfsupport-view"
+
+# Page layout in pixels. plotly places the title in the top margin and the preset buttons
+# in paper coordinates, and nothing stops them from overlapping: the title gets the top
+# band, the buttons the band below it, the subplot titles the band below that.
+_HEIGHT = 820
+_MARGIN = dict(l=10, r=10, t=140, b=90)
+_TITLE_TOP_PX = 8        # title block (title, subtitle, notes): from here down to about 70 px
+_BUTTONS_BOTTOM_PX = 32  # bottom edge of the button row above the plotting area (subplot titles: ~25 px)
+_LEGEND_TOP_PX = 52      # top of the legend below the plotting area: under the reciprocal panel's x title
+#: horizontal gap between the network scene and the right-hand panels (figure fraction):
+#: room for the reciprocal panel's tick labels and y title, which plotly draws to the left
+#: of its axis, i.e. over the 3D scene when the gap is narrower
+_PANEL_GAP = 0.1
 
 
 @dataclass(frozen=True)
@@ -140,7 +153,7 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
         fig = make_subplots(rows=2, cols=2, column_widths=[0.64, 0.36], row_heights=[0.5, 0.5],
                             specs=[[{"type": "scene", "rowspan": 2}, {"type": "scene"}], [None, {"type": "xy"}]],
                             subplot_titles=("thrust network", "Airy stress surface Φ", "reciprocal force diagram"),
-                            horizontal_spacing=0.03, vertical_spacing=0.08)
+                            horizontal_spacing=_PANEL_GAP, vertical_spacing=0.1)
     else:
         fig = go.Figure()
 
@@ -170,6 +183,9 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
     fa = f[active]
     fmax = float(fa.max()) if fa.size and fa.max() > 0 else 1.0
     fmin = float(fa.min()) if fa.size else 0.0
+    # colours and colorbar in one unit (plotly's own ticks would read "10k" under "[N]");
+    # the hover texts keep the exact values in newtons
+    fu = Unit.for_magnitude(fmax, "N")
     bins = np.minimum((fa / fmax * _FORCE_BINS).astype(int), _FORCE_BINS - 1)
     idx_active = np.flatnonzero(active)
     for b in range(_FORCE_BINS):
@@ -177,12 +193,12 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
         if not sel.size:
             continue
         x, y, z = _lines(V, E[sel])
-        c = np.r_[np.repeat(f[sel], 3), f[sel][-1]]
+        c = np.r_[np.repeat(f[sel], 3), f[sel][-1]] / fu.scale
         # no legend entry and no colorbar here: plotly.js cannot draw a legend symbol for a
         # per-point line colour array (console warnings); the midpoint markers carry both
         add(go.Scatter3d(x=x, y=y, z=z, mode="lines", name=LAYERS["network"], showlegend=False, hoverinfo="skip",
                          line=dict(width=1.5 + 7.0 * (b + 0.5) / _FORCE_BINS, color=c, colorscale="Turbo",
-                                   cmin=fmin, cmax=fmax)),
+                                   cmin=fmin / fu.scale, cmax=fmax / fu.scale)),
             "network", **main)
     if (~active).any():
         x, y, z = _lines(V, E[~active])
@@ -193,9 +209,10 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
     edge_text = [f"edge {k}: ({i}, {j})<br>w = {_fmt(wk, 'N/m')}<br>force |w|‖e‖ = {_fmt(fk, 'N')}"
                  for k, ((i, j), wk, fk) in enumerate(zip(E.tolist(), w.tolist(), f.tolist()))]
     add(go.Scatter3d(x=mid[:, 0], y=mid[:, 1], z=mid[:, 2], mode="markers", showlegend=True, name=LAYERS["network"],
-                     marker=dict(size=1.5 if dense else 2, color=f, colorscale="Turbo", cmin=fmin, cmax=fmax, opacity=0.6,
-                                 showscale=True,
-                                 colorbar=dict(title=dict(text="edge force [N]"), x=0.0, xanchor="left", len=0.75, thickness=14)),
+                     marker=dict(size=1.5 if dense else 2, color=f / fu.scale, colorscale="Turbo",
+                                 cmin=fmin / fu.scale, cmax=fmax / fu.scale, opacity=0.6, showscale=True,
+                                 colorbar=dict(title=dict(text=fu.label("edge force")), x=0.0, xanchor="left",
+                                               len=0.75, thickness=14)),
                      hovertext=edge_text, hoverinfo="text"), "network", **main)
 
     # vertices: load and residual on hover
@@ -232,18 +249,21 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
 
     # layout: scenes keep the data's proportions; camera as in the static figures
     scene = dict(aspectmode="data", camera=_camera(), xaxis_title="x [m]", yaxis_title="y [m]", zaxis_title="z [m]")
-    # room on the left for the force colorbar
-    scene["domain"] = dict(x=[0.07, 0.63 if has_airy else 1.0], y=[0.0, 1.0])
+    # room on the left for the force colorbar; on the right the subplot grid's own column
+    scene["domain"] = dict(x=[0.07, fig.layout.scene.domain.x[1] if has_airy else 1.0], y=[0.0, 1.0])
     fig.update_layout(scene=scene)
     head = title or "thrust network"
+    paper_height = _HEIGHT - _MARGIN["t"] - _MARGIN["b"]
     sub = (f"{net.mesh.n_vertices} vertices, {net.mesh.n_edges} edges, max relative error "
-           f"{net.max_relative_error():.2e}, forces {_fmt(fmin, 'N')} – {_fmt(fmax, 'N')}")
+           f"{net.max_relative_error():.2e}, forces {fmin / fu.scale:.4g} – {fmax / fu.scale:.4g} {fu.symbol}")
     notes = "; ".join(sorted({v for k, v in omitted.items() if k in ("airy", "reciprocal")}))
     fig.update_layout(
-        title=dict(text=f"{head}<br><sup>{sub}{'<br>' + notes if notes else ''}</sup>", x=0.5, xanchor="center"),
+        # a real subtitle, not "<br><sup>": plotly measures it, so the anchored title is not cut off
+        title=dict(text=head, subtitle=dict(text=sub + ("<br>" + notes if notes else ""), font=dict(size=12)),
+                   x=0.5, xanchor="center", yref="container", y=1.0 - _TITLE_TOP_PX / _HEIGHT, yanchor="top"),
         legend=dict(itemclick="toggle", itemdoubleclick="toggleothers", groupclick="togglegroup",
-                    orientation="h", x=0.5, xanchor="center", y=-0.04, yanchor="top"),
-        margin=dict(l=10, r=10, t=90, b=50), height=820, template="plotly_white",
+                    orientation="h", x=0.5, xanchor="center", y=-_LEGEND_TOP_PX / paper_height, yanchor="top"),
+        margin=_MARGIN, height=_HEIGHT, template="plotly_white",
         hoverlabel=dict(namelength=-1))
     for i, g in enumerate(groups):
         if g in HIDDEN_AT_START:
@@ -255,8 +275,10 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
             continue
         vis = [True if g in shown else "legendonly" for g in groups]
         buttons.append(dict(label=label, method="restyle", args=[{"visible": vis}]))
-    fig.update_layout(updatemenus=[dict(type="buttons", direction="right", x=0.0, xanchor="left", y=1.06,
-                                        yanchor="bottom", buttons=buttons, showactive=False, pad=dict(r=4))])
+    # below the title (not beside it: a long title would run under them), above the subplot titles
+    fig.update_layout(updatemenus=[dict(type="buttons", direction="right", x=0.0, xanchor="left",
+                                        y=1.0 + _BUTTONS_BOTTOM_PX / paper_height, yanchor="bottom",
+                                        buttons=buttons, showactive=False, pad=dict(r=4))])
     return fig, ViewInfo(layers=present, omitted=omitted)
 
 
@@ -264,32 +286,40 @@ def _airy_layers(fig, add, net: Network, airy: Any) -> None:
     import plotly.graph_objects as go
 
     V = net.vertices
-    phi = np.asarray(airy.phi, float)
+    # φ drawn in one unit (kN·m for most scenes), named on the axis and in the hover
+    pu = Unit.for_values(airy.phi, "N·m")
+    phi = np.asarray(airy.phi, float) / pu.scale
     t = triangulate(net.mesh)
     add(go.Mesh3d(x=V[:, 0], y=V[:, 1], z=phi, i=t[:, 0], j=t[:, 1], k=t[:, 2], intensity=phi,
                   colorscale="Viridis", showscale=False, flatshading=True, name=LAYERS["airy"], showlegend=True,
-                  hovertemplate="φ = %{z:.4g} N·m<extra></extra>"), "airy", row=1, col=2)
+                  hovertemplate=f"φ = %{{z:.4g}} {pu.symbol}<extra></extra>"), "airy", row=1, col=2)
     x, y, z = _lines(np.c_[V[:, :2], phi], net.edges)
     add(go.Scatter3d(x=x, y=y, z=z, mode="lines", line=dict(color="#222222", width=1.5), showlegend=False,
                      hoverinfo="skip", name="Φ edges"), "airy", row=1, col=2)
-    # φ is in N·m, x and y in metres: the Airy panel is drawn as a cube, not to scale
-    fig.update_layout(scene2=dict(aspectmode="cube", camera=_camera(r=2.0), xaxis_title="x [m]",
-                                  yaxis_title="y [m]", zaxis_title="φ [N·m]"))
+    # φ is a moment, x and y lengths: the Airy panel is drawn as a cube, not to scale. The
+    # camera stands back far enough and the axes carry few ticks so that the tick labels
+    # and axis titles stay inside this small panel instead of running into each other
+    few = dict(nticks=5, tickfont=dict(size=11), title_font=dict(size=12))
+    fig.update_layout(scene2=dict(aspectmode="manual", aspectratio=dict(x=1, y=1, z=0.7),
+                                  camera=dict(_camera(r=1.85), center=dict(x=0, y=0, z=-0.22)),
+                                  xaxis=dict(title_text="x [m]", **few), yaxis=dict(title_text="y [m]", **few),
+                                  zaxis=dict(title_text=pu.label("φ"), **few)))
 
     seg = reciprocal_segments(net, airy)
-    P = seg.reshape(-1, 2)
+    R = np.asarray(airy.reciprocal_vertices, float)[:, :2]
+    ru = Unit.for_values(R, "N")  # the diagram's coordinates are forces: one unit on both axes
+    P = seg.reshape(-1, 2) / ru.scale
     x, y = _lines(P, np.arange(len(P)).reshape(-1, 2))
     add(go.Scatter(x=x, y=y, mode="lines", line=dict(color="#1f3b73", width=1), name=LAYERS["reciprocal"],
                    showlegend=True, hoverinfo="skip"), "reciprocal", row=2, col=2)
-    R = np.asarray(airy.reciprocal_vertices, float)[:, :2]
     ef = net.mesh.edge_faces
     used = np.unique(ef[((ef >= 0).all(axis=1)) & net.active_edges])
-    add(go.Scatter(x=R[used, 0], y=R[used, 1], mode="markers", marker=dict(size=3, color="#1f3b73"),
+    add(go.Scatter(x=R[used, 0] / ru.scale, y=R[used, 1] / ru.scale, mode="markers", marker=dict(size=3, color="#1f3b73"),
                    showlegend=False, name="dual vertices",
                    hovertext=[f"face {k}: ∇φ = ({R[k, 0]:.4g}, {R[k, 1]:.4g}) N" for k in used.tolist()],
                    hoverinfo="text"), "reciprocal", row=2, col=2)
-    fig.update_xaxes(title_text="∂φ/∂x [N]", row=2, col=2)
-    fig.update_yaxes(title_text="∂φ/∂y [N]", scaleanchor="x", scaleratio=1, row=2, col=2)
+    fig.update_xaxes(title_text=ru.label("∂φ/∂x"), row=2, col=2)
+    fig.update_yaxes(title_text=ru.label("∂φ/∂y"), scaleanchor="x", scaleratio=1, row=2, col=2)
 
 
 def view_html(fig, title: str | None = None) -> str:

@@ -284,7 +284,16 @@ def read_network(path: str | Path) -> Network:
         The faces do not form a usable mesh.
     """
     src = Source(path)
-    d = load_json(src)
+    return _network_of(src, load_json(src))
+
+
+def _is_network(d: dict) -> bool:
+    """A solved network, not a hand-made ``{"vertices", "faces", "supports"}`` scene."""
+    return "weights" in d or "edges" in d
+
+
+def _network_of(src: Source, d: dict) -> Network:
+    """The :class:`Network` of the parsed document ``d`` of ``src`` (see :func:`read_network`)."""
     v = _numbers(src, d, "vertices", integer=False, width=3)
     n = len(v)
     faces = _faces(src, d, "faces", n)
@@ -333,8 +342,12 @@ def read_network(path: str | Path) -> Network:
 def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
     """A network file (or a hand-made ``{"vertices", "faces", "supports"}``) as scene input.
 
-    The mesh is built from ``vertices``; ``reference_vertices`` / ``reference_faces`` are kept in
-    ``meta`` so a solved network can be re-solved or checked against its reference.
+    The mesh is built from ``vertices`` (``check`` judges the geometry as it is stored);
+    ``reference_vertices`` / ``reference_faces`` are kept in ``meta``, and so is the whole network
+    (``meta["stored_network"]``, weights included) when the file is one: a solve takes the
+    stored reference as its design and starts from the stored network
+    (:func:`selfsupport.api.design_of`). A file with ``weights`` or ``edges`` must be a complete,
+    consistent network (:func:`read_network`'s errors otherwise).
     """
     src = Source(path)
     if up not in (None, "z"):
@@ -348,5 +361,7 @@ def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
     if ref_v is not None:
         meta["reference_vertices"] = ref_v
         meta["reference_faces"] = ref_f
+    if _is_network(d):
+        meta["stored_network"] = _network_of(src, d)
     return LoadedMesh(mesh, supports=_mask(src, d, "supports", len(v)), handles=_mask(src, d, "handles", len(v)),
                       meta=meta)
