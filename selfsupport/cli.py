@@ -34,6 +34,7 @@ import importlib
 import json
 import pkgutil
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -355,6 +356,7 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run_solve(args: argparse.Namespace) -> int:
+    started = time.perf_counter()  # --time-limit counts from here: reading the input is part of the run
     from . import api
     from .io import write_network
     from .progress import ProgressDisplay
@@ -375,7 +377,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
-                       options=options, max_memory=args.max_memory, **problem_kwargs(args))
+                       options=options, max_memory=args.max_memory, started=started, **problem_kwargs(args))
     print_warnings(result, scene)
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
