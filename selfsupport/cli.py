@@ -34,6 +34,7 @@ import importlib
 import json
 import pkgutil
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -363,6 +364,7 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run_solve(args: argparse.Namespace) -> int:
+    started = time.perf_counter()  # --time-limit counts from here: reading the input is part of the run
     from . import api
     from .io import write_network
     from .progress import ProgressDisplay
@@ -383,7 +385,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
-                       options=options, max_memory=args.max_memory, **problem_kwargs(args))
+                       options=options, max_memory=args.max_memory, started=started, **problem_kwargs(args))
     # a network file is solved for its stored reference (api.design_of): distances, the hull
     # warning and the summary's scale refer to that design, not to the stored network
     scene, _ = api.design_of(scene)

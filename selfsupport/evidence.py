@@ -13,9 +13,12 @@ def residuals(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
     """``(n, 3)``: ``Σ_j w_ij (v_j − v_i) − (0, 0, A_i F_i)`` at every vertex (supports included)."""
     dv = vertices[edges[:, 1]] - vertices[edges[:, 0]]
     f = weights[:, None] * dv
-    r = np.zeros_like(vertices)
-    np.add.at(r, edges[:, 0], f)
-    np.add.at(r, edges[:, 1], -f)
+    # One bincount per coordinate over both ends: the same sums in the same order as
+    # ``np.add.at(r, e0, f); np.add.at(r, e1, -f)`` (bit for bit), 3-5x faster on (n, 3) arrays.
+    ends = np.concatenate([edges[:, 0], edges[:, 1]])
+    n = len(vertices)
+    r = np.stack([np.bincount(ends, weights=np.concatenate([f[:, k], -f[:, k]]), minlength=n)
+                  for k in range(3)], axis=1) if len(edges) else np.zeros_like(vertices, dtype=float)
     r[:, 2] -= loads
     return r
 
@@ -108,13 +111,26 @@ class _ReferenceIndex:
         self.normals = vertex_normals(mesh)
         self.tree = igl.AABB()
         self.tree.init(self.V, self.F)
+        self._last: tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def query(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For finite points P (world units): distances (world units), the closest triangle
         and the closest points in the normalised coordinates (centred, in units of the
-        diagonal: no cancellation for scenes far from the origin)."""
+        diagonal: no cancellation for scenes far from the origin).
+
+        The answer for the last points asked is kept (read-only): a result's evidence, its
+        objective terms and its hull record all ask about the same final vertices, and one
+        query takes 0.3 s at 200k vertices. Each point's answer depends on that point alone,
+        so a repeated query returns exactly what a new one would."""
+        last = self._last
+        if last is not None and last[0].shape == P.shape and np.array_equal(last[0], P):
+            return last[1]
         sq, tri, C = self.tree.squared_distance(self.V, self.F, np.ascontiguousarray((P - self.centre) / self.scale))
-        return np.sqrt(np.maximum(np.asarray(sq, float).ravel(), 0.0)) * self.scale, tri, C
+        out = (np.sqrt(np.maximum(np.asarray(sq, float).ravel(), 0.0)) * self.scale, np.asarray(tri), np.asarray(C))
+        for a in out:
+            a.setflags(write=False)
+        self._last = (np.array(P, dtype=float), out)
+        return out
 
 
 _INDEX_CACHE: dict[int, tuple[PolyMesh, _ReferenceIndex]] = {}
@@ -150,11 +166,13 @@ def distance_stats(vertices: np.ndarray, reference: PolyMesh) -> tuple[float, fl
     Vertices that belong to no face of the reference (supports that carry nothing, see
     :mod:`selfsupport.validate`) are not part of the surface and are left out."""
     vertices = np.asarray(vertices, float)
+    # the distances of all vertices, then those of the isolated ones dropped: the same query as
+    # the result's objective terms ask (answered once, see _ReferenceIndex.query)
+    d = distance_to_surface(vertices, reference) / bbox_diagonal(reference.vertices)
     if len(vertices) == reference.n_vertices:
         iso = reference.isolated_vertices
         if iso.size:
-            vertices = np.delete(vertices, iso, axis=0)
-    d = distance_to_surface(vertices, reference) / bbox_diagonal(reference.vertices)
+            d = np.delete(d, iso)
     return float(d.mean()), float(d.max())
 
 

@@ -43,8 +43,15 @@ class Network:
         return self.mesh.edges
 
     def relative_errors(self) -> np.ndarray:
-        return relative_errors(vertices=self.vertices, edges=self.edges, weights=self.weights,
-                               loads=self.loads, supports=self.supports)
+        """Per free vertex: ``‖residual‖ / |A_i F_i|`` (read-only). Computed once per network
+        and kept (everything in it is immutable): a solve's finish asks for it three times."""
+        r = self.__dict__.get("_relative_errors")
+        if r is None:
+            r = relative_errors(vertices=self.vertices, edges=self.edges, weights=self.weights,
+                                loads=self.loads, supports=self.supports)
+            r.setflags(write=False)
+            self.__dict__["_relative_errors"] = r
+        return r
 
     def max_relative_error(self) -> float:
         r = self.relative_errors()

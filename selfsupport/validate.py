@@ -170,9 +170,15 @@ def _face_inner_points(mesh: PolyMesh, v: np.ndarray) -> np.ndarray:
     p, q = v[mesh.face_vertices, :2], v[nxt, :2]
     cf = c[face_of]
     area = np.abs((p[:, 0] - cf[:, 0]) * (q[:, 1] - cf[:, 1]) - (p[:, 1] - cf[:, 1]) * (q[:, 0] - cf[:, 0]))
-    # the corner with the largest fan triangle in each face
-    order = np.lexsort((-area, face_of))
-    first = order[mesh.face_offsets[:-1]]
+    # the corner with the largest fan triangle in each face (the first one of equal largest):
+    # corners are stored face by face, so a segmented max finds it in O(corners) — the
+    # lexsort it replaces (same corners) took 0.15 s at 200k vertices
+    if np.isfinite(area).all():
+        top = np.maximum.reduceat(area, mesh.face_offsets[:-1])
+        cand = np.flatnonzero(area == top[face_of])
+        first = cand[np.r_[True, face_of[cand[1:]] != face_of[cand[:-1]]]]
+    else:  # (NaN would match no maximum; the sort puts it last)
+        first = np.lexsort((-area, face_of))[mesh.face_offsets[:-1]]
     return (cf[first] + p[first] + q[first]) / 3.0
 
 
@@ -243,25 +249,56 @@ def unbalanceable_vertices(scene: Scene, vertices: np.ndarray | None = None) -> 
     horiz = np.hypot(d[:, 0], d[:, 1]) > COINCIDENT * diag
     i, d = i[horiz], d[horiz]
     ang = np.arctan2(d[:, 1], d[:, 0])
+    has = np.zeros(n, bool)
+    has[i] = True
+    gap = np.zeros(n)
+    if ang.size:
+        gap = _largest_angular_gap(i, ang, n)
+    one_sided = np.flatnonzero(free & has & (gap >= np.pi - HALF_TURN_TOL))
+    return low, one_sided
+
+
+def _largest_angular_gap(i: np.ndarray, ang: np.ndarray, n: int) -> np.ndarray:
+    """Per vertex, the largest gap between the directions ``ang`` (radians in [-π, π]) of the
+    half-edges leaving it (``i``), the wrap-around gap included; 0 where none leaves.
+
+    The directions are sorted within each vertex's row of a padded (n, max degree) array: one
+    stable grouping by vertex, O(half-edges), and a short sort per row — a lexsort over all
+    half-edges took 0.16-0.3 s at 200k vertices, this 0.05 s. Any order of equal directions
+    gives the same gaps, so the result is that of the lexsort bit for bit. A vertex of huge
+    degree (a fan of thousands of triangles) would make the array large: then the lexsort.
+    """
+    count = np.bincount(i, minlength=n)
+    k = int(count.max())
+    if k * n <= 4 * i.size + 1024:
+        order = np.argsort(i, kind="stable")
+        rows = i[order]
+        first = np.cumsum(count) - count
+        P = np.full((n, k), np.inf)
+        P[rows, np.arange(i.size) - first[rows]] = ang[order]
+        P.sort(axis=1)
+        with np.errstate(invalid="ignore"):
+            inner = P[:, 1:] - P[:, :-1]  # (inf - inf, inf - x past a row's end are masked)
+        valid = np.arange(1, k)[None, :] < count[:, None]
+        big = np.where(valid, inner, 0.0).max(axis=1, initial=0.0)
+        has = count > 0
+        wrap = np.zeros(n)
+        wrap[has] = 2 * np.pi - (P[has, count[has] - 1] - P[has, 0])
+        return np.maximum(big, wrap)
     order = np.lexsort((ang, i))
     i, ang = i[order], ang[order]
     has = np.zeros(n, bool)
     has[i] = True
     starts = np.searchsorted(i, np.arange(n), side="left")
     stops = np.searchsorted(i, np.arange(n), side="right")
-    gap = np.zeros(n)
-    if ang.size:
-        inner = np.diff(ang)
-        same = i[1:] == i[:-1]
-        g = np.where(same, inner, 0.0)
-        # largest gap between consecutive directions, and the wrap-around gap
-        big = np.zeros(n)
-        np.maximum.at(big, i[1:][same], g[same])
-        wrap = np.zeros(n)
-        wrap[has] = 2 * np.pi - (ang[stops[has] - 1] - ang[starts[has]])
-        gap = np.maximum(big, wrap)
-    one_sided = np.flatnonzero(free & has & (gap >= np.pi - HALF_TURN_TOL))
-    return low, one_sided
+    same = i[1:] == i[:-1]
+    g = np.where(same, np.diff(ang), 0.0)
+    # largest gap between consecutive directions, and the wrap-around gap
+    big = np.zeros(n)
+    np.maximum.at(big, i[1:][same], g[same])
+    wrap = np.zeros(n)
+    wrap[has] = 2 * np.pi - (ang[stops[has] - 1] - ang[starts[has]])
+    return np.maximum(big, wrap)
 
 
 # ------------------------------------------------------------------------- checks
@@ -275,8 +312,16 @@ class _Context:
     #: check): every geometric test uses these, so far-off coordinates lose nothing more
     V: np.ndarray | None = None
 
+    #: the faces' areas at :meth:`vertices` (the top-view and zero-area checks both need them)
+    _areas: np.ndarray | None = None
+
     def vertices(self) -> np.ndarray:
         return self.scene.mesh.vertices if self.V is None else self.V
+
+    def face_areas(self) -> np.ndarray:
+        if self._areas is None:
+            self._areas = face_areas(self.scene.mesh, self.vertices())
+        return self._areas
 
 
 def _check_mesh(scene: Scene, ctx: _Context) -> list[Issue]:
@@ -340,7 +385,7 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
     V = ctx.vertices()
     a = top_view_areas(mesh, V)
     total = float(np.abs(a).sum())
-    area3d = float(face_areas(mesh, V).sum())
+    area3d = float(ctx.face_areas().sum())
     if not total > 1e-12 * area3d:
         return []  # a vertical surface (a wall in one plane): no top view to speak of
     up = 1.0 if a.sum() >= 0 else -1.0
@@ -374,7 +419,8 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
 def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
     from scipy.spatial import cKDTree
 
-    pairs = cKDTree(ctx.vertices()).query_pairs(COINCIDENT * (1.0 if ctx.V is not None else ctx.diag),
+    # (an unbalanced tree builds 2x faster; the pairs within the radius are the same, sorted below)
+    pairs = cKDTree(ctx.vertices(), balanced_tree=False, compact_nodes=False).query_pairs(COINCIDENT * (1.0 if ctx.V is not None else ctx.diag),
                                                 output_type="ndarray")
     if not len(pairs):
         return []
@@ -391,7 +437,7 @@ def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
 
 
 def _check_zero_area(scene: Scene, ctx: _Context) -> list[Issue]:
-    ar = face_areas(scene.mesh, ctx.vertices())
+    ar = ctx.face_areas()
     bad = np.flatnonzero(ar <= ZERO_AREA * float(np.median(ar)))
     if not bad.size:
         return []

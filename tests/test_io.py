@@ -308,6 +308,74 @@ def test_solve_result_fields_are_plain_json(tmp_path):
         network_to_dict(net, weights=[1])
 
 
+# ------------------------------------------------------- the JSON writer's number formatting
+def _random_doubles(n: int, seed: int) -> np.ndarray:
+    """Doubles from random bit patterns (every exponent: subnormals, 1e±300, NaN payloads, ±inf)
+    plus the values a writer gets wrong first."""
+    bits = np.random.default_rng(seed).integers(0, 2 ** 64, n, dtype=np.uint64, endpoint=False)
+    special = [0.0, -0.0, 5e-324, -5e-324, 2.2250738585072014e-308, 2.225073858507201e-308, 1e-300, -1e300,
+               1.7976931348623157e308, 1e16, 1e-5, 1e-4, 0.1, 1 / 3, 123456789012345680.0, 1.0, -1.5, 2.0 ** 53,
+               float("nan"), float("inf"), -float("inf")]
+    return np.concatenate([bits.view(np.float64), special])
+
+
+def _numbers_in(text: str) -> list[str]:
+    return [t for t in text.replace("[", " ").replace("]", " ").replace(",", " ").split()]
+
+
+@pytest.mark.parametrize("shape", [(-1,), (-1, 3)])
+def test_json_numbers_are_repr_exact_and_strict(shape):
+    """Every float is written as ``float.__repr__`` writes it, so it reads back as the same double
+    (sign of zero included); non-finite ones as null; byte for byte what json.dumps writes."""
+    from selfsupport.io.network_json import _json_value, to_jsonable
+
+    a = _random_doubles(30_000, seed=len(shape)).reshape(shape)
+    text = _json_value(a)
+    assert text == json.dumps(to_jsonable(a), allow_nan=False, separators=(", ", ": "))
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict token {c}"))
+    for tok, x in zip(_numbers_in(text), a.ravel().tolist(), strict=True):
+        if not np.isfinite(x):
+            assert tok == "null"
+        else:
+            assert float(tok) == x and np.signbit(float(tok)) == np.signbit(x), (tok, x)
+    subnormal = np.abs(a) < 2.2250738585072014e-308
+    assert subnormal.any() and (np.abs(a[np.isfinite(a)]) > 1e300).any()  # the sample covers both ends
+
+
+@pytest.mark.parametrize("a", [np.arange(-1005, 1005), np.array([0]), np.array([-9, 10, -99, 100, 2 ** 62, -(2 ** 62)]),
+                               np.array([[0, 1], [10, 11], [999, -1000]]), np.zeros((0,), int), np.zeros((0, 2), int),
+                               np.zeros((3, 0), int), np.zeros((2, 0)), np.zeros((0, 3)),
+                               np.array([2 ** 64 - 1], np.uint64), np.array([np.iinfo(np.int64).min]),
+                               np.arange(6, dtype=np.int32).reshape(2, 3), np.array([3, 2], np.uint8)])
+def test_json_integers_match_json_dumps(a):
+    from selfsupport.io.network_json import _json_value, to_jsonable
+
+    assert _json_value(a) == json.dumps(to_jsonable(a), separators=(", ", ": "))
+
+
+def test_json_faces_and_a_whole_result_match_the_plain_document(tmp_path):
+    """The file write_network writes (arrays formatted straight from numpy) is byte for byte
+    dumps_network(network_to_dict(...)), the plain-list document, for mixed polygons, a
+    reference, handles and several load cases."""
+    from selfsupport.io.network_json import _Faces, _json_value, dumps_network
+
+    m = mixed_mesh(5, 4)
+    assert len(set(np.diff(m.face_offsets).tolist())) == 2
+    assert _json_value(_Faces(m)) == json.dumps(m.faces, separators=(", ", ": "))
+    tri = PolyMesh.from_faces(m.vertices, [[0, 1, 6], [1, 7, 6]])
+    assert _json_value(_Faces(tri)) == json.dumps(tri.faces, separators=(", ", ": "))
+    net = apex_network(reference=True)
+    other = Network(mesh=net.mesh, weights=net.weights * 2, loads=net.loads * 2, supports=net.supports)
+    res = SolveResult.build(net, cases=(("a", net), ("b", other)), status="converged", method="staggered",
+                            backend="active-set", iterations=2, wall_time=0.5,
+                            history=({"E": 1.0, "w": np.array([0.5, np.nan])},),
+                            parameters={"hull": {"signed_distance": [0.1, -0.0]}})
+    p = tmp_path / "r.json"
+    write_network(p, res, command="solve", extra_array=np.array([1.5, np.inf]))
+    assert p.read_text() == dumps_network(network_to_dict(res, command="solve", extra_array=np.array([1.5, np.inf])))
+    assert json.loads(p.read_text())["load_cases"][1]["weights"] == (2 * np.where(net.active_edges, net.weights, 0)).tolist()
+
+
 @requires_checker
 def test_written_network_passes_the_independent_checker(tmp_path):
     p = tmp_path / "apex.json"

@@ -107,7 +107,7 @@ def test_step_3_cg_and_the_polishes_honour_a_passed_deadline():
 def test_deadline_helpers():
     assert not out_of_time(None) and out_of_time(time.perf_counter() - 1e-3)
     assert out_of_time(time.perf_counter() + 1.0, step_seconds=2.0)  # the next step would end past it
-    assert finish_reserve(200_000) == pytest.approx(8.0) and finish_reserve(1000) < 0.1
+    assert finish_reserve(200_000) == pytest.approx(4.0) and finish_reserve(1000) < 0.1
 
 
 @pytest.mark.parametrize("backend", ["ipopt", "nlopt", "osqp"])

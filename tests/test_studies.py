@@ -229,3 +229,14 @@ def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
         assert document_errors(d).max() <= 1e-8
     surface, vertices = rows["simultaneous/ipopt-surface-warm"], rows["simultaneous/ipopt-warm"]
     assert surface["dist_ref_mean"] < 0.9 * vertices["dist_ref_mean"]
+
+
+@pytest.mark.slow
+def test_fixed_costs_study_reports_wall_time_phases_and_json(tmp_path, capsys):
+    """studies/fixed_costs.py (issue 16, item 4) runs end to end on a small shape."""
+    from studies import fixed_costs
+
+    assert fixed_costs.main(["--scene", "shape:dome:300", "--time-limit", "5", "--runs", "1", "--json-runs", "1",
+                             "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "wall median" in out and "validate" in out and "JSON text" in out and "as write_network does" in out

@@ -351,12 +351,14 @@ def test_sigkill_mid_sweep_then_resume_loses_and_repeats_nothing(tmp_path):
 
 # ------------------------------------------------------------------------ hard limit
 def test_hard_time_limit_records_timeout_and_the_sweep_goes_on(client, tmp_path):
-    """A budget far below the solve time and no grace: the backstop fires while the method is
-    still in its first weight fit (it checks its own time limit only after it), cancels the
-    run, restarts its worker and writes a timeout row; the cluster then runs the next sweep."""
+    """A budget far below the solve time and no grace: the backstop fires while the run is still
+    validating and setting up its scene (0.3-0.5 s at 40k vertices, before any deadline check;
+    at 2k vertices a solve whose time limit has passed now ends within the backstop's 0.05 s
+    poll), cancels the run, restarts its worker and writes a timeout row; the cluster then runs
+    the next sweep."""
     from selfsupport.sweep.runner import run_sweep
 
-    spec = parse_spec(sweep_text(scenes=['"shape:pillar_vault?n_vertices=2000"'], grid="density = [2000.0]",
+    spec = parse_spec(sweep_text(scenes=['"shape:pillar_vault?n_vertices=40000"'], grid="density = [2000.0]",
                                  budget=0.001, grace=0.0), scene_dir=tmp_path)
     first = run_sweep(spec, tmp_path / "a", client=client, progress=False)
     assert first.by_status == {"timeout": 1}

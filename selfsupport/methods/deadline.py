@@ -67,14 +67,21 @@ def ipopt_stop_callback(nx: int, ng: int, n_p: int):
     return _Stop()
 
 
-#: Seconds per vertex that building a result (distances to the reference, objective terms,
-#: networks) and writing it as JSON take after the solve has stopped: measured 26-39 µs per
-#: vertex at 200k vertices on a 2-core machine (7.8 s, 70 MB of JSON), rounded up.
-FINISH_SECONDS_PER_VERTEX = 4e-5
+#: Seconds per vertex that finishing takes once the solve has stopped: the final polish, the
+#: networks, the objective terms and the distance evidence (one closest-point index and one
+#: query), the JSON text and its write (70 MB at 200k vertices). Measured with
+#: ``python -m studies.fixed_costs``: 12.5-13.9 µs per vertex at 200k vertices (2.5-2.8 s) on
+#: a 2-core machine at load 0.8; it was 26-39 µs before the finish was cut down (issue 16).
+#: Kept at 1.5x that, because a loaded machine is slower at the end of a run too.
+FINISH_SECONDS_PER_VERTEX = 2e-5
 
 
 def finish_reserve(n_vertices: int) -> float:
     """Seconds to keep free at the end of a time limit for the work after the solve (building
-    the result and writing it), so that a whole run ends near its limit: 8 s at 200k vertices,
-    0.04 s at 1k."""
+    the result and writing it), so that a whole run ends near its limit: 4 s at 200k vertices,
+    0.02 s at 1k.
+
+    >>> finish_reserve(200_000), finish_reserve(1_000)
+    (4.0, 0.02)
+    """
     return FINISH_SECONDS_PER_VERTEX * float(n_vertices)

@@ -413,9 +413,12 @@ class _Run:
     def networks(self, X: np.ndarray, ws: list[np.ndarray]) -> tuple[Network, tuple[tuple[str, Network], ...]]:
         return case_networks(self.problem, self.sc, X, ws)
 
-    def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True):
+    def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True, stop: bool = False):
         """Positions (and, with several cases or a fixed top view, weights) in exact equilibrium:
-        (X, ws, L, rounds)."""
+        (X, ws, L, rounds). ``stop``: what the polishes return past their deadline (``X`` as it
+        is, with its loads), without their set-up."""
+        if stop:
+            return X.copy(), ws, self.loads_at(X), 0
         if not self.joint:
             Xp, L, rounds = _polish(self.top, X, ws[0], self.loads.primary, self.mesh0, self.sc,
                                     workspace=self.polish_ws, fallbacks=fallbacks, deadline=self.deadline)
@@ -469,6 +472,9 @@ class _Run:
         polish_tol = opt.joint_polish_tol if self.joint else opt.polish_tol
         retry_errors: list[float] | None = None  # fit errors since a retry began
         can_finish_early = not self.joint
+        # duration of the last iteration (Step 3 and its fits): the next one is started only if it
+        # can end before the deadline; before the first, the first fit stands in for it
+        t_iteration = cur["t_loads"] + cur["t_weights"]
         while True:
             try:
                 for it in range(it + 1, opt.max_iter + 1):
@@ -509,7 +515,9 @@ class _Run:
                             f"{len(released) - 1} iterations)")
                         history.append(rec)
                         break
-                    if out_of_time(self.deadline):
+                    if out_of_time(self.deadline, t_iteration):
+                        # (an iteration the deadline would cut is wasted: its Step 3 is no step,
+                        # its fit too loose to accept; and its factorizations cannot stop early)
                         status, message = "time_limit", self.time_message()
                         history.append(rec)
                         break
@@ -530,6 +538,7 @@ class _Run:
                         rec["fallback"] = True
                     rec["cg_iterations"] = self.step3.get("cg_iterations", 0)  # of the step taken
                     rec["accepted"] = accepted
+                    t_iteration = time.perf_counter() - t0
                     history.append(rec)
                     if self.progress:
                         self.progress(rec)
@@ -566,12 +575,18 @@ class _Run:
                 Xp, _, load_rounds, _ = early
                 ws = cur["w"]
             else:
-                # (past the deadline a fit would return at once: keep the current weights)
-                last = None if out_of_time(self.deadline) else self.fit(X, cur["w"], opt.prox_w_final)
+                # (when the deadline would cut it — a fit's factorizations cannot stop early, and
+                # one at 200k vertices takes seconds — keep the current weights)
+                t_fit = cur["t_loads"] + cur["t_weights"]
+                last = None if out_of_time(self.deadline, t_fit) else self.fit(X, cur["w"], opt.prox_w_final)
                 ws = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
-                # Polish: weights frozen (or, with several cases, moved least), positions exact
+                # Polish: weights frozen (or, with several cases, moved least), positions exact.
+                # It factors a system of the mesh's size before it can check the deadline (2.3 s
+                # at 200k vertices): a run the deadline stopped skips it when it would end past
+                # the deadline (a fit's time stands in for it), as the polish does past it
                 t0 = time.perf_counter()
-                Xp, ws, _, load_rounds = self.polish(X, ws)
+                Xp, ws, _, load_rounds = self.polish(
+                    X, ws, stop=status != "converged" and out_of_time(self.deadline, t_fit))
             polish_move = float(np.linalg.norm(Xp - X, axis=1).max()) if np.all(np.isfinite(Xp)) else np.inf
             net, cases = self.networks(Xp, ws) if np.isfinite(polish_move) else (None, ())
             err = max(n.max_relative_error() for _, n in cases) if net is not None else np.inf
