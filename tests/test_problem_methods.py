@@ -271,3 +271,12 @@ def test_nlopt_refuses_what_it_cannot_state(kind):
                "fixed_top_view": lambda: Problem.build(scene, LOADS, constraints=["fixed_top_view"])}[kind]()
     with pytest.raises(InputError, match="nlopt backend does not support"):
         NloptSimultaneous().solve(problem)
+
+
+def test_every_registered_method_is_a_method():
+    """The protocol is declared in code (methods/base.py) and every method in api.METHODS meets it."""
+    from selfsupport.api import METHODS
+    from selfsupport.methods.base import Method
+
+    for name, spec in METHODS.items():
+        assert isinstance(spec.load()(), Method), name
