@@ -76,7 +76,7 @@ from ..errors import InputError
 from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
-from .stars import Stars, vertex_stars
+from .stars import Stars, accumulate_along, vertex_stars
 
 __all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "face_orientation", "top_view_jumps", "face_planes_through"]
 
@@ -472,15 +472,7 @@ def _tree_integrate(F: int, L: np.ndarray, R: np.ndarray, rhs: np.ndarray, pinne
     child = np.flatnonzero((pred >= 0) & (pred < F))
     step = np.zeros((F, rhs.shape[1]))
     step[child] = val[np.searchsorted(key, child * (F + 1) + pred[child])]
-    anc = np.where((pred >= 0) & (pred < F), pred, -1)
-    acc = step.copy()
-    while np.any(anc >= 0):
-        ok = anc >= 0
-        acc[ok] += acc[anc[ok]]
-        nxt = np.full(F, -1)
-        nxt[ok] = anc[anc[ok]]
-        anc = nxt
-    return acc
+    return accumulate_along(np.where((pred >= 0) & (pred < F), pred, -1), step)
 
 
 #: How the face planes are obtained from the jumps (``airy(..., integration=NAME)``): each

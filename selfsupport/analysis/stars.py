@@ -98,14 +98,7 @@ def vertex_stars(mesh: PolyMesh, orientation: int = 1) -> Stars:
     succ = succ.copy()
     succ[pred[rep]] = -1
     # rank = distance to the chain's end (list ranking by pointer doubling)
-    d = (succ >= 0).astype(np.int64)
-    jump = succ.copy()
-    while np.any(jump >= 0):
-        ok = jump >= 0
-        d[ok] += d[jump[ok]]
-        jnext = np.full(C, -1)
-        jnext[ok] = jump[jump[ok]]
-        jump = jnext
+    d = accumulate_along(succ, (succ >= 0).astype(np.int64))
     ring_order = np.lexsort((-d, fv))
     offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(fv, minlength=n), out=offsets[1:])
@@ -116,3 +109,18 @@ def vertex_stars(mesh: PolyMesh, orientation: int = 1) -> Stars:
     after, before = (to_prv, to_nxt) if orientation >= 0 else (to_nxt, to_prv)
     return Stars(offsets=offsets, corners=ring_order, after=np.asarray(after), before=np.asarray(before),
                  closed=~mesh.boundary_vertex_mask)
+
+
+def accumulate_along(parent: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` summed along each element's chain of ``parent`` pointers (−1 ends a chain):
+    ``out[i] = values[i] + values[parent[i]] + values[parent[parent[i]]] + …``, by pointer
+    doubling (log₂ of the longest chain rounds, each vectorised). Chains must not cycle."""
+    acc = np.array(values, copy=True)
+    jump = np.asarray(parent).copy()
+    while np.any(jump >= 0):
+        ok = jump >= 0
+        acc[ok] += acc[jump[ok]]
+        nxt = np.full(len(jump), -1)
+        nxt[ok] = jump[jump[ok]]
+        jump = nxt
+    return acc
