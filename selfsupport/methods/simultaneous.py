@@ -65,7 +65,7 @@ from ..errors import InputError
 from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .base import as_problem, case_networks, term_values
+from .base import HULL_TOL, as_problem, case_networks, term_values
 from .deadline import out_of_time
 from .polish import HULL_ACTIVE_REL, polish_joint
 from .polish import max_rel_error as _max_rel_error
@@ -89,6 +89,11 @@ POLISH_ACCEPT = 1e-6
 MAX_LOAD_ROUNDS = 30
 #: Depth of the Anderson acceleration of the load fixed point (0: plain re-estimation).
 ANDERSON_DEPTH = 3
+#: At most this many re-anchorings of the hull's slabs (each slab is the hull's tangent-plane
+#: linearization; a vertex that slides along it leaves the curved shell, so after a round that
+#: leaves a vertex outside the true hull the slabs move to the vertices' closest points and the
+#: rounds go on, warm). A design whose network keeps sliding out is not certified ("stalled").
+MAX_HULL_ANCHORINGS = 8
 #: Natural weight scale in scaled units: ``1 / ĥ²`` (ĥ = mean edge length / bbox diagonal).
 #: Cold-start weights, relative to it (IPOPT's path from larger starts is often long and ends
 #: in worse local optima; 0.003–0.01 was consistently good on vault, vault-pillar and domes).
@@ -329,6 +334,7 @@ class Simultaneous:
         mixer = _Anderson(ANDERSON_DEPTH, accept=lambda Lm: bool(np.all(Lm.reshape(C, -1)[:, free] < 0)))
         polish = False
         x_ok = None  # last iterate of a converged round
+        anchorings = 0  # re-anchorings of the hull's slabs so far
         best = (np.inf, x)  # (load change, iterate) of the most load-consistent converged round
         for rnd in range(1, MAX_LOAD_ROUNDS + 1):
             remaining = deadline - time.perf_counter()
@@ -365,6 +371,22 @@ class Simultaneous:
             x_ok = x
             if change < best[0]:
                 best = (change, x)
+            if hull is not None:
+                excess = float((np.abs(hull.at(Vs).signed_distance(Vs)) - hull.half_thickness).max(initial=0.0))
+                rec["hull_excess"] = excess / hull.half_thickness  # beyond the true hull, relative to t/2
+                if excess > HULL_TOL * hull.half_thickness:
+                    if anchorings == MAX_HULL_ANCHORINGS:
+                        status = "stalled"
+                        message = (f"the network keeps leaving the curved masonry hull (by up to {excess * sc.length:.3g} m "
+                                   f"beyond t/2 after {anchorings} re-anchorings of its tangent slabs): no network "
+                                   "inside the hull was found; try a larger thickness or a smaller load")
+                        break
+                    # the slabs at the closest points, warm from here (the rows keep their order)
+                    anchorings += 1
+                    form = dataclasses.replace(form, hull=hull.at(Vs))
+                    hull, nlp = form.hull, form.nlp()
+                    L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
+                    continue
             if change < LOAD_TOL:
                 message = f"{self.backend} converged; loads consistent with the geometry after {rnd} round(s)"
                 polish = C > 1 or hull is not None or problem.fixed_top_view  # exactness of every case

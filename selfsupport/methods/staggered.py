@@ -102,7 +102,7 @@ from ..loads import LoadCase
 from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .base import as_problem, case_networks, hull_report, term_values
+from .base import HULL_TOL, as_problem, case_networks, hull_report, term_values
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import load_colouring, load_jacobian_xyz
@@ -440,6 +440,38 @@ class _Run:
                                             deadline=self.deadline)
         return Xp, list(W), self.loads_at(Xp), rounds
 
+    def try_finish(self, X: np.ndarray, cur: dict, d_it: np.ndarray) -> tuple | None:
+        """Polish the iterate now and keep it if it is in equilibrium, inside the hull and no
+        farther from the reference than the iterate (mean within ``finish_slack``, max within 4×
+        that): finishing then costs no closeness, further iterations could only drift.
+        Returns (positions, weights, rounds, info), or None when the polish breaks down.
+
+        With one case and a free top view the current weights are polished (:func:`_try_finish`).
+        With several cases, a fixed top view or a hull it is the joint polish, which moves the
+        weights with the positions: near equilibrium its Newton steps converge where Step 3, with
+        the weights held, creeps (a dome with an apex load in a 5 cm hull: the fit error fell by
+        half in 30 iterations at α's minimum; the joint polish, tried there, moved vertices by
+        7e-4 of the diagonal to 1e-14)."""
+        opt = self.opt
+        if not self.joint:
+            early = _try_finish(self.top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, self.sc,
+                                self.reference, d_it, opt, self.polish_ws, deadline=self.deadline)
+            return None if early is None else (early[0], cur["w"], early[2], early[3])
+        Xp, ws, _, rounds = self.polish(X, cur["w"])
+        if not np.all(np.isfinite(Xp)):
+            return None
+        err = _max_error(self.networks(Xp, ws)[1])
+        d_p = closest_points(Xp, self.reference)[1]
+        # (the true distance: the slabs re-anchored at the polished positions)
+        inside = self.hull is None or bool(np.all(
+            np.abs(self.hull.at(Xp).signed_distance(Xp)) <= self.hull.half_thickness * (1 + HULL_TOL)))
+        ok = (err <= opt.tol and inside and float(d_p.mean()) <= (1 + opt.finish_slack) * float(d_it.mean())
+              and float(d_p.max()) <= (1 + 4 * opt.finish_slack) * float(d_it.max()))
+        info = {"ok": bool(ok), "error": err, "inside_hull": inside,
+                "dist_mean_ratio": float(d_p.mean() / max(d_it.mean(), 1e-300)),
+                "dist_max_ratio": float(d_p.max() / max(d_it.max(), 1e-300))}
+        return Xp, ws, rounds, info
+
     # ---------------------------------------------------------------- the iteration
     def solve(self) -> SolveResult:
         opt, top, sc = self.opt, self.top, self.sc
@@ -471,7 +503,6 @@ class _Run:
         fresh, early, last_try = True, None, np.inf
         polish_tol = opt.joint_polish_tol if self.joint else opt.polish_tol
         retry_errors: list[float] | None = None  # fit errors since a retry began
-        can_finish_early = not self.joint
         # duration of the last iteration (Step 3 and its fits): the next one is started only if it
         # can end before the deadline; before the first, the first fit stands in for it
         t_iteration = cur["t_loads"] + cur["t_weights"]
@@ -490,13 +521,12 @@ class _Run:
                         status = "converged"
                         history.append(rec)
                         break
-                    if (can_finish_early and fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
+                    if (fresh and cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try)
                             and cur["fit_status"] not in ("inexact", "time_limit")):
                         # (a trial fitted loosely that landed below finish_try waits one step: the
                         # next fit is exact, and the finish polishes exact weights only)
                         proj = proj if proj is not None else closest_points(X, self.reference)
-                        early = _try_finish(top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, sc,
-                                            self.reference, proj[1], opt, self.polish_ws, deadline=self.deadline)
+                        early = self.try_finish(X, cur, proj[1])
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
                             status = "converged"
@@ -524,7 +554,12 @@ class _Run:
                     # Step 3: positions, with the weights of the current fit
                     t0 = time.perf_counter()
                     if opt.reproject_every and it > 1 and it % opt.reproject_every == 0 and self.step3_terms:
+                        proj = proj if proj is not None else closest_points(X, self.reference)
                         self.step3_terms = self.step3_terms.at(X, projection=proj)
+                    if self.hull is not None and it > 1:  # the hull's slabs at X's closest points, every
+                        # iteration (fixed slabs let vertices slide out of the curved shell)
+                        proj = proj if proj is not None else closest_points(X, self.reference)
+                        self.hull = self.hull.at(X, projection=proj)
                     Xt = self.position_step(X, cur, alpha, beta, coupled=opt.coupled)
                     rec["t_positions"] = time.perf_counter() - t0
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
@@ -572,8 +607,7 @@ class _Run:
             # little as the data allow (an input already in equilibrium comes back unchanged)
             t0 = time.perf_counter()
             if early is not None:  # the polish of the current weights was already accepted
-                Xp, _, load_rounds, _ = early
-                ws = cur["w"]
+                Xp, ws, load_rounds, _ = early
             else:
                 # (when the deadline would cut it — a fit's factorizations cannot stop early, and
                 # one at 200k vertices takes seconds — keep the current weights)
