@@ -240,3 +240,23 @@ def test_fixed_costs_study_reports_wall_time_phases_and_json(tmp_path, capsys):
                              "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "wall median" in out and "validate" in out and "JSON text" in out and "as write_network does" in out
+
+
+def test_dome_study_configuration_supports_the_ground_ring_and_loads_the_apex():
+    """dome2's experiment configuration on a generated dome whose .sss-like state pins a cap and
+    leaves part of the ground ring free: the ground boundary becomes the supports (every vertex
+    of it, none above), the cap is freed, and the load goes to the highest vertex."""
+    import dataclasses
+
+    from studies.stability_dome import experiment_configuration
+
+    s = make_shape("dome", n_vertices=200)
+    V = s.mesh.vertices
+    ground = s.mesh.boundary_vertex_mask & (V[:, 2] <= V[:, 2].min() + 1e-9)
+    assert ground.sum() > 4
+    stored = ground.copy()
+    stored[np.flatnonzero(ground)[::2]] = False  # half the ring left free
+    stored[V[:, 2] >= np.quantile(V[:, 2], 0.97)] = True  # a pinned cap
+    scene, at = experiment_configuration(dataclasses.replace(s, supports=stored))
+    np.testing.assert_array_equal(scene.supports, ground)
+    assert at == [int(np.argmax(V[:, 2]))] and not scene.supports[at[0]]
