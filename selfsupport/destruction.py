@@ -4,7 +4,8 @@ Stage 0 is the intact vault. Then the faces of the removed vertices' 1-rings are
 stage after stage, a network in equilibrium inside the masonry hull is searched for what remains
 (:func:`~selfsupport.stability.solve_in_hull`, always against the *original* reference, with the
 original supports). When none is found, the faces touching the vertices that the closest network
-found leaves outside the hull are deleted, and so on, until what remains stands or nothing does.
+found leaves farthest outside the hull (by at least :data:`COLLAPSE_SHARE` of the worst excess)
+are deleted, and so on, until what remains stands or nothing does.
 
 Bookkeeping, deterministic (faces are sets of original face ids, processed in sorted order):
 
@@ -29,6 +30,10 @@ from .scene import Scene
 
 __all__ = ["Stage", "sub_scene", "ring_faces", "clean_faces", "destroy"]
 
+#: A failing stage loses the faces at the vertices outside the hull by at least this share of the
+#: worst excess (the rest get another chance once those are gone).
+COLLAPSE_SHARE = 0.5
+
 
 @dataclass(frozen=True)
 class Stage:
@@ -37,7 +42,7 @@ class Stage:
     Attributes
     ----------
     index
-        0 is the intact vault.
+        0 is the vault before the removal (intact, or where a previous sequence ended).
     faces
         Original face ids present at this stage (sorted).
     removed
@@ -133,22 +138,29 @@ def _hinge_vertices(mesh: PolyMesh) -> np.ndarray:
     return np.flatnonzero(starts > 1)
 
 
-def destroy(scene: Scene, remove: Sequence[int], *, thickness: float, density: float = 2500.0,
+def destroy(scene: Scene, remove: Sequence[int] = (), *, thickness: float, density: float = 2500.0,
+            remove_faces: Sequence[int] = (), faces: Sequence[int] | None = None,
             max_stages: int = 20, method: Any = None, options: Mapping[str, Any] | None = None,
             progress: Callable[[Stage], None] | None = None) -> list[Stage]:
-    """The destruction sequence of ``scene`` after removing the 1-rings of ``remove`` (see the
-    module docstring). Stage 0 is the intact vault; the sequence ends with a stage that stands,
-    an empty stage, or after ``max_stages``."""
+    """The destruction sequence of ``scene`` after removing the 1-rings of ``remove`` and the
+    faces ``remove_faces`` (see the module docstring). Stage 0 is the vault before the removal:
+    all faces, or ``faces`` (original face ids: what a previous sequence left, so that removals
+    can follow each other); the sequence ends with a stage that stands, an empty stage, or after
+    ``max_stages``."""
     from . import api
     from .stability import solve_in_hull
 
-    n = scene.mesh.n_vertices
+    n, nf = scene.mesh.n_vertices, scene.mesh.n_faces
     remove = sorted({int(v) for v in remove})
-    if not remove:
+    remove_faces = sorted({int(f) for f in remove_faces})
+    if not remove and not remove_faces:
         raise InputError("give at least one vertex to remove (--remove VERTEX)")
     bad = [v for v in remove if not 0 <= v < n]
     if bad:
         raise InputError(f"--remove vertex {bad[0]} is outside 0..{n - 1}")
+    bad = [f for f in remove_faces + list(faces or ()) if not 0 <= int(f) < nf]
+    if bad:
+        raise InputError(f"face {bad[0]} is outside 0..{nf - 1}")
 
     def solve(faces: list[int]) -> tuple[Scene, np.ndarray, SolveResult | None, str]:
         sc, used = sub_scene(scene, faces)
@@ -159,8 +171,8 @@ def destroy(scene: Scene, remove: Sequence[int], *, thickness: float, density: f
         return sc, used, res, "stands" if res.parameters["hull"]["certified"] else "fails"
 
     stages: list[Stage] = []
-    faces = list(range(scene.mesh.n_faces))
-    removed, why = [], "intact"
+    faces = list(range(nf)) if faces is None else sorted({int(f) for f in faces})
+    removed, why = [], "intact" if len(faces) == nf else "before the removal"
     for index in range(max_stages + 1):
         if not faces:
             stages.append(Stage(index, (), tuple(removed), why, (), "empty"))
@@ -171,12 +183,20 @@ def destroy(scene: Scene, remove: Sequence[int], *, thickness: float, density: f
         if progress:
             progress(stage)
         if index == 0:  # the removal itself
-            drop = ring_faces(scene, remove, faces)
-            why = f"1-rings of vertices {remove}: {len(drop)} faces"
+            present = set(faces)
+            drop = sorted(set(ring_faces(scene, remove, faces)) | (set(remove_faces) & present))
+            why = ", ".join(([f"1-rings of vertices {remove}"] if remove else [])
+                            + ([f"{len(set(remove_faces) & present)} chosen faces"] if remove_faces else [])
+                            ) + f": {len(drop)} faces"
         elif status == "stands":
             break
-        else:  # the faces touching the vertices that cannot stay inside the hull
-            out = used[np.asarray(res.parameters["hull"]["outside_vertices"], dtype=np.int64)]
+        else:  # the faces touching the vertices that cannot stay inside the hull, the worst first:
+            # those outside by at least COLLAPSE_SHARE of the worst excess (all of them at once
+            # brought twocirc-3 down entirely after a cut the paper's vault survived in part)
+            h = res.parameters["hull"]
+            exc = np.asarray(h["outside_excess"], float)
+            worst = np.asarray(h["outside_vertices"], dtype=np.int64)[exc >= COLLAPSE_SHARE * exc.max(initial=0.0)]
+            out = used[worst]
             if out.size == 0:  # not in equilibrium anywhere near: the worst-balanced vertices go
                 rel = res.network.relative_errors()
                 free = np.flatnonzero(~sc.supports)

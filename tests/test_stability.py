@@ -14,6 +14,7 @@ import pytest
 
 from selfsupport import api
 from selfsupport.destruction import destroy, sub_scene
+from selfsupport.errors import InputError
 from selfsupport.methods.base import HULL_TOL
 from selfsupport.shapes import make_shape
 from selfsupport.stability import max_load, solve_in_hull, stability_series
@@ -187,3 +188,47 @@ def test_destruction_is_deterministic_without_orphans_and_every_stage_is_in_equi
         assert independent_check(s.result).ok, f"stage {s.index}"
         if s.status == "stands":
             assert_inside_hull(s.result.network, s.scene.mesh, 0.05)
+
+
+def test_chosen_faces_and_a_start_state_chain_removals():
+    """``remove_faces`` deletes exactly those faces (plus what falls with them), and a sequence
+    started from a previous one's final faces begins where that one ended."""
+    scene = make_shape("barrel_vault", nx=8, ny=6, gables_supported=False)
+    first = destroy(scene, remove_faces=[20, 21], thickness=0.2, density=2000.0)
+    assert first[-1].status == "stands"
+    assert {20, 21} <= set(first[1].removed) and not {20, 21} & set(first[-1].faces)
+    second = destroy(scene, remove_faces=[5], faces=first[-1].faces, thickness=0.2, density=2000.0)
+    assert second[0].faces == first[-1].faces and second[0].why_removed == "before the removal"
+    assert 5 not in second[-1].faces and set(second[-1].faces) <= set(first[-1].faces)
+    with pytest.raises(InputError):
+        destroy(scene, remove_faces=[scene.mesh.n_faces], thickness=0.2)
+
+
+def test_the_papers_cuts_are_recovered_from_renumbered_stages(tmp_path):
+    """The destruction study's reading of published stages: OBJ files (y down, renumbered
+    vertices, faces in another order) of a vault, the vault less a few faces (a cut) and less a
+    third of them (a collapse): the lost faces are found, mapped back onto the scene's faces
+    and classified."""
+    from studies.destruction import paper_steps
+
+    scene = make_shape("barrel_vault", nx=10, ny=8)
+    V, F = scene.mesh.vertices, [list(f) for f in scene.mesh.faces]
+    rng = np.random.default_rng(1)
+
+    def write(path, keep):
+        perm = rng.permutation(len(V))  # file vertex j is scene vertex perm[j]
+        inv = np.argsort(perm)
+        lines = [f"v {x:.9f} {-z:.9f} {y:.9f}" for x, y, z in V[perm]]
+        lines += ["f " + " ".join(str(inv[v] + 1) for v in F[k]) for k in rng.permutation(sorted(keep))]
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    every = set(range(len(F)))
+    cut = {11, 12, 13}
+    collapse = set(range(len(F) // 3)) - cut
+    files = [write(tmp_path / "s0.obj", every), write(tmp_path / "s1.obj", every - cut),
+             write(tmp_path / "s2.obj", every - cut - collapse)]
+    steps = paper_steps(scene, files)
+    assert [s["kind"] for s in steps] == ["cut", "collapse"]
+    assert set(steps[0]["paper_lost"]) == cut and set(steps[1]["paper_lost"]) == collapse
+    assert [s["paper_faces"] for s in steps] == [len(F) - 3, len(F) - 3 - len(collapse)]
