@@ -214,7 +214,9 @@ class ActiveSetFit(WeightFitBackend):
     ``max_pdas`` iterations the problem goes to a Mehrotra interior-point method
     (:func:`_box_qp_ipm`), whose result seeds PDAS once more (crossover) so that the final
     point satisfies the KKT conditions exactly. PDAS hands over early when its guess is not
-    settling (the number of changed bounds does not halve). With a caller's ``rtol`` above
+    settling (the number of changed bounds falls by less than ``1 − pdas_settle`` per
+    iteration; a warm start after a design edit fell 79 → 38 → 23 → … and was handed to the
+    interior point's ~19 factorizations under a halving rule). With a caller's ``rtol`` above
     ``tol`` the interior point stops there and its point is returned as it is (status
     ``"inexact"``, bounds counted from the crossover's guess).
 
@@ -224,7 +226,7 @@ class ActiveSetFit(WeightFitBackend):
     """
 
     name = "active-set"
-    defaults = {"max_pdas": 5, "max_ipm": 100, "tol": 1e-12}
+    defaults = {"max_pdas": 10, "max_ipm": 100, "tol": 1e-12, "pdas_settle": 0.75}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
@@ -318,8 +320,8 @@ class ActiveSetFit(WeightFitBackend):
                 return w, it, "optimal", (lo, up)
             changes.append(int(np.sum(lo_n != lo) + np.sum(up_n != up)))
             lo, up = lo_n, up_n
-            if len(changes) > 1 and changes[-1] > max(0.5 * changes[-2], 10):
-                break  # the guess is not settling (halving its changes): leave it to the interior point
+            if len(changes) > 1 and changes[-1] > max(self.options["pdas_settle"] * changes[-2], 10):
+                break  # the guess is not settling: leave it to the interior point
         return w, it, "max_iter", (lo, up)
 
     @staticmethod
