@@ -76,3 +76,20 @@ def test_polish_with_loads_independent_of_the_geometry_is_one_linear_solve():
     assert rounds <= 2 and "colouring" not in ws
     r = np.linalg.norm((weight_matrix(top, Xp) @ w - load_vector(top, L)).reshape(-1, 3), axis=1)
     assert (r / np.abs(L[top.free])).max() <= 1e-12
+
+
+def test_colourings_are_remembered_per_topology_and_free_set():
+    """A re-solve of the same topology reuses the colouring (read-only); another free set or
+    another face structure gets its own, valid one."""
+    scene = make_shape("dome", n_vertices=120)
+    free = ~scene.supports
+    a = load_colouring(scene.mesh, free)
+    assert load_colouring(scene.mesh.with_vertices(scene.mesh.vertices * 2.0), free.copy()) is a
+    assert not a[2].flags.writeable
+    free2 = free.copy()
+    free2[np.flatnonzero(free)[0]] = False
+    rows, cols, colour, k = b = load_colouring(scene.mesh, free2)
+    assert b is not a and len(colour) == free2.sum()
+    for c in range(k):  # no two columns of one colour share a row
+        r = rows[colour[cols] == c]
+        assert len(r) == len(np.unique(r))
