@@ -93,3 +93,39 @@ def test_colourings_are_remembered_per_topology_and_free_set():
     for c in range(k):  # no two columns of one colour share a row
         r = rows[colour[cols] == c]
         assert len(r) == len(np.unique(r))
+
+
+def test_the_joint_polish_holds_the_hull_for_vertices_it_would_carry_out():
+    """From a dome with uniform weights (not in equilibrium), the joint polish (positions and
+    free weights) reaches equilibrium without carrying any vertex past the hull's slab: every
+    vertex ends within ±h, although without the hull the polish takes some out."""
+    from formulations import Hull, Problem, TermContext, ThrustNetworkProblem, WeightBounds
+    from formulations.terms import TERMS
+    from selfsupport.methods.polish import max_rel_error, polish_joint
+
+    scene = make_shape("dome", n_vertices=100)
+    prob = Problem.build(scene, SelfWeight(), constraints=[Hull(0.05)])
+    sp_ = prob.scaled()
+    ctx = TermContext(vertices=sp_.X, reference=scene.mesh.with_vertices(sp_.X), free=scene.free,
+                      thickness=prob.hull_thickness() / sp_.scaling.length)
+    hull = TERMS["hull"].build(ctx)
+    W0 = np.full((1, sp_.top.m), float(np.median(sp_.L[0][scene.free])) * -3.0)
+
+    def loads_at(X):
+        return sp_.scaling.load(prob.loads.nodal(scene.mesh, sp_.scaling.pos_back(X)))
+
+    def run(with_hull, **kw):
+        form = ThrustNetworkProblem(sp_.top, sp_.X, sp_.L, WeightBounds(sp_.lower, sp_.upper),
+                                    hull=hull if with_hull else None)
+        return polish_joint(form, sp_.X, W0, loads_at=loads_at)
+
+    Vf, _, _, err_free, _ = run(False)
+    assert err_free <= 1e-8 and np.abs(hull.signed_distance(Vf)).max() > 1.5 * hull.half_thickness  # it would leave
+    Vh, _, _, err, _ = run(True)
+    assert err <= 1e-8
+    # and no step carries a vertex out to be put back by the next one: one step stays inside
+    form = ThrustNetworkProblem(sp_.top, sp_.X, sp_.L, WeightBounds(sp_.lower, sp_.upper), hull=hull)
+    V1, _, k, err1, _ = polish_joint(form, sp_.X, W0, loads_at=loads_at, max_iter=1)
+    assert k == 1 and err1 < max_rel_error(sp_.top, sp_.X, W0, loads_at(sp_.X))  # a step was taken
+    assert np.abs(hull.signed_distance(Vh)).max() <= hull.half_thickness * (1 + 1e-9)
+    assert np.abs(hull.signed_distance(V1)).max() <= hull.half_thickness * (1 + 1e-9)

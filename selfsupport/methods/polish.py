@@ -392,16 +392,18 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                 Cx = Cx - dL[c]
             JX.append(sp.diags(sr) @ Cx.tocsr()[:, xcols])
             rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
-        Hr = None
-        if hull is not None:
+        b_eq = np.concatenate(rhs)
+        if hull is not None:  # rows of the vertices on the hull's face: held there (or put back)
+            h = max(hull.half_thickness, 1e-300)
             sd = hull.signed_distance(V)
             on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
-            if on.any():
-                Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / max(hull.half_thickness, 1e-300)
-                rhs.append((np.clip(sd[on], -hull.half_thickness, hull.half_thickness) - sd[on])
-                           / max(hull.half_thickness, 1e-300))
-        b = np.concatenate(rhs)
-        for _ in range(20):  # weights a step would push past a bound are held, and the step redone
+            goal = np.clip(sd, -hull.half_thickness, hull.half_thickness)
+        for _ in range(20):  # weights a step would push past a bound, and vertices it would carry
+            # out of the hull, are held (the vertices on the face they would cross), the step redone
+            Hr, b = None, b_eq
+            if hull is not None and on.any():
+                Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / h
+                b = np.concatenate([b_eq, (goal[on] - sd[on]) / h])
             wcols = [np.flatnonzero(inner[c]) for c in range(C)]
             nW = [len(i) for i in wcols]
             rows = [sp.hstack([JX[c]] + [sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w if j == c
@@ -424,10 +426,19 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                 if out.size:
                     inner[c, out], crossing = False, True
                 off += nW[c]
+            dX = np.zeros(3 * nf)
+            dX[xcols] = d[:len(xcols)]
+            if hull is not None:
+                Vt = V.copy()
+                Vt[free] += dX.reshape(-1, 3)
+                sd_t = hull.signed_distance(Vt)
+                cross = ~on & (np.abs(sd_t) > hull.half_thickness)
+                if cross.any():
+                    on |= cross
+                    goal[cross] = np.sign(sd_t[cross]) * hull.half_thickness
+                    crossing = True
             if not crossing:
                 break
-        dX = np.zeros(3 * nf)
-        dX[xcols] = d[:len(xcols)]
         V[free] += dX.reshape(-1, 3)
         W = np.clip(Wn, lo, up)
         t_step = time.perf_counter() - t0
