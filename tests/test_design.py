@@ -201,6 +201,33 @@ def test_warm_resolve_reaches_the_cold_network_in_fewer_iterations() -> None:
     assert gap < 1e-2
 
 
+def test_a_warm_start_that_does_not_finish_restarts_cold_and_ends_where_the_cold_solve_does() -> None:
+    """A top-view move of 3% of the diagonal: the warm start's first fit is far from equilibrium.
+    With a large ``warm_accept`` it gets its one polish; whether or not that finishes, the result is
+    either a warm network as close to the reference as the cold one, or exactly the cold solve."""
+    scene = make_shape("concave_disk", n_vertices=300)
+    base = StaggeredLinearization().solve(Design(scene).problem())
+    mesh = scene.mesh
+    V0 = mesh.vertices
+    h = np.zeros(mesh.n_vertices, bool)
+    h[int(np.argmin(np.linalg.norm(V0[:, :2] - V0[:, :2].mean(0) - 0.2 * np.ptp(V0[:, :2], 0), axis=1)))] = True
+    diag = float(np.linalg.norm(np.ptp(V0, axis=0)))
+    V = LaplacianEditor(mesh, h, roi=ring_region(mesh, h, 5), fixed=scene.supports).deform(
+        V0[h] + [0.03 * diag, 0, 0], mode="top_view")
+    edited = Design(scene.__class__(mesh=mesh.with_vertices(V), supports=scene.supports, name="edited"))
+    cold = StaggeredLinearization().solve(edited.problem())
+    for accept in (0.0, 10.0):
+        warm = StaggeredLinearization(warm_accept=accept).solve(edited.problem(), warm_start=base.network)
+        assert warm.status == cold.status == "converged" and warm.max_relative_error <= 1e-9
+        info = warm.parameters["warm_start"]
+        if info["used"]:
+            assert accept > 0 and warm.distance_mean <= 1.05 * cold.distance_mean
+        else:  # the fallback is the cold solve (the active set the warm fit left differs: ~1e-10)
+            assert info["first_error"] > 0.1
+            gap = np.abs(warm.network.vertices - cold.network.vertices).max() / diag
+            assert gap < 1e-8, (accept, gap)
+
+
 # ----------------------------------------------------------------------------- scripts
 SCRIPT = """
 [start]
