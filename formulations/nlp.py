@@ -82,6 +82,9 @@ class ThrustNetworkProblem:
     hull
         The masonry hull as hard rows ``−h ≤ ⟨n_i, v_i − p_i⟩ ≤ h`` (``h`` its half thickness),
         group ``"hull"``; ``None``: no hull rows.
+    planar
+        A :class:`~formulations.terms.PlanarFaces` term whose rows are held at zero (group
+        ``"planar"``, after the hull's); ``None``: no planarity rows.
     fixed_xy
         ``(n_free, 2)`` values at which x and y of the free vertices are held (fixed top view);
         ``None``: they move.
@@ -101,6 +104,7 @@ class ThrustNetworkProblem:
     hull: HullPenalty | None = None
     fixed_xy: np.ndarray | None = None
     case_names: tuple[str, ...] | None = None
+    planar: Term | None = None
 
     def __post_init__(self) -> None:
         top = self.topology
@@ -116,6 +120,8 @@ class ThrustNetworkProblem:
                              f"the problem has {top.n}")
         if self.hull is not None and self.hull.n_vertices != top.n:
             raise InputError(f"the hull is defined on {self.hull.n_vertices} vertices, the problem has {top.n}")
+        if self.planar is not None and self.planar.n_vertices != top.n:
+            raise InputError(f"the planarity rows are defined on {self.planar.n_vertices} vertices, the problem has {top.n}")
         if self.fixed_xy is not None:
             self.fixed_xy = np.asarray(self.fixed_xy, float)
             if self.fixed_xy.shape != (top.n_free, 2):
@@ -154,9 +160,15 @@ class ThrustNetworkProblem:
     def n_x(self) -> int:
         return 3 * self.topology.n_free + self.n_cases * self.topology.m
 
+    @cached_property
+    def n_planar(self) -> int:
+        """Number of planarity rows."""
+        return 0 if self.planar is None else int(self.planar.linearize(self.vertices)[0].size)
+
     @property
     def n_g(self) -> int:
-        return 3 * self.topology.n_free * self.n_cases + (0 if self.hull is None else len(self.hull.idx))
+        return (3 * self.topology.n_free * self.n_cases + (0 if self.hull is None else len(self.hull.idx))
+                + self.n_planar)
 
     @property
     def constraint_groups(self) -> dict[str, np.ndarray]:
@@ -170,6 +182,8 @@ class ThrustNetworkProblem:
                 out[g if self.n_cases == 1 else f"{g}[{case}]"] = 3 * nf * c + 3 * np.arange(nf) + k
         if self.hull is not None:
             out["hull"] = 3 * nf * self.n_cases + np.arange(len(self.hull.idx))
+        if self.n_planar:
+            out["planar"] = self.n_g - self.n_planar + np.arange(self.n_planar)
         return out
 
     def weight_slice(self, case: int) -> slice:
@@ -191,6 +205,8 @@ class ThrustNetworkProblem:
         X_all = eq.all_positions()
         if self.hull is not None:
             rows.append(self.hull.signed_distance_expr(X_all))
+        if self.n_planar:
+            rows.append(self.planar.residual_expr(X_all))
         f = self.objective.expr(X_all) if self.objective is not None else 0 * eq.w[0]
         if self.weight_regularization:
             reg = sum(ca.sumsqr(w / self.weight_scale) for w in ws)
@@ -257,6 +273,7 @@ class ThrustNetworkProblem:
         if self.hull is not None:
             h = np.full(len(self.hull.idx), self.hull.half_thickness)
             lbg, ubg = np.r_[lbg, -h], np.r_[ubg, h]
+        lbg, ubg = np.r_[lbg, np.zeros(self.n_planar)], np.r_[ubg, np.zeros(self.n_planar)]
         return {"lbx": np.r_[lo_X.ravel(), np.tile(self.lower, C)], "ubx": np.r_[up_X.ravel(), np.tile(self.upper, C)],
                 "lbg": lbg, "ubg": ubg}
 

@@ -101,8 +101,21 @@ class FixedTopView:
     name: ClassVar[str] = "fixed_top_view"
 
 
+@dataclass(frozen=True)
+class Planar:
+    """Every face with four or more corners planar (paper §5: panels of glass or steel): the
+    rows of :class:`~formulations.terms.PlanarFaces` held at zero — equality rows for IPOPT and
+    the joint polish, a penalty of weight ``penalty`` in the staggered method's Step 3 (not
+    relaxed along its path). A result meets it when every quad's non-planarity (distance of
+    the diagonals over the mean edge length) is at most ``tol``."""
+
+    tol: float = 1e-3
+    penalty: float = 1e2
+    name: ClassVar[str] = "planar"
+
+
 #: Constraint registry by name.
-CONSTRAINTS: dict[str, type] = {c.name: c for c in (Hull, FixedTopView)}
+CONSTRAINTS: dict[str, type] = {c.name: c for c in (Hull, FixedTopView, Planar)}
 
 
 # ---------------------------------------------------------------------------- objective
@@ -261,7 +274,8 @@ class Problem:
     def terms(self, ctx: TermContext, scaling: Scaling | None = None, default: Any = None) -> Term | None:
         """The objective as one :class:`Term` in the units of ``ctx`` (``scaling`` converts user
         terms stated in SI units); ``default`` (a spec) when the problem leaves it to the method.
-        The hull constraint adds its penalty term (``constraint``: methods do not relax it)."""
+        The hull and planarity constraints add their penalty terms (``constraint``: methods do
+        not relax them)."""
         spec = self.objective if self.objective is not None else parse_objective(default)
         built: list[Term] = []
         for item in spec or ():
@@ -271,6 +285,9 @@ class Problem:
                 built.append(Scaled(item, length=scaling.length, center=scaling.center))
             else:
                 built.append(item)
+        planar = self.constraint(Planar)
+        if planar is not None:
+            built.append(TERMS["planar"].build(ctx, weight=planar.penalty))
         t = self.hull_thickness()
         if t is not None:
             h = self.constraint(Hull)
@@ -287,7 +304,8 @@ class Problem:
             if isinstance(o, ObjectiveTerm) else {"name": getattr(o, "name", type(o).__name__), "user_term": True}
             for o in self.objective]
         return {"load_cases": list(self.loads.names), "objective": obj,
-                "constraints": [{"name": c.name, **({"thickness": self.hull_thickness()} if isinstance(c, Hull) else {})}
+                "constraints": [{"name": c.name, **({"thickness": self.hull_thickness()} if isinstance(c, Hull) else {}),
+                                 **({"tol": c.tol} if isinstance(c, Planar) else {})}
                                 for c in self.constraints],
                 "bounds": {"eps": _jsonable(self.bounds.lower), "w_max": _jsonable(self.bounds.upper)}}
 

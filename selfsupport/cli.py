@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import pkgutil
 import sys
 import time
@@ -344,6 +345,9 @@ def add_problem_arguments(p: argparse.ArgumentParser) -> None:
                    help="keep every free vertex within +-thickness/2 of the reference (the masonry hull)")
     p.add_argument("--fixed-top-view", action="store_true",
                    help="keep x and y of the free vertices: only the heights move (thrust network analysis)")
+    p.add_argument("--planar", nargs="?", const=1e-3, default=None, type=float, metavar="TOL",
+                   help="planar faces (glass or steel panels): every quad's diagonals at most TOL x its mean edge "
+                        "length apart (default 1e-3), held exactly by the final polish")
 
 
 def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
@@ -357,7 +361,14 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             out[v] = out.get(v, 0.0) + x
         return out
 
-    constraints = [name for name, on in (("hull", args.hull), ("fixed_top_view", args.fixed_top_view)) if on]
+    from formulations import Planar
+
+    constraints: list[Any] = [name for name, on in (("hull", args.hull), ("fixed_top_view", args.fixed_top_view)) if on]
+    planar = getattr(args, "planar", None)
+    if planar is not None:
+        if not (math.isfinite(planar) and planar > 0):
+            raise InputError(f"--planar takes a positive tolerance, got {planar!r}")
+        constraints.append(Planar(tol=planar))
     return {"objective": list(args.objective) or None, "point_loads": vertex_map(args.point_load, "--point-load"),
             "extra_mass": vertex_map(args.extra_mass, "--extra-mass"), "load_cases": args.load_cases,
             "constraints": constraints}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, HullPenalty, NormalDrift, Planarity,
+from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity,
                           PlanarityVolume, PointDistance, ReferenceDistance, Scaled, Sum, ThrustNetworkProblem,
                           WeightBounds)
 from selfsupport.errors import InputError
@@ -172,6 +172,7 @@ def all_terms(mesh: PolyMesh, seed: int = 1):
         "normal_drift": NormalDrift(points=ref.vertices, normals=nrm, weight=0.7),
         "planarity": Planarity(mesh, weight=2.0),
         "planarity_volume": PlanarityVolume(mesh, weight=3.0),
+        "planar": PlanarFaces(mesh, weight=1.2),
         "fairness": Fairness(mesh, free=free),
         "hull": HullPenalty(points=ref.vertices, normals=nrm, half_thickness=0.01, mask=free, weight=5.0),
     }

@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from formulations import TERMS, Problem, TermContext
 from formulations.problem import FixedTopView, Hull, ObjectiveTerm, parse_objective
 from selfsupport.errors import InputError
+from selfsupport.mesh import PolyMesh
 from selfsupport.shapes import make_shape
 from tests.test_formulation import MESHES, all_terms, grid_mesh
 
@@ -64,7 +65,7 @@ def test_gauss_newton_model_is_first_order_exact():
     mesh = MESHES["quads"]
     V = mesh.vertices + 0.05 * np.random.default_rng(4).standard_normal(mesh.vertices.shape)
     D = np.random.default_rng(5).standard_normal(V.shape)
-    for name in ("planarity", "planarity_volume"):
+    for name in ("planarity", "planarity_volume", "planar"):
         term = all_terms(mesh)[name]
         r, J = term.linearize(V)
         rem = [np.linalg.norm(term.linearize(V + h * D)[0] - r - h * (J @ D.ravel())) for h in (1e-3, 5e-4)]
@@ -73,7 +74,7 @@ def test_gauss_newton_model_is_first_order_exact():
 
 def test_planarity_terms_vanish_on_planar_quads():
     flat = grid_mesh(5, height=0.0)
-    for name in ("planarity", "planarity_volume"):
+    for name in ("planarity", "planarity_volume", "planar"):
         t = all_terms(flat)[name]
         assert t.numeric_value(flat.vertices) < 1e-24
         V = flat.vertices.copy()
@@ -138,3 +139,28 @@ def test_vertex_blocks_are_the_gauss_newton_normal_equations(name):
     assert np.array_equal(idx[keep], idx_g) and np.abs(B[~keep]).max(initial=0) <= 1e-14  # (zero blocks)
     np.testing.assert_allclose(B[keep], B_g, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b[keep], b_g, rtol=0, atol=1e-12)
+
+
+def test_coplanarity_rows_of_polygons_vanish_exactly_when_planar():
+    """Pentagons with a straight (T-junction) corner and hexagons: the rows are zero on planar
+    faces whatever their shape, nonzero when one corner leaves the plane, and their CasADi
+    statement matches the numeric Jacobian."""
+    from formulations.terms.planarity import coplanarity_rows
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0], [3, 0.5, 0], [1, 2, 0], [2, 2, 0.]])
+    mesh = PolyMesh.from_faces(V, [[0, 1, 2, 3, 4], [2, 5, 3], [4, 3, 7, 6]])
+    tilt = np.array([0.3, -0.2, 0.5])  # a plane through the origin, not horizontal
+    Vp = V.copy()
+    Vp[:, 2] = V @ tilt
+    Q, owner, _ = coplanarity_rows(mesh)
+    assert sorted(set(owner.tolist())) == [0, 2] and np.count_nonzero(owner == 0) == 2
+    for name in ("planarity_volume", "planar"):
+        term = TERMS[name](mesh)
+        assert np.abs(term.linearize(Vp)[0]).max() < 1e-14
+        bent = Vp.copy()
+        bent[1, 2] += 0.05  # the straight corner of the pentagon leaves the plane
+        r, J = term.linearize(bent)
+        assert np.abs(r).max() > 1e-3
+        rc, Jc = _casadi_r_J(term, bent)
+        np.testing.assert_allclose(r, rc, atol=1e-13)
+        np.testing.assert_allclose(J.toarray(), Jc, atol=1e-12)

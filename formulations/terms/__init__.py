@@ -14,20 +14,21 @@ Example
 >>> J.shape, float(r @ r)
 ((12, 6), 18.0)
 >>> sorted(TERMS)
-['fairness', 'hull', 'normal_drift', 'planarity', 'planarity_volume', 'reference', 'vertices']
+['fairness', 'hull', 'normal_drift', 'planar', 'planarity', 'planarity_volume', 'reference', 'vertices']
 """
 from .base import PlaneDistance, Scaled, Sum, Term, TermContext
 from .fairness import Fairness
 from .hull import HullPenalty
 from .normal_drift import NormalDrift
-from .planarity import Planarity, PlanarityVolume
+from .planarity import PlanarFaces, Planarity, PlanarityVolume
 from .reference import TANGENTIAL, ReferenceDistance
 from .vertices import PointDistance
 
 #: Registry of objective terms by name (``--objective NAME=WEIGHT``).
 TERMS: dict[str, type[Term]] = {cls.name: cls for cls in
                                 (ReferenceDistance, PointDistance, NormalDrift, Fairness, Planarity,
-                                 PlanarityVolume, HullPenalty)}
+                                 PlanarityVolume, PlanarFaces, HullPenalty)}
 
 __all__ = ["TERMS", "Term", "TermContext", "Sum", "Scaled", "PlaneDistance", "PointDistance", "ReferenceDistance",
-           "NormalDrift", "Fairness", "Planarity", "PlanarityVolume", "HullPenalty", "TANGENTIAL"]
+           "NormalDrift", "Fairness", "Planarity", "PlanarityVolume", "PlanarFaces", "HullPenalty",
+           "TANGENTIAL"]

@@ -109,12 +109,53 @@ class Planarity(_FaceTerm):
         return r, J
 
 
+def coplanarity_rows(mesh: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows ``(corners (r, 4), face (r,), 1/ℓ_f² (r,))`` that are all zero exactly when every face
+    with four or more corners is planar: per face, a triple ``a, b, c`` of its corners and, for
+    each other corner ``d``, ``det[b − a, c − a, d − a]``. A quad ``v₀v₁v₂v₃`` has the one row
+    ``(v₀, v₁, v₂, v₃)``; a larger polygon the triple of largest area at the mesh's positions
+    (a T-junction's straight corner never makes it degenerate).
+
+    >>> from selfsupport.mesh import PolyMesh
+    >>> m = PolyMesh.from_faces(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0.]]), [[0, 1, 2, 3, 4]])
+    >>> coplanarity_rows(m)[0].tolist()  # (0, 1, 2) is collinear: the triple is (0, 2, 3)
+    [[0, 2, 3, 1], [0, 2, 3, 4]]
+    """
+    V = mesh.vertices
+    sizes = mesh.face_sizes
+    faces = np.flatnonzero(sizes >= 4)
+    ell = _face_lengths(mesh, faces) if faces.size else np.zeros(0)
+    rows, owner, scale = [], [], []
+    for f, lf in zip(faces.tolist(), ell.tolist()):
+        c = list(mesh.faces[f])
+        if len(c) == 4:
+            trip, rest = c[:3], c[3:]
+        else:
+            P = V[c]
+            best, trip = -1.0, c[:3]
+            for i in range(len(c)):
+                for j in range(i + 1, len(c)):
+                    ar = np.linalg.norm(np.cross(P[j] - P[i], P[j + 1:] - P[i]), axis=1) if j + 1 < len(c) else []
+                    if len(ar) and ar.max() > best:
+                        best, trip = float(ar.max()), [c[i], c[j], c[j + 1 + int(np.argmax(ar))]]
+            rest = [v for v in c if v not in trip]
+        for d in rest:
+            rows.append(trip + [d])
+            owner.append(f)
+            scale.append(1.0 / lf ** 2)
+    if not rows:
+        return np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.array(rows, np.int64), np.array(owner, np.int64), np.array(scale)
+
+
 @dataclass(frozen=True, eq=False)
 class PlanarityVolume(_FaceTerm):
-    """Scale-free planarity of quads: ``Σ_f (det[v₁ − v₀, v₂ − v₀, v₃ − v₀] / ℓ_f²)²`` — six
-    times the volume of the quad's tetrahedron over its squared mean edge length ``ℓ_f`` (on
-    ``mesh``), i.e. the distance between the diagonals times their sine: a polynomial, free of
-    the angle sum's ``atan2`` and of its insensitivity near 2π. Faces other than quads are skipped.
+    """Scale-free planarity of polygons with four or more corners: ``Σ (det[b − a, c − a, d − a] / ℓ_f²)²``
+    over the rows of :func:`coplanarity_rows` — for a quad six times the volume of its
+    tetrahedron over its squared mean edge length ``ℓ_f`` (on ``mesh``), i.e. the distance
+    between the diagonals times their sine: a polynomial, free of the angle sum's ``atan2`` and
+    of its insensitivity near 2π (its Jacobian does not vanish at a planar face, so its rows can
+    be held as equality constraints: :class:`~formulations.problem.Planar`). Triangles are skipped.
     Registered as ``"planarity_volume"``.
     """
 
@@ -122,12 +163,8 @@ class PlanarityVolume(_FaceTerm):
 
     @cached_property
     def _data(self) -> tuple[np.ndarray, np.ndarray] | None:
-        m = self.mesh
-        quads = np.flatnonzero(m.face_sizes == 4)
-        if quads.size == 0:
-            return None
-        Q = np.array([m.faces[f] for f in quads], dtype=np.int64)
-        return Q, 1.0 / _face_lengths(m, quads) ** 2
+        Q, _, s = coplanarity_rows(self.mesh)
+        return None if len(Q) == 0 else (Q, s)
 
     def residual_expr(self, X_all):
         if self._data is None:
@@ -153,3 +190,21 @@ class PlanarityVolume(_FaceTerm):
         cols = np.concatenate([(3 * Q[:, j][:, None] + np.arange(3)).ravel() for j in range(4)])
         vals = np.concatenate([(s[:, None] * g).ravel() for g in grads])
         return r, sp.csr_matrix((vals, (rows, cols)), shape=(k, 3 * n))
+
+
+@dataclass(frozen=True, eq=False)
+class PlanarFaces(PlanarityVolume):
+    """The rows of :class:`PlanarityVolume` divided once more by ``ℓ_f``: dimensionless (for a
+    square face twice its :func:`~selfsupport.evidence.face_nonplanarity`), held at zero by the
+    :class:`~formulations.problem.Planar` constraint — equality rows of IPOPT's NLP and of the
+    joint polish, a penalty not relaxed along the staggered path in Step 3.
+    Registered as ``"planar"``.
+    """
+
+    name: ClassVar[str] = "planar"
+    constraint: ClassVar[bool] = True
+
+    @cached_property
+    def _data(self) -> tuple[np.ndarray, np.ndarray] | None:
+        Q, _, s = coplanarity_rows(self.mesh)
+        return None if len(Q) == 0 else (Q, s ** 1.5)

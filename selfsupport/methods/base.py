@@ -112,6 +112,38 @@ def hull_report(problem: Problem, network: Network, thickness: float | None = No
     return None if t is None else hull_excess(problem.scene, network, t, tol=tol)
 
 
+def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | None:
+    """For a problem with the :class:`~formulations.problem.Planar` constraint: the largest and
+    mean quad non-planarity (:func:`~selfsupport.evidence.face_nonplanarity`, distance of the
+    diagonals over the mean edge length), the largest coplanarity row of the polygons with more
+    than four corners (over ``ℓ_f³``: for a square twice its non-planarity), the tolerance and
+    whether it is met; ``None`` without the constraint."""
+    from formulations import Planar
+    from formulations.terms.planarity import coplanarity_rows
+
+    from ..evidence import face_nonplanarity
+
+    planar = problem.constraint(Planar)
+    if planar is None:
+        return None
+    mesh = network.mesh
+    q = face_nonplanarity(mesh)
+    q = q[np.isfinite(q)]
+    Q, owner, _ = coplanarity_rows(mesh)
+    big = mesh.face_sizes[owner] > 4
+    poly = 0.0
+    if big.any():
+        V = mesh.vertices
+        Q = Q[big]
+        ell = np.array([np.linalg.norm(V[np.roll(mesh.faces[f], -1)] - V[mesh.faces[f]], axis=1).mean()
+                        for f in owner[big]])
+        e1, e2, e3 = (V[Q[:, k]] - V[Q[:, 0]] for k in (1, 2, 3))
+        poly = float((np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3))) / ell ** 3).max())
+    qmax = float(q.max()) if q.size else 0.0
+    return {"tol": planar.tol, "max_nonplanarity": qmax, "mean_nonplanarity": float(q.mean()) if q.size else 0.0,
+            "max_polygon_row": poly, "met": bool(qmax <= planar.tol and poly <= 2 * planar.tol)}
+
+
 def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np.ndarray]
                   ) -> tuple[Network, tuple[tuple[str, Network], ...]]:
     """Networks in SI units for scaled positions ``X`` and one scaled weight vector per case:

@@ -329,7 +329,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     rows scaled as in the NLP): the unknowns are the free positions (z only with a fixed top
     view) and, per case, the weights strictly inside their bounds (measured so that the
     step prefers weights, :data:`WEIGHT_STEP_PREFERENCE`: they leave the loads unchanged); weights on a bound and hull
-    rows on the hull's face are held. The loads are re-estimated from the geometry before every
+    rows on the hull's face are held. The problem's planarity rows (``form.planar``) are equations
+    of the same system, counted in the error like relative residuals. The loads are re-estimated from the geometry before every
     step (they lag by one step; the steps are of the size of the residual, so the lag is
     small). ``δ = Jᵀ (J Jᵀ + μ I)⁻¹ (−r)`` with one refinement step; ``μ`` is round-off level
     and only matters where ``J`` is rank deficient.
@@ -364,10 +365,16 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     best = (np.inf, V.copy(), W.copy())
     since, best_before = 0, np.inf
     t_step = 0.0
+    planar = form.planar if form.n_planar else None
+    if planar is not None:
+        free_cols = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
     for k in range(max_iter + 1):
         t0 = time.perf_counter()
         L = loads_at(V)
         err = max_rel_error(top, V, W, L)
+        if planar is not None:  # planarity rows count like relative residuals
+            rp, Jp = planar.linearize(V)
+            err = max(err, float(np.abs(rp).max()))
         if err < best[0]:
             best = (err, V.copy(), W.copy())
         if err <= tol:
@@ -393,6 +400,9 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             JX.append(sp.diags(sr) @ Cx.tocsr()[:, xcols])
             rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
         b_eq = np.concatenate(rhs)
+        if planar is not None:  # equality rows: every face held planar
+            JX.append(Jp.tocsc()[:, free_cols].tocsr()[:, xcols])
+            b_eq = np.concatenate([b_eq, -rp])
         if hull is not None:  # rows of the vertices on the hull's face: held there (or put back)
             h = max(hull.half_thickness, 1e-300)
             sd = hull.signed_distance(V)
@@ -409,6 +419,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             rows = [sp.hstack([JX[c]] + [sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w if j == c
                                          else sp.csr_matrix((JX[c].shape[0], nW[j])) for j in range(C)])
                     for c in range(C)]
+            if planar is not None:
+                rows.append(sp.hstack([JX[C], sp.csr_matrix((JX[C].shape[0], sum(nW)))]))
             if Hr is not None:
                 rows.append(sp.hstack([Hr, sp.csr_matrix((Hr.shape[0], sum(nW)))]))
             J = sp.vstack(rows, format="csr")

@@ -59,15 +59,15 @@ from formulations import (TERMS, PointDistance, Problem, ReferenceDistance, Term
                           WeightBounds)
 from formulations.equilibrium import Topology, position_blocks
 from formulations.scaling import Scaling
-from formulations.terms import HullPenalty, Sum
+from formulations.terms import HullPenalty, PlanarFaces, Sum
 
 from ..errors import InputError
 from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .base import HULL_TOL, as_problem, case_networks, term_values
+from .base import HULL_TOL, as_problem, case_networks, planarity_report, term_values
 from .deadline import out_of_time
-from .polish import HULL_ACTIVE_REL, polish_joint
+from .polish import HULL_ACTIVE_REL, load_colouring, load_jacobian_xyz, polish_joint
 from .polish import max_rel_error as _max_rel_error
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
@@ -389,7 +389,7 @@ class Simultaneous:
                     continue
             if change < LOAD_TOL:
                 message = f"{self.backend} converged; loads consistent with the geometry after {rnd} round(s)"
-                polish = C > 1 or hull is not None or problem.fixed_top_view  # exactness of every case
+                polish = C > 1 or hull is not None or problem.fixed_top_view or form.n_planar > 0  # every row exact
                 break
             stagnating = len(history) > 1 and change > 0.5 * history[-2]["load_change"]
             if change < POLISH_FROM or (stagnating and change < POLISH_ACCEPT):
@@ -409,9 +409,17 @@ class Simultaneous:
             t0 = time.perf_counter()
             Vp, Wp = form.unpack_cases(x)
             L_before = loads_at(Vp)
-            joint = C > 1 or hull is not None or problem.fixed_top_view
+            joint = C > 1 or hull is not None or problem.fixed_top_view or form.n_planar > 0
             if joint:
-                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at, deadline=deadline)
+                free_idx = np.flatnonzero(top.free)
+                colouring = load_colouring(mesh0, top.free) if problem.loads.depends_on_geometry else None
+
+                def load_jacobian(V: np.ndarray, L: np.ndarray) -> list:  # Newton, not a load lag
+                    return [load_jacobian_xyz(m, mesh0, sc, V, L[c], free_idx, colouring)
+                            if m.depends_on_geometry else None for c, m in enumerate(problem.loads.models)]
+
+                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at, load_jacobian=load_jacobian,
+                                                   deadline=deadline)
                 what = f"max relative error {perr:.1e}"
             else:
                 Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc,
@@ -447,6 +455,10 @@ class Simultaneous:
         Vs, Ws = form.unpack_cases(x)
         first, cases = case_networks(problem, sc, Vs, list(Ws))
         lo, up = problem.bounds.active(scene)
+        planarity = planarity_report(problem, first)
+        if planarity is not None and status == "converged" and not planarity["met"]:
+            status, message = "stalled", (f"{message}; but faces are not planar: max non-planarity "
+                                          f"{planarity['max_nonplanarity']:.2e} > {planarity['tol']:g}")
         return SimultaneousRun(SolveResult.build(
             first, cases=cases, terms=term_values(problem, first, default=DEFAULT_OBJECTIVE),
             status=status, method=self.name, backend=self.backend, iterations=iterations,
@@ -457,7 +469,8 @@ class Simultaneous:
                         "objective": named if named is not None else _describe_objective(problem),
                         "problem": problem.describe(), "load_cases": list(problem.loads.names),
                         "warm_start": opts.warm_start is not None, "load_rounds": len(history),
-                        "solver_options": dict(self.options)}), answer)
+                        "solver_options": dict(self.options),
+                        **({"planarity": planarity} if planarity is not None else {})}), answer)
 
     # ------------------------------------------------------------------ formulation
     @staticmethod
@@ -475,12 +488,13 @@ class Simultaneous:
         total = problem.terms(ctx, scaling=sc, default=DEFAULT_OBJECTIVE)
         parts = total.parts() if total is not None else ()
         hull = next((t for t in parts if isinstance(t, HullPenalty)), None) if problem.hull_thickness() else None
-        kept = [t for t in parts if not (hull is not None and t.constraint)]  # the hull is hard here
+        planar = next((t for t in parts if isinstance(t, PlanarFaces)), None)
+        kept = [t for t in parts if not t.constraint]  # the hull and planarity are rows here, not penalties
         objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
         h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
         form = ThrustNetworkProblem(top, sc.pos(start), sp_.L, WeightBounds(sp_.lower, sp_.upper),
                                     objective=objective_term, weight_regularization=WEIGHT_REGULARIZATION,
-                                    weight_scale=1.0 / h ** 2, hull=hull,
+                                    weight_scale=1.0 / h ** 2, hull=hull, planar=planar,
                                     fixed_xy=sp_.X[top.free, :2] if problem.fixed_top_view else None,
                                     case_names=problem.loads.names)
         return form, sc

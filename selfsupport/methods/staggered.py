@@ -93,7 +93,7 @@ import scipy.sparse as sp
 from formulations import LoadCases, Problem, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from formulations.scaling import Scaling
-from formulations.terms import TERMS, HullPenalty, Sum, Term
+from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
 from ..evidence import closest_points
@@ -102,7 +102,7 @@ from ..loads import LoadCase
 from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .base import HULL_TOL, as_problem, case_networks, hull_report, term_values
+from .base import HULL_TOL, as_problem, case_networks, hull_report, planarity_report, term_values
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import load_colouring, load_jacobian_xyz
@@ -289,7 +289,10 @@ class _Run:
         # the hull's penalty term (if any): the joint polish holds its rows on the hull's face
         self.hull = next((t for t in (self.objective.parts() if self.objective is not None else ())
                           if isinstance(t, HullPenalty)), None)
-        self.joint = self.C > 1 or self.fixed_xy or self.hull is not None
+        # the planarity rows (if any): equations of the joint polish, a penalty in Step 3
+        self.planar = next((t for t in (self.objective.parts() if self.objective is not None else ())
+                            if isinstance(t, PlanarFaces)), None)
+        self.joint = self.C > 1 or self.fixed_xy or self.hull is not None or self.planar is not None
         # what Step 3 linearizes: the objective plus the method's own smoothing
         # (the hull is no penalty here but hard bounds, an active set: see position_step)
         smooth = TERMS["fairness"].build(self.ctx, weight=opt.smoothing) if opt.smoothing > 0 else None
@@ -350,7 +353,7 @@ class _Run:
         worst_case = int(np.argmax([r.max() if r.size else 0.0 for r in rels]))
         worst = np.argsort(rels[worst_case])[::-1][:10]
         status = next((s for s in ("time_limit", "inexact") if any(f.status == s for f in fits)), fits[-1].status)
-        return {"L": L, "w": ws, "As": As_all, "E": float(sum(r @ r for r in rels)),
+        return {"L": L, "w": ws, "As": As_all, "X": X, "E": float(sum(r @ r for r in rels)),
                 "max_rel_error": float(max(r.max() for r in rels)),
                 "worst_vertices": [int(v) for v in self.free_idx[worst]],
                 "fit_iterations": int(sum(f.iterations for f in fits)), "fit_status": status,
@@ -368,16 +371,30 @@ class _Run:
         opt = self.opt
         rtol = self.rtol_far if cur["max_rel_error"] > opt.finish_try else None
         trial = self.fit(Xt, cur["w"], rtol=rtol)
-        accepted = trial is not None and trial["E"] < cur["E"]
+        accepted = trial is not None and self.merit(trial) < self.merit(cur)
         if not accepted and trial is not None and trial["fit_status"] == "inexact":
             trial = self.fit(Xt, cur["w"])
-            accepted = trial is not None and trial["E"] < cur["E"]
+            accepted = trial is not None and self.merit(trial) < self.merit(cur)
             rec["confirmed"] = True
             if accepted:
                 self.rtol_far = max(0.1 * self.rtol_far, min(opt.fit_rtol, 1e-6))
         rec["fit_rtol"] = rtol
         rec["trial_fit_status"] = trial["fit_status"] if trial is not None else None
         return trial, accepted
+
+    def merit(self, fit: dict) -> float:
+        """What a step must lower: the fit error ``E``, plus, with planar faces required, their
+        rows' squares weighted as in Step 3's model (``c`` × the penalty, ``c`` the mean squared
+        relative diagonal of the stress Laplacian; see :func:`_position_step`) — else a step
+        towards planar faces, which raises ``E`` a little, is never taken."""
+        if self.planar is None:
+            return fit["E"]
+        if "merit" not in fit:
+            Kff, _ = position_blocks(self.top, fit["w"][0])
+            c = float(np.mean((Kff.diagonal() / np.abs(fit["L"][0][self.free])) ** 2))
+            r = self.planar.linearize(fit["X"])[0]
+            fit["merit"] = fit["E"] + c * self.planar.weight * float(r @ r)
+        return fit["merit"]
 
     # ---------------------------------------------------------------- Step 3
     def position_step(self, X: np.ndarray, cur: dict, alpha: float, beta: float, coupled: bool = False) -> np.ndarray:
@@ -429,7 +446,7 @@ class _Run:
         top = self.top
         h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
         form = ThrustNetworkProblem(top, X, self.loads_at(X), WeightBounds(self.lower, self.upper),
-                                    weight_scale=1.0 / h ** 2, hull=self.hull,
+                                    weight_scale=1.0 / h ** 2, hull=self.hull, planar=self.planar,
                                     fixed_xy=self.X0[self.free, :2] if self.fixed_xy else None)
         ws_ = self.polish_ws
         if "colouring" not in ws_ and self.loads.depends_on_geometry:
@@ -468,9 +485,10 @@ class _Run:
         # (the true distance: the slabs re-anchored at the polished positions)
         inside = self.hull is None or bool(np.all(
             np.abs(self.hull.at(Xp).signed_distance(Xp)) <= self.hull.half_thickness * (1 + HULL_TOL)))
-        ok = (err <= opt.tol and inside and float(d_p.mean()) <= (1 + opt.finish_slack) * float(d_it.mean())
+        planar = self.planar is None or planarity_report(self.problem, self.networks(Xp, ws)[0])["met"]
+        ok = (err <= opt.tol and inside and planar and float(d_p.mean()) <= (1 + opt.finish_slack) * float(d_it.mean())
               and float(d_p.max()) <= (1 + 4 * opt.finish_slack) * float(d_it.max()))
-        info = {"ok": bool(ok), "error": err, "inside_hull": inside,
+        info = {"ok": bool(ok), "error": err, "inside_hull": inside, "planar": planar,
                 "dist_mean_ratio": float(d_p.mean() / max(d_it.mean(), 1e-300)),
                 "dist_max_ratio": float(d_p.max() / max(d_it.max(), 1e-300))}
         return Xp, ws, rounds, info
@@ -517,17 +535,23 @@ class _Run:
                 for it in range(it + 1, opt.max_iter + 1):
                     proj = None  # closest points of X on the reference: computed at most once per iterate
                     rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
-                                           **{k: v for k, v in cur.items() if k not in ("L", "w", "As")}}
+                                           **{k: v for k, v in cur.items() if k not in ("L", "w", "As", "X")}}
                     if retry_errors is not None:
                         retry_errors.append(cur["max_rel_error"])
-                    if cur["max_rel_error"] <= polish_tol or (
+                    # (with planar faces required, the faces must be as near planar as the fit is
+                    # near equilibrium before the joint polish makes both exact)
+                    gap = cur["max_rel_error"]
+                    if self.planar is not None:
+                        rec["planarity_row"] = float(np.abs(self.planar.linearize(X)[0]).max(initial=0.0))
+                        gap = max(gap, rec["planarity_row"])
+                    if gap <= polish_tol or (
                             retry_errors is not None and len(retry_errors) > 5
                             and retry_errors[-1] > 0.5 * retry_errors[-6]):
                         # (during a retry: polish again once the fit stops improving)
                         status = "converged"
                         history.append(rec)
                         break
-                    if (fresh and (cur["max_rel_error"] <= min(opt.finish_try, 0.5 * last_try) or warm_try)
+                    if (fresh and (gap <= min(opt.finish_try, 0.5 * last_try) or warm_try)
                             and cur["fit_status"] not in ("inexact", "time_limit")):
                         # (a trial fitted loosely that landed below finish_try waits one step: the
                         # next fit is exact, and the finish polishes exact weights only)
@@ -549,7 +573,7 @@ class _Run:
                                                        "(degenerate geometry); check the mesh")
                             history.append(rec)
                             continue
-                        last_try = cur["max_rel_error"]  # try again once the fit error has halved
+                        last_try = gap  # try again once the fit error has halved
                     fresh = False
                     released = released + [cur["max_rel_error"]] if alpha <= opt.alpha_min else []
                     if len(released) > opt.stall_window and released[-1] > 0.5 * released[-1 - opt.stall_window]:
@@ -595,7 +619,7 @@ class _Run:
                         self.progress(rec)
                     # Step 4: trust-region style schedule
                     if accepted:
-                        ratio = trial["E"] / cur["E"]
+                        ratio = self.merit(trial) / self.merit(cur)
                         X, cur = Xt, trial
                         fresh = True
                         beta = max(beta * opt.shrink, opt.beta_min)
@@ -682,6 +706,14 @@ class _Run:
         hull = hull_report(self.problem, net)
         if hull is not None:
             params["hull"] = hull
+        planarity = planarity_report(self.problem, net)
+        if planarity is not None:
+            params["planarity"] = planarity
+            if status == "converged" and not planarity["met"]:
+                status, message = "stalled", (
+                    f"in equilibrium, but faces are not planar: max non-planarity {planarity['max_nonplanarity']:.2e} "
+                    f"> {planarity['tol']:g} (diagonal distance over mean edge length); try a larger planarity "
+                    "penalty, or a quad mesh along the relative principal directions (selfsupport pq)")
         return SolveResult.build(
             net, cases=cases, status=status, method=self.method.name, backend=self.method.backend.name,
             iterations=it, wall_time=time.perf_counter() - self.t_start, history=tuple(history), message=message,
