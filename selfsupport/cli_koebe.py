@@ -106,7 +106,7 @@ def run_koebe(args: argparse.Namespace) -> int:
         "grid": grid, "input_reflected": fam.flipped, "load_density": fam.load_density, "loads": fam.loads,
         "phi": fam.phi, "r": fam.r, "K_phi": fam.gauss_curvature,
         "koenigs_tol": args.koenigs_tol, "koenigs_defect": R.dual.koenigs_defect, "dual_closure_residual": R.dual.closure_residual,
-        "partner_vertex_spread": R.vertex_spread, "harmonic_residual": fam.harmonic_residual,
+        "partner_vertex_spread": R.vertex_spread, "partner_polish_change": R.polish_change, "harmonic_residual": fam.harmonic_residual,
         "max_nonplanarity": {"phi": float(np.nanmax(face_nonplanarity(mesh_phi))),
                              "r": float(np.nanmax(face_nonplanarity(mesh_r))),
                              "network": float(np.nanmax(face_nonplanarity(net.mesh)))},

@@ -178,7 +178,8 @@ def test_partner_is_minimal_planar_and_the_only_nonaffine_solution():
     phi = small("inscribed", n=8)
     R = minimal_partner(phi)
     r = R.heights
-    assert R.vertex_spread < 1e-12
+    # R as read off the dual is already harmonic: the final Dirichlet solve only removes round-off
+    assert R.vertex_spread < 1e-12 and R.polish_change < 1e-12
     mesh_r = phi.with_vertices(np.c_[phi.vertices[:, :2], r])
     assert np.nanmax(face_nonplanarity(mesh_r)) < TOL
     w, _ = lifting_weights(phi, phi.vertices[:, 2])
@@ -195,6 +196,22 @@ def test_partner_is_minimal_planar_and_the_only_nonaffine_solution():
     assert s[-4] < 1e-12 * s[0] < s[-5]  # exactly four zero singular values
     null = Vt[-4:].T
     assert np.abs(null @ np.linalg.lstsq(null, r, rcond=None)[0] - r).max() < 1e-10 * np.abs(r).max()
+
+
+def test_a_vertex_on_faces_without_interior_vertices_is_refused():
+    # a quad hung on the boundary of a 3 × 3 grid: no interior vertex of Φ sees it, so Φ* has no
+    # face there and R's heights at its two outer vertices are not determined
+    phi = koebe_mesh(n=4, hole=0, mobius="identity", spacing=1.0, kind="inscribed")
+    V = phi.vertices
+    right = np.flatnonzero(np.isclose(V[:, 0], V[:, 0].max()))[:2]  # two adjacent vertices on the right side
+    new = V[right] + [1.0, 0, 0]
+    new[:, 2] = 0.5 * (new[:, 0] ** 2 + new[:, 1] ** 2)
+    a, b = right[np.argsort(V[right, 1])]
+    n = phi.n_vertices
+    faces = phi.faces + [[int(a), n, n + 1, int(b)]]
+    hung = PolyMesh.from_faces(np.vstack([V, new[np.argsort(V[right, 1])]]), faces)
+    with pytest.raises(Exception, match="faces without an interior vertex"):
+        minimal_partner(hung)
 
 
 # ------------------------------------------------------------------------------ negative controls

@@ -19,7 +19,9 @@ Koenigs net. The pieces, each a small numeric core:
 * :func:`minimal_partner` — R: the Christoffel dual R* of Φ*, polar again. Face ``f`` of R lies in
   the polar plane of R*'s vertex ``f``; R*'s faces are parallel to Φ*'s, so R has Φ's top view,
   and ``Δ_φ r = 0`` is the paper's zero mean curvature (parallel non-corresponding diagonals,
-  its Fig. 4).
+  its Fig. 4). (The caption of the paper's Fig. 15 calls R "Φ's Christoffel dual"; its text, and
+  the shared top view, make it the polar of the dual of the polar.) A final Dirichlet solve from
+  R's boundary heights removes the round-off of integrating R*.
 * :func:`koebe_mesh` — explicit Φ: a square-grid circle pattern (optionally inverted, which gives
   the paper's Enneper example) turned into a PQ mesh either **tangent** to the paraboloid (a
   Koebe mesh: vertex ``v`` at the centre ``c`` of its circle, height ``½(|c|² − ρ²)``; adjacent
@@ -39,11 +41,13 @@ density ``q``. Then ``Σ_j w_ij (s_j − s_i) = −(q/2) (Δ_φ φ + α Δ_φ r)
 ``A*_i = ½ Δ_φ φ(i)`` is the area of vertex i's cell in the reciprocal diagram (the paper's
 ``A_i(Φ, Φ)``), for every α. That is the paper's discrete balance ``2 K_Φ H^rel = F`` with
 ``H^rel = 1`` and ``K_Φ = A*_i / A_i``: a dead load of density ``q K_Φ`` per unit of top-view
-area. "Unit load" means ``q = 1`` and ``K_Φ ≈ 1``, which holds because Φ approximates the
+area. (With Φ's full creases as weights the load density would be ``2 K_Φ`` — the paper's
+"``2 K H^rel ≈ 1``" drops that factor; halving the weights, i.e. taking ½Φ as the Airy surface,
+restores it.) "Unit load" means ``q = 1`` and ``K_Φ ≈ 1``, which holds because Φ approximates the
 Maxwell paraboloid (``det ∇²φ = 1``): *exactly* for the inscribed meshes, whose reciprocal
 cells are the circumcentre (Voronoi) cells of the top view, approximately for tangent ones
 (:attr:`KoebeFamily.gauss_curvature` reports it). Supports are the boundary vertices; their
-load is the top-view quarter-area of their faces (it goes straight into the ground).
+load is ``−q`` times their top-view area (:func:`centre_areas`; it goes straight into the ground).
 
 Example
 -------
@@ -63,13 +67,13 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from ..errors import InputError, MeshError, NotKoenigs
-from ..geometry import face_areas
 from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
 from .airy import face_orientation, face_planes_through, freeze_arrays
 from .construction import lifting_weights
 from .reciprocal import cell_areas, vertex_face_rings
+from .stars import accumulate_along
 
 __all__ = ["ChristoffelDual", "christoffel_dual", "quad_dual_scalars", "PolarMesh", "polar_mesh",
            "MinimalPartner", "minimal_partner", "KoebeFamily", "family", "koebe_mesh", "KOEBE_EXAMPLES",
@@ -216,19 +220,24 @@ def christoffel_dual(mesh: PolyMesh, *, tol: float = 1e-8) -> ChristoffelDual:
     h1, h2 = first[two], second[two]
     f1, f2 = face_of[h1], face_of[h2]
     F = mesh.n_faces
-    # signs: λ_f1 c1 and λ_f2 c2 must have the same sign -> σ_f1 σ_f2 = sign(c1 c2), by a BFS tree
+    # signs: λ_f1 c1 and λ_f2 c2 must have the same sign -> σ_f1 σ_f2 = sign(c1 c2); σ from the
+    # parity of the sign flips along a breadth-first tree of each component of the face graph
     G = sp.csr_matrix((np.ones(len(f1)), (f1, f2)), shape=(F, F))
     G = G + G.T
     sgn_edge = np.sign(c[h1] * c[h2])
-    S = sp.csr_matrix((np.r_[sgn_edge, sgn_edge], (np.r_[f1, f2], np.r_[f2, f1])), shape=(F, F))
-    sigma = np.zeros(F)
-    for root in range(F):
-        if sigma[root]:
-            continue
-        nodes, pred = breadth_first_order(G, root, directed=False)
-        sigma[root] = 1.0
-        for v in nodes[1:]:
-            sigma[v] = sigma[pred[v]] * S[v, pred[v]]
+    _, comp = connected_components(G, directed=False)
+    parent = np.full(F, -1)
+    for root in np.unique(comp, return_index=True)[1]:
+        nodes, pred = breadth_first_order(G, int(root), directed=False)
+        parent[nodes[1:]] = pred[nodes[1:]]
+    a, b = np.minimum(f1, f2), np.maximum(f1, f2)
+    key = a * F + b
+    order = np.argsort(key)
+    child = np.flatnonzero(parent >= 0)
+    tk = np.minimum(child, parent[child]) * F + np.maximum(child, parent[child])
+    flip = np.zeros(F, dtype=np.int64)
+    flip[child] = (sgn_edge[order[np.searchsorted(key[order], tk)]] < 0).astype(np.int64)
+    sigma = np.where(accumulate_along(parent, flip) % 2 == 1, -1.0, 1.0)
     bad = sigma[f1] * sigma[f2] != sgn_edge
     if np.any(bad):
         k = int(np.argmax(bad))
@@ -311,12 +320,14 @@ class MinimalPartner:
     ``dual`` is the Christoffel dual R* of Φ*; ``vertex_spread`` the largest disagreement between
     the face planes of R at a vertex (0 up to round-off: at interior vertices by polarity, at
     boundary vertices because R*'s edges are parallel to Φ*'s), relative to max |r|.
+    ``polish_change``: how far (over max |r|) the final Dirichlet solve moved the interior heights.
     """
 
     heights: np.ndarray
     polar: PolarMesh
     dual: ChristoffelDual
     vertex_spread: float
+    polish_change: float
 
     def __post_init__(self) -> None:
         freeze_arrays(self)
@@ -359,6 +370,9 @@ def minimal_partner(phi: PolyMesh, *, tol: float = 1e-8) -> MinimalPartner:
     r = np.bincount(fv[ok], weights=val, minlength=n) / cnt
     spread = np.zeros(n)
     np.maximum.at(spread, fv[ok], np.abs(val - r[fv[ok]]))
+    r_dual = r
+    r = _harmonic_extension(phi, r)
+    change = float(np.abs(r - r_dual).max())
     A = np.c_[xy, np.ones(n)]
     r = r - A @ np.linalg.lstsq(A, r, rcond=None)[0]
     size = float(np.ptp(phi.vertices[:, 2])) or 1.0
@@ -367,7 +381,30 @@ def minimal_partner(phi: PolyMesh, *, tol: float = 1e-8) -> MinimalPartner:
         raise NotKoenigs("the minimal partner R of this mesh is affine (a plane): the family Φ + αR only tilts Φ")
     k = int(np.argmax(np.abs(r)))
     r = r * (size / rmax) * np.sign(r[k])
-    return MinimalPartner(heights=r, polar=P, dual=D, vertex_spread=float(spread.max()) / rmax)
+    return MinimalPartner(heights=r, polar=P, dual=D, vertex_spread=float(spread.max()) / rmax,
+                          polish_change=change / rmax)
+
+
+def _harmonic_extension(phi: PolyMesh, r: np.ndarray) -> np.ndarray:
+    """``r`` on the boundary, ``Δ_φ r = 0`` inside (one sparse SPD solve with Φ's creases).
+
+    R from the dual is harmonic only up to the round-off of integrating R*'s edges, which the
+    small reciprocal cells of a strongly graded mesh (the inverted grid: cell areas over six
+    decades at 10k vertices) turn into 1e-7 relative load errors; the true R is the harmonic
+    extension of its boundary values, so solving for it removes that round-off.
+    """
+    w, _ = lifting_weights(phi, phi.vertices[:, 2])
+    e = phi.edges
+    n = phi.n_vertices
+    L = sp.csr_matrix((np.r_[w, w, -w, -w], (np.r_[e[:, 0], e[:, 1], e[:, 0], e[:, 1]],
+                                             np.r_[e[:, 1], e[:, 0], e[:, 0], e[:, 1]])), shape=(n, n))
+    inner = ~phi.boundary_vertex_mask
+    if not inner.any():
+        return r
+    out = np.array(r, dtype=float)
+    Lii = -L[inner][:, inner]
+    out[inner] = spd_factor(Lii.tocsc()).solve(L[inner][:, ~inner] @ out[~inner])
+    return out
 
 
 # ------------------------------------------------------------------------------ the family Φ + αR
