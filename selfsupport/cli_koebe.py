@@ -90,8 +90,6 @@ def run_koebe(args: argparse.Namespace) -> int:
     grid = {k: getattr(args, k) for k in ("n", "hole", "spacing", "mobius") if getattr(args, k) is not None}
     if args.mesh is not None and (grid or args.kind != "tangent"):
         raise InputError("--kind, --n, --hole, --spacing and --mobius describe a built-in example; drop them with --mesh")
-    if args.mesh is None and args.up is not None:
-        raise InputError("--up applies to --mesh (and the meshes written with it); drop it for an example")
     source = args.mesh if args.mesh is not None else (args.example or "enneper")
     t0 = time.perf_counter()
     fam = koebe(source, alpha=args.alpha, kind=args.kind, up=up, load_density=args.load_density, loads=args.loads,

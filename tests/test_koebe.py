@@ -308,7 +308,8 @@ def test_cli_koebe_reads_a_dome_file_and_rebuilds_the_same_network(tmp_path, cap
 
 @pytest.mark.parametrize("argv, message", [
     (["--mesh", "M", "--n", "4"], "describe a built-in example"),
-    (["--alpha", "1", "--up", "y"], "--up applies to --mesh"),
+    (["--alpha", "nan"], "alpha must be finite"),
+    (["--up", "w"], "unknown vertical axis"),
     (["--mesh", "NOTKOENIGS"], "not a Koenigs net"),
     (["--phi-out", "OUT"], "name the same file"),
 ])
@@ -343,3 +344,12 @@ def test_koebe_study_recovers_the_alpha_of_a_summed_mesh(tmp_path):
     eq = [row for row in res["equilibrium"] if row["loads"] == "reciprocal"]
     assert max(row["max_rel_error"] for row in eq if not row["mesh"].startswith("published")) < 1e-10
     assert "Φ + αR with α = -0.300000" in report(res, tmp_path / "out")
+
+
+@pytest.mark.parametrize("mobius, hole", [("identity", 0), ("inversion", 2)])
+def test_a_disk_shaped_region_of_the_pattern_gives_a_family_too(mobius, hole):
+    phi = koebe_mesh(n=16, hole=hole, mobius=mobius, region=lambda x, y: x * x + y * y <= 2.2)
+    assert phi.n_vertices < 16 * 16 - hole * hole
+    fam = family(phi, 2.0)
+    assert fam.network.max_relative_error() < 1e-10 and fam.network.min_weight() > 0
+    assert fam.partner.dual.koenigs_defect < 1e-12

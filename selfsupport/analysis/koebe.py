@@ -576,7 +576,8 @@ KINDS = ("tangent", "inscribed")
 
 
 def koebe_mesh(example: str | None = None, *, kind: str = "tangent", n: int | None = None, hole: int | None = None,
-               mobius: str | None = None, spacing: float | None = None) -> PolyMesh:
+               mobius: str | None = None, spacing: float | None = None,
+               region: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> PolyMesh:
     """A planar-quad mesh Φ tangent to (or inscribed in) the Maxwell paraboloid, from a square
     grid of circles.
 
@@ -592,12 +593,17 @@ def koebe_mesh(example: str | None = None, *, kind: str = "tangent", n: int | No
     * ``kind="inscribed"``: the mapped grid point, lifted onto the paraboloid (the four mapped
       corners of a square are concyclic, so the face is planar).
 
+    ``region(x, y) -> bool`` (vectorised, on the grid points *before* the Möbius map) keeps a
+    sub-region: the quads whose four corners it keeps (and then the vertices they use).
+
     Faces run counter-clockwise seen from above (the inversion reverses orientation; the faces are
     flipped back).
 
     >>> m = koebe_mesh(n=4, hole=0, mobius="identity", spacing=1.0, kind="inscribed")
     >>> m.n_vertices, m.n_faces, float(m.vertices[0, 2])
     (16, 9, 2.25)
+    >>> koebe_mesh(n=12, region=lambda x, y: x * x + y * y <= 1.0).n_faces  # a disk of radius 1
+    61
     """
     kw = dict(KOEBE_EXAMPLES[_example(example)]) if example is not None else dict(n=12, hole=0, mobius="identity",
                                                                                     spacing=0.2)
@@ -624,22 +630,29 @@ def koebe_mesh(example: str | None = None, *, kind: str = "tangent", n: int | No
     idx = np.arange(n * n).reshape(n, n)  # idx[j, i]
     keep = np.ones((n, n), dtype=bool)
     keep[lo:hi, lo:hi] = False
+    if region is not None:
+        inside = np.asarray(region(centres[:, 0], centres[:, 1]), dtype=bool)
+        if inside.shape != (n * n,):
+            raise InputError(f"region must return one bool per grid point ({n * n}), got shape {inside.shape}")
+        keep &= inside.reshape(n, n)
+    k = keep.ravel()
+    quads = [[idx[j, i], idx[j, i + 1], idx[j + 1, i + 1], idx[j + 1, i]]
+             for j in range(n - 1) for i in range(n - 1)
+             if k[idx[j, i]] and k[idx[j, i + 1]] and k[idx[j + 1, i + 1]] and k[idx[j + 1, i]]]
+    if not quads:
+        raise InputError("the region keeps no quad of the grid; enlarge it or refine the grid (n, spacing)")
+    used = np.zeros(n * n, dtype=bool)
+    used[np.ravel(quads)] = True
     new = -np.ones(n * n, dtype=np.int64)
-    new[keep.ravel()] = np.arange(int(keep.sum()))
-    quads = []
-    for j in range(n - 1):
-        for i in range(n - 1):
-            q = [idx[j, i], idx[j, i + 1], idx[j + 1, i + 1], idx[j + 1, i]]
-            if all(keep.ravel()[q]):
-                quads.append(new[q])
-    c = centres[keep.ravel()]
+    new[used] = np.arange(int(used.sum()))
+    quads = new[np.array(quads, dtype=np.int64)]
+    c = centres[used]
     if kind == "tangent":
         cm, rho = mob(c, np.full(len(c), h / 2.0))
         z = 0.5 * (np.sum(cm * cm, axis=1) - rho * rho)
     else:
         cm, _ = mob(c, None)
         z = 0.5 * np.sum(cm * cm, axis=1)
-    quads = np.array(quads, dtype=np.int64)
     V = np.c_[cm, z]
     mesh = PolyMesh.from_faces(V, quads)
     sigma, _ = face_orientation(mesh)
