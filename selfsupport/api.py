@@ -41,7 +41,7 @@ from .validate import validate_scene
 from formulations import Problem
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+           "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -583,3 +583,40 @@ def sensitivity(result: Any, parameter: str, *, problem: Problem | None = None) 
     from .methods.sensitivity import sensitivity as _sensitivity
 
     return _sensitivity(result, parameter, problem=problem)
+
+
+# ------------------------------------------------------------------------------ Koebe family
+def koebe(source: PolyMesh | str | os.PathLike = "enneper", *, alpha: float = 1.0, kind: str = "tangent",
+          up: str | None = None, load_density: float = 1.0, loads: str = "reciprocal", koenigs_tol: float = 1e-8,
+          **grid: Any) -> Any:
+    """A member of the paper's §5 family ``Φ + αR`` (Fig. 15) as a thrust network.
+
+    ``source`` is the Koebe mesh Φ: a built-in example name (``selfsupport.analysis.koebe.
+    KOEBE_EXAMPLES``; ``kind`` and the ``grid`` keywords ``n``, ``hole``, ``mobius``, ``spacing``
+    of :func:`~selfsupport.analysis.koebe.koebe_mesh` apply), a mesh file (read with ``up``) or a
+    :class:`PolyMesh`. A dome (the thrust network of α = 0) is reflected into the convex Φ first.
+    ``koenigs_tol`` is the largest Koenigs defect accepted for Φ's polar mesh (rounded files need more).
+    Returns a :class:`~selfsupport.analysis.koebe.KoebeFamily`; its ``network`` is in equilibrium
+    for every α with loads ``−q A*_i`` (see :mod:`selfsupport.analysis.koebe`).
+
+    >>> fam = koebe("enneper", alpha=2.0, n=8, hole=2)
+    >>> fam.network.max_relative_error() < 1e-10
+    True
+    """
+    from .analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
+    from .io import read_mesh
+
+    if isinstance(source, PolyMesh):
+        mesh = source
+    elif isinstance(source, str) and source in KOEBE_EXAMPLES:
+        mesh = koebe_mesh(source, kind=kind, **grid)
+    else:
+        if grid:
+            raise InputError(f"grid keywords {sorted(grid)} only apply to the built-in examples "
+                             f"({', '.join(KOEBE_EXAMPLES)})")
+        if not Path(source).exists():
+            raise InputError(f"{source}: no such file, and not a Koebe example ({', '.join(KOEBE_EXAMPLES)})")
+        mesh = read_mesh(source, up=up)
+    phi, flipped = as_airy(mesh)
+    partner = minimal_partner(phi, tol=koenigs_tol)
+    return replace(family(phi, alpha, partner=partner, load_density=load_density, loads=loads), flipped=flipped)

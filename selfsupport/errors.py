@@ -39,3 +39,8 @@ class InfeasibleDesign(SelfSupportError):
 
 class TooLarge(InputError):
     """The problem would need more memory than the machine (or ``--max-memory``) allows."""
+
+
+class NotKoenigs(MeshError):
+    """A quad mesh has no Christoffel dual (it is not a Koenigs net), so §5's family Φ + αR
+    does not exist for it."""
