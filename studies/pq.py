@@ -1,0 +1,105 @@
+"""Fig. 12 as a study: planar faces on a mesh along the relative principal directions vs a grid.
+
+    python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium]
+        [--spacing 1.0] [--time-limit 300]
+
+For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
+default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
+directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length), each
+solved with planar faces required (:class:`formulations.Planar`, tol 1e-3). Columns: faces, status,
+max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
+of the diagonals / mean edge length) before and after, mean distance to the scene's reference
+(/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
+(its distance to the reference and its non-planarity). Writes ``pq.csv``, ``pq.md`` and the networks.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
+
+COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"),
+           Column("max_rel_error", "max rel. error", "{:.1e}"),
+           Column("start_nonplanar", "non-planarity before (max / mean)"),
+           Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
+           Column("dist_mean", "dist. to reference (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}")]
+
+
+def _nonplanarity(mesh) -> tuple[float, float]:
+    from selfsupport.evidence import face_nonplanarity
+
+    q = face_nonplanarity(mesh)
+    q = q[np.isfinite(q)]
+    return (float(q.max()), float(q.mean())) if q.size else (float("nan"), float("nan"))
+
+
+def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float) -> list[dict[str, Any]]:
+    from formulations import Planar
+    from selfsupport import api
+    from selfsupport.design.remesh import remesh
+    from selfsupport.errors import SelfSupportError
+    from selfsupport.evidence import distance_stats
+    from selfsupport.io import read_mesh, write_network
+    from selfsupport.shapes import make_shape
+
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    for name in only:
+        scene = make_shape("dome", n_vertices=400) if name == "dome" else read_study_scene(scenes / "scenes", name)
+        net = api.solve(scene, time_limit=time_limit).network
+        e = net.mesh.edges
+        h = spacing * float(np.linalg.norm(net.vertices[e[:, 1], :2] - net.vertices[e[:, 0], :2], axis=1).mean())
+        for field in ("principal", "grid"):
+            row: dict[str, Any] = {"scene": name, "mesh": f"remesh {field}"}
+            t0 = time.perf_counter()
+            try:
+                q = remesh(net, spacing=h, field=field)
+                mx, mn = _nonplanarity(q.scene.mesh)
+                res = api.solve(q.scene, constraints=[Planar(tol=1e-3)], time_limit=time_limit)
+            except SelfSupportError as exc:
+                row.update(status=f"failed: {exc}")
+                rows.append(row)
+                continue
+            path = out / f"{name}__{field}.json"
+            write_network(path, res, study={"scene": name, "field": field, "spacing": h})
+            row.update(faces=" ".join(f"{k}:{v}" for k, v in q.face_size_counts.items()), status=res.status,
+                       max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
+                       nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
+                       dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],
+                       time_s=time.perf_counter() - t0)
+            rows.append(row)
+            print(" | ".join(str(row.get(c.key)) for c in COLUMNS), flush=True)
+        pub = scenes / "published" / f"{name}-pq-n.obj"
+        if pub.is_file():
+            m = read_mesh(pub, up="-y")
+            mx, mn = _nonplanarity(m)
+            rows.append({"scene": name, "mesh": "published pq-n", "faces": " ".join(
+                f"{k}:{v}" for k, v in zip(*np.unique(m.face_sizes, return_counts=True))),
+                "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "dist_mean": distance_stats(m.vertices, scene.mesh)[0]})
+    write_csv(out / "pq.csv", rows, COLUMNS)
+    write_markdown(out / "pq.md", "Planar faces: aligned remesh vs grid (paper Fig. 12)",
+                   ["non-planarity: distance between a quad's diagonals / its mean edge length",
+                    "dist.: mean distance of the vertices to the scene's reference surface / bbox diagonal"],
+                   [("", rows, COLUMNS)])
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m studies.pq", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", type=Path, required=True, help="the paper-scenes folder (with scenes/ and published/)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--only", default="dome,vault,lilium", help="scenes (comma-separated; dome is generated)")
+    p.add_argument("--spacing", type=float, default=1.0, help="line spacing / the network's mean top-view edge length")
+    p.add_argument("--time-limit", type=float, default=300.0)
+    a = p.parse_args(argv)
+    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
