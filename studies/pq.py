@@ -4,7 +4,7 @@
         [--spacing 1.0] [--time-limit 300]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
-default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
+scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
 directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length), each
 solved with planar faces required (:class:`formulations.Planar`, tol 1e-3). Columns: faces, status,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
@@ -54,20 +54,23 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
         net = api.solve(scene, time_limit=time_limit).network
         e = net.mesh.edges
         h = spacing * float(np.linalg.norm(net.vertices[e[:, 1], :2] - net.vertices[e[:, 0], :2], axis=1).mean())
-        for field in ("principal", "grid"):
-            row: dict[str, Any] = {"scene": name, "mesh": f"remesh {field}"}
+        fields = ("as is", "principal", "grid") if (scene.mesh.face_sizes == 4).any() else ("principal", "grid")
+        for field in fields:
+            row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}"}
             t0 = time.perf_counter()
             try:
-                q = remesh(net, spacing=h, field=field)
-                mx, mn = _nonplanarity(q.scene.mesh)
-                res = api.solve(q.scene, constraints=[Planar(tol=1e-3)], time_limit=time_limit)
+                q = None if field == "as is" else remesh(net, spacing=h, field=field)
+                todo = scene if q is None else q.scene
+                mx, mn = _nonplanarity(todo.mesh)
+                res = api.solve(todo, constraints=[Planar(tol=1e-3)], time_limit=time_limit)
             except SelfSupportError as exc:
                 row.update(status=f"failed: {exc}")
                 rows.append(row)
                 continue
-            path = out / f"{name}__{field}.json"
+            path = out / f"{name}__{field.replace(' ', '-')}.json"
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
-            row.update(faces=" ".join(f"{k}:{v}" for k, v in q.face_size_counts.items()), status=res.status,
+            sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
+            row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],

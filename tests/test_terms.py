@@ -164,3 +164,16 @@ def test_coplanarity_rows_of_polygons_vanish_exactly_when_planar():
         rc, Jc = _casadi_r_J(term, bent)
         np.testing.assert_allclose(r, rc, atol=1e-13)
         np.testing.assert_allclose(J.toarray(), Jc, atol=1e-12)
+
+
+def test_faces_with_three_fixed_corners_get_no_coplanarity_rows():
+    """Their plane is the supports': a free fourth corner held in it would be pinned there."""
+    from formulations.terms.planarity import coplanarity_rows
+
+    mesh = grid_mesh(3)  # four quads
+    fixed = np.zeros(mesh.n_vertices, bool)
+    corner = next(f for f in mesh.faces if 0 in f)
+    fixed[[v for v in corner if v != corner[2]][:3]] = True
+    _, owner, _ = coplanarity_rows(mesh, fixed)
+    held = [k for k, f in enumerate(mesh.faces) if fixed[list(f)].sum() >= 3]
+    assert len(held) == 1 and held[0] not in owner.tolist() and len(owner) == mesh.n_faces - 1

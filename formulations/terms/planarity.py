@@ -109,12 +109,15 @@ class Planarity(_FaceTerm):
         return r, J
 
 
-def coplanarity_rows(mesh: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def coplanarity_rows(mesh: PolyMesh, fixed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows ``(corners (r, 4), face (r,), 1/ℓ_f² (r,))`` that are all zero exactly when every face
     with four or more corners is planar: per face, a triple ``a, b, c`` of its corners and, for
     each other corner ``d``, ``det[b − a, c − a, d − a]``. A quad ``v₀v₁v₂v₃`` has the one row
     ``(v₀, v₁, v₂, v₃)``; a larger polygon the triple of largest area at the mesh's positions
-    (a T-junction's straight corner never makes it degenerate).
+    (a T-junction's straight corner never makes it degenerate). ``fixed``: a vertex mask (the
+    supports); faces with three or more fixed corners get no rows — their plane is the supports',
+    and a free fourth corner held in it could not carry its load (a quad at a vault's foot would
+    pin its free corner to the ground).
 
     >>> from selfsupport.mesh import PolyMesh
     >>> m = PolyMesh.from_faces(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0.]]), [[0, 1, 2, 3, 4]])
@@ -124,6 +127,10 @@ def coplanarity_rows(mesh: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray
     V = mesh.vertices
     sizes = mesh.face_sizes
     faces = np.flatnonzero(sizes >= 4)
+    if fixed is not None and faces.size:
+        face_of, _, _ = mesh.corner_data
+        n_fixed = np.bincount(face_of, weights=np.asarray(fixed, bool)[mesh.face_vertices], minlength=mesh.n_faces)
+        faces = faces[n_fixed[faces] < 3]
     ell = _face_lengths(mesh, faces) if faces.size else np.zeros(0)
     rows, owner, scale = [], [], []
     for f, lf in zip(faces.tolist(), ell.tolist()):
@@ -203,8 +210,13 @@ class PlanarFaces(PlanarityVolume):
 
     name: ClassVar[str] = "planar"
     constraint: ClassVar[bool] = True
+    free: np.ndarray | None = None  # faces with three or more corners not free get no rows
+
+    @classmethod
+    def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "PlanarFaces":
+        return cls(mesh=ctx.reference, weight=weight, free=ctx.free, **params)
 
     @cached_property
     def _data(self) -> tuple[np.ndarray, np.ndarray] | None:
-        Q, _, s = coplanarity_rows(self.mesh)
+        Q, _, s = coplanarity_rows(self.mesh, None if self.free is None else ~np.asarray(self.free, bool))
         return None if len(Q) == 0 else (Q, s ** 1.5)

@@ -117,7 +117,9 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     mean quad non-planarity (:func:`~selfsupport.evidence.face_nonplanarity`, distance of the
     diagonals over the mean edge length), the largest coplanarity row of the polygons with more
     than four corners (over ``ℓ_f³``: for a square twice its non-planarity), the tolerance and
-    whether it is met; ``None`` without the constraint."""
+    whether it is met; ``None`` without the constraint. Faces with three or more supported
+    corners are not counted (their plane is the supports'; see
+    :func:`~formulations.terms.planarity.coplanarity_rows`)."""
     from formulations import Planar
     from formulations.terms.planarity import coplanarity_rows
 
@@ -127,9 +129,12 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     if planar is None:
         return None
     mesh = network.mesh
+    sup = np.asarray(network.supports, bool)
+    face_of, _, _ = mesh.corner_data  # (faces with three supported corners are the supports' own plane)
+    held = np.bincount(face_of, weights=sup[mesh.face_vertices], minlength=mesh.n_faces) >= 3
     q = face_nonplanarity(mesh)
-    q = q[np.isfinite(q)]
-    Q, owner, _ = coplanarity_rows(mesh)
+    q = q[np.isfinite(q) & ~held]
+    Q, owner, _ = coplanarity_rows(mesh, sup)
     big = mesh.face_sizes[owner] > 4
     poly = 0.0
     if big.any():
