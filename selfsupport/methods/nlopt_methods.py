@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 from scipy.sparse.linalg import splu
 
-from formulations import Hull, Problem, ThrustNetworkProblem
+from formulations import Hull, Planar, Problem, ThrustNetworkProblem
 
 from ..errors import BackendUnavailable, InputError
 from formulations.equilibrium import position_blocks, weight_matrix
@@ -84,10 +84,11 @@ class NloptSimultaneous(Simultaneous):
 
     def _check_problem(self, problem: Problem) -> None:
         """Refuse what this backend cannot state: several load cases, the hull's inequality rows,
-        a fixed top view (the reduced formulation computes x, y from the weights); and problems
+        planar faces, a fixed top view (the reduced formulation computes x, y from the weights); and problems
         above :data:`MAX_FREE_VERTICES` (:class:`BackendUnavailable`)."""
         for unsupported, what in ((len(problem.loads) > 1, f"{len(problem.loads)} load cases"),
                                   (problem.constraint(Hull) is not None, "the masonry-hull constraint"),
+                                  (problem.constraint(Planar) is not None, "the planar-faces constraint"),
                                   (problem.fixed_top_view, "a fixed top view")):
             if unsupported:
                 raise InputError(f"the nlopt backend does not support {what}; use the IPOPT method "
