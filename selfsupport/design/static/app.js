@@ -1,0 +1,227 @@
+// The design page: tools, sliders and the WebSocket to the selfsupport design server.
+// Every edit goes to the server at once; frames come back when the background solve ends,
+// so the page never waits. window.ssDesign exposes the page's state and actions (for tests
+// and the browser console).
+import { airyLayout, airyTraces, networkLayout, networkTraces, reciprocalLayout, reciprocalTraces } from './view.js';
+
+const $ = (id) => document.getElementById(id);
+const ui = { tool: 'orbit', handles: [], cut: [], showHull: true };
+const st = { frame: null, analysis: null, state: null, seq: 0, sentAt: new Map(), latency: [], errors: [],
+  frames: 0, messages: [], drawn: 0, saved: [] };
+let ws = null, plotted = false;
+
+// ------------------------------------------------------------------------- connection
+function connect() {
+  const token = new URLSearchParams(location.search).get('token') || '';
+  ws = new WebSocket(`ws://${location.host}/ws?token=${encodeURIComponent(token)}`);
+  ws.onopen = () => { $('conn').textContent = 'connected'; };
+  ws.onclose = () => { $('conn').textContent = 'disconnected (reload the page)'; };
+  ws.onmessage = (ev) => receive(JSON.parse(ev.data));
+}
+
+function send(msg) {
+  if (!ws || ws.readyState !== WebSocket.OPEN) { showError('not connected'); return false; }
+  ws.send(JSON.stringify(msg));
+  return true;
+}
+
+function sendEdit(edit, drag = null) {
+  if (send({ type: 'edit', edit, drag })) st.pending = performance.now();
+}
+
+function receive(m) {
+  st.messages.push(m.type);
+  if (st.messages.length > 50) st.messages.shift();
+  switch (m.type) {
+    case 'state':
+      st.state = m; st.seq = m.seq;
+      if (st.pending !== undefined) { st.sentAt.set(m.seq, st.pending); st.pending = undefined; }
+      $('undo').disabled = !m.can_undo; $('redo').disabled = !m.can_redo;
+      break;
+    case 'solving': setSolve(`solving #${m.seq}…`, true); break;
+    case 'progress': $('iter').textContent = `it ${m.iteration}` + (m.error != null ? `, err ${m.error.toExponential(1)}` : ''); break;
+    case 'cancelled': if (m.what === 'probe') $('probe').textContent = 'probe cancelled (the design changed)'; break;
+    case 'frame': onFrame(m); break;
+    case 'analysis': st.analysis = m; draw(); break;
+    case 'error': showError(`${m.what || ''}: ${m.message}`); if (m.what === 'solve') setSolve(`#${m.seq} failed`, false); break;
+    case 'probing': $('probe').textContent = `probing vertex ${m.vertex}…`; break;
+    case 'probe_step': $('probe').textContent = `probe v${m.vertex}: ${Math.round(m.kg)} kg ${m.found ? 'stands' : 'no network'}`; break;
+    case 'probe':
+      st.probe = m;
+      $('probe').textContent = m.kg == null ? `vertex ${m.vertex}: not even the self-weight is certified`
+        : `vertex ${m.vertex}: max extra load ≈ ${Math.round(m.kg)} kg` + (m.upper_kg != null ? ` (fails at ${Math.round(m.upper_kg)})` : ' (cap reached)');
+      break;
+    case 'saved': st.saved.push(m); showError(''); $('solve').textContent = `saved ${m.paths.join(', ')}`; break;
+  }
+}
+
+function onFrame(m) {
+  st.frame = m; st.frames++;
+  const t0 = st.sentAt.get(m.seq);
+  if (t0 !== undefined) {
+    st.latency.push(performance.now() - t0);
+    for (const k of st.sentAt.keys()) if (k <= m.seq) st.sentAt.delete(k);
+  }
+  const stale = m.seq < st.seq ? ` (an edit #${st.seq} is on its way)` : '';
+  setSolve(`#${m.seq} ${m.status}, ${m.iterations} it${m.warm ? ' (warm)' : ''}, ` +
+    `max rel. error ${m.max_rel_error == null ? 'n/a' : m.max_rel_error.toExponential(1)}, ` +
+    `${m.n_vertices} V${stale}`, m.seq < st.seq);
+  $('iter').textContent = `solve ${(m.wall_time * 1000).toFixed(0)} ms`;
+  if (st.latency.length) $('latency').textContent = `edit→frame ${st.latency[st.latency.length - 1].toFixed(0)} ms`;
+  syncSliders(m.design);
+  draw();
+}
+
+function setSolve(text, busy) { const s = $('solve'); s.textContent = text; s.classList.toggle('busy', !!busy); }
+function showError(text) { $('error').textContent = text; if (text) st.errors.push(text); }
+
+// ---------------------------------------------------------------------------- drawing
+function draw() {
+  const f = st.frame;
+  if (!f) return;
+  const a = st.analysis && st.analysis.seq === f.seq ? st.analysis : null;
+  const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges`;
+  Plotly.react('net', networkTraces(f, a, ui), networkLayout(title), { displaylogo: false, responsive: true });
+  if (a) {
+    Plotly.react('airy', airyTraces(f, a), airyLayout(a.airy_error && `Airy surface: ${a.airy_error}`), { displaylogo: false, responsive: true });
+    Plotly.react('recip', reciprocalTraces(a), reciprocalLayout(), { displaylogo: false, responsive: true });
+  }
+  if (!plotted) { plotted = true; $('net').on('plotly_click', onClick); }
+  st.drawn = f.seq;
+}
+
+// ------------------------------------------------------------------------------ tools
+function onClick(ev) {
+  const p = ev.points && ev.points.find((q) => q.customdata !== undefined && q.data && q.data.type === 'scatter3d');
+  if (p) pick(Number(p.customdata));
+}
+
+/** What a click on vertex i does with the current tool. */
+function pick(i) {
+  const f = st.frame;
+  if (!f) return;
+  const sel = { vertices: [i] };
+  switch (ui.tool) {
+    case 'pin': sendEdit({ op: f.supports.includes(i) ? 'unpin' : 'pin', select: sel }); break;
+    case 'handle': {
+      const k = ui.handles.indexOf(i);
+      if (k >= 0) ui.handles.splice(k, 1); else ui.handles.push(i);
+      draw(); break;
+    }
+    case 'pillar': sendEdit({ op: 'pillar', select: sel, roi_rings: Number($('rings').value) }); break;
+    case 'cut': ui.cut.push(i); draw(); break;
+    case 'probe': send({ type: 'probe', vertex: i }); break;
+  }
+}
+
+function setTool(t) {
+  ui.tool = t;
+  document.querySelector(`input[name=tool][value=${t}]`).checked = true;
+  $('dragpad').hidden = t !== 'drag';
+}
+
+// a drag on the pad moves the handles in the view's screen plane (height only: vertically;
+// top view only: on the ground plane), by the bounding box's diagonal per ~60% of the view
+function dragOffset(dx, dy) {
+  const f = st.frame, R = f.reference.vertices;
+  let lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+  for (let k = 0; k < R.length; k++) { lo[k % 3] = Math.min(lo[k % 3], R[k]); hi[k % 3] = Math.max(hi[k % 3], R[k]); }
+  const diag = Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+  const box = $('net').getBoundingClientRect();
+  const s = diag / (0.6 * Math.min(box.width, box.height));
+  const mode = $('mode').value;
+  if (mode === 'height') return [0, 0, -dy * s];
+  const gd = $('net'), eye = (gd._fullLayout && gd._fullLayout.scene.camera.eye) || { x: 1, y: -1, z: 1 };
+  const d = norm([-eye.x, -eye.y, -eye.z]), right = norm(cross(d, [0, 0, 1])), up = cross(right, d);
+  if (mode === 'top_view') {
+    const fw = norm([d[0], d[1], 0]);
+    return [s * (dx * right[0] - dy * fw[0]), s * (dx * right[1] - dy * fw[1]), 0];
+  }
+  return [0, 1, 2].map((k) => s * (dx * right[k] - dy * up[k]));
+}
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const norm = (v) => { const n = Math.hypot(...v) || 1; return v.map((x) => x / n); };
+
+function moveEdit(offset) {
+  return { op: 'move', select: { vertices: [...ui.handles] }, offset, mode: $('mode').value, roi_rings: Number($('rings').value) };
+}
+
+let drag = null;
+function dragStart(ev) {
+  if (!ui.handles.length) { showError('drag: pick handle vertices first (tool "pick handles")'); return; }
+  drag = { id: `d${Date.now()}${Math.random().toString(36).slice(2, 6)}`, x: ev.clientX, y: ev.clientY, last: 0, moved: false };
+  $('dragpad').setPointerCapture(ev.pointerId);
+}
+function dragMove(ev, final = false) {
+  if (!drag) return;
+  const now = performance.now();
+  if (!final && now - drag.last < 50) return; // the server coalesces solves; 20 steps a second are plenty
+  const dx = ev.clientX - drag.x, dy = ev.clientY - drag.y;
+  if (!dx && !dy) return;
+  drag.last = now; drag.moved = true;
+  sendEdit(moveEdit(dragOffset(dx, dy)), drag.id);
+}
+function dragEnd(ev) {
+  if (!drag) return;
+  dragMove(ev, true);
+  if (drag.moved) send({ type: 'drag_end' });
+  drag = null;
+}
+
+// ---------------------------------------------------------------------------- sliders
+const SLIDERS = {
+  density: { get: (d) => d.density, edit: (v) => ({ op: 'material', density: v }), fmt: (v) => v.toFixed(0) },
+  thickness: { get: (d) => d.thickness, edit: (v) => ({ op: 'material', thickness: v }), fmt: (v) => v.toFixed(2) },
+  // w_max on a log scale: 0 is "no bound", else 10^v N/m
+  w_max: { get: (d) => (d.w_max ? Math.log10(d.w_max) : 0), edit: (v) => ({ op: 'material', w_max: v <= 0 ? 0 : 10 ** v }),
+    fmt: (v) => (v <= 0 ? 'none' : (10 ** v).toPrecision(2)) },
+  planarity: { get: (d) => d.objective.planarity || 0, edit: (v) => ({ op: 'objective', weights: { planarity: v } }), fmt: (v) => v.toFixed(1) },
+  fairness: { get: (d) => d.objective.fairness || 0, edit: (v) => ({ op: 'objective', weights: { fairness: v } }), fmt: (v) => v.toFixed(1) },
+};
+function syncSliders(d) {
+  for (const [id, s] of Object.entries(SLIDERS)) {
+    const el = $(id);
+    if (document.activeElement !== el) el.value = s.get(d);
+    el.nextElementSibling.textContent = s.fmt(Number(el.value));
+  }
+}
+
+// ------------------------------------------------------------------------------- wiring
+function wire() {
+  document.querySelectorAll('input[name=tool]').forEach((r) => r.addEventListener('change', () => setTool(r.value)));
+  $('undo').onclick = () => send({ type: 'undo' });
+  $('redo').onclick = () => send({ type: 'redo' });
+  $('clear-handles').onclick = () => { ui.handles = []; draw(); };
+  $('clear-cut').onclick = () => { ui.cut = []; draw(); };
+  $('apply-cut').onclick = () => {
+    if (ui.cut.length < 2) { showError('cut: pick at least two vertices with the cut tool'); return; }
+    const R = st.frame.reference.vertices;
+    sendEdit({ op: 'cut', path: ui.cut.map((i) => [R[3 * i], R[3 * i + 1]]), support: $('cut-support').checked });
+    ui.cut = [];
+  };
+  $('add-mass').onclick = () => {
+    if (!ui.handles.length) { showError('extra mass: pick handle vertices first'); return; }
+    sendEdit({ op: 'load', select: { vertices: [...ui.handles] }, extra_mass: Number($('extra-mass').value) });
+  };
+  for (const [id, s] of Object.entries(SLIDERS)) {
+    const el = $(id);
+    el.addEventListener('input', () => { el.nextElementSibling.textContent = s.fmt(Number(el.value)); });
+    el.addEventListener('change', () => sendEdit(s.edit(Number(el.value))));
+  }
+  document.querySelectorAll('[data-save]').forEach((b) => b.addEventListener('click',
+    () => send({ type: 'save', what: b.dataset.save, path: $('save-name').value })));
+  const pad = $('dragpad');
+  pad.addEventListener('pointerdown', dragStart);
+  pad.addEventListener('pointermove', (ev) => dragMove(ev));
+  pad.addEventListener('pointerup', dragEnd);
+  pad.addEventListener('pointercancel', dragEnd);
+  document.addEventListener('keydown', (ev) => {
+    if (!(ev.ctrlKey || ev.metaKey) || ev.target.tagName === 'INPUT') return;
+    if (ev.key === 'z' && !ev.shiftKey) { send({ type: 'undo' }); ev.preventDefault(); }
+    if (ev.key === 'y' || (ev.key === 'z' && ev.shiftKey)) { send({ type: 'redo' }); ev.preventDefault(); }
+  });
+}
+
+window.ssDesign = { ui, st, pick, setTool, send, sendEdit, dragOffset };
+wire();
+connect();
