@@ -32,6 +32,7 @@ import asyncio
 import hmac
 import json
 import secrets
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -97,6 +98,7 @@ class DesignServer:
     last_frame: dict | None = None
     last_analysis: dict | None = None
     worker: SolveWorker | None = None
+    _t_received: float = 0.0
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
@@ -135,6 +137,7 @@ class DesignServer:
         """Act on one message from a page; the replies to send to that page."""
         kind = msg.get("type")
         log = self.log
+        self._t_received = time.perf_counter()
         if kind == "edit":
             edit = edit_from_dict(dict(msg.get("edit") or {}))
             drag = msg.get("drag")
@@ -164,7 +167,7 @@ class DesignServer:
         raise InputError(f"unknown message type {kind!r}")
 
     def _resolve(self) -> None:
-        self.worker.submit(self.log.seq, self.log.design)
+        self.worker.submit(self.log.seq, self.log.design, t0=self._t_received)
 
     def save(self, what: str, name: Any) -> dict:
         """Write the edit script, the scene, the network or the figures below :attr:`root`."""
@@ -345,6 +348,7 @@ def bind_loopback(port: int = 0) -> Any:
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     try:
         sock.bind(("127.0.0.1", int(port)))
+        sock.listen(128)  # the printed URL works at once (connections wait for the server)
     except OSError as e:
         sock.close()
         raise InputError(f"cannot listen on 127.0.0.1:{port} ({e.strerror}); choose another --port") from None

@@ -207,6 +207,7 @@ class _Job:
     design: Design
     kind: str = "solve"  # or "probe"
     args: Mapping[str, Any] | None = None
+    t0: float | None = None  # when the change was received (perf_counter), for the frame's latency
 
 
 class SolveWorker:
@@ -240,14 +241,20 @@ class SolveWorker:
         self._probe: _Job | None = None
         self._cv = threading.Condition()
         self._closed = False
+        # the analysis panels have their own thread: the next edit's solve does not wait for them
+        self._analysis_job: tuple | None = None
+        self._acv = threading.Condition()
         self._thread = threading.Thread(target=self._run, name="selfsupport-solver", daemon=True)
         self._thread.start()
+        self._athread = threading.Thread(target=self._run_analysis, name="selfsupport-analysis", daemon=True)
+        self._athread.start()
 
-    def submit(self, seq: int, design: Design) -> None:
+    def submit(self, seq: int, design: Design, *, t0: float | None = None) -> None:
         """Solve ``design`` (change number ``seq``) next; an older request still waiting is dropped
-        and a running one stops at its next iteration."""
+        and a running one stops at its next iteration. ``t0``: when the change was received
+        (``time.perf_counter()``; default now), the start of the frame's ``latency_s``."""
         with self._cv:
-            self._pending = _Job(seq, design)
+            self._pending = _Job(seq, design, t0=time.perf_counter() if t0 is None else t0)
             self._cv.notify_all()
 
     def probe(self, seq: int, design: Design, vertex: int, **kw: Any) -> None:
@@ -262,7 +269,10 @@ class SolveWorker:
         with self._cv:
             self._closed = True
             self._cv.notify_all()
+        with self._acv:
+            self._acv.notify_all()
         self._thread.join(timeout)
+        self._athread.join(timeout)
 
     # -- thread ---------------------------------------------------------------------------
     def _newer(self, seq: int) -> bool:
@@ -297,7 +307,7 @@ class SolveWorker:
         from ..methods.warm import WarmStart
         from ..validate import validate_scene
 
-        t0 = time.perf_counter()
+        t0 = job.t0 if job.t0 is not None else time.perf_counter()
         design = job.design
         validate_scene(design.scene)  # unusable input: one clear message, no solve
         self.emit({"type": "solving", "seq": job.seq})
@@ -315,10 +325,27 @@ class SolveWorker:
         self.last, self.last_seq = res, job.seq
         frame = frame_payload(res, design, seq=job.seq)
         frame["latency_s"] = time.perf_counter() - t0
-        frame["warm"] = ws is not None
+        frame["warm"] = bool((res.parameters.get("warm_start") or {}).get("used"))
         self.emit(frame)
-        if self.analysis and not self._newer(job.seq):
-            self.emit(analysis_payload(res.network, design, seq=job.seq))
+        if self.analysis:
+            with self._acv:
+                self._analysis_job = (job.seq, res.network, design)
+                self._acv.notify_all()
+
+    def _run_analysis(self) -> None:
+        while True:
+            with self._acv:
+                while not self._closed and self._analysis_job is None:
+                    self._acv.wait()
+                if self._closed:
+                    return
+                (seq, net, design), self._analysis_job = self._analysis_job, None
+            if self._newer(seq):
+                continue  # a newer design is on its way: its frame brings its own analysis
+            try:
+                self.emit(analysis_payload(net, design, seq=seq))
+            except Exception as e:  # noqa: BLE001 - the panels are optional; the frame is out already
+                self.emit({"type": "error", "seq": seq, "what": "analysis", "message": f"{type(e).__name__}: {e}"})
 
     def _run_probe(self, job: _Job) -> None:
         from ..stability import max_load

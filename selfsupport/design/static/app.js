@@ -83,8 +83,9 @@ function draw() {
   const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges`;
   Plotly.react('net', networkTraces(f, a, ui), networkLayout(title), { displaylogo: false, responsive: true });
   if (a) {
-    Plotly.react('airy', airyTraces(f, a), airyLayout(a.airy_error && `Airy surface: ${a.airy_error}`), { displaylogo: false, responsive: true });
-    Plotly.react('recip', reciprocalTraces(a), reciprocalLayout(), { displaylogo: false, responsive: true });
+    // (no mode bars on the small panels: they would cover the panel titles)
+    Plotly.react('airy', airyTraces(f, a), airyLayout(a.airy_error && `Airy surface: ${a.airy_error}`), { displayModeBar: false, responsive: true });
+    Plotly.react('recip', reciprocalTraces(a), reciprocalLayout(), { displayModeBar: false, responsive: true });
   }
   if (!plotted) { plotted = true; $('net').on('plotly_click', onClick); }
   st.drawn = f.seq;
@@ -121,14 +122,14 @@ function setTool(t) {
 }
 
 // a drag on the pad moves the handles in the view's screen plane (height only: vertically;
-// top view only: on the ground plane), by the bounding box's diagonal per ~60% of the view
+// top view only: on the ground plane), by the bounding box's diagonal per the view's smaller side
 function dragOffset(dx, dy) {
   const f = st.frame, R = f.reference.vertices;
   let lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
   for (let k = 0; k < R.length; k++) { lo[k % 3] = Math.min(lo[k % 3], R[k]); hi[k % 3] = Math.max(hi[k % 3], R[k]); }
   const diag = Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
   const box = $('net').getBoundingClientRect();
-  const s = diag / (0.6 * Math.min(box.width, box.height));
+  const s = diag / Math.min(box.width, box.height);
   const mode = $('mode').value;
   if (mode === 'height') return [0, 0, -dy * s];
   const gd = $('net'), eye = (gd._fullLayout && gd._fullLayout.scene.camera.eye) || { x: 1, y: -1, z: 1 };

@@ -54,7 +54,7 @@ export function networkTraces(frame, analysis, ui) {
   // hull band: the reference ± t/2 along its normals (the masonry's extent)
   for (const side of ['upper', 'lower']) {
     const H = analysis && analysis.hull && analysis.seq === frame.seq ? xyz(analysis.hull[side]) : { x: [], y: [], z: [] };
-    traces.push({ type: 'mesh3d', name: `hull band (${side})`, ...H, ...(H.x.length ? T : { i: [], j: [], k: [] }),
+    traces.push({ type: 'mesh3d', name: side === 'upper' ? 'hull band (reference ± t/2)' : 'hull band (lower)', ...H, ...(H.x.length ? T : { i: [], j: [], k: [] }),
       color: '#c9a36b', opacity: 0.12, hoverinfo: 'skip', showlegend: side === 'upper', legendgroup: 'hull',
       visible: ui.showHull ? true : 'legendonly' });
   }
