@@ -85,6 +85,20 @@ def _shot(drv, name, tmp_path) -> Path:
     return p
 
 
+def _click_vertex(drv, i: int) -> None:
+    """A real mouse click where the page draws vertex ``i`` (its position from the page's camera)."""
+    from selenium.webdriver.common.actions.action_builder import ActionBuilder
+
+    x, y, _ = drv.execute_script("return ssDesign.screenOf(arguments[0])", i)
+    ab = ActionBuilder(drv)
+    ab.pointer_action.move_to_location(int(round(x)), int(round(y)))
+    ab.pointer_action.pause(0.1)
+    ab.pointer_action.pointer_down()
+    ab.pointer_action.pause(0.1)
+    ab.pointer_action.pointer_up()
+    ab.perform()
+
+
 def _coloured(p: Path) -> float:
     import matplotlib.image as mpimg
 
@@ -106,17 +120,24 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     shots = [_shot(drv, "1-start", tmp_path)]
     assert _coloured(shots[0]) > 0.003, "no network in force colours on the page"
 
-    # pin a free vertex (the pin tool's click action)
+    # pin a free vertex on the crown, away from the middle: tool button, then a real click on it
     V0 = np.reshape(f0["vertices"], (-1, 3))
     free = np.setdiff1d(np.arange(len(V0)), f0["supports"])
-    v = int(free[len(free) // 3])
-    drv.execute_script("ssDesign.setTool('pin'); ssDesign.pick(arguments[0]);", v)
+    h = int(free[np.argmin(np.linalg.norm(V0[free, :2] - V0[:, :2].mean(0), axis=1))])
+    far = free[np.linalg.norm(V0[free, :2] - V0[h, :2], axis=1) > 2.0]
+    v = int(far[np.argmax(V0[far, 2])])
+    drv.find_element(By.CSS_SELECTOR, "input[name=tool][value=pin]").click()
+    _click_vertex(drv, v)
     f1 = _wait(drv, FRAME.format(seq=1), what="the frame after pinning")
     assert v in f1["supports"]
+    assert drv.execute_script("return ssDesign.st.state.n_edits") == 1  # one click, one edit
 
-    # pick a handle near the middle and drag it up with the mouse (height-only mode)
-    h = int(free[np.argmin(np.linalg.norm(V0[free, :2] - V0[:, :2].mean(0), axis=1))])
-    drv.execute_script("ssDesign.setTool('handle'); ssDesign.pick(arguments[0]); ssDesign.setTool('drag');", h)
+    # pick the middle vertex as the handle (a click with the handle tool) and drag it up with the
+    # mouse (height-only mode)
+    drv.find_element(By.CSS_SELECTOR, "input[name=tool][value=handle]").click()
+    _click_vertex(drv, h)
+    _wait(drv, f"return ssDesign.ui.handles.length === 1 && ssDesign.ui.handles[0] === {h}", what="the handle pick")
+    drv.find_element(By.CSS_SELECTOR, "input[name=tool][value=drag]").click()
     pad = drv.find_element(By.ID, "dragpad")
     chain = ActionChains(drv, duration=30).move_to_element(pad).click_and_hold()
     for _ in range(8):

@@ -201,6 +201,7 @@ def _rss_mb(pid: int | None = None) -> float:
     return psutil.Process(pid).memory_info().rss / 2**20
 
 
+@pytest.mark.slow  # 5-11 s; the browser test already takes most of this module's share of the fast suite
 def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
     """A scripted client sends 200 edits in a row (drag steps, pins, material changes) over a real
     loopback socket without waiting for frames. Every edit is in the log (and in the saved

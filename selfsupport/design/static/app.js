@@ -87,14 +87,47 @@ function draw() {
     Plotly.react('airy', airyTraces(f, a), airyLayout(a.airy_error && `Airy surface: ${a.airy_error}`), { displayModeBar: false, responsive: true });
     Plotly.react('recip', reciprocalTraces(a), reciprocalLayout(), { displayModeBar: false, responsive: true });
   }
-  if (!plotted) { plotted = true; $('net').on('plotly_click', onClick); }
+  if (!plotted) {
+    plotted = true;
+    // a click (press and release within a few pixels) picks the vertex nearest the pointer
+    const net = $('net');
+    net.addEventListener('pointerdown', (ev) => { press = { x: ev.clientX, y: ev.clientY, t: performance.now() }; }, true);
+    net.addEventListener('pointerup', (ev) => {
+      if (press && Math.hypot(ev.clientX - press.x, ev.clientY - press.y) < 6 && performance.now() - press.t < 800) {
+        const i = nearestVertex(ev.clientX, ev.clientY);
+        if (i >= 0) pick(i);
+      }
+      press = null;
+    }, true);
+  }
   st.drawn = f.seq;
 }
 
 // ------------------------------------------------------------------------------ tools
-function onClick(ev) {
-  const p = ev.points && ev.points.find((q) => q.customdata !== undefined && q.data && q.data.type === 'scatter3d');
-  if (p) pick(Number(p.customdata));
+let press = null;
+const PICK_TOOLS = new Set(['pin', 'handle', 'pillar', 'cut', 'probe']);
+
+/** Screen position (client pixels) and depth of vertex i, from plotly's own camera: its model,
+ *  view and projection matrices applied to the scene's scaled coordinates (plotly's 3D picking
+ *  reads a pick buffer in which the thick force lines hide the vertex markers; this does not). */
+function screenOf(i) {
+  const f = st.frame, sc = $('net')._fullLayout.scene._scene;
+  const cp = sc.glplot.cameraParams, ds = sc.dataScale, r = sc.container.getBoundingClientRect();
+  const mul = (m, v) => [0, 1, 2, 3].map((k) => m[k] * v[0] + m[4 + k] * v[1] + m[8 + k] * v[2] + m[12 + k] * v[3]);
+  const v = mul(cp.projection, mul(cp.view, mul(cp.model,
+    [f.vertices[3 * i] * ds[0], f.vertices[3 * i + 1] * ds[1], f.vertices[3 * i + 2] * ds[2], 1])));
+  return [r.left + (v[0] / v[3] + 1) / 2 * r.width, r.top + (1 - v[1] / v[3]) / 2 * r.height, v[2] / v[3]];
+}
+
+/** The vertex drawn within 10 px of (x, y), the front one where several are; -1: none. */
+function nearestVertex(x, y) {
+  if (!st.frame || !PICK_TOOLS.has(ui.tool)) return -1;
+  let best = -1, bestKey = Infinity;
+  for (let i = 0; i < st.frame.n_vertices; i++) {
+    const [sx, sy, depth] = screenOf(i), d = Math.hypot(sx - x, sy - y);
+    if (d < 10 && depth + d * 1e-3 < bestKey) { best = i; bestKey = depth + d * 1e-3; }
+  }
+  return best;
 }
 
 /** What a click on vertex i does with the current tool. */
@@ -223,6 +256,6 @@ function wire() {
   });
 }
 
-window.ssDesign = { ui, st, pick, setTool, send, sendEdit, dragOffset };
+window.ssDesign = { ui, st, pick, setTool, send, sendEdit, dragOffset, screenOf, nearestVertex };
 wire();
 connect();
