@@ -351,3 +351,54 @@ def test_a_saved_script_opens_where_it_stopped(tmp_path):
     again = open_session(str(tmp_path / "s.toml"))
     assert np.array_equal(again.design.scene.supports, log.design.scene.supports)
     assert again.script().dumps() == log.script().dumps()
+
+
+def test_an_edit_cancels_a_running_probe(served):
+    client, token, srv, _ = served
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        f0 = _until(ws, lambda m: m["type"] == "frame")
+        v = int(np.setdiff1d(np.arange(f0["n_vertices"]), f0["supports"])[0])
+        ws.send_json({"type": "probe", "vertex": v})
+        _until(ws, lambda m: m["type"] == "probing")
+        ws.send_json({"type": "edit", "edit": {"op": "material", "density": 2100.0}})
+        got = _until(ws, lambda m: (m["type"] == "cancelled" and m["what"] == "probe") or m["type"] == "probe")
+        assert got["type"] == "cancelled"  # the probe referred to the design before the edit
+        f1 = _until(ws, lambda m: m["type"] == "frame" and m["seq"] == 1)
+        assert f1["design"]["density"] == 2100.0
+
+
+@pytest.mark.slow
+def test_the_stability_probe_is_max_load(served):
+    """The page's probe is :func:`selfsupport.stability.max_load` at the picked vertex."""
+    from selfsupport.stability import max_load
+
+    client, token, srv, _ = served
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        f0 = _until(ws, lambda m: m["type"] == "frame")
+        v = int(np.setdiff1d(np.arange(f0["n_vertices"]), f0["supports"])[0])
+        ws.send_json({"type": "probe", "vertex": v})
+        p = _until(ws, lambda m: m["type"] in ("probe", "error"), limit=2000)
+    assert p["type"] == "probe" and p["kg"] is not None and p["upper_kg"] > p["kg"], p
+    d = srv.log.design
+    direct = max_load(d.scene, thickness=d.thickness, density=d.density, at=[v],
+                      options={**srv.log.solve, "time_limit": 20.0}, rel_tol=0.1)
+    assert (direct.kg, direct.upper_kg) == (p["kg"], p["upper_kg"])
+
+
+def test_save_scene_and_figures(served):
+    from selfsupport.io import read_scene
+
+    client, token, srv, root = served
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        _until(ws, lambda m: m["type"] == "frame")
+        ws.send_json({"type": "save", "what": "scene", "path": "out/scene"})
+        m = _until(ws, lambda m: m["type"] in ("saved", "error"))
+        assert m["paths"] == ["out/scene.sss"], m
+        ws.send_json({"type": "save", "what": "figures", "path": "fig"})
+        m = _until(ws, lambda m: m["type"] in ("saved", "error"))
+        assert m["type"] == "saved" and m["paths"][0] == "fig-network.png", m
+    back = read_scene(root / "out" / "scene.sss")
+    assert np.allclose(back.mesh.vertices, srv.log.design.scene.mesh.vertices, atol=1e-9)
+    assert np.array_equal(back.supports, srv.log.design.scene.supports)
+    for p in m["paths"]:
+        assert (root / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -238,6 +238,7 @@ class SolveWorker:
         self.last = None  # the last network found (the next warm start)
         self.last_seq = -1
         self._pending: _Job | None = None
+        self._submitted = -1  # the newest seq submitted
         self._probe: _Job | None = None
         self._cv = threading.Condition()
         self._closed = False
@@ -254,6 +255,9 @@ class SolveWorker:
         and a running one stops at its next iteration. ``t0``: when the change was received
         (``time.perf_counter()``; default now), the start of the frame's ``latency_s``."""
         with self._cv:
+            if seq < self._submitted:  # two pages' edits raced: an older design never replaces a newer one
+                return
+            self._submitted = seq
             self._pending = _Job(seq, design, t0=time.perf_counter() if t0 is None else t0)
             self._cv.notify_all()
 
