@@ -195,10 +195,10 @@ def test_edit_undo_save_over_the_websocket(served):
 
 
 # ------------------------------------------------------------------------------ load test
-def _rss_mb(pid: int | None = None) -> float:
-    import psutil
+def _rss_mb() -> float:
+    from studies.common import current_rss_mib
 
-    return psutil.Process(pid).memory_info().rss / 2**20
+    return current_rss_mib()
 
 
 @pytest.mark.slow  # 5-11 s; the browser test already takes most of this module's share of the fast suite
@@ -253,7 +253,7 @@ def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
                 if k % 10 == 9:
                     await ws.send(json.dumps({"type": "drag_end"}))
                 await asyncio.sleep(0.005)
-                if k == 20 or k == 199:
+                if k == 100 or k == 199:
                     rss.append(_rss_mb())
             final_seq = None
             t0 = time.time()
@@ -277,7 +277,7 @@ def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
     drags = {s["drag"] for s in sent if s["drag"] is not None}
     assert state["n_edits"] == len(drags) + sum(s["drag"] is None for s in sent)
     assert frame["seq"] == 200 and frame["status"] == "converged"
-    rss.append(_rss_mb())
+    rss.append(_rss_mb())  # after the last frame
     # the saved script replays to the same design; its fresh (cold) solve matches the last frame
     from selfsupport.design.edits import Design
     from selfsupport.design.script import EditScript
@@ -306,12 +306,13 @@ def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
     assert np.allclose(loads, fresh.network.loads, atol=2e-3, rtol=1e-6)
     # warm and cold solves of one design may end in different local optima (README: warm vs cold);
     # after 200 warm steps the network is still the fresh one to 1% of the diagonal
-    print(f"\nload test: last frame vs fresh solve {gap:.2e} of the diagonal; RSS at edit 20 / 200 / end: "
+    print(f"\nload test: last frame vs fresh solve {gap:.2e} of the diagonal; RSS at edit 100 / 200 / end: "
           f"{', '.join(f'{r:.0f}' for r in rss)} MiB")
     assert gap < 1e-2, gap
     srv.stop()
-    # memory: flat from the 20th edit to the end (the designs kept are bounded; frames are not kept)
-    assert rss[-1] - rss[0] < 60, rss
+    # memory: flat over the second hundred edits (the designs kept are bounded, frames are not kept;
+    # 1,000 edits measured 131 -> 133 MiB); the end includes the fresh solve above
+    assert rss[1] - rss[0] < 10, rss
 
 
 @pytest.mark.parametrize("argv, needle", [
@@ -402,3 +403,13 @@ def test_save_scene_and_figures(served):
     assert np.array_equal(back.supports, srv.log.design.scene.supports)
     for p in m["paths"]:
         assert (root / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_latency_study_runs(tmp_path):
+    from studies.design_latency import run
+
+    rows = run("shape:dome:60", steps=2, step=0.001, root=tmp_path)
+    kinds = [r["interaction"] for r in rows if "median_ms" in r]
+    assert kinds == ["drag (height)", "drag (full)", "drag (top view)", "pin / unpin", "density"]
+    for r in rows[:-1]:
+        assert 0 < r["solve_ms"] <= r["server_ms"] <= r["median_ms"] and r["iterations"] >= 1, r
