@@ -184,6 +184,13 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     assert drv.execute_script("return ssDesign.st.state.can_redo") is True
     shots.append(_shot(drv, "4-reloaded", tmp_path))
 
+    # every panel drew (plotly writes this message where a WebGL context was refused, e.g. by the
+    # page's content security policy)
+    assert "WebGL is not supported" not in drv.page_source
+    drawn = drv.execute_script("return ['net', 'airy', 'recip'].map((id) => { const gd = document.getElementById(id); "
+                               "return gd._fullData ? gd._fullData.length : 0; })")
+    assert all(n > 0 for n in drawn), drawn
+    assert drv.execute_script("return document.querySelectorAll('#recip .scatterlayer path.js-line').length") > 0
     errors = drv.execute_script("return ssDesign.st.errors")
     assert errors == [], errors
     severe = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]

@@ -352,6 +352,25 @@ def test_a_saved_script_opens_where_it_stopped(tmp_path):
     again = open_session(str(tmp_path / "s.toml"))
     assert np.array_equal(again.design.scene.supports, log.design.scene.supports)
     assert again.script().dumps() == log.script().dumps()
+    # and `selfsupport edit` replays it: its last stage is the session's design, in equilibrium
+    from selfsupport.design.script import EditScript, replay
+
+    stages = replay(EditScript.read(tmp_path / "s.toml"))
+    assert np.array_equal(stages[-1].design.scene.supports, log.design.scene.supports)
+    assert stages[-1].result.status == "converged"
+
+
+def test_a_design_that_cannot_be_solved_says_why(served):
+    """Unpinning every support: the solve is refused with a message; the page keeps its last frame."""
+    client, token, srv, _ = served
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        f0 = _until(ws, lambda m: m["type"] == "frame")
+        ws.send_json({"type": "edit", "edit": {"op": "unpin", "select": {"vertices": f0["supports"]}}})
+        err = _until(ws, lambda m: m["type"] == "error")
+        assert err["what"] == "solve" and err["seq"] == 1 and "support" in err["message"].lower(), err
+        ws.send_json({"type": "undo"})
+        f2 = _until(ws, lambda m: m["type"] == "frame")
+        assert f2["seq"] == 2 and f2["supports"] == f0["supports"]
 
 
 def test_an_edit_cancels_a_running_probe(served):

@@ -335,7 +335,7 @@ def create_app(server: DesignServer, token: str, *, port: int | None = None) -> 
 
 
 #: The page loads scripts and styles from this server only and connects to it only.
-_CSP = ("default-src 'none'; script-src 'self' 'unsafe-eval'; style-src 'self' 'unsafe-inline'; "
+_CSP = ("default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
         "img-src 'self' data: blob:; connect-src 'self'; worker-src blob:; font-src 'self' data:; "
         "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
 

@@ -109,7 +109,7 @@ export function reciprocalTraces(analysis) {
   if (!analysis || !analysis.reciprocal) return [];
   const s = analysis.reciprocal.segments, x = [], y = [];
   for (let k = 0; k < s.length; k += 4) { x.push(s[k], s[k + 2], null); y.push(s[k + 1], s[k + 3], null); }
-  return [{ type: 'scattergl', mode: 'lines', x, y, line: { color: '#1f3b73', width: 1 }, hoverinfo: 'skip',
+  return [{ type: 'scatter', mode: 'lines', x, y, line: { color: '#1f3b73', width: 1 }, hoverinfo: 'skip',
     name: 'reciprocal diagram' }];
 }
 
