@@ -60,7 +60,7 @@ STATIC_FILES: dict[str, tuple[Any, str]] = {
     "style.css": (lambda: _STATIC / "style.css", "text/css"),
     "plotly.min.js": (_plotly_js, "text/javascript"),
 }
-#: What ``save`` writes: name -> (default suffix, writer method of DesignServer)
+#: What ``save`` writes: name -> the file suffix (added when the name lacks it)
 SAVE_KINDS: dict[str, str] = {"script": ".toml", "scene": ".sss", "network": ".json", "figures": ".png"}
 
 
@@ -160,7 +160,9 @@ class DesignServer:
             d = log.design
             if not 0 <= v < d.scene.mesh.n_vertices:
                 raise InputError(f"probe: vertex {v} is outside 0..{d.scene.mesh.n_vertices - 1}")
-            self.worker.probe(log.seq, d, v, time_limit=float(msg.get("time_limit", 20.0)))
+            # each hull solve of the bisection within 1-120 s (the probe's own limit, not the page's)
+            limit = min(max(float(msg.get("time_limit", 20.0)), 1.0), 120.0)
+            self.worker.probe(log.seq, d, v, time_limit=limit)
             return []
         if kind == "save":
             return [self.save(str(msg.get("what", "")), msg.get("path"))]

@@ -56,6 +56,8 @@ function receive(m) {
 }
 
 function onFrame(m) {
+  // a cut, hole or subdivision renumbers the vertices: picks made before refer to others now
+  if (st.frame && m.n_vertices !== st.frame.n_vertices) { ui.handles = []; ui.cut = []; }
   st.frame = m; st.frames++;
   const t0 = st.sentAt.get(m.seq);
   if (t0 !== undefined) {
