@@ -304,11 +304,22 @@ def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
     gap = float(np.abs(V - fresh.network.vertices).max()) / diag
     loads = np.asarray(frame["loads"])
     assert np.allclose(loads, fresh.network.loads, atol=2e-3, rtol=1e-6)
-    # warm and cold solves of one design may end in different local optima (README: warm vs cold);
-    # after 200 warm steps the network is still the fresh one to 1% of the diagonal
-    print(f"\nload test: last frame vs fresh solve {gap:.2e} of the diagonal; RSS at edit 100 / 200 / end: "
-          f"{', '.join(f'{r:.0f}' for r in rss)} MiB")
-    assert gap < 1e-2, gap
+    # and `selfsupport edit`'s replay of the saved script (a warm solve after every edit)
+    from selfsupport.design.script import replay
+
+    stages = replay(script)
+    assert stages[-1].result.status == "converged"
+    assert np.array_equal(stages[-1].design.scene.mesh.vertices, d.scene.mesh.vertices)
+    gap_replay = float(np.abs(V - stages[-1].result.network.vertices).max()) / diag
+    print(f"\nload test: {len(stages)} stages; last frame vs fresh cold solve {gap:.2e}, vs the script's replay "
+          f"{gap_replay:.2e} of the diagonal; mean distance to the reference: frame {frame['distance_mean']:.4g} m, "
+          f"cold {fresh.distance_mean:.4g} m, replay {stages[-1].result.distance_mean:.4g} m; "
+          f"RSS at edit 100 / 200 / end: {', '.join(f'{r:.0f}' for r in rss)} MiB")
+    # the last frame is the fresh (cold) solve's network (measured 4e-8 of the diagonal apart). The
+    # replay warm-starts each stage from the one before, a different path: a network of the same
+    # design in equilibrium, but not necessarily the same local optimum (README: warm vs cold; measured
+    # 6e-3 of the diagonal apart here), so only its design and its equilibrium are asserted
+    assert gap < 1e-4, gap
     srv.stop()
     # memory: flat over the second hundred edits (the designs kept are bounded, frames are not kept;
     # 1,000 edits measured 131 -> 133 MiB); the end includes the fresh solve above
