@@ -13,6 +13,12 @@ the previous frame has arrived (a user dragging no faster than the tool answers)
 * ``pin / unpin`` — alternately pinning and freeing a free vertex;
 * ``density`` — the density slider moved by 1% each time.
 
+``--browser`` adds rows measured in the page itself, in headless Chromium (Debian's chromium and
+chromium-driver, through Selenium): from the page sending a drag step to the new frame drawn
+(``Plotly.react`` done and the next animation frame), the way a user sees it, with the time the
+frame reached the page and the time ``Plotly.react`` took. Headless Chromium draws WebGL in
+software (SwiftShader), on the same CPUs as the solver: a pessimistic figure for a desktop.
+
 Columns: median and 90th percentile of the end-to-end latency (send → frame parsed by the
 client), of the solve alone (the frame's ``wall_time``) and of the server's time from receiving
 the edit to the frame's payload built (the edit, the solve, the payload); iterations (median)
@@ -106,7 +112,68 @@ async def _bench(url: str, origin: str, steps: int, step: float) -> list[dict]:
     return rows
 
 
-def run(scene: str, *, steps: int = 30, step: float = 0.001, root: Path | None = None) -> list[dict]:
+#: The page's side of ``--browser``: drag steps sent by the page, each when the previous one is drawn.
+_PAGE_BENCH = """
+const [h, steps, d, mode, done] = arguments;
+(async () => {
+  const S = window.ssDesign, out = [], drawn = [], recv = [];
+  const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+  for (let k = 1; k <= steps; k++) {
+    const before = S.st.state.seq, t0 = performance.now();
+    S.sendEdit({op: 'move', select: {vertices: [h]}, offset: mode === 'height' ? [0, 0, d * k] : [0.6 * d * k, 0, 0.8 * d * k],
+                mode}, 'bench-' + mode);
+    while (!(S.st.state.seq > before && S.st.drawn >= S.st.state.seq)) await sleep(1);
+    await new Promise((r) => requestAnimationFrame(() => r()));
+    out.push(performance.now() - t0);
+    drawn.push(S.st.drawMs.net);
+    recv.push(S.st.latency[S.st.latency.length - 1]);
+  }
+  S.send({type: 'drag_end'});
+  S.send({type: 'undo'});
+  done([out, drawn, recv]);
+})();
+"""
+
+
+def _browser_rows(url: str, steps: int, step: float) -> list[dict]:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = "/usr/bin/chromium"
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--window-size=1500,950",
+              "--disable-dev-shm-usage", "--no-first-run", "--proxy-server=http://127.0.0.1:9"):
+        opts.add_argument(a)
+    drv = webdriver.Chrome(service=Service(executable_path="/usr/bin/chromedriver"), options=opts)
+    try:
+        drv.set_script_timeout(600)
+        drv.get(url)
+        t0 = time.time()
+        while not drv.execute_script("return !!(window.ssDesign && ssDesign.st.frame && ssDesign.st.drawn >= 0 "
+                                     "&& ssDesign.st.state)"):
+            if time.time() - t0 > 120:
+                raise RuntimeError("the page did not draw its first frame within 120 s")
+            time.sleep(0.1)
+        f = drv.execute_script("return ssDesign.st.frame")
+        V = np.reshape(f["vertices"], (-1, 3))
+        free = np.setdiff1d(np.arange(len(V)), f["supports"])
+        mid = 0.5 * (V[:, :2].min(0) + V[:, :2].max(0))
+        h = int(free[np.argmin(np.linalg.norm(V[free, :2] - mid, axis=1))])
+        d = step * float(np.linalg.norm(np.ptp(V, axis=0)))
+        rows = []
+        for mode in ("height", "full"):
+            ms, draw_ms, recv_ms = drv.execute_async_script(_PAGE_BENCH, h, steps, d, mode)
+            m, p90 = _stats(ms)
+            rows.append({"interaction": f"page: drag ({mode}), drawn", "median_ms": m, "p90_ms": p90,
+                         "draw_ms": _stats(draw_ms), "recv_ms": _stats(recv_ms)})
+            time.sleep(1.0)  # the undo's frame
+        return rows
+    finally:
+        drv.quit()
+
+
+def run(scene: str, *, steps: int = 30, step: float = 0.001, root: Path | None = None,
+        browser: bool = False) -> list[dict]:
     """Start a server on ``scene`` and measure (see the module docstring)."""
     from selfsupport.cli_design import open_session
     from selfsupport.design.server import DesignServer, bind_loopback, create_app, new_token, serve
@@ -119,7 +186,10 @@ def run(scene: str, *, steps: int = 30, step: float = 0.001, root: Path | None =
     app = create_app(srv, token, port=port)
     threading.Thread(target=serve, args=(app, sock), daemon=True).start()
     try:
-        return asyncio.run(_bench(f"ws://127.0.0.1:{port}/ws?token={token}", f"http://127.0.0.1:{port}", steps, step))
+        rows = asyncio.run(_bench(f"ws://127.0.0.1:{port}/ws?token={token}", f"http://127.0.0.1:{port}", steps, step))
+        if browser:
+            rows[-1:-1] = _browser_rows(f"http://127.0.0.1:{port}/?token={token}", steps, step)
+        return rows
     finally:
         srv.stop()
 
@@ -130,9 +200,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--scenes", default=None, help="the paper's scenes folder: use its lilium.sss (1,201 vertices)")
     p.add_argument("--steps", type=int, default=30)
     p.add_argument("--step", type=float, default=0.001, help="drag step, fraction of the bounding-box diagonal")
+    p.add_argument("--browser", action="store_true", help="also measure in the page (headless Chromium, drawn frames)")
     a = p.parse_args(argv)
     scene = a.scene or (str(Path(a.scenes) / "lilium.sss") if a.scenes else "shape:pillar_vault:1200")
-    rows = run(scene, steps=a.steps, step=a.step)
+    rows = run(scene, steps=a.steps, step=a.step, browser=a.browser)
     import os
 
     print(f"design latency: {scene}, {a.steps} edits per row, each sent when the previous frame arrived; "
@@ -142,6 +213,11 @@ def main(argv: list[str] | None = None) -> None:
     for r in rows:
         if "median_ms" not in r:
             print(f"| {r['interaction']} | | | | | | |")
+            continue
+        if "solve_ms" not in r:
+            (dm, dp), (rm, rp) = r["draw_ms"], r["recv_ms"]
+            print(f"| {r['interaction']} | {r['median_ms']:.0f} | {r['p90_ms']:.0f} | frame received {rm:.0f} ({rp:.0f}) "
+                  f"| Plotly.react {dm:.0f} ({dp:.0f}) | | |")
             continue
         print(f"| {r['interaction']:<16} | {r['median_ms']:.0f} | {r['p90_ms']:.0f} | {r['solve_ms']:.0f} "
               f"({r['solve_p90_ms']:.0f}) | {r['server_ms']:.0f} ({r['server_p90_ms']:.0f}) | {r['iterations']:.0f} | "

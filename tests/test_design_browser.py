@@ -116,7 +116,8 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     drv.get(url)
     f0 = _wait(drv, FRAME.format(seq=0), what="the first frame")
     assert f0["status"] == "converged"
-    _wait(drv, "return ssDesign.st.analysis && ssDesign.st.analysis.airy", what="the Airy panel")
+    _wait(drv, "return ssDesign.st.analysis && ssDesign.st.analysis.airy && !!document.getElementById('recip')._fullData",
+          what="the Airy and reciprocal panels")
     shots = [_shot(drv, "1-start", tmp_path)]
     assert _coloured(shots[0]) > 0.003, "no network in force colours on the page"
 
@@ -179,6 +180,7 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     # reload: the session lives on in the server
     drv.refresh()
     f4 = _wait(drv, FRAME.format(seq=seq_drag + 1), what="the frame after reload")
+    _wait(drv, "return !!document.getElementById('recip')._fullData", what="the panels after reload")
     assert v in f4["supports"]
     assert drv.execute_script("return ssDesign.st.state.n_edits") == 1
     assert drv.execute_script("return ssDesign.st.state.can_redo") is True

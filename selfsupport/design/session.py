@@ -13,8 +13,8 @@ a web page); it has no web code and is usable on its own.
   :class:`Superseded`); requests that arrive during a solve are coalesced to the newest one.
   The page never waits on it: results come back through a callback.
 * :func:`frame_payload` / :func:`analysis_payload` — what is streamed to the page: the network
-  coloured by force, the reference, the hull band (reference ± t/2 along the normals), the Airy
-  surface and the reciprocal diagram.
+  coloured by force, the reference and the material (the page draws the hull band, reference
+  ± t/2, from them), the Airy surface and the reciprocal diagram.
 
 Example
 -------
@@ -217,8 +217,8 @@ class SolveWorker:
     ----------
     emit
         Called from the worker thread with every message: ``{"type": "frame", ...}`` (a solved
-        network, :func:`frame_payload`), ``"analysis"`` (Airy surface, reciprocal diagram, hull
-        band), ``"progress"`` (iteration count), ``"error"``, ``"probe"`` (stability probe).
+        network, :func:`frame_payload`), ``"analysis"`` (Airy surface, reciprocal diagram, from a
+        thread of its own), ``"progress"`` (iteration count), ``"error"``, ``"probe"`` (stability probe).
     options
         Options of the staggered method (:data:`SOLVE_DEFAULTS` first).
     analysis
@@ -422,16 +422,12 @@ def design_summary(design: Design) -> dict[str, Any]:
 
 
 def analysis_payload(network: Any, design: Design, *, seq: int) -> dict[str, Any]:
-    """Hull band (reference ± t/2 along the vertex normals), Airy surface φ [N·m] per vertex
-    and the reciprocal diagram's segments; a part that cannot be computed says why."""
+    """Airy surface φ [N·m] per vertex and the reciprocal diagram's segments [N] of ``network``;
+    when they cannot be computed, why. (The hull band, reference ± t/2 along the normals, is drawn
+    by the page from the frame's reference.)"""
     from ..figures.render import airy_of, reciprocal_segments
-    from ..geometry import vertex_normals
 
-    ref = design.scene.mesh
-    nrm = vertex_normals(ref)
-    half = 0.5 * design.thickness
-    out: dict[str, Any] = {"type": "analysis", "seq": seq,
-                           "hull": {"upper": _flat(ref.vertices + half * nrm), "lower": _flat(ref.vertices - half * nrm)}}
+    out: dict[str, Any] = {"type": "analysis", "seq": seq}
     try:
         a = airy_of(network)
         out["airy"] = {"phi": _flat(a.phi, 3)}

@@ -42,7 +42,7 @@ function receive(m) {
     case 'progress': $('iter').textContent = `it ${m.iteration}` + (m.error != null ? `, err ${m.error.toExponential(1)}` : ''); break;
     case 'cancelled': if (m.what === 'probe') $('probe').textContent = 'probe cancelled (the design changed)'; break;
     case 'frame': onFrame(m); break;
-    case 'analysis': st.analysis = m; draw(); break;
+    case 'analysis': st.analysis = m; scheduleDraw('side'); break;
     case 'error': showError(`${m.what || ''}: ${m.message}`); if (m.what === 'solve') setSolve(`#${m.seq} failed`, false); break;
     case 'probing': $('probe').textContent = `probing vertex ${m.vertex}…`; break;
     case 'probe_step': $('probe').textContent = `probe v${m.vertex}: ${Math.round(m.kg)} kg ${m.found ? 'stands' : 'no network'}`; break;
@@ -71,24 +71,56 @@ function onFrame(m) {
   $('iter').textContent = `solve ${(m.wall_time * 1000).toFixed(0)} ms`;
   if (st.latency.length) $('latency').textContent = `edit→frame ${st.latency[st.latency.length - 1].toFixed(0)} ms`;
   syncSliders(m.design);
-  draw();
+  scheduleDraw('net');
 }
 
 function setSolve(text, busy) { const s = $('solve'); s.textContent = text; s.classList.toggle('busy', !!busy); }
 function showError(text) { $('error').textContent = text; if (text) st.errors.push(text); }
 
 // ---------------------------------------------------------------------------- drawing
+// Drawing is coalesced into animation frames: a frame that arrives while an older one waits to be
+// drawn replaces it, so a slow display never queues up stale pictures. The analysis panels are
+// drawn when the edits pause (no edit waiting for its frame for SIDE_DELAY ms): while dragging,
+// the page's time goes to the network view (the panels took 0.2-0.5 s a draw in headless Chromium).
+const SIDE_DELAY = 250;
+const dirty = { net: false, side: false };
+let drawScheduled = false, sideTimer = null;
+const editInFlight = () => st.pending !== undefined || (st.state && st.frame && st.frame.seq < st.state.seq);
+function scheduleDraw(what) {
+  if (what === 'side') {  // (an analysis of an older frame than the one shown is never drawn: see draw)
+    clearTimeout(sideTimer);
+    sideTimer = setTimeout(function fire() {
+      if (editInFlight()) { sideTimer = setTimeout(fire, SIDE_DELAY); return; }
+      sideTimer = null; dirty.side = true; requestDraw();
+    }, SIDE_DELAY);
+    return;
+  }
+  dirty[what] = true;
+  requestDraw();
+}
+function requestDraw() {
+  if (!drawScheduled) { drawScheduled = true; requestAnimationFrame(draw); }
+}
+
 function draw() {
+  drawScheduled = false;
   const f = st.frame;
   if (!f) return;
   const a = st.analysis && st.analysis.seq === f.seq ? st.analysis : null;
-  const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges`;
-  Plotly.react('net', networkTraces(f, a, ui), networkLayout(title), { displaylogo: false, responsive: true });
-  if (a) {
+  const t0 = performance.now();
+  if (dirty.net) {
+    const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges`;
+    Plotly.react('net', networkTraces(f, ui), networkLayout(title), { displaylogo: false, responsive: true });
+    dirty.net = false;
+  }
+  const t1 = performance.now();
+  if (dirty.side && a) {
     // (no mode bars on the small panels: they would cover the panel titles)
     Plotly.react('airy', airyTraces(f, a), airyLayout(a.airy_error && `Airy surface: ${a.airy_error}`), { displayModeBar: false, responsive: true });
     Plotly.react('recip', reciprocalTraces(a), reciprocalLayout(), { displayModeBar: false, responsive: true });
+    dirty.side = false;
   }
+  st.drawMs = { net: t1 - t0, side: performance.now() - t1 };
   if (!plotted) {
     plotted = true;
     // a click (press and release within a few pixels) picks the vertex nearest the pointer
@@ -142,10 +174,10 @@ function pick(i) {
     case 'handle': {
       const k = ui.handles.indexOf(i);
       if (k >= 0) ui.handles.splice(k, 1); else ui.handles.push(i);
-      draw(); break;
+      scheduleDraw('net'); break;
     }
     case 'pillar': sendEdit({ op: 'pillar', select: sel, roi_rings: Number($('rings').value) }); break;
-    case 'cut': ui.cut.push(i); draw(); break;
+    case 'cut': ui.cut.push(i); scheduleDraw('net'); break;
     case 'probe': send({ type: 'probe', vertex: i }); break;
   }
 }
@@ -227,8 +259,8 @@ function wire() {
   document.querySelectorAll('input[name=tool]').forEach((r) => r.addEventListener('change', () => setTool(r.value)));
   $('undo').onclick = () => send({ type: 'undo' });
   $('redo').onclick = () => send({ type: 'redo' });
-  $('clear-handles').onclick = () => { ui.handles = []; draw(); };
-  $('clear-cut').onclick = () => { ui.cut = []; draw(); };
+  $('clear-handles').onclick = () => { ui.handles = []; scheduleDraw('net'); };
+  $('clear-cut').onclick = () => { ui.cut = []; scheduleDraw('net'); };
   $('apply-cut').onclick = () => {
     if (ui.cut.length < 2) { showError('cut: pick at least two vertices with the cut tool'); return; }
     const R = st.frame.reference.vertices;

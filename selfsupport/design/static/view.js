@@ -45,19 +45,39 @@ export function forceRange(frame) {
   return hi > 0 ? [lo, hi] : [0, 1];
 }
 
+/** Area-weighted vertex normals of a triangle mesh (flat arrays), unit length. */
+function vertexNormals(V, T) {
+  const N = new Float64Array(V.length);
+  for (let t = 0; t < T.length; t += 3) {
+    const a = 3 * T[t], b = 3 * T[t + 1], c = 3 * T[t + 2];
+    const u = [V[b] - V[a], V[b + 1] - V[a + 1], V[b + 2] - V[a + 2]];
+    const w = [V[c] - V[a], V[c + 1] - V[a + 1], V[c + 2] - V[a + 2]];
+    const n = [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]];
+    for (const i of [a, b, c]) { N[i] += n[0]; N[i + 1] += n[1]; N[i + 2] += n[2]; }
+  }
+  for (let i = 0; i < N.length; i += 3) {
+    const l = Math.hypot(N[i], N[i + 1], N[i + 2]) || 1;
+    N[i] /= l; N[i + 1] /= l; N[i + 2] /= l;
+  }
+  return N;
+}
+
 /** The main view's traces, always in the same order (Plotly.react keeps the camera). */
-export function networkTraces(frame, analysis, ui) {
+export function networkTraces(frame, ui) {
   const P = xyz(frame.vertices), R = xyz(frame.reference.vertices), T = triangles(frame.reference.triangles);
   const traces = [];
   traces.push({ type: 'mesh3d', name: 'reference', ...R, ...T, color: 'lightsteelblue', opacity: 0.25,
     hoverinfo: 'skip', flatshading: true, showlegend: true });
-  // hull band: the reference ± t/2 along its normals (the masonry's extent)
-  for (const side of ['upper', 'lower']) {
-    const H = analysis && analysis.hull && analysis.seq === frame.seq ? xyz(analysis.hull[side]) : { x: [], y: [], z: [] };
-    traces.push({ type: 'mesh3d', name: side === 'upper' ? 'hull band (reference ± t/2)' : 'hull band (lower)', ...H, ...(H.x.length ? T : { i: [], j: [], k: [] }),
-      color: '#c9a36b', opacity: 0.12, hoverinfo: 'skip', showlegend: side === 'upper', legendgroup: 'hull',
-      visible: ui.showHull ? true : 'legendonly' });
-  }
+  // hull band: the reference ± t/2 along its vertex normals (the masonry's extent; the sign of the
+  // normals does not matter)
+  const Rv = frame.reference.vertices, N = vertexNormals(Rv, frame.reference.triangles), half = 0.5 * frame.design.thickness;
+  // (one trace for both sheets: each transparent object costs plotly's WebGL renderer a pass)
+  const nR = Rv.length / 3, band = Rv.concat(Rv);
+  for (let k = 0; k < Rv.length; k++) { band[k] += half * N[k]; band[Rv.length + k] -= half * N[k]; }
+  const B = xyz(band), BT = { i: T.i.concat(T.i.map((v) => v + nR)), j: T.j.concat(T.j.map((v) => v + nR)),
+    k: T.k.concat(T.k.map((v) => v + nR)) };
+  traces.push({ type: 'mesh3d', name: 'hull band (reference ± t/2)', ...B, ...BT, color: '#c9a36b', opacity: 0.12,
+    hoverinfo: 'skip', showlegend: true, visible: ui.showHull ? true : 'legendonly' });
   const [fmin, fmax] = forceRange(frame);
   const bins = Array.from({ length: FORCE_BINS }, () => []), passive = [];
   const E = frame.edges;
