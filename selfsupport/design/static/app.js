@@ -43,7 +43,10 @@ function receive(m) {
     case 'cancelled': if (m.what === 'probe') $('probe').textContent = 'probe cancelled (the design changed)'; break;
     case 'frame': onFrame(m); break;
     case 'analysis': st.analysis = m; scheduleDraw('side'); break;
-    case 'error': showError(`${m.what || ''}: ${m.message}`); if (m.what === 'solve') setSolve(`#${m.seq} failed`, false); break;
+    case 'error':
+      showError(`${m.what || ''}: ${m.message}`); st.errorSeq = m.seq;
+      if (m.what === 'solve') setSolve(`#${m.seq} failed`, false);
+      break;
     case 'probing': $('probe').textContent = `probing vertex ${m.vertex}…`; break;
     case 'probe_step': $('probe').textContent = `probe v${m.vertex}: ${Math.round(m.kg)} kg ${m.found ? 'stands' : 'no network'}`; break;
     case 'probe':
@@ -59,9 +62,11 @@ function onFrame(m) {
   // a cut, hole or subdivision renumbers the vertices: picks made before refer to others now
   if (st.frame && m.n_vertices !== st.frame.n_vertices) { ui.handles = []; ui.cut = []; }
   st.frame = m; st.frames++;
+  if (st.errorSeq !== undefined && m.seq > st.errorSeq) { $('error').textContent = ''; st.errorSeq = undefined; }
   const t0 = st.sentAt.get(m.seq);
   if (t0 !== undefined) {
     st.latency.push(performance.now() - t0);
+    if (st.latency.length > 500) st.latency.shift();
     for (const k of st.sentAt.keys()) if (k <= m.seq) st.sentAt.delete(k);
   }
   const stale = m.seq < st.seq ? ` (an edit #${st.seq} is on its way)` : '';
