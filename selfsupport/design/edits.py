@@ -14,6 +14,7 @@ Each edit is one small frozen dataclass with ``apply(design) -> design`` and a `
 ``cut``       cut the mesh open along an edge chain (vertex indices or top-view way points
               joined by shortest edge paths); ``support = true`` pins both sides
 ``material``  density, thickness, w_max
+``objective`` weights of objective terms beside the distance to the reference (planarity, fairness)
 ``load``      extra mass [kg] or point load [N, positive down] on the selected vertices
 ``subdivide`` Catmull–Clark ``levels`` times (:mod:`.subdivision`)
 ============  ==========================================================================
@@ -48,7 +49,7 @@ from ..scene import Scene
 from .laplacian import MODES, LaplacianEditor, ring_region
 
 __all__ = ["Design", "Select", "Edit", "EDITS", "Move", "Raise", "Lower", "Pillar", "Pin", "Unpin", "Delete",
-           "Cut", "Material", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict"]
+           "Cut", "Material", "Objective", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict"]
 
 
 # ------------------------------------------------------------------------------ state
@@ -64,11 +65,14 @@ class Design:
     thickness: float = 0.1
     w_max: float | None = None
     origin: np.ndarray | None = None
+    objective: Mapping[str, float] | None = None  # term name -> weight; None: the method's default
 
     def problem(self, **kw: Any):
         """The :class:`~formulations.Problem` of this design (self-weight plus the scene's extras)."""
         from ..api import problem
 
+        if self.objective is not None:
+            kw.setdefault("objective", dict(self.objective))
         return problem(self.scene, density=self.density, thickness=self.thickness, w_max=self.w_max, **kw)
 
 
@@ -403,6 +407,41 @@ class Material(Edit):
 
 
 @dataclass(frozen=True)
+class Objective(Edit):
+    """Set objective term weights (``weights``: name -> weight, names from
+    :data:`formulations.terms.TERMS`) beside the distance to the reference (weight 1, the method's
+    default term); a weight of 0 drops that term.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> d = Objective(weights={"planarity": 0.5}).apply(Design(make_shape("dome", n_vertices=80)))
+    >>> dict(d.objective), [t.name for t in d.problem().objective]
+    ({'reference': 1.0, 'planarity': 0.5}, ['reference', 'planarity'])
+    """
+
+    weights: Mapping[str, float] | None = None
+    op: ClassVar[str] = "objective"
+
+    def apply(self, design: Design) -> Design:
+        from formulations.terms import TERMS
+
+        cur = dict(design.objective) if design.objective is not None else {"reference": 1.0}
+        for k, v in dict(self.weights or {}).items():
+            if k not in TERMS or k == "hull":
+                raise InputError(f"objective: unknown term {k!r}; choose from "
+                                 f"{', '.join(sorted(set(TERMS) - {'hull'}))}")
+            v = float(v)
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"objective: the weight of {k!r} must be a finite number >= 0, got {v}")
+            if v == 0:
+                cur.pop(k, None)
+            else:
+                cur[k] = v
+        if not cur:
+            raise InputError("objective: every term would have weight 0; keep one (e.g. reference = 1)")
+        return replace(design, objective=cur)
+
+
+@dataclass(frozen=True)
 class Load(Edit):
     """Add ``extra_mass`` [kg] and/or ``point_load`` [N, positive down] to each selected vertex."""
 
@@ -440,7 +479,7 @@ class Subdivide(Edit):
 
 #: Edit registry: ``op`` name -> class.
 EDITS: dict[str, type[Edit]] = {c.op: c for c in (Move, Raise, Lower, Pillar, Pin, Unpin, Delete, Cut, Material,
-                                                   Load, Subdivide)}
+                                                   Objective, Load, Subdivide)}
 
 
 def edit_from_dict(d: Mapping[str, Any]) -> Edit:

@@ -1,0 +1,158 @@
+"""The interactive design session without the web: edit log, undo / redo, drags, the edit script
+it saves, and the background solver's cancellation (selfsupport/design/session.py)."""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from selfsupport.design.edits import Design, Material, Move, Objective, Pin, Select, Unpin
+from selfsupport.design.script import EditScript
+from selfsupport.design.session import SOLVE_DEFAULTS, EditLog, SolveWorker
+from selfsupport.errors import InputError
+from selfsupport.shapes import make_shape
+from tests.conftest import max_relative_error
+
+
+@pytest.fixture(scope="module")
+def dome():
+    return make_shape("dome", n_vertices=120)
+
+
+def _free(scene, k=0):
+    return int(np.flatnonzero(~scene.supports)[k])
+
+
+def _same_design(a: Design, b: Design) -> None:
+    assert np.array_equal(a.scene.mesh.vertices, b.scene.mesh.vertices)
+    assert np.array_equal(a.scene.supports, b.scene.supports)
+    assert (a.density, a.thickness, a.w_max, a.objective) == (b.density, b.thickness, b.w_max, b.objective)
+
+
+def test_undo_redo_restore_the_designs(dome):
+    log = EditLog(Design(dome))
+    v = _free(dome, 3)
+    s1 = log.apply(Pin(select=Select(vertices=(v,))))
+    assert log.design.scene.supports[v] and s1 == 1
+    log.apply(Material(density=2500.0))
+    assert log.design.density == 2500.0
+    log.undo()
+    assert log.design.density == 2000.0 and log.design.scene.supports[v]
+    log.undo()
+    _same_design(log.design, log.start)
+    assert not log.can_undo and log.can_redo
+    log.redo()
+    log.redo()
+    assert log.design.density == 2500.0 and log.design.scene.supports[v] and not log.can_redo
+    assert log.seq == 6  # every change is numbered, undo and redo too
+    # a new edit after an undo drops the redo stack
+    log.undo()
+    log.apply(Unpin(select=Select(vertices=(v,))))
+    assert not log.can_redo and not log.design.scene.supports[v]
+
+
+def test_a_bad_edit_changes_nothing(dome):
+    log = EditLog(Design(dome))
+    with pytest.raises(InputError):
+        log.apply(Material(density=-1.0))
+    assert log.seq == 0 and not log.edits
+
+
+def test_a_drag_is_one_edit_and_equals_its_last_step(dome):
+    """The steps of one drag replace each other: the log holds one move, the design is the
+    start moved by the last step's offset (not the sum of the steps)."""
+    log = EditLog(Design(dome))
+    h = _free(dome, 10)
+    for dz in (0.01, 0.03, 0.02):
+        log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, dz), mode="height"), drag="a")
+    log.end_drag()
+    assert len(log.edits) == 1
+    direct = Move(select=Select(vertices=(h,)), offset=(0, 0, 0.02), mode="height").apply(Design(dome))
+    _same_design(log.design, direct)
+    assert log.design.scene.mesh.vertices[h, 2] == pytest.approx(dome.mesh.vertices[h, 2] + 0.02)
+    # the same id after end_drag starts a new edit; undo takes back a whole drag
+    log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 0.01), mode="height"), drag="a")
+    assert len(log.edits) == 2
+    log.undo()
+    log.undo()
+    _same_design(log.design, log.start)
+
+
+def test_long_logs_keep_few_designs_and_replay_the_rest(dome):
+    """Designs are recomputed from checkpoints: any past design equals a replay of its edits."""
+    log = EditLog(Design(dome))
+    h = _free(dome, 5)
+    for k in range(70):
+        log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 0.001 * (1 + k % 3)), mode="height"))
+    assert len(log._designs) <= 16 + 70 // 32 + 2
+    d = Design(dome)
+    for e in log.edits[:40]:
+        d = e.apply(d)
+    _same_design(log.design_at(40), d)
+
+
+def test_the_saved_script_replays_to_the_same_design(dome, tmp_path):
+    log = EditLog(Design(dome), scene_spec="shape:dome:120", solve=SOLVE_DEFAULTS)
+    h = _free(dome, 7)
+    log.apply(Move(select=Select(vertices=(h,)), offset=(0.0, 0.0, 0.05), mode="height"))
+    log.apply(Pin(select=Select(vertices=(_free(dome, 20),))))
+    log.apply(Objective(weights={"fairness": 0.5}))
+    log.apply(Material(thickness=0.2, w_max=1e6))
+    text = log.script().dumps()
+    script = EditScript.loads(text)
+    assert script.solve == SOLVE_DEFAULTS and script.scene == "shape:dome:120"
+    d = Design(dome, density=script.density, thickness=script.thickness, w_max=script.w_max)
+    for e in script.edits:
+        d = e.apply(d)
+    _same_design(d, log.design)
+    again = EditLog.from_script(script, Design(dome))
+    _same_design(again.design, log.design)
+    assert again.script().dumps() == text
+
+
+def test_worker_newest_request_wins_and_frames_are_in_equilibrium(dome):
+    """Requests sent faster than the solves are coalesced or cancelled; the last frame is the
+    newest design's, in equilibrium (recomputed here from the frame's own numbers)."""
+    msgs: list[dict] = []
+    lock = threading.Lock()
+
+    def emit(m):
+        with lock:
+            msgs.append(m)
+
+    log = EditLog(Design(dome))
+    worker = SolveWorker(emit, options=SOLVE_DEFAULTS, analysis=False)
+    try:
+        h = _free(dome, 12)
+        worker.submit(log.seq, log.design)
+        for k in range(6):
+            seq = log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 0.01 * k), mode="height"), drag="d")
+            worker.submit(seq, log.design)
+        t0 = time.time()
+        while time.time() - t0 < 60:
+            with lock:
+                if any(m["type"] == "frame" and m["seq"] == log.seq for m in msgs):
+                    break
+            time.sleep(0.02)
+        frames = [m for m in msgs if m["type"] == "frame"]
+        assert frames and frames[-1]["seq"] == log.seq, [m["type"] for m in msgs]
+        assert [f["seq"] for f in frames] == sorted(f["seq"] for f in frames)  # never an older frame after a newer
+        assert len(frames) < 7  # some requests were dropped or cancelled, not all solved
+        assert not [m for m in msgs if m["type"] == "error"]
+        f = frames[-1]
+        assert f["status"] == "converged"
+        ref = np.reshape(f["reference"]["vertices"], (-1, 3))
+        assert np.allclose(ref, log.design.scene.mesh.vertices, atol=1e-6)
+        # the network's weights are not in the frame; its forces are: |w| = force / length
+        V = np.reshape(f["vertices"], (-1, 3))
+        E = np.reshape(f["edges"], (-1, 2))
+        ln = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+        w = np.asarray(f["forces"]) / ln
+        sup = np.zeros(len(V), bool)
+        sup[f["supports"]] = True
+        # positions are rounded to 1 µm and forces to 1 mN for the page: equilibrium to that precision
+        assert max_relative_error(V, E, w, f["loads"], sup) < 1e-3
+    finally:
+        worker.close()
