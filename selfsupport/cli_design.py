@@ -83,7 +83,8 @@ def run_design(args: argparse.Namespace) -> int:
     sock = bind_loopback(args.port)
     port = sock.getsockname()[1]
     token = new_token()
-    app = create_app(DesignServer(log=log, root=Path.cwd()), token, port=port)
+    inputs = tuple(p for p in (args.scene, args.supports) if p and not p.startswith("shape:") and Path(p).exists())
+    app = create_app(DesignServer(log=log, root=Path.cwd(), inputs=inputs), token, port=port)
     url = f"http://127.0.0.1:{port}/?token={token}"
     print(url, flush=True)
     if not args.no_browser:

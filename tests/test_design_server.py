@@ -443,3 +443,19 @@ def test_latency_study_runs(tmp_path):
     assert kinds == ["drag (height)", "drag (full)", "drag (top view)", "pin / unpin", "density"]
     for r in rows[:-1]:
         assert 0 < r["solve_ms"] <= r["server_ms"] <= r["median_ms"] and r["iterations"] >= 1, r
+
+
+def test_save_never_writes_over_the_file_the_session_was_opened_from(served):
+    from selfsupport.io.sss import write_scene_sss
+
+    client, token, srv, root = served
+    src = root / "start.sss"
+    write_scene_sss(src, srv.log.design.scene)
+    before = src.read_bytes()
+    srv.inputs = (str(src),)
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        _until(ws, lambda m: m["type"] == "frame")
+        ws.send_json({"type": "save", "what": "scene", "path": "start"})
+        m = _until(ws, lambda m: m["type"] in ("saved", "error"))
+    assert m["type"] == "error" and "opened from" in m["message"], m
+    assert src.read_bytes() == before

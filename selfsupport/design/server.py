@@ -98,6 +98,7 @@ class DesignServer:
     last_frame: dict | None = None
     last_analysis: dict | None = None
     worker: SolveWorker | None = None
+    inputs: tuple = ()  # files the session was opened from: never written over
     _t_received: float = 0.0
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -174,12 +175,15 @@ class DesignServer:
     def save(self, what: str, name: Any) -> dict:
         """Write the edit script, the scene, the network or the figures below :attr:`root`."""
         from ..io.atomic import atomic_write_text
-        from ..io.safety import write_target
+        from ..io.safety import same_file, write_target
 
         if what not in SAVE_KINDS:
             raise InputError(f"save: 'what' is one of {', '.join(SAVE_KINDS)}")
         path = safe_path(self.root, name, SAVE_KINDS[what])
         write_target(path, what=what)  # refuses directories, devices, FIFOs
+        for src in self.inputs:
+            if same_file(path, src):
+                raise InputError(f"refusing to write over {name!r}: the session was opened from it; give another name")
         path.parent.mkdir(parents=True, exist_ok=True)
         if not path.parent.resolve().is_relative_to(self.root.resolve()):  # pragma: no cover - raced symlink
             raise InputError("refusing: the folder leads outside the working folder")
