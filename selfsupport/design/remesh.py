@@ -139,21 +139,18 @@ class _Family:
     """The samples of one family's lines (for the separation test): a KD-tree rebuilt lazily."""
 
     def __init__(self) -> None:
-        self.points: list[np.ndarray] = []
         self.lines: list[np.ndarray] = []
         self._tree: cKDTree | None = None
-        self._count = 0
 
     def add(self, line: np.ndarray) -> None:
         self.lines.append(line)
-        self.points.append(line)
         self._tree = None
 
     def near(self, p: np.ndarray, r: float) -> bool:
-        if not self.points:
+        if not self.lines:
             return False
         if self._tree is None:
-            self._tree = cKDTree(np.vstack(self.points))
+            self._tree = cKDTree(np.vstack(self.lines))
         return bool(self._tree.query_ball_point(p, r, return_length=True) > 0)
 
 
