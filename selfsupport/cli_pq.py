@@ -4,6 +4,7 @@
 
     selfsupport pq NET.json --out PQ.json [--spacing H] [--field principal|grid] [--angle DEG]
                    [--tol 1e-3] [--density RHO] [--thickness T] [--method staggered|ipopt]
+                   [--time-limit S]
 
 Remeshes the network's top view along its relative principal directions
 (:mod:`selfsupport.design.remesh`: quads, and triangles where a line of the field ends) and
@@ -36,6 +37,8 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=positive_float, default=1e-3, metavar="TOL",
                    help="largest quad non-planarity accepted (default 1e-3)")
     p.add_argument("--method", choices=("staggered", "ipopt"), default="staggered", help="solver (default staggered)")
+    p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
+                   help="wall-clock limit of the solve [s] (default: the method's)")
     add_load_arguments(p)
 
 
@@ -52,8 +55,9 @@ def run_pq(args: argparse.Namespace) -> int:
     check_outputs([("--out", args.out)], [("network", args.network)])
     net = read_network(args.network)
     q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle)
+    limits = {} if args.time_limit is None else {"time_limit": args.time_limit}
     result = api.solve(q.scene, method=args.method, density=args.density, thickness=args.thickness,
-                       constraints=[Planar(tol=args.tol)])
+                       constraints=[Planar(tol=args.tol)], **limits)
     planarity = result.parameters.get("planarity") or {}
     write_network(args.out, result, remesh={"field": q.field, "spacing": q.spacing, "source": str(args.network),
                                             "face_sizes": q.face_size_counts})
