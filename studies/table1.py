@@ -118,6 +118,8 @@ VARIANTS: dict[str, Variant] = {v.key: v for v in (
             _staggered("active-set", refine=20), 600.0),
     Variant("staggered/active-set-centred", "staggered", "active-set-centred", _staggered("active-set-centred"),
             600.0),
+    Variant("staggered/active-set-centred-all", "staggered", "active-set-centred-all",
+            _staggered("active-set-centred-all"), 600.0),
     Variant("staggered/ipopt", "staggered", "ipopt", _staggered("ipopt"), 120.0),
     Variant("staggered/osqp", "staggered", "osqp", _staggered("osqp"), 120.0),
     Variant("staggered/nlopt", "staggered", "nlopt", _staggered("nlopt"), 120.0),

@@ -139,14 +139,13 @@ def _network_fit_sequence(n_vertices: int, steps: int, seed: int):
     return out
 
 
-def test_centred_restart_agrees_with_active_set_and_meets_kkt():
+@pytest.mark.parametrize("name", ["active-set-centred", "active-set-centred-all"])
+def test_centred_restart_agrees_with_active_set_and_meets_kkt(name):
     """The centred-restart backend solves the same strictly convex problems: along a sequence of
     perturbed network fits (exact and loose alternating, as the staggered method asks them) its
     exact fits equal the plain active-set backend's to round-off and satisfy the KKT conditions
     (stationary on the free set, multipliers ≥ 0 on the bound); its restarts were used."""
-    from selfsupport.methods.weightfit import CentredActiveSetFit
-
-    plain, centred = ActiveSetFit(), CentredActiveSetFit()
+    plain, centred = ActiveSetFit(), make_backend(name)
     w_prev = None
     used = 0
     for k, (A, b, lo, up) in enumerate(_network_fit_sequence(400, 6, seed=3)):

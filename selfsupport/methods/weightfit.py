@@ -129,7 +129,7 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
     gs = max(float(np.abs(c).max()), 1e-300)
     if centred is not None and centred[0].shape == c.shape:
         # a centred iterate of the previous fit (a few iterations before its end): the next
-        # problem's path passes close to it
+        # problem's barrier path passes close to it (16k disk, exact fits: 26-31 -> 16-20 iterations)
         w, z, y = (np.array(v, float) for v in centred)
         scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
         gap = np.minimum(1e-3 * scale_w, 0.25 * span)
@@ -232,13 +232,19 @@ class ActiveSetFit(WeightFitBackend):
     ``tol`` the interior point stops there and its point is returned as it is (status
     ``"inexact"``, bounds counted from the crossover's guess).
 
+    ``centred_back`` > 0: the interior point restarts from its own iterate of the previous fit
+    that many iterations before that run's end with its multipliers (held at least 0.1% of the
+    typical weight inside the box), instead of from the previous point nudged 10% off the bounds — for every fit, or with
+    ``centred_loose`` False for the exact fits only (:class:`CentredActiveSetFit`).
+
     Written here rather than taken from a library: scipy's ``lsq_linear`` takes 10–90 s at
     3,500 edges (DESIGN.md §2), and none of the available sparse QP solvers warm-starts from
     an active set.
     """
 
     name = "active-set"
-    defaults = {"max_pdas": 10, "max_ipm": 100, "tol": 1e-12, "pdas_settle": 0.75, "centred_back": 0}
+    defaults = {"max_pdas": 10, "max_ipm": 100, "tol": 1e-12, "pdas_settle": 0.75, "centred_back": 0,
+                "centred_loose": True}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
@@ -281,8 +287,9 @@ class ActiveSetFit(WeightFitBackend):
             trail = deque(maxlen=back + 1) if back > 0 else None
             wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, rtol if loose else self.options["tol"],
                                                    self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq,
-                                                   deadline=deadline, centred=self._centred if back else None,
-                                                   trail=trail)
+                                                   deadline=deadline, trail=trail,
+                                                   centred=self._centred if back and (
+                                                       self.options["centred_loose"] or not loose) else None)
             if trail is not None and len(trail) == back + 1:
                 self._centred = trail[0]
             # crossover: bounds whose multiplier dominates their slack start PDAS
@@ -363,14 +370,25 @@ class CentredActiveSetFit(ActiveSetFit):
     """:class:`ActiveSetFit` whose interior point restarts from a centred iterate of the
     previous fit (``centred_back`` iterations before its end) instead of from the previous
     solution nudged off its bounds: the barrier path of the next, nearby problem passes close
-    to it (a continuation that keeps the interior point centred)."""
+    to it (a continuation that keeps the interior point centred). Exact fits only
+    (``centred_loose`` False): their minimiser is unique, so the staggered iteration follows
+    the same path as with :class:`ActiveSetFit`, only cheaper."""
 
     name = "active-set-centred"
-    defaults = {**ActiveSetFit.defaults, "centred_back": 5}
+    defaults = {**ActiveSetFit.defaults, "centred_back": 1, "centred_loose": False}
+
+
+class CentredAllActiveSetFit(ActiveSetFit):
+    """The centred restart for every fit, the loose far-phase fits included: their points then
+    lie nearer the optimum (a 16k disk: objective 0.1–40% lower at the same tolerance), which
+    changes the staggered iteration's path (measured: not faster at every size)."""
+
+    name = "active-set-centred-all"
+    defaults = {**ActiveSetFit.defaults, "centred_back": 5, "centred_loose": True}
 
 
 def _registry() -> dict[str, type[WeightFitBackend]]:
-    classes: list[type[WeightFitBackend]] = [ActiveSetFit, CentredActiveSetFit]
+    classes: list[type[WeightFitBackend]] = [ActiveSetFit, CentredActiveSetFit, CentredAllActiveSetFit]
     try:  # the CasADi/nlopt adapters live beside this module
         from .weightfit_backends import IpoptFit, NloptFit, OsqpFit
 
