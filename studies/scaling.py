@@ -4,6 +4,10 @@
         [--shapes concave_disk,pillar_vault] [--methods staggered,ipopt]
         [--time-limit S] [--ipopt-time-limit S] [--no-warmup]
 
+``--methods`` also takes ``staggered/BACKEND`` (the staggered method with another Step-2
+backend). Rows run size by size with the methods interleaved, so that rows compared with one
+another are measured side by side on a shared machine.
+
 For each generated shape (:func:`selfsupport.shapes.make_shape`) and target size one row per
 method: solve time, iterations, max relative error (recomputed from the saved JSON), distance to
 the reference, peak RSS. Each row runs in its own spawned process (peak memory is per row;
@@ -15,7 +19,7 @@ The floor
 For staggered rows the worker also measures, at the final weights:
 
 * ``factor_K_s`` — one :func:`selfsupport.linalg.spd_factor` factorization of ``−K_ff``, the
-  free-vertex block of the stress Laplacian (``n_free × n_free``: the polish's matrix), median of 3;
+  free-vertex block of the stress Laplacian (``n_free × n_free``: the polish's matrix), median of 7;
 * ``factor_step3_s`` — one factorization of the Step-3 system itself, ``H ⊗ I₃ + c·⊕(b₀I + b₁nnᵀ)``
   (``3 n_free × 3 n_free``, ``H = K_tᵀK_t``, ``K_t`` = ``K_ff`` with rows over ``|A_i F_i|``):
   what a direct Step 3 costs;
@@ -26,6 +30,9 @@ For staggered rows the worker also measures, at the final weights:
   each interior-point iteration and each PDAS solve of a fit costs;
 * ``per_iter_over_factor`` — (solve time / outer iterations) / ``factor_step3_s``: an outer
   iteration's cost in direct Step-3 factorizations (1–3 would be a method that factors once per step);
+* ``limit_ratio`` — solve time / (outer iterations × ``factor_K_s``): an outer iteration's cost
+  in Cholesky factorizations of the plain stress Laplacian of the mesh, the limit a method that
+  factors one mesh-sized Laplacian per step would approach (issue #21 asks for ≤ 10);
 * from the solve's own history: ``step2_s`` and ``step3_s`` (time in the weight fits and in the
   position steps), ``cg_mean`` (mean CG iterations per position step), ``fit_its_mean`` (mean
   Step-2 iterations per fit — each one factorization of that matrix);
@@ -53,10 +60,10 @@ DEFAULT_SIZES = (1000, 4000, 16000, 64000)
 DEFAULT_SHAPES = ("concave_disk", "pillar_vault")
 
 
-def _staggered() -> Any:
+def _staggered(backend: str = "active-set") -> Any:
     from selfsupport.methods.staggered import StaggeredLinearization
 
-    return StaggeredLinearization()
+    return StaggeredLinearization(backend)
 
 
 def _ipopt() -> Any:
@@ -65,11 +72,32 @@ def _ipopt() -> Any:
     return Simultaneous()
 
 
-#: method name -> (factory, default time limit [s])
+#: method name -> (factory, default time limit [s]); ``staggered/BACKEND`` names the staggered
+#: method with another Step-2 backend (:data:`selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS`)
 METHODS: dict[str, tuple[Callable[[], Any], float]] = {
     "staggered": (_staggered, 1200.0),
     "ipopt": (_ipopt, 180.0),
 }
+
+
+def method_entry(method: str) -> tuple[Callable[[], Any], float]:
+    """(factory, default time limit) of a method name (see :data:`METHODS`).
+
+    >>> method_entry("staggered/active-set")[1]
+    1200.0
+    """
+    base, _, backend = method.partition("/")
+    if backend and base == "staggered":
+        from selfsupport.methods.weightfit import WEIGHT_FIT_BACKENDS
+
+        if backend not in WEIGHT_FIT_BACKENDS:
+            raise KeyError(method)
+        return (lambda: _staggered(backend)), METHODS["staggered"][1]
+    return METHODS[method]
+
+
+def is_staggered(method: str) -> bool:
+    return method.partition("/")[0] == "staggered"
 
 
 class _FactorRecorder:
@@ -129,10 +157,24 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     lowq = _LowerQ(Q)
     lowq.with_diagonal(np.ones(Q.shape[0]))  # symbolic analysis, once per fit pattern in the solver
     return {"factor_step2_s": median_time(lambda: lowq.with_diagonal(np.ones(Q.shape[0])), repeat=3, budget=60.0),
-            "factor_K_s": median_time(lambda: spd_factor(negK), repeat=3, budget=60.0),
+            # (median of 7: the limit ratio divides by it, and a 1 ms factorization is as noisy as the machine)
+            "factor_K_s": median_time(lambda: spd_factor(negK), repeat=7, budget=60.0),
             "factor_step3_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
             "factor_step3_pre_s": median_time(lambda: spd_factor(pre), repeat=3, budget=60.0),
             "n_free": top.n_free}
+
+
+def iteration_ratios(row: dict[str, Any]) -> dict[str, float]:
+    """An outer iteration's time, and its cost in Step-3 factorizations and in factorizations of
+    the plain stress Laplacian (``limit_ratio``, the limit: ~1–3 for a method that factors it
+    once per step). NaN where a number is missing.
+
+    >>> iteration_ratios({"time_s": 6.0, "iterations": 3, "factor_step3_s": 0.5, "factor_K_s": 0.1})
+    {'time_per_iter_s': 2.0, 'per_iter_over_factor': 4.0, 'limit_ratio': 20.0}
+    """
+    per = safe_ratio(row.get("time_s"), row.get("iterations"))
+    return {"time_per_iter_s": per, "per_iter_over_factor": safe_ratio(per, row.get("factor_step3_s")),
+            "limit_ratio": safe_ratio(per, row.get("factor_K_s"))}
 
 
 def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, out_json: str,
@@ -142,7 +184,7 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
     from selfsupport.io import write_network
     from selfsupport.shapes import make_shape
 
-    factory = METHODS[method][0]
+    factory = method_entry(method)[0]
     scene = make_shape(shape, n_vertices=n_vertices)
     loads = scene_loads(scene)
     solver = factory()
@@ -159,7 +201,7 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
         "time_s": sw.seconds, "iterations": res.iterations, "reported_error": res.max_relative_error,
         "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max, "rss_before_mib": rss0,
         "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
-    if method == "staggered":
+    if is_staggered(method):
         steps = [h for h in res.history if isinstance(h.get("iteration"), int)]
         row["step2_s"] = sum(h.get("t_weights", 0.0) for h in steps)
         row["step3_s"] = sum(h.get("t_positions", 0.0) for h in steps)
@@ -191,6 +233,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"), Column("factor_step3_s", "factor Step 3 (3n) [s]", "{:.4f}"),
     Column("factor_step3_pre_s", "factor H + cI (n) [s]", "{:.4f}"),
     Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
+    Column("limit_ratio", "time / (its × factor −K_ff)", "{:.1f}"),
     Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
 )
@@ -198,7 +241,7 @@ _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "status", "time_s", "iterations", "max_rel_error",
               "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
               "fit_its_mean", "factor_step2_s", "factor_K_s", "factor_step3_s", "factor_step3_pre_s",
-              "per_iter_over_factor", "n_factorizations", "factor_share")
+              "per_iter_over_factor", "limit_ratio", "n_factorizations", "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
                Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
@@ -276,15 +319,16 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for shape in shapes:
-        for method in methods:
-            given_up: str | None = None
-            for n in sorted(sizes):
-                tl = time_limits[method]
+        given_up: dict[str, str] = {}
+        # size outermost, methods interleaved: rows of one size are measured side by side
+        for n in sorted(sizes):
+            for method in methods:
+                tl = time_limits.get(method, time_limits.get(method.partition("/")[0], method_entry(method)[1]))
                 base = {"shape": shape, "target": n, "method": method, "time_limit_s": tl}
-                if given_up:
-                    rows.append({**base, "status": "skipped", "message": given_up})
+                if method in given_up:
+                    rows.append({**base, "status": "skipped", "message": given_up[method]})
                     continue
-                out_json = out / f"{shape}-{n}__{method}.json"
+                out_json = out / f"{shape}-{n}__{method.replace('/', '-')}.json"
                 out_json.unlink(missing_ok=True)
                 echo(f"[{time.strftime('%H:%M:%S')}] {shape} n≈{n} {method} (time limit {tl:g} s) ...")
                 r = run_isolated("studies.scaling:scaling_row",
@@ -299,17 +343,17 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                     r["vertices"], r["edges"] = mesh.n_vertices, mesh.n_edges
                 if out_json.is_file():
                     r["max_rel_error"] = json_max_relative_error(out_json)
-                r["time_per_iter_s"] = safe_ratio(r.get("time_s"), r.get("iterations"))
-                r["per_iter_over_factor"] = safe_ratio(r.get("time_per_iter_s"), r.get("factor_step3_s"))
+                r.update(iteration_ratios(r))
                 echo(f"    {r.get('status')}: {r.get('vertices', '?')} V, time {r.get('time_s', float('nan')):.2f} s, "
                      f"{r.get('iterations', '-')} it, error {r.get('max_rel_error', float('nan')):.2e}, "
-                     f"peak RSS {r.get('peak_rss_mib', float('nan')):.0f} MiB"
+                     f"peak RSS {r.get('peak_rss_mib', float('nan')):.0f} MiB, "
+                     f"limit ratio {r.get('limit_ratio', float('nan')):.1f}"
                      + (f" — {r['message']}" if r.get("message") else ""))
                 rows.append(r)
                 if on_row is not None:
                     on_row(rows)
-                if method != "staggered" and r.get("status") != "converged":
-                    given_up = f"{method} did not converge at n≈{n} ({r.get('status')}); larger sizes not tried"
+                if not is_staggered(method) and r.get("status") != "converged":
+                    given_up[method] = f"{method} did not converge at n≈{n} ({r.get('status')}); larger sizes not tried"
     return rows
 
 
@@ -331,7 +375,9 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
         "*factor Step 3 (3n)* = one factorization of the 3n_free×3n_free Step-3 "
         "system (what a direct Step 3 costs); *factor H + cI (n)* = one factorization of the n_free×n_free "
         "matrix the solver's Step 3 factors (its CG preconditioner); *iteration / Step-3 factorization* = "
-        "(time / iterations) / the 3n factorization. *Step 2*, *Step 3*: time in the weight fits and the "
+        "(time / iterations) / the 3n factorization; *time / (its × factor −K_ff)* = (time / iterations) / the "
+        "plain stress Laplacian's factorization (the limit: ~1–3 for a method that factors it once per step). "
+        "*Step 2*, *Step 3*: time in the weight fits and the "
         "position steps (from the solve's history); *factorizations*, *share*: every numeric factorization "
         "of the solve (new and refactored) and its share of the solve time.",
         "IPOPT is not tried at sizes above the first one where it does not converge within its time limit.",
@@ -347,7 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="output folder (scaling.csv, .md, .png, networks)")
     p.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)), help="comma-separated target vertex counts")
     p.add_argument("--shapes", default=",".join(DEFAULT_SHAPES), help="comma-separated make_shape names")
-    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from {', '.join(METHODS)}")
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help=f"comma-separated, from {', '.join(METHODS)}, or staggered/BACKEND (a Step-2 backend)")
     p.add_argument("--time-limit", type=float, default=METHODS["staggered"][1],
                    help="staggered time limit per row [s]")
     p.add_argument("--ipopt-time-limit", type=float, default=METHODS["ipopt"][1], help="IPOPT time limit per row [s]")
@@ -361,9 +408,14 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     sizes = [int(s) for s in a.sizes.split(",") if s]
     shapes = [s for s in a.shapes.split(",") if s]
     methods = [m for m in a.methods.split(",") if m]
-    unknown = [m for m in methods if m not in METHODS]
+    unknown = []
+    for m in methods:
+        try:
+            method_entry(m)
+        except KeyError:
+            unknown.append(m)
     if unknown:
-        raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+        raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)} or staggered/BACKEND")
     from selfsupport.shapes import SHAPES
 
     bad = [s for s in shapes if s not in SHAPES]

@@ -194,6 +194,19 @@ def test_scaling_row_measures_the_factorization_floor(tmp_path):
     # every fit and every Step-3 preconditioner is a factorization: at least one per iteration
     assert r["n_factorizations"] >= r["iterations"]
     assert 0 < r["step2_s"] < r["time_s"] and 0 < r["step3_s"] < r["time_s"] and r["cg_mean"] >= 1
+    # the limit column: an outer iteration in plain stress-Laplacian factorizations; every
+    # iteration factors at least one matrix at least that large (the Step-3 preconditioner)
+    ratios = scaling.iteration_ratios(r)
+    assert ratios["limit_ratio"] == pytest.approx(r["time_s"] / (r["iterations"] * r["factor_K_s"]), rel=1e-12)
+    assert ratios["limit_ratio"] > 1
+
+
+def test_scaling_methods_name_a_step2_backend():
+    assert scaling.method_entry("staggered/active-set-centred")[1] == scaling.METHODS["staggered"][1]
+    assert scaling.method_entry("staggered/active-set-centred")[0]().backend.name == "active-set-centred"
+    assert scaling.is_staggered("staggered/ipopt") and not scaling.is_staggered("ipopt")
+    with pytest.raises(KeyError):
+        scaling.method_entry("staggered/gurobi")
 
 
 def test_run_isolated_contains_failures():

@@ -116,3 +116,55 @@ def test_pdas_reduced_solve_in_the_full_pattern_equals_the_explicit_reduced_syst
     D = rng.random(45)
     x = lowq.with_diagonal(D).solve(c)
     np.testing.assert_allclose((Q + sp.diags(D)) @ x, c, atol=1e-10)
+
+
+def _network_fit_sequence(n_vertices: int, steps: int, seed: int):
+    """Step-2 problems of a generated concave disk along a sequence of perturbed geometries (the
+    vertices jittered more at each step, as an outer iteration moves them): (A, b, lower, upper)."""
+    scene = make_shape("concave_disk", n_vertices=n_vertices)
+    m = scene.mesh
+    top = Topology.build(m.n_vertices, m.edges[scene.active_edges], scene.supports)
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(steps):
+        V = m.vertices.copy()
+        V[top.free] += (0.02 * k) * rng.standard_normal((int(top.free.sum()), 3)) * np.ptp(V, axis=0).max() / 30
+        L0 = SelfWeight().nodal(m, V)
+        sc = Scaling.of(V, L0, top.free)
+        X, L = sc.pos(V), sc.load(L0)
+        s = np.repeat(1 / np.abs(L[top.free]), 3)
+        A = (sp.diags(s) @ weight_matrix(top, X)).tocsc()
+        eps = default_eps(X, top.edges)
+        out.append((A, s * load_vector(top, L), np.full(top.m, eps), np.full(top.m, np.inf)))
+    return out
+
+
+@pytest.mark.parametrize("name", ["active-set-centred", "active-set-centred-all"])
+def test_centred_restart_agrees_with_active_set_and_meets_kkt(name):
+    """The centred-restart backend solves the same strictly convex problems: along a sequence of
+    perturbed network fits (exact and loose alternating, as the staggered method asks them) its
+    exact fits equal the plain active-set backend's to round-off and satisfy the KKT conditions
+    (stationary on the free set, multipliers ≥ 0 on the bound); its restarts were used."""
+    plain, centred = ActiveSetFit(), make_backend(name)
+    w_prev = None
+    used = 0
+    for k, (A, b, lo, up) in enumerate(_network_fit_sequence(400, 6, seed=3)):
+        w0 = lo.copy() if w_prev is None else w_prev
+        prox = 1e-8 * float(np.asarray(A.multiply(A).sum(axis=0)).mean())
+        rtol = 1e-5 if k % 2 else None
+        used += centred._centred is not None
+        f1 = plain.fit(A=A, b=b, lower=lo, upper=up, w0=w0, prox=prox, rtol=rtol)
+        f2 = centred.fit(A=A, b=b, lower=lo, upper=up, w0=w0, prox=prox, rtol=rtol)
+        assert np.all(f2.w >= lo) and np.all(f2.w <= up)
+        if rtol is None:
+            assert f1.status == f2.status == "optimal"
+            np.testing.assert_allclose(f2.w, f1.w, rtol=1e-9, atol=1e-12 * lo[0])
+            g = A.T @ (A @ f2.w - b) + prox * (f2.w - w0)
+            at = f2.w <= lo
+            gs = float(np.abs(A.T @ b).max())
+            assert np.abs(g[~at]).max() <= 1e-9 * gs and g[at].min(initial=0.0) >= -1e-9 * gs
+            assert kkt_violation(A, b, f2.w, lo, up, prox, w0) <= 1e-12 * gs
+        else:  # a loose fit: within the box, near the optimum
+            assert f2.objective <= f1.objective * (1 + 1e-2)
+        w_prev = f2.w
+    assert used >= 3  # the interior point did restart from a centred iterate

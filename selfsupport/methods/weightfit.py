@@ -11,6 +11,7 @@ adapters with a ``defaults`` dict; a backend object may keep state between calls
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -113,8 +114,8 @@ class _LowerQ:
 
 def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
                 tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
-                lowq: _LowerQ | None = None, deadline: float | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
+                lowq: _LowerQ | None = None, deadline: float | None = None, centred: tuple | None = None,
+                trail: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
     """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
 
     One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
@@ -126,7 +127,16 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
     fin = np.isfinite(upper)
     span = np.where(fin, upper - lower, np.inf)
     gs = max(float(np.abs(c).max()), 1e-300)
-    if warm is not None and warm[0].shape == c.shape:
+    if centred is not None and centred[0].shape == c.shape:
+        # a centred iterate of the previous fit (a few iterations before its end): the next
+        # problem's barrier path passes close to it (16k disk, exact fits: 26-31 -> 16-20 iterations)
+        w, z, y = (np.array(v, float) for v in centred)
+        scale_w = max(float(np.median(np.abs(w))), float(np.abs(lower).max()), 1e-300)
+        gap = np.minimum(1e-3 * scale_w, 0.25 * span)
+        w = np.clip(w, lower + gap, np.where(fin, upper - gap, np.inf))
+        gm = 1e-12 * gs
+        z, y = np.maximum(z, gm), np.where(fin, np.maximum(y, gm), 0.0)
+    elif warm is not None and warm[0].shape == c.shape:
         # warm start near the previous solution and its multipliers, nudged off the bounds
         # (by 10% of the typical weight: measured on lilium's fits, 9% fewer iterations than
         # 1% and 30% fewer than a cold start)
@@ -194,6 +204,8 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         dw, dz, dy = direction(sigma * mu, dw * dz, -dw * dy if has_up else 0.0)
         a = min(1.0, 0.995 * max_step(dw, dz, dy))
         w, z, y = w + a * dw, z + a * dz, (y + a * dy if has_up else y)
+        if trail is not None:  # the last iterates (the caller keeps a bounded deque)
+            trail.append((w, z, y))
         t_iter = time.perf_counter() - t_it
     return w, z, y, it, "max_iter"
 
@@ -220,24 +232,32 @@ class ActiveSetFit(WeightFitBackend):
     ``tol`` the interior point stops there and its point is returned as it is (status
     ``"inexact"``, bounds counted from the crossover's guess).
 
+    ``centred_back`` > 0: the interior point restarts from its own iterate of the previous fit
+    that many iterations before that run's end with its multipliers (held at least 0.1% of the
+    typical weight inside the box), instead of from the previous point nudged 10% off the bounds — for every fit, or with
+    ``centred_loose`` False for the exact fits only (:class:`CentredActiveSetFit`).
+
     Written here rather than taken from a library: scipy's ``lsq_linear`` takes 10–90 s at
     3,500 edges (DESIGN.md §2), and none of the available sparse QP solvers warm-starts from
     an active set.
     """
 
     name = "active-set"
-    defaults = {"max_pdas": 10, "max_ipm": 100, "tol": 1e-12, "pdas_settle": 0.75}
+    defaults = {"max_pdas": 10, "max_ipm": 100, "tol": 1e-12, "pdas_settle": 0.75, "centred_back": 0,
+                "centred_loose": True}
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         self._active: tuple[np.ndarray, np.ndarray] | None = None
         self._ipm_warm: tuple[np.ndarray, np.ndarray] | None = None
         self._factor = None  # kept across fits: its symbolic analysis holds while Q's pattern does
+        self._centred: tuple | None = None
 
     def reset(self) -> None:
         self._active = None
         self._ipm_warm = None
         self._factor = None
+        self._centred = None
 
     def warm(self, w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
         # the previous solve's bounds as PDAS's first guess (weights within round-off of a bound)
@@ -263,9 +283,15 @@ class ActiveSetFit(WeightFitBackend):
         wi = z = None
         if status not in ("optimal", "time_limit"):
             loose = rtol is not None and rtol > self.options["tol"]
+            back = int(self.options["centred_back"])
+            trail = deque(maxlen=back + 1) if back > 0 else None
             wi, z, y, it_ipm, st_ipm = _box_qp_ipm(Q, c, lower, upper, w0, rtol if loose else self.options["tol"],
                                                    self.options["max_ipm"], warm=self._ipm_warm, lowq=lowq,
-                                                   deadline=deadline)
+                                                   deadline=deadline, trail=trail,
+                                                   centred=self._centred if back and (
+                                                       self.options["centred_loose"] or not loose) else None)
+            if trail is not None and len(trail) == back + 1:
+                self._centred = trail[0]
             # crossover: bounds whose multiplier dominates their slack start PDAS
             ws = max(float(np.median(np.abs(wi))), 1e-300)
             gs = max(float(np.abs(c).max()), 1e-300)
@@ -340,8 +366,29 @@ class ActiveSetFit(WeightFitBackend):
         return out
 
 
+class CentredActiveSetFit(ActiveSetFit):
+    """:class:`ActiveSetFit` whose interior point restarts from a centred iterate of the
+    previous fit (``centred_back`` iterations before its end) instead of from the previous
+    solution nudged off its bounds: the barrier path of the next, nearby problem passes close
+    to it (a continuation that keeps the interior point centred). Exact fits only
+    (``centred_loose`` False): their minimiser is unique, so the staggered iteration follows
+    the same path as with :class:`ActiveSetFit`, only cheaper."""
+
+    name = "active-set-centred"
+    defaults = {**ActiveSetFit.defaults, "centred_back": 1, "centred_loose": False}
+
+
+class CentredAllActiveSetFit(ActiveSetFit):
+    """The centred restart for every fit, the loose far-phase fits included: their points then
+    lie nearer the optimum (a 16k disk: objective 0.1–40% lower at the same tolerance), which
+    changes the staggered iteration's path (measured: not faster at every size)."""
+
+    name = "active-set-centred-all"
+    defaults = {**ActiveSetFit.defaults, "centred_back": 5, "centred_loose": True}
+
+
 def _registry() -> dict[str, type[WeightFitBackend]]:
-    classes: list[type[WeightFitBackend]] = [ActiveSetFit]
+    classes: list[type[WeightFitBackend]] = [ActiveSetFit, CentredActiveSetFit, CentredAllActiveSetFit]
     try:  # the CasADi/nlopt adapters live beside this module
         from .weightfit_backends import IpoptFit, NloptFit, OsqpFit
 
