@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 
 from .cli import EXIT_CODES, STATUS_EXIT, Command, add_load_arguments, positive_float, print_table, summary_rows
-from .errors import InputError
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 

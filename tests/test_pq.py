@@ -127,3 +127,17 @@ def test_pq_command_writes_a_planar_network_and_never_its_input(tmp_path, dome):
     assert ok.returncode == 0, ok.stderr
     assert "max non-planarity" in ok.stdout
     assert independent_check(out).ok
+
+
+def test_solve_planar_flag(tmp_path):
+    import json
+
+    cli = [sys.executable, "-m", "selfsupport.cli", "solve", "shape:barrel_vault:150"]
+    out = tmp_path / "n.json"
+    ok = subprocess.run(cli + ["--planar", "--out", str(out)], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    planarity = json.loads(out.read_text())["parameters"]["planarity"]
+    assert planarity["met"] and planarity["tol"] == 1e-3
+    bad = subprocess.run(cli + ["--planar", "-1", "--out", str(tmp_path / "b.json")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "b.json").exists()
