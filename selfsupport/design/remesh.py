@@ -309,6 +309,12 @@ def _arrangement(lines: list[np.ndarray], domain, corners: np.ndarray, spacing: 
     return V2, [q for f in faces for q in _split_polygon(V2, f)]
 
 
+def _min_angle(T: np.ndarray) -> float:
+    """Smallest angle of the top-view triangle ``T`` (3, 2)."""
+    u, w = np.roll(T, 1, axis=0) - T, np.roll(T, -1, axis=0) - T
+    return float(np.arctan2(np.abs(_cross2(u, w)), np.einsum("ij,ij->i", u, w)).min())
+
+
 def _split_polygon(P: np.ndarray, face: list[int]) -> list[list[int]]:
     """A face with more than four corners as quads and triangles: triangles cut off next to its
     straightest corner (a T-junction, where a line ended) until a quad remains. A pentagon with
@@ -322,18 +328,9 @@ def _split_polygon(P: np.ndarray, face: list[int]) -> list[list[int]]:
         a, b = Q - np.roll(Q, 1, axis=0), np.roll(Q, -1, axis=0) - Q
         turn = np.abs(np.arctan2(_cross2(a, b), np.einsum("ij,ij->i", a, b)))
         v = int(np.argmin(turn))  # the straightest corner
-
-        def min_angle(t: list[int]) -> float:
-            T = P[t]
-            ang = []
-            for i in range(3):
-                u, w = T[i - 1] - T[i], T[(i + 1) % 3] - T[i]
-                ang.append(np.arctan2(abs(_cross2(u, w)), u @ w))
-            return min(ang)
-
         ahead = [f[v], f[(v + 1) % k], f[(v + 2) % k]]
         behind = [f[(v - 2) % k], f[(v - 1) % k], f[v]]
-        tri = ahead if min_angle(ahead) >= min_angle(behind) else behind
+        tri = ahead if _min_angle(P[ahead]) >= _min_angle(P[behind]) else behind
         out.append(tri)
         f = [x for x in f if x != tri[1]]
     return out + [f]

@@ -35,7 +35,6 @@ True
 """
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -44,6 +43,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..errors import SelfSupportError
+from ..io.network_json import finite_or_none as _finite
 from .edits import Design, Edit
 from .script import EditScript
 
@@ -370,14 +370,6 @@ class SolveWorker:
                      progress=progress)
         self.emit({"type": "probe", "seq": job.seq, "vertex": v, "kg": m.kg, "upper_kg": m.upper_kg,
                    "probes": len(m.probes)})
-
-
-def _finite(x: Any) -> float | None:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        return None
-    return x if math.isfinite(x) else None
 
 
 # ------------------------------------------------------------------------------ payloads

@@ -37,6 +37,19 @@ NETWORK_KEYS = ("vertices", "faces", "edges", "weights", "loads", "supports")
 
 
 # ---------------------------------------------------------------------------------- writing
+def finite_or_none(x: Any) -> float | None:
+    """``float(x)`` when that is a finite number, else ``None`` (JSON's null).
+
+    >>> finite_or_none("2.5"), finite_or_none(float("nan")), finite_or_none(None)
+    (2.5, None, None)
+    """
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
 def to_jsonable(obj: Any, where: str = "value") -> Any:
     """Plain JSON types for ``obj``: numpy scalars/arrays become numbers/lists, tuples lists,
     non-finite floats ``None``; dataclasses become dicts, enums their value, paths strings.

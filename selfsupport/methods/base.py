@@ -134,16 +134,13 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     held = np.bincount(face_of, weights=sup[mesh.face_vertices], minlength=mesh.n_faces) >= 3
     q = face_nonplanarity(mesh)
     q = q[np.isfinite(q) & ~held]
-    Q, owner, _ = coplanarity_rows(mesh, sup)
+    Q, owner, inv_ell2 = coplanarity_rows(mesh, sup)
     big = mesh.face_sizes[owner] > 4
     poly = 0.0
     if big.any():
         V = mesh.vertices
-        Q = Q[big]
-        ell = np.array([np.linalg.norm(V[np.roll(mesh.faces[f], -1)] - V[mesh.faces[f]], axis=1).mean()
-                        for f in owner[big]])
-        e1, e2, e3 = (V[Q[:, k]] - V[Q[:, 0]] for k in (1, 2, 3))
-        poly = float((np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3))) / ell ** 3).max())
+        e1, e2, e3 = (V[Q[big, k]] - V[Q[big, 0]] for k in (1, 2, 3))
+        poly = float((np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3))) * inv_ell2[big] ** 1.5).max())
     qmax = float(q.max()) if q.size else 0.0
     return {"tol": planar.tol, "max_nonplanarity": qmax, "mean_nonplanarity": float(q.mean()) if q.size else 0.0,
             "max_polygon_row": poly, "met": bool(qmax <= planar.tol and poly <= 2 * planar.tol)}

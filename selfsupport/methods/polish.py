@@ -291,6 +291,19 @@ def load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.
     return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
 
 
+def case_load_jacobians(models, mesh0, sc: Scaling, free: np.ndarray) -> Callable[[np.ndarray, np.ndarray], list]:
+    """For :func:`polish_joint`: ``(V, L) -> [∂L_c/∂X_free or None per case]`` (None for a load
+    independent of the geometry), one colouring shared by the cases (cached per topology)."""
+    fidx = np.flatnonzero(free)
+    colouring = load_colouring(mesh0, free) if any(m.depends_on_geometry for m in models) else None
+
+    def jacobians(V: np.ndarray, L: np.ndarray) -> list:
+        return [load_jacobian_xyz(m, mesh0, sc, V, L[c], fidx, colouring) if m.depends_on_geometry else None
+                for c, m in enumerate(models)]
+
+    return jacobians
+
+
 #: Target of :func:`polish_joint`: max relative residual over every case (round-off is ~1e-14).
 JOINT_POLISH_TOL = 1e-12
 #: A weight within this fraction of its bound counts as on it (held by :func:`polish_joint`).

@@ -67,7 +67,7 @@ from ..result import Network, SolveResult
 from ..scene import Scene
 from .base import HULL_TOL, as_problem, case_networks, planarity_report, term_values
 from .deadline import out_of_time
-from .polish import HULL_ACTIVE_REL, load_colouring, load_jacobian_xyz, polish_joint
+from .polish import HULL_ACTIVE_REL, case_load_jacobians, polish_joint
 from .polish import max_rel_error as _max_rel_error
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
@@ -411,15 +411,9 @@ class Simultaneous:
             L_before = loads_at(Vp)
             joint = C > 1 or hull is not None or problem.fixed_top_view or form.n_planar > 0
             if joint:
-                free_idx = np.flatnonzero(top.free)
-                colouring = load_colouring(mesh0, top.free) if problem.loads.depends_on_geometry else None
-
-                def load_jacobian(V: np.ndarray, L: np.ndarray) -> list:  # Newton, not a load lag
-                    return [load_jacobian_xyz(m, mesh0, sc, V, L[c], free_idx, colouring)
-                            if m.depends_on_geometry else None for c, m in enumerate(problem.loads.models)]
-
-                Vp, Wp, k, perr, ok = polish_joint(form, Vp, Wp, loads_at=loads_at, load_jacobian=load_jacobian,
-                                                   deadline=deadline)
+                Vp, Wp, k, perr, ok = polish_joint(  # (with the load Jacobian: Newton, not a load lag)
+                    form, Vp, Wp, loads_at=loads_at, deadline=deadline,
+                    load_jacobian=case_load_jacobians(problem.loads.models, mesh0, sc, top.free))
                 what = f"max relative error {perr:.1e}"
             else:
                 Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc,

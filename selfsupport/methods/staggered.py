@@ -105,7 +105,7 @@ from ..scene import Scene
 from .base import HULL_TOL, as_problem, case_networks, hull_report, planarity_report, term_values
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
-from .polish import load_colouring, load_jacobian_xyz
+from .polish import case_load_jacobians
 from .polish import polish_joint as _polish_joint
 from .refine import refine as _refine
 from .weightfit import WeightFitBackend, make_backend
@@ -392,9 +392,15 @@ class _Run:
         if "merit" not in fit:
             Kff, _ = position_blocks(self.top, fit["w"][0])
             c = float(np.mean((Kff.diagonal() / np.abs(fit["L"][0][self.free])) ** 2))
-            r = self.planar.linearize(fit["X"])[0]
+            r = self.planar_rows(fit)
             fit["merit"] = fit["E"] + c * self.planar.weight * float(r @ r)
         return fit["merit"]
+
+    def planar_rows(self, fit: dict) -> np.ndarray:
+        """The planarity rows at the fit's positions (computed once per fit)."""
+        if "planar_rows" not in fit:
+            fit["planar_rows"] = self.planar.linearize(fit["X"])[0]
+        return fit["planar_rows"]
 
     # ---------------------------------------------------------------- Step 3
     def position_step(self, X: np.ndarray, cur: dict, alpha: float, beta: float, coupled: bool = False) -> np.ndarray:
@@ -448,16 +454,10 @@ class _Run:
         form = ThrustNetworkProblem(top, X, self.loads_at(X), WeightBounds(self.lower, self.upper),
                                     weight_scale=1.0 / h ** 2, hull=self.hull, planar=self.planar,
                                     fixed_xy=self.X0[self.free, :2] if self.fixed_xy else None)
-        ws_ = self.polish_ws
-        if "colouring" not in ws_ and self.loads.depends_on_geometry:
-            ws_["colouring"] = load_colouring(self.mesh0, self.free)
-
-        def load_jacobian(V: np.ndarray, L: np.ndarray) -> list:
-            return [load_jacobian_xyz(m, self.mesh0, self.sc, V, L[c], self.free_idx, ws_["colouring"])
-                    if m.depends_on_geometry else None for c, m in enumerate(self.loads.models)]
-
-        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at, load_jacobian=load_jacobian,
-                                            deadline=self.deadline)
+        if "load_jacobians" not in self.polish_ws:
+            self.polish_ws["load_jacobians"] = case_load_jacobians(self.loads.models, self.mesh0, self.sc, self.free)
+        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at,
+                                            load_jacobian=self.polish_ws["load_jacobians"], deadline=self.deadline)
         return Xp, list(W), self.loads_at(Xp), rounds
 
     def try_finish(self, X: np.ndarray, cur: dict, d_it: np.ndarray) -> tuple | None:
@@ -480,12 +480,13 @@ class _Run:
         Xp, ws, _, rounds = self.polish(X, cur["w"])
         if not np.all(np.isfinite(Xp)):
             return None
-        err = _max_error(self.networks(Xp, ws)[1])
+        net, cases = self.networks(Xp, ws)
+        err = _max_error(cases)
         d_p = closest_points(Xp, self.reference)[1]
         # (the true distance: the slabs re-anchored at the polished positions)
         inside = self.hull is None or bool(np.all(
             np.abs(self.hull.at(Xp).signed_distance(Xp)) <= self.hull.half_thickness * (1 + HULL_TOL)))
-        planar = self.planar is None or planarity_report(self.problem, self.networks(Xp, ws)[0])["met"]
+        planar = self.planar is None or planarity_report(self.problem, net)["met"]
         ok = (err <= opt.tol and inside and planar and float(d_p.mean()) <= (1 + opt.finish_slack) * float(d_it.mean())
               and float(d_p.max()) <= (1 + 4 * opt.finish_slack) * float(d_it.max()))
         info = {"ok": bool(ok), "error": err, "inside_hull": inside, "planar": planar,
@@ -535,14 +536,14 @@ class _Run:
                 for it in range(it + 1, opt.max_iter + 1):
                     proj = None  # closest points of X on the reference: computed at most once per iterate
                     rec: dict[str, Any] = {"iteration": it, "alpha": alpha, "beta": beta,
-                                           **{k: v for k, v in cur.items() if k not in ("L", "w", "As", "X")}}
+                                           **{k: v for k, v in cur.items() if k not in ("L", "w", "As", "X", "planar_rows")}}
                     if retry_errors is not None:
                         retry_errors.append(cur["max_rel_error"])
                     # (with planar faces required, the faces must be as near planar as the fit is
                     # near equilibrium before the joint polish makes both exact)
                     gap = cur["max_rel_error"]
                     if self.planar is not None:
-                        rec["planarity_row"] = float(np.abs(self.planar.linearize(X)[0]).max(initial=0.0))
+                        rec["planarity_row"] = float(np.abs(self.planar_rows(cur)).max(initial=0.0))
                         gap = max(gap, rec["planarity_row"])
                     if gap <= polish_tol or (
                             retry_errors is not None and len(retry_errors) > 5

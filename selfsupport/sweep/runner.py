@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from ..errors import InputError, SelfSupportError
+from ..io.network_json import finite_or_none as _finite
 from ..scene import Scene
 from .spec import RunSpec, SweepSpec, split_options
 from .store import COLUMN_NAMES, ResultStore, run_key, scene_digest
@@ -106,14 +107,6 @@ def _error_message(exc: BaseException) -> str:
     tb = traceback.extract_tb(exc.__traceback__)
     where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno} in {tb[-1].name})" if tb else ""
     return f"{type(exc).__name__}: {exc}{where}"
-
-
-def _finite(x: Any) -> float | None:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        return None
-    return x if math.isfinite(x) else None
 
 
 def execute_run(scene: Scene, run: dict[str, Any]) -> dict[str, Any]:
