@@ -353,3 +353,11 @@ def test_a_disk_shaped_region_of_the_pattern_gives_a_family_too(mobius, hole):
     fam = family(phi, 2.0)
     assert fam.network.max_relative_error() < 1e-10 and fam.network.min_weight() > 0
     assert fam.partner.dual.koenigs_defect < 1e-12
+
+
+def test_the_sign_of_R_does_not_follow_round_off():
+    # Enneper's R is odd under x <-> y: its largest |r| is reached with both signs, so a sign
+    # taken from "the largest entry" flipped with a spacing changed in the 13th digit
+    a = minimal_partner(koebe_mesh("enneper", kind="inscribed", spacing=0.3)).heights
+    b = minimal_partner(koebe_mesh("enneper", kind="inscribed", spacing=0.3 * (1 + 1e-13))).heights
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)

@@ -379,10 +379,25 @@ def minimal_partner(phi: PolyMesh, *, tol: float = 1e-8) -> MinimalPartner:
     rmax = float(np.abs(r).max())
     if rmax <= 1e-12 * size:
         raise NotKoenigs("the minimal partner R of this mesh is affine (a plane): the family Φ + αR only tilts Φ")
-    k = int(np.argmax(np.abs(r)))
-    r = r * (size / rmax) * np.sign(r[k])
+    r = r * (size / rmax) * _sign_convention(r, xy)
     return MinimalPartner(heights=r, polar=P, dual=D, vertex_spread=float(spread.max()) / rmax,
                           polish_change=change / rmax)
+
+
+def _sign_convention(r: np.ndarray, xy: np.ndarray) -> float:
+    """The sign that makes R positive at its largest |r|, ties broken by the top view.
+
+    R and −R are equally minimal: the sign is a convention. Symmetric meshes (Enneper's is odd
+    under x ↔ y) have several vertices with the same |r| and opposite signs, so "the largest"
+    alone would follow round-off; among the vertices within 1e-6 of the largest |r| the one
+    first in (x, y) order decides.
+    """
+    a = np.abs(r)
+    near = np.flatnonzero(a >= (1.0 - 1e-6) * a.max())
+    scale = float(np.ptp(xy, axis=0).max()) or 1.0
+    key = np.round(xy[near] / (1e-6 * scale))  # positions equal to 1e-6 of the size count as equal
+    first = near[np.lexsort((key[:, 1], key[:, 0]))[0]]
+    return float(np.sign(r[first]))
 
 
 def _harmonic_extension(phi: PolyMesh, r: np.ndarray) -> np.ndarray:
