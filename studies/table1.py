@@ -62,10 +62,16 @@ def _staggered(backend: str, **options: Any) -> Callable[[], Any]:
     return make
 
 
-def _simultaneous() -> Any:
-    from selfsupport.methods.simultaneous import Simultaneous
+def _simultaneous(**options: Any) -> Callable[[], Any]:
+    def make():
+        from selfsupport.methods.simultaneous import Simultaneous
 
-    return Simultaneous()
+        return Simultaneous(**options)
+    return make
+
+
+#: The regulariser weights of the homotopy variants before the method's own (1e-6).
+HOMOTOPY = (1.0, 1e-2, 1e-4)
 
 
 def _nlopt() -> Any:
@@ -123,13 +129,25 @@ VARIANTS: dict[str, Variant] = {v.key: v for v in (
     Variant("staggered/ipopt", "staggered", "ipopt", _staggered("ipopt"), 120.0),
     Variant("staggered/osqp", "staggered", "osqp", _staggered("osqp"), 120.0),
     Variant("staggered/nlopt", "staggered", "nlopt", _staggered("nlopt"), 120.0),
-    Variant("simultaneous/ipopt", "simultaneous", "ipopt (cold)", _simultaneous, 120.0),
-    Variant("simultaneous/ipopt-warm", "simultaneous", "ipopt (warm from staggered)", _simultaneous, 120.0,
+    Variant("simultaneous/ipopt", "simultaneous", "ipopt (cold)", _simultaneous(), 120.0),
+    Variant("simultaneous/ipopt-warm", "simultaneous", "ipopt (warm from staggered)", _simultaneous(), 120.0,
             warm_start=True),
     # the refinement's objective (distance to the reference *surface*) rather than to its vertices:
     # the like-for-like comparison for staggered-refine
-    Variant("simultaneous/ipopt-surface-warm", "simultaneous", "ipopt (surface objective, warm)", _simultaneous,
+    Variant("simultaneous/ipopt-surface-warm", "simultaneous", "ipopt (surface objective, warm)", _simultaneous(),
             120.0, warm_start=True, solve_kw=(("objective", "surface"),)),
+    # the weight regulariser raised from 1e-6 to 1 (the objective then sees the weights' null space,
+    # m − 3·n_free directions, where IPOPT's steps were unbounded): a slightly different problem,
+    # its share of the objective reported
+    Variant("simultaneous/ipopt-reg1", "simultaneous", "ipopt (weight reg. 1, cold)",
+            _simultaneous(weight_regularization=1.0), 300.0),
+    Variant("simultaneous/ipopt-reg1-warm", "simultaneous", "ipopt (weight reg. 1, warm)",
+            _simultaneous(weight_regularization=1.0), 300.0, warm_start=True),
+    # ... and the homotopy that ends at the stated problem: regulariser 1, 1e-2, 1e-4, then the default
+    Variant("simultaneous/ipopt-homotopy", "simultaneous", "ipopt (homotopy in the weight reg., cold)",
+            _simultaneous(continuation=HOMOTOPY), 300.0),
+    Variant("simultaneous/ipopt-homotopy-warm", "simultaneous", "ipopt (homotopy in the weight reg., warm)",
+            _simultaneous(continuation=HOMOTOPY), 300.0, warm_start=True),
     Variant("simultaneous/nlopt", "simultaneous", "nlopt", _nlopt, 120.0),
 )}
 
@@ -200,6 +218,7 @@ def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, 
             "repeats": len(times), "iterations": res.iterations,
             "reported_error": res.max_relative_error, "min_weight": res.min_weight,
             "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max,
+            "regularizer_share": res.parameters.get("regularizer_share"),
             "rss_before_mib": rss0, "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
 
 
@@ -247,6 +266,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("median_rel_error", "median rel. error", "{:.1e}"), Column("checker_error", "checker error", "{:.1e}"),
     Column("reported_error", "reported error", "{:.1e}"),
     Column("min_weight", "min w [N/m]", "{:.3g}"),
+    Column("regularizer_share", "IPOPT: weight reg. / objective", "{:.1e}"),
     Column("dist_ref_mean", "dist. to ref. mean", "{:.2e}"), Column("dist_ref_max", "dist. to ref. max", "{:.2e}"),
     Column("dist_pub_mean", "vs published mean", "{:.2e}"), Column("dist_pub_max", "vs published max", "{:.2e}"),
     Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("rss_before_mib", "RSS before solve [MiB]", "{:.0f}"),

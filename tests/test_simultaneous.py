@@ -178,3 +178,47 @@ def test_nlopt_failure_is_a_labelled_status_not_a_crash(algorithm, monkeypatch):
     assert res.status in STATUSES and res.status != "converged"
     assert res.message
     assert np.all(np.isfinite(res.network.vertices)) and np.all(res.network.weights >= 0)
+
+
+def test_a_raised_weight_regulariser_is_the_problem_solved_and_its_share_is_reported(scene):
+    from tests.conftest import kkt_residual
+
+    for bad in ({"weight_regularization": -1.0}, {"continuation": (1.0, float("nan"))}):
+        with pytest.raises(InputError, match="weight regulariser must be a finite number"):
+            Simultaneous(**bad)
+    run = Simultaneous(weight_regularization=1.0).run(scene, SelfWeight())
+    res, a = run.result, run.answer
+    assert res.status == "converged" and res.max_relative_error < 1e-9
+    assert a.formulation.weight_regularization == 1.0 == res.parameters["weight_regularization"]
+    # IPOPT's answer is stationary for the regularised NLP ...
+    assert kkt_residual(a.nlp, a.x, a.p, a.lam_x, a.lam_g) <= 1e-6
+    # ... and the reported share is the regulariser's part of its objective: f = f_distance + f_reg
+    import dataclasses
+
+    plain = dataclasses.replace(a.formulation, weight_regularization=0.0)
+    f0 = float(plain.objective_function()(a.x, a.p))
+    share = res.parameters["regularizer_share"]
+    assert 0 < share < 1 and abs(share - (a.f - f0) / a.f) <= 1e-9
+    # (the default regulariser, 1e-6 of this one, has a smaller share)
+    default = Simultaneous().solve(scene, SelfWeight()).parameters["regularizer_share"]
+    assert 0 < default < share
+
+
+def test_the_homotopy_in_the_regulariser_ends_at_the_stated_problem(scene, result):
+    # regulariser 1 -> 1e-2 -> the default, each stage warm from the last: the last stage solves the
+    # same NLP as the plain solve, so it lands on the same optimum (the NLP is non-convex, but this
+    # dome has one optimum near the reference)
+    res = Simultaneous(continuation=(1.0, 1e-2)).solve(scene, LOADS)
+    stages = res.parameters["continuation"]
+    assert [st["weight_regularization"] for st in stages] == [1.0, 1e-2, result.parameters["weight_regularization"]]
+    assert all(st["status"] == "converged" for st in stages) and res.status == "converged"
+    assert res.iterations == sum(st["iterations"] for st in stages)
+    # the regulariser's share falls along the path, and the end agrees with the plain solve
+    shares = [st["regularizer_share"] for st in stages]
+    assert shares[0] > shares[-1]
+    assert res.max_relative_error < 1e-9
+    diag = float(np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0)))
+    assert np.abs(res.network.vertices - result.network.vertices).max() <= 1e-7 * diag  # (measured 1.3e-9)
+    # ... where the regularised problem alone lands elsewhere (measured 1.2e-2 of the diagonal)
+    first = Simultaneous(weight_regularization=1.0).solve(scene, LOADS)
+    assert np.abs(first.network.vertices - result.network.vertices).max() > 1e-3 * diag

@@ -451,7 +451,8 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
     if answer is not None:
         form, sc = answer.formulation, answer.scaling
     elif not result.parameters.get("warm_start", False):
-        form, sc = Simultaneous.formulation(problem, scene.mesh.vertices)  # a cold start starts at the reference
+        form, sc = Simultaneous.formulation(  # a cold start starts at the reference
+            problem, scene.mesh.vertices, weight_regularization=result.parameters.get("weight_regularization"))
     else:
         raise InputError("a warm-started solve's NLP depends on its start; pass the SimultaneousRun")
     top = form.topology

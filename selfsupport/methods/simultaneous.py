@@ -49,7 +49,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
@@ -257,7 +257,21 @@ class Simultaneous:
         "mu_init": 1e-11,  # capped at 0.01 × tol
     }
 
-    def __init__(self, **ipopt_options: Any) -> None:
+    #: Weight of the regulariser ``mean((w / scale)²)`` in the objective; ``None``:
+    #: :data:`WEIGHT_REGULARIZATION`. Raising it is what makes IPOPT converge on lilium and
+    #: lilium-pillar (README, "Reproducing the paper"), at the price of a slightly different problem.
+    weight_regularization: float | None = None
+    #: Continuation: regulariser weights solved in turn, each stage warm-started from the last,
+    #: before the solve with :attr:`weight_regularization` (empty: one solve).
+    continuation: tuple[float, ...] = ()
+
+    def __init__(self, *, weight_regularization: float | None = None, continuation: Sequence[float] = (),
+                 **ipopt_options: Any) -> None:
+        for v in (() if weight_regularization is None else (weight_regularization,)) + tuple(continuation):
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"a weight regulariser must be a finite number >= 0, got {v!r}")
+        self.weight_regularization = None if weight_regularization is None else float(weight_regularization)
+        self.continuation = tuple(float(v) for v in continuation)
         self.options = {**self.defaults, **ipopt_options}
 
     # ------------------------------------------------------------------ public
@@ -307,11 +321,13 @@ class Simultaneous:
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
         problem.validate()
         self._check_problem(problem)
+        if self.continuation:
+            return self._continue(problem, opts, deadline, progress, t_start)
         scene = problem.scene
         mesh0 = scene.mesh
 
         V = _start_vertices(scene, opts.warm_start)
-        form, sc = self.formulation(problem, V)
+        form, sc = self.formulation(problem, V, weight_regularization=self.weight_regularization)
         top = form.topology
         free = top.free
         C = len(problem.loads)
@@ -463,12 +479,46 @@ class Simultaneous:
                         "objective": named if named is not None else _describe_objective(problem),
                         "problem": problem.describe(), "load_cases": list(problem.loads.names),
                         "warm_start": opts.warm_start is not None, "load_rounds": len(history),
-                        "solver_options": dict(self.options),
+                        "solver_options": dict(self.options), "weight_regularization": form.weight_regularization,
+                        "regularizer_share": _regularizer_share(answer),
                         **({"planarity": planarity} if planarity is not None else {})}), answer)
+
+    def _continue(self, problem: Problem, opts: SimultaneousOptions, deadline: float,
+                  progress: Callable[[dict], None] | None, t_start: float) -> SimultaneousRun:
+        """The homotopy in the weight regulariser: :attr:`continuation`'s weights, then this
+        method's own, each stage a full solve warm-started from the previous stage's network.
+        A stage that does not converge ends the run (its result, labelled)."""
+        stages: list[dict[str, Any]] = []
+        history: list[dict[str, Any]] = []
+        start, run = opts.warm_start, None
+        for reg in (*self.continuation, self.weight_regularization):
+            stage = type(self)(weight_regularization=reg, **self.options)
+            run = stage.run(problem, dataclasses.replace(opts, warm_start=start), progress=progress, deadline=deadline)
+            res = run.result
+            stages.append({"weight_regularization": res.parameters["weight_regularization"], "status": res.status,
+                           "iterations": res.iterations, "seconds": res.wall_time,
+                           "regularizer_share": res.parameters.get("regularizer_share"),
+                           "max_relative_error": res.max_relative_error, "distance_mean": res.distance_mean})
+            history += [{**h, "continuation_stage": len(stages)} for h in res.history]
+            if res.status != "converged":
+                break
+            start = res
+        res = run.result
+        done = len(stages) == len(self.continuation) + 1 and res.status == "converged"
+        note = (f"continuation in the weight regulariser over {len(stages)} stage(s) "
+                f"({', '.join(format(st['weight_regularization'], 'g') for st in stages)})")
+        if not done:
+            note += f"; stage {len(stages)} ended {res.status}"
+        result = dataclasses.replace(
+            res, wall_time=time.perf_counter() - t_start, iterations=sum(st["iterations"] for st in stages),
+            history=tuple(history), message=f"{note}; {res.message}",
+            parameters={**res.parameters, "continuation": stages, "warm_start": opts.warm_start is not None})
+        return SimultaneousRun(result, run.answer)
 
     # ------------------------------------------------------------------ formulation
     @staticmethod
-    def formulation(problem: Problem, start: np.ndarray) -> tuple[ThrustNetworkProblem, Scaling]:
+    def formulation(problem: Problem, start: np.ndarray, *,
+                    weight_regularization: float | None = None) -> tuple[ThrustNetworkProblem, Scaling]:
         """The NLP this method solves for ``problem`` started at ``(n, 3)`` positions ``start``
         [m], and its scaling: lengths / the reference's bounding-box diagonal, forces / the mean
         nodal load of the first case *at the start* (so the default lower bound and the weight
@@ -487,7 +537,9 @@ class Simultaneous:
         objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
         h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
         form = ThrustNetworkProblem(top, sc.pos(start), sp_.L, WeightBounds(sp_.lower, sp_.upper),
-                                    objective=objective_term, weight_regularization=WEIGHT_REGULARIZATION,
+                                    objective=objective_term,
+                                    weight_regularization=(WEIGHT_REGULARIZATION if weight_regularization is None
+                                                           else weight_regularization),
                                     weight_scale=1.0 / h ** 2, hull=hull, planar=planar,
                                     fixed_xy=sp_.X[top.free, :2] if problem.fixed_top_view else None,
                                     case_names=problem.loads.names)
@@ -546,6 +598,17 @@ class Simultaneous:
                 "raw": ret, "status": IPOPT_STATUS.get(ret, "failed"),
                 "iterations": 0 if ret in _NO_ITERATIONS else int(st.get("iter_count", 0) or 0),
                 "objective": float(sol["f"]), "seconds": seconds}
+
+
+def _regularizer_share(answer: IpoptAnswer | None) -> float | None:
+    """The weight regulariser's part of IPOPT's last objective value (how far the regularised
+    problem is from the stated one), or ``None`` without an answer."""
+    if answer is None or not answer.f > 0:
+        return None
+    form = answer.formulation
+    W = form.unpack_cases(answer.x)[1]
+    reg = form.weight_regularization * float(np.mean((W / form.weight_scale) ** 2))
+    return reg / answer.f
 
 
 def _start_vertices(scene: Scene, warm_start: Network | SolveResult | None) -> np.ndarray:
