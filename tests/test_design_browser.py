@@ -141,8 +141,8 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     drv.find_element(By.CSS_SELECTOR, "input[name=tool][value=drag]").click()
     pad = drv.find_element(By.ID, "dragpad")
     chain = ActionChains(drv, duration=30).move_to_element(pad).click_and_hold()
-    for _ in range(8):
-        chain = chain.move_by_offset(0, -12).pause(0.06)
+    for _ in range(8):  # (slow enough that frames arrive while the drag goes on)
+        chain = chain.move_by_offset(0, -12).pause(0.3)
     chain.release().perform()
     # the drag's steps (one message every 50 ms at most) are answered by states; the last one counts
     last = -1
@@ -159,6 +159,11 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     assert R2[h, 2] > V0[h, 2] + 0.05, (R2[h], V0[h])  # the handle went up with the mouse
     assert np.abs(V2 - V0).max() > 0.05  # and the network followed
     assert len(srv.log.edits) == 2 and srv.log.edits[-1].op == "move"  # one drag = one edit
+    # while it went on, the light picture (edges only); after it, the full one (reference and all)
+    assert drv.execute_script("return ssDesign.st.lightDraws") > 0
+    _wait(drv, "return ssDesign.st.drawnLight === false && "
+               "document.getElementById('net')._fullData.some((t) => t.name === 'reference')",
+          what="the full picture after the drag")
     shots.append(_shot(drv, "2-dragged", tmp_path))
 
     # undo (the button) takes the drag back

@@ -7,7 +7,7 @@ import { airyLayout, airyTraces, networkLayout, networkTraces, reciprocalLayout,
 const $ = (id) => document.getElementById(id);
 const ui = { tool: 'orbit', handles: [], cut: [], showHull: true };
 const st = { frame: null, analysis: null, state: null, seq: 0, sentAt: new Map(), latency: [], errors: [],
-  frames: 0, messages: [], drawn: 0, saved: [] };
+  frames: 0, messages: [], drawn: 0, saved: [], dragging: false, lightDraws: 0 };
 let ws = null, plotted = false;
 
 // ------------------------------------------------------------------------- connection
@@ -22,11 +22,13 @@ function connect() {
 function send(msg) {
   if (!ws || ws.readyState !== WebSocket.OPEN) { showError('not connected'); return false; }
   ws.send(JSON.stringify(msg));
+  if (msg.type === 'drag_end' && st.dragging) { st.dragging = false; scheduleDraw('net'); }  // the full picture again
   return true;
 }
 
 function sendEdit(edit, drag = null) {
   if (send({ type: 'edit', edit, drag })) st.pending = performance.now();
+  st.dragging = !!drag;
 }
 
 function receive(m) {
@@ -88,6 +90,9 @@ function showError(text) { $('error').textContent = text; if (text) st.errors.pu
 // drawn when the edits pause (no edit waiting for its frame for SIDE_DELAY ms): while dragging,
 // the page's time goes to the network view (the panels took 0.2-0.5 s a draw in headless Chromium).
 const SIDE_DELAY = 250;
+// (WebGL at one pixel per CSS pixel: plotly's default of 2 quadruples the fill cost of every
+// frame, 1.3-1.5x the frame time measured in headless Chromium)
+const PLOT_CONFIG = { displaylogo: false, responsive: true, plotGlPixelRatio: 1 };
 const dirty = { net: false, side: false };
 let drawScheduled = false, sideTimer = null;
 const editInFlight = () => st.pending !== undefined || (st.state && st.frame && st.frame.seq < st.state.seq);
@@ -114,8 +119,14 @@ function draw() {
   const a = st.analysis && st.analysis.seq === f.seq ? st.analysis : null;
   const t0 = performance.now();
   if (dirty.net) {
-    const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges`;
-    Plotly.react('net', networkTraces(f, ui), networkLayout(title), { displaylogo: false, responsive: true });
+    // while a drag goes on, the light picture: the network's edges, supports and handles only. The
+    // transparent reference and hull band and the vertex markers cost most of a software-rendered
+    // (SwiftShader) frame; they come back with the frame after the drag ends
+    const light = !!st.dragging;
+    const title = `thrust network: ${f.n_vertices} vertices, ${f.n_edges} edges` + (light ? ' (dragging: edges only)' : '');
+    Plotly.react('net', networkTraces(f, ui, { light }), networkLayout(title), PLOT_CONFIG);
+    st.drawnLight = light;
+    if (light) st.lightDraws++;
     dirty.net = false;
   }
   const t1 = performance.now();

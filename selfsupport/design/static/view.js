@@ -62,9 +62,37 @@ function vertexNormals(V, T) {
   return N;
 }
 
-/** The main view's traces, always in the same order (Plotly.react keeps the camera). */
-export function networkTraces(frame, ui) {
-  const P = xyz(frame.vertices), R = xyz(frame.reference.vertices), T = triangles(frame.reference.triangles);
+/** The main view's traces (the layout's uirevision keeps the camera); ``light``: the edges,
+ *  supports, handles and cut only (the picture drawn while a drag goes on). */
+export function networkTraces(frame, ui, { light = false } = {}) {
+  const P = xyz(frame.vertices);
+  const traces = light ? [] : referenceTraces(frame, ui);
+  forceTraces(frame, P, traces);
+  const n = P.x.length;
+  if (!light) {  // vertices carry their index (customdata): hovering shows it
+    const idx = Array.from({ length: n }, (_, i) => i);
+    traces.push({ type: 'scatter3d', mode: 'markers', name: 'vertices', ...P, customdata: idx,
+      marker: { size: n > 500 ? 2 : 3, color: '#333' }, hovertemplate: 'vertex %{customdata}<extra></extra>',
+      showlegend: false });
+  }
+  const pick = (ids) => ({ x: ids.map((i) => P.x[i]), y: ids.map((i) => P.y[i]), z: ids.map((i) => P.z[i]), customdata: ids });
+  traces.push({ type: 'scatter3d', mode: 'markers', name: 'supports', ...pick(frame.supports),
+    marker: { size: 4, color: 'black', symbol: 'square' }, hovertemplate: 'support %{customdata}<extra></extra>' });
+  traces.push({ type: 'scatter3d', mode: 'markers', name: 'handles', ...pick(ui.handles.filter((i) => i < n)),
+    marker: { size: 6, color: '#ff8c00' }, hovertemplate: 'handle %{customdata}<extra></extra>' });
+  traces.push({ type: 'scatter3d', mode: 'lines+markers', name: 'cut path', ...pick(ui.cut.filter((i) => i < n)),
+    marker: { size: 5, color: '#d000d0' }, line: { color: '#d000d0', width: 4 }, hoverinfo: 'skip' });
+  // colorbar of the forces (the viewer's: Turbo, newtons)
+  const [fmin, fmax] = forceRange(frame);
+  traces.push({ type: 'scatter3d', mode: 'markers', x: [P.x[0]], y: [P.y[0]], z: [P.z[0]], hoverinfo: 'skip',
+    showlegend: false, name: 'force scale', marker: { size: 0.1, opacity: 0, color: [fmin], cmin: fmin, cmax: fmax,
+      colorscale: TURBO, showscale: true, colorbar: { title: { text: 'edge force [N]' }, x: 0, xanchor: 'left', len: 0.7, thickness: 12 } } });
+  return traces;
+}
+
+/** The reference surface and the hull band (reference ± t/2), transparent meshes. */
+function referenceTraces(frame, ui) {
+  const R = xyz(frame.reference.vertices), T = triangles(frame.reference.triangles);
   const traces = [];
   traces.push({ type: 'mesh3d', name: 'reference', ...R, ...T, color: 'lightsteelblue', opacity: 0.25,
     hoverinfo: 'skip', flatshading: true, showlegend: true });
@@ -78,7 +106,12 @@ export function networkTraces(frame, ui) {
     k: T.k.concat(T.k.map((v) => v + nR)) };
   traces.push({ type: 'mesh3d', name: 'hull band (reference ± t/2)', ...B, ...BT, color: '#c9a36b', opacity: 0.12,
     hoverinfo: 'skip', showlegend: true, visible: ui.showHull ? true : 'legendonly' });
-  const [fmin, fmax] = forceRange(frame);
+  return traces;
+}
+
+/** The edges binned by force (one trace per colour) and the support-support edges, into ``traces``. */
+function forceTraces(frame, P, traces) {
+  const fmax = forceRange(frame)[1];
   const bins = Array.from({ length: FORCE_BINS }, () => []), passive = [];
   const E = frame.edges;
   for (let e = 0; e < frame.forces.length; e++) {
@@ -91,23 +124,6 @@ export function networkTraces(frame, ui) {
     hoverinfo: 'skip', showlegend: false, name: `forces ${b + 1}/${FORCE_BINS}` }));
   traces.push({ type: 'scatter3d', mode: 'lines', ...segments(P, passive), line: { width: 1, color: 'gray' },
     hoverinfo: 'skip', showlegend: false, name: 'support–support edges' });
-  // vertices carry their index (customdata): clicks pick them
-  const n = P.x.length, idx = Array.from({ length: n }, (_, i) => i);
-  traces.push({ type: 'scatter3d', mode: 'markers', name: 'vertices', ...P, customdata: idx,
-    marker: { size: n > 500 ? 2 : 3, color: '#333' }, hovertemplate: 'vertex %{customdata}<extra></extra>',
-    showlegend: false });
-  const pick = (ids) => ({ x: ids.map((i) => P.x[i]), y: ids.map((i) => P.y[i]), z: ids.map((i) => P.z[i]), customdata: ids });
-  traces.push({ type: 'scatter3d', mode: 'markers', name: 'supports', ...pick(frame.supports),
-    marker: { size: 4, color: 'black', symbol: 'square' }, hovertemplate: 'support %{customdata}<extra></extra>' });
-  traces.push({ type: 'scatter3d', mode: 'markers', name: 'handles', ...pick(ui.handles.filter((i) => i < n)),
-    marker: { size: 6, color: '#ff8c00' }, hovertemplate: 'handle %{customdata}<extra></extra>' });
-  traces.push({ type: 'scatter3d', mode: 'lines+markers', name: 'cut path', ...pick(ui.cut.filter((i) => i < n)),
-    marker: { size: 5, color: '#d000d0' }, line: { color: '#d000d0', width: 4 }, hoverinfo: 'skip' });
-  // colorbar of the forces (the viewer's: Turbo, newtons)
-  traces.push({ type: 'scatter3d', mode: 'markers', x: [P.x[0]], y: [P.y[0]], z: [P.z[0]], hoverinfo: 'skip',
-    showlegend: false, name: 'force scale', marker: { size: 0.1, opacity: 0, color: [fmin], cmin: fmin, cmax: fmax,
-      colorscale: TURBO, showscale: true, colorbar: { title: { text: 'edge force [N]' }, x: 0, xanchor: 'left', len: 0.7, thickness: 12 } } });
-  return traces;
 }
 
 export function networkLayout(title) {
