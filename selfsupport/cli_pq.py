@@ -4,14 +4,16 @@
 
     selfsupport pq NET.json --out PQ.json [--spacing H] [--field principal|grid] [--angle DEG]
                    [--tol 1e-3] [--density RHO] [--thickness T] [--method staggered|ipopt]
-                   [--time-limit S]
+                   [--no-finish] [--time-limit S]
 
 Remeshes the network's top view along its relative principal directions
 (:mod:`selfsupport.design.remesh`: quads, and triangles where a line of the field ends) and
 solves the remeshed design with planar faces required (:class:`formulations.Planar`): a
 network in equilibrium whose quads are planar to ``--tol`` (distance of the diagonals over the
 mean edge length). ``--field grid`` remeshes along a fixed grid instead (the naive, unaligned
-mesh of the paper's Fig. 12). Prints the summary; exit codes as ``solve``.
+mesh of the paper's Fig. 12). When the method does not converge, IPOPT finishes from the
+network in equilibrium without planar faces (:func:`selfsupport.design.pq.solve_planar`;
+``--no-finish``: not). Prints the summary; exit codes as ``solve``.
 """
 from __future__ import annotations
 
@@ -36,6 +38,9 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=positive_float, default=1e-3, metavar="TOL",
                    help="largest quad non-planarity accepted (default 1e-3)")
     p.add_argument("--method", choices=("staggered", "ipopt"), default="staggered", help="solver (default staggered)")
+    p.add_argument("--no-finish", dest="finish", action="store_false",
+                   help="no IPOPT finish from the network in equilibrium without planar faces when the method "
+                        "does not converge (selfsupport.design.pq)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit of the solve [s] (default: the method's)")
     add_load_arguments(p)
@@ -43,9 +48,7 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
-    from formulations import Planar
-
-    from . import api
+    from .design.pq import solve_planar
     from .design.remesh import remesh
     from .io import write_network
     from .io.network_json import read_network
@@ -54,15 +57,20 @@ def run_pq(args: argparse.Namespace) -> int:
     check_outputs([("--out", args.out)], [("network", args.network)])
     net = read_network(args.network)
     q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle)
-    limits = {} if args.time_limit is None else {"time_limit": args.time_limit}
-    result = api.solve(q.scene, method=args.method, density=args.density, thickness=args.thickness,
-                       constraints=[Planar(tol=args.tol)], **limits)
+    result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=args.time_limit,
+                          density=args.density, thickness=args.thickness)
     planarity = result.parameters.get("planarity") or {}
     write_network(args.out, result, remesh={"field": q.field, "spacing": q.spacing, "source": str(args.network),
                                             "face_sizes": q.face_size_counts})
     rows = summary_rows(result, q.scene)
     rows += [("remesh", f"{q.field}, spacing {q.spacing:.4g} m, faces {q.face_size_counts}"),
              ("max non-planarity", f"{planarity.get('max_nonplanarity', float('nan')):.2e} (tol {args.tol:g})")]
+    finish = result.parameters.get("planar_finish")
+    if finish is not None:
+        rows.append(("finish", finish["why"] if "why" in finish else
+                     f"{finish['first']['method']} {finish['first']['status']}, then {finish['finish']['method']} "
+                     f"{finish['finish']['status']} ({finish['finish']['max_relative_error']:.1e}); "
+                     f"returned: the {finish['returned']} run"))
     print_table(f"selfsupport pq -> {args.out}", rows)
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
 

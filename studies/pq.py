@@ -6,7 +6,9 @@
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
 scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
 directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length), each
-solved with planar faces required (:class:`formulations.Planar`, tol 1e-3). Columns: faces, status,
+solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
+:func:`selfsupport.design.pq.solve_planar` (the staggered method, and where it does not converge
+the IPOPT finish; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
 (/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
@@ -23,7 +25,7 @@ import numpy as np
 
 from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
 
-COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"),
+COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"), Column("solved_by", "solved by"),
            Column("max_rel_error", "max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
@@ -38,9 +40,20 @@ def _nonplanarity(mesh) -> tuple[float, float]:
     return (float(q.max()), float(q.mean())) if q.size else (float("nan"), float("nan"))
 
 
-def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float) -> list[dict[str, Any]]:
-    from formulations import Planar
+def _finish_note(res) -> str:
+    """How the planar solve ended: the staggered run alone, or staggered then the IPOPT finish."""
+    f = res.parameters.get("planar_finish")
+    if f is None:
+        return "staggered"
+    if "why" in f:
+        return "staggered (no finish)"
+    return f"staggered {f['first']['status']}, IPOPT {f['finish']['status']}: {f['returned']}"
+
+
+def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
+        finish: bool = True) -> list[dict[str, Any]]:
     from selfsupport import api
+    from selfsupport.design.pq import solve_planar
     from selfsupport.design.remesh import remesh
     from selfsupport.errors import SelfSupportError
     from selfsupport.evidence import distance_stats
@@ -62,7 +75,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                 q = None if field == "as is" else remesh(net, spacing=h, field=field)
                 todo = scene if q is None else q.scene
                 mx, mn = _nonplanarity(todo.mesh)
-                res = api.solve(todo, constraints=[Planar(tol=1e-3)], time_limit=time_limit)
+                res = solve_planar(todo, tol=1e-3, finish=finish, time_limit=time_limit)
             except SelfSupportError as exc:
                 row.update(status=f"failed: {exc}")
                 rows.append(row)
@@ -70,7 +83,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             path = out / f"{name}__{field.replace(' ', '-')}.json"
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
-            row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
+            row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status, solved_by=_finish_note(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],
@@ -98,9 +111,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--only", default="dome,vault,lilium", help="scenes (comma-separated; dome is generated)")
     p.add_argument("--spacing", type=float, default=1.0, help="line spacing / the network's mean top-view edge length")
-    p.add_argument("--time-limit", type=float, default=300.0)
+    p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
+    p.add_argument("--no-finish", dest="finish", action="store_false",
+                   help="the staggered method alone (no IPOPT finish, selfsupport.design.pq)")
     a = p.parse_args(argv)
-    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit)
+    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish)
     return 0
 
 

@@ -431,6 +431,10 @@ class Simultaneous:
                     form, Vp, Wp, loads_at=loads_at, deadline=deadline,
                     load_jacobian=case_load_jacobians(problem.loads.models, mesh0, sc, top.free))
                 what = f"max relative error {perr:.1e}"
+                # its own target is round-off (1e-12); a polish that stops at its floor above that
+                # (planarity rows: 1.7e-12 on a vault remesh) is still far better than IPOPT's
+                # round and meets the method's tolerance, as the staggered method judges it
+                ok = ok or perr <= tol
             else:
                 Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc,
                                                  deadline=deadline)

@@ -1,0 +1,110 @@
+"""Planar faces in equilibrium (paper §5): one method's solve, and where it does not converge, a
+finish by the simultaneous solve from the network in equilibrium without the planarity rows.
+
+Why the finish starts there: the staggered method holds planarity as a penalty in Step 3 and on
+some meshes stalls with the fit error and the penalty pulling against each other (the paper's
+vault remeshed along its principal directions: max relative error 2.6e-2, non-planarity 1.2e-2).
+IPOPT holds the planarity rows as equations and takes Newton steps on positions and weights
+together; started from the reference it does not finish either, but started from the same mesh's
+network in equilibrium (a 0.05 s staggered solve without the rows) it converged in 0.5 s there
+(max relative error 3e-12, every quad planar to 5e-16). Where both fail the better run is
+returned and ``parameters["planar_finish"]`` says how the other ended.
+
+A barrel vault remeshed along its relative principal directions (the staggered method stalls
+on it, the finish converges):
+
+>>> from selfsupport import api
+>>> from selfsupport.shapes import make_shape
+>>> from selfsupport.design.remesh import remesh
+>>> from selfsupport.design.pq import solve_planar
+>>> net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+>>> r = solve_planar(remesh(net, field="principal", spacing=0.1, relative=True).scene, tol=1e-3)
+>>> r.status, r.max_relative_error < 1e-8, r.parameters["planarity"]["met"]
+('converged', True, True)
+>>> r.parameters["planar_finish"]["first"]["status"], r.parameters["planar_finish"]["returned"]
+('stalled', 'finish')
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+__all__ = ["solve_planar", "FINISH_METHOD"]
+
+#: The method of the finish (its planarity rows are equations, not a penalty).
+FINISH_METHOD = "ipopt"
+
+
+def _better(a: Any, b: Any) -> bool:
+    """Whether result ``a`` is better than ``b``: converged first, then the smaller max relative error."""
+    if (a.status == "converged") != (b.status == "converged"):
+        return a.status == "converged"
+    return a.max_relative_error < b.max_relative_error
+
+
+def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", finish: bool = True,
+                 time_limit: float | None = None, **solve_kw: Any) -> Any:
+    """Solve ``scene`` with planar faces (:class:`formulations.Planar`) by ``method``; when that does
+    not converge and ``finish``, by :data:`FINISH_METHOD` warm-started from the network in
+    equilibrium without the planarity rows (module docstring).
+
+    Parameters
+    ----------
+    scene
+        A scene, or anything :func:`selfsupport.api.solve` takes.
+    tol
+        Largest quad non-planarity accepted (distance of the diagonals / mean edge length).
+    method
+        The first solve's method (a name of :data:`selfsupport.api.METHODS`).
+    finish
+        Run the finish when the first solve does not converge.
+    time_limit
+        Wall-clock limit of the whole call [s]; the finish gets what is left (``None``: each solve
+        its method's own default).
+    **solve_kw
+        Passed to every :func:`selfsupport.api.solve` (loads, bounds, objective, ...).
+
+    Returns
+    -------
+    SolveResult
+        The better run (converged first, then the smaller max relative error) with the time and
+        iterations of all runs; ``parameters["planar_finish"]`` describes the finish (``None``
+        when it did not run).
+    """
+    from formulations import Planar
+
+    from .. import api
+
+    t0 = time.perf_counter()
+    planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]
+
+    def left() -> dict[str, float]:
+        return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
+
+    first = api.solve(scene, method=method, constraints=planar, **left(), **solve_kw)
+    if first.status == "converged" or not finish or first.status == "time_limit" or method == FINISH_METHOD:
+        return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
+    free = [c for c in planar if not isinstance(c, Planar)]
+    eq = api.solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
+    if eq.status != "converged":
+        note = f"no finish: the mesh has no network in equilibrium without planar faces either ({eq.status})"
+        return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
+                                   parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
+    second = api.solve(scene, method=FINISH_METHOD, constraints=planar, warm_start=eq, **left(), **solve_kw)
+    chosen, other = (second, first) if _better(second, first) else (first, second)
+    note = (f"{method} with planar faces ended {first.status} at max relative error {first.max_relative_error:.2e}; "
+            f"{FINISH_METHOD} from the network in equilibrium without them ({eq.iterations} iterations) ended "
+            f"{second.status} at {second.max_relative_error:.2e}")
+    return dataclasses.replace(
+        chosen, wall_time=time.perf_counter() - t0, iterations=first.iterations + eq.iterations + second.iterations,
+        message="; ".join(m for m in (chosen.message, note) if m),
+        parameters={**chosen.parameters, "planar_finish": {
+            "first": {"method": method, "status": first.status, "max_relative_error": first.max_relative_error,
+                      "iterations": first.iterations, "wall_time": first.wall_time},
+            "equilibrium": {"status": eq.status, "iterations": eq.iterations, "wall_time": eq.wall_time},
+            "finish": {"method": FINISH_METHOD, "status": second.status,
+                       "max_relative_error": second.max_relative_error, "iterations": second.iterations,
+                       "wall_time": second.wall_time},
+            "returned": "finish" if chosen is second else "first",
+            "other_status": other.status}})
