@@ -2,6 +2,8 @@
 weight bounds, load consistency and distance to the reference surface."""
 from __future__ import annotations
 
+import atexit
+
 import numpy as np
 
 from .geometry import bbox_diagonal
@@ -134,6 +136,9 @@ class _ReferenceIndex:
 
 
 _INDEX_CACHE: dict[int, tuple[PolyMesh, _ReferenceIndex]] = {}
+# (emptied at exit: libigl's AABB trees still alive when its nanobind module is torn down are
+# reported as "leaked" on stderr, a screenful after every study)
+atexit.register(_INDEX_CACHE.clear)
 
 
 def _reference_index(mesh: PolyMesh) -> _ReferenceIndex:
