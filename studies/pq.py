@@ -25,7 +25,8 @@ import numpy as np
 
 from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
 
-COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"), Column("solved_by", "solved by"),
+COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"),
+           Column("solved_by", "solved by"),
            Column("max_rel_error", "max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
@@ -41,13 +42,14 @@ def _nonplanarity(mesh) -> tuple[float, float]:
 
 
 def _finish_note(res) -> str:
-    """How the planar solve ended: the staggered run alone, or staggered then the IPOPT finish."""
+    """How the planar solve ended: the staggered run alone, or staggered then the finish."""
     f = res.parameters.get("planar_finish")
     if f is None:
         return "staggered"
     if "why" in f:
         return "staggered (no finish)"
-    return f"staggered {f['first']['status']}, IPOPT {f['finish']['status']}: {f['returned']}"
+    return (f"{f['first']['method']} {f['first']['status']}, {f['finish']['method']} {f['finish']['status']}: "
+            f"{f['returned']}")
 
 
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
@@ -83,7 +85,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             path = out / f"{name}__{field.replace(' ', '-')}.json"
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
-            row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status, solved_by=_finish_note(res),
+            row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
+                       solved_by=_finish_note(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],

@@ -5,9 +5,9 @@ Why the finish starts there: the staggered method holds planarity as a penalty i
 some meshes stalls with the fit error and the penalty pulling against each other (the paper's
 vault remeshed along its principal directions: max relative error 2.6e-2, non-planarity 1.2e-2).
 IPOPT holds the planarity rows as equations and takes Newton steps on positions and weights
-together; started from the reference it does not finish either, but started from the same mesh's
-network in equilibrium (a 0.05 s staggered solve without the rows) it converged in 0.5 s there
-(max relative error 3e-12, every quad planar to 5e-16). Where both fail the better run is
+together; started from the staggered method's stalled iterate it hit its iteration limit there,
+but started from the same mesh's network in equilibrium (a 0.05 s staggered solve without the
+rows) it converged in 0.5 s (max relative error 3e-12, every quad planar to 5e-16). Where both fail the better run is
 returned and ``parameters["planar_finish"]`` says how the other ended.
 
 A barrel vault remeshed along its relative principal directions (the staggered method stalls
