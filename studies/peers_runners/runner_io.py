@@ -9,6 +9,7 @@ import json
 import os
 import sys
 import tempfile
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +59,11 @@ def write_result(path: str | os.PathLike, **result: Any) -> None:
 
 
 def fail(path: str | os.PathLike, tool: str, exc: BaseException) -> None:
-    """Record a failure as a result (status ``failed``, the exception's one line)."""
-    write_result(path, tool=tool, status="failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
+    """Record a failure as a result (status ``failed``): the exception's first line and the
+    tool's function the runner called when it was raised (a bare ``KeyError: 1936`` says nothing)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" (in {frames[1].name})" if len(frames) > 1 else ""
+    message = (f"{type(exc).__name__}: {exc}".splitlines() or [type(exc).__name__])[0] + where
+    write_result(path, tool=tool, status="failed", message=message,
                  time_s=float("nan"), vertices=[], edges=[], weights=[])
     print(f"{tool}: {type(exc).__name__}: {exc}", file=sys.stderr)
