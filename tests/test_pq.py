@@ -10,7 +10,7 @@ import pytest
 
 from formulations import Planar
 from selfsupport import api
-from selfsupport.design.remesh import remesh
+from selfsupport.design.remesh import MERGE, remesh
 from selfsupport.evidence import distance_stats, distance_to_surface
 from selfsupport.mesh import PolyMesh
 from selfsupport.scene import Scene
@@ -98,19 +98,33 @@ def test_the_aligned_remesh_ends_closer_than_a_grid_fig12(dome):
     assert out["principal"][1] < out["grid"][1]
 
 
-def test_remesh_refuses_pillars_and_bad_spacing(dome):
+def test_remesh_refuses_a_bad_spacing(dome):
     from selfsupport.errors import InputError
 
     scene, net = dome
-    with pytest.raises(InputError, match="spacing"):
-        remesh(net, spacing=-1.0)
-    sup = net.supports.copy()
-    sup[int(np.argmax(net.vertices[:, 2]))] = True
-    from selfsupport.result import Network
+    for bad in (-1.0, 0.0, float("nan")):
+        with pytest.raises(InputError, match="spacing"):
+            remesh(net, spacing=bad)
 
-    pillar = Network(mesh=net.mesh, weights=net.weights, loads=net.loads, supports=sup)
-    with pytest.raises(InputError, match="pillar"):
-        remesh(pillar)
+
+@requires_checker
+def test_remesh_carries_pillars_and_the_remeshed_design_stands():
+    """A vault on four interior pillars: each pillar is a supported vertex of the remesh where it
+    was, nothing else inside is supported, and the remeshed design has a network in equilibrium
+    (independent checker)."""
+    scene = make_shape("pillar_vault", n_vertices=400)
+    net = api.solve(scene).network
+    old = np.flatnonzero(net.supports & ~net.mesh.boundary_vertex_mask)
+    assert old.size == 4
+    q = remesh(net, field="principal")
+    new_mesh = q.scene.mesh
+    new = np.flatnonzero(q.scene.supports & ~new_mesh.boundary_vertex_mask)
+    assert new.size == old.size
+    gaps = np.linalg.norm(new_mesh.vertices[new, None, :2] - net.vertices[None, old, :2], axis=2).min(axis=0)
+    assert gaps.max() <= MERGE * q.spacing  # the pillar itself, or a node within the merge distance
+    res = api.solve(q.scene)
+    assert res.status == "converged" and res.max_relative_error <= 1e-8
+    assert independent_check(res).ok
 
 
 @requires_checker

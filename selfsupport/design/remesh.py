@@ -17,14 +17,17 @@ can be planar on both. This module draws the quad mesh in the top view:
    face are the arrangement's nodes (crossings, ends on the boundary, sharp boundary corners);
    nodes closer than ``merge`` × ``spacing`` are merged;
 4. heights are interpolated from the network; boundary vertices next to supported boundary
-   are supports.
+   are supports; each interior support (a pillar) becomes a vertex where it was, joined to the
+   corners of the face that holds it.
 
 Why streamlines and not a global parametrisation (libigl's MIQ is not in its Python bindings,
 and the relative principal directions are not orthogonal, i.e. a frame field rather than a
 cross field): streamlines need neither a cut graph nor integer rounding, follow two non-orthogonal
-families as they are, and end cleanly at singularities. The price: T-junctions (pentagons) where a
-line ends, which the planarity rows (:func:`~formulations.terms.planarity.coplanarity_rows`)
-handle like quads.
+families as they are, and end cleanly at singularities. The price: a T-junction where a line
+ends, its pentagon split into a quad and a triangle (:func:`_split_polygon`). On the paper's
+lilium that leaves 158 triangles and 116 interior vertices of valence above four, where the
+paper's own quad mesh has none and five, and that mesh polishes to planar equilibrium where
+ours does not (README, ``selfsupport pq``): a quad-only remesh is what is missing there.
 
 Example
 -------
@@ -309,6 +312,34 @@ def _arrangement(lines: list[np.ndarray], domain, corners: np.ndarray, spacing: 
     return V2, [q for f in faces for q in _split_polygon(V2, f)]
 
 
+def _insert_points(V2: np.ndarray, faces: list[list[int]], points: np.ndarray, tol: float
+                   ) -> tuple[np.ndarray, list[list[int]], list[int]]:
+    """Make each of ``points`` (pillars) a vertex: a vertex within ``tol`` of it, or a new vertex
+    joined to every corner of the face that contains it (a fan of triangles: the forces gather
+    radially into a pillar, and the lines of a field rarely cross exactly there — a pillar is a
+    singularity of the relative principal directions). Returns the vertices, faces and the
+    points' vertex indices."""
+    from matplotlib.path import Path as _Path
+
+    V2 = np.asarray(V2, float)
+    faces = [list(f) for f in faces]
+    ids: list[int] = []
+    for p in np.asarray(points, float).reshape(-1, 2):
+        d = np.linalg.norm(V2 - p, axis=1)
+        if d.size and d.min() <= tol:
+            ids.append(int(np.argmin(d)))
+            continue
+        hit = next((i for i, f in enumerate(faces) if _Path(V2[f]).contains_point(p)), None)
+        if hit is None:
+            raise InputError(f"the pillar at ({p[0]:g}, {p[1]:g}) lies in no face of the remesh; try another --spacing")
+        V2 = np.vstack([V2, p])
+        c = len(V2) - 1
+        f = faces.pop(hit)
+        faces += [[c, f[k], f[(k + 1) % len(f)]] for k in range(len(f))]
+        ids.append(c)
+    return V2, faces, ids
+
+
 def _min_angle(T: np.ndarray) -> float:
     """Smallest angle of the top-view triangle ``T`` (3, 2)."""
     u, w = np.roll(T, 1, axis=0) - T, np.roll(T, -1, axis=0) - T
@@ -384,8 +415,8 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     -------
     Remesh
         The new scene: heights interpolated from the network, supports on the boundary where the
-        network's boundary is supported, handles dropped. Interior supports (pillars) are not
-        carried: remeshing such a network raises :class:`InputError`.
+        network's boundary is supported, and at each interior support (pillar): a vertex there,
+        fanned to the corners of the face that holds it; handles dropped.
     """
     import matplotlib.tri as mtri
 
@@ -394,9 +425,7 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     if field not in FIELDS:
         raise InputError(f"unknown field {field!r}; choose one of {', '.join(FIELDS)}")
     sup = np.asarray(network.supports, bool)
-    if np.any(sup & ~mesh.boundary_vertex_mask):
-        raise InputError("the network has supports inside its top view (pillars); the remesher carries boundary "
-                         "supports only: remesh the design without the pillar and add it again (selfsupport edit)")
+    pillars = np.flatnonzero(sup & ~mesh.boundary_vertex_mask)
     xy = mesh.vertices[:, :2]
     diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
     if spacing is None:
@@ -438,6 +467,7 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
             raise InputError(f"more than {max_lines} lines per direction at spacing {spacing:g}; choose a larger --spacing")
         lines.append(fam_lines)
     V2, faces = _arrangement(lines[0] + lines[1], domain, _corners(mesh), spacing)
+    V2, faces, pillar_ids = _insert_points(V2, faces, xy[pillars], MERGE * spacing)
     used = np.unique(np.concatenate([np.asarray(f) for f in faces]))
     remap = -np.ones(len(V2), np.int64)
     remap[used] = np.arange(len(used))
@@ -458,5 +488,6 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     near = old_b[cKDTree(xy[old_b]).query(V2[bmask])[1]]
     supports = np.zeros(new.n_vertices, bool)
     supports[np.flatnonzero(bmask)] = sup[near]
+    supports[remap[pillar_ids]] = True  # the pillars, where they were
     scene = Scene(mesh=new, supports=supports, name=f"{getattr(network, 'name', 'network')}-pq")
     return Remesh(scene=scene, lines=(tuple(lines[0]), tuple(lines[1])), spacing=spacing, field=field)
