@@ -13,5 +13,7 @@ jax-fdm, compas-tna and compas-tno; the project's for selfsupport). It reads the
 Every runner converts its tool's own sign convention into ``weights`` and says how in a
 comment; the study recomputes every metric from these three arrays and the problem's loads.
 The runners import nothing from the project except the selfsupport runner, so the peers'
-environment never needs the project installed.
+environment never needs the project installed; ``runner_io`` (arguments, problem and result
+files) and ``compas_form`` (the compas form diagram of the problem and the force densities read
+back, for compas-tna and compas-tno) are their shared plumbing.
 """

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from runner_io import fail, parse_args, read_problem, write_result
+from runner_io import fail, installed_version, parse_args, read_problem, write_result
 
 TOOL = "jax-fdm"
 
@@ -36,7 +36,6 @@ def main() -> None:
     args = parse_args(__doc__.splitlines()[0])
     try:
         t_import = time.perf_counter()
-        import jax_fdm
         from jax_fdm.datastructures import FDNetwork
         from jax_fdm.equilibrium import constrained_fdm, fdm
         from jax_fdm.goals import NodeZCoordinateGoal
@@ -94,7 +93,7 @@ def main() -> None:
         status = "time_limit" if time.perf_counter() > deadline else ("converged" if res is not None and res.success else "stopped")
         msg = str(getattr(res, "message", "")) + f"; {getattr(res, 'nit', '?')} L-BFGS-B iterations"
         # w = −q: jax-fdm's residual is Σ q_ij (x_j − x_i) + p_i = 0, ours Σ w_ij (v_j − v_i) = A_i F_i
-        write_result(args.result, tool=TOOL, version=jax_fdm.__version__ if hasattr(jax_fdm, "__version__") else "0.14.1",
+        write_result(args.result, tool=TOOL, version=installed_version(TOOL),
                      status=status, message=msg, time_s=elapsed, vertices=X, edges=E, weights=-q,
                      q_start=q0)
     except Exception as exc:  # one failed row, not a crashed study

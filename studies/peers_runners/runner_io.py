@@ -25,6 +25,16 @@ def parse_args(description: str) -> argparse.Namespace:
     return p.parse_args()
 
 
+def installed_version(distribution: str) -> str:
+    """The installed version of a package (the one the study pinned in its environment)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def read_problem(path: str | os.PathLike) -> dict[str, Any]:
     """The problem as numpy arrays: ``vertices (n,3)``, ``edges (m,2)``, ``faces`` (lists),
     ``supports`` (indices), ``loads (n,)`` signed [N], negative down."""

@@ -8,12 +8,11 @@ solving the heights under the fixed loads (``density=0``: no self-weight of its 
 """
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
 
-from runner_io import fail, parse_args, read_problem, write_result
+from runner_io import fail, installed_version, parse_args, read_problem, write_result
 
 TOOL = "compas-tna"
 #: parallelisation sweeps of the horizontal step (compas-tna's default is 100)
@@ -23,37 +22,27 @@ KMAX = 100
 def main() -> None:
     args = parse_args(__doc__.splitlines()[0])
     try:
-        from compas.datastructures import Mesh
-        from compas_tna.diagrams import ForceDiagram, FormDiagram
+        from compas_form import form_diagram, read_back
+        from compas_tna.diagrams import ForceDiagram
         from compas_tna.equilibrium import horizontal_nodal, vertical_from_zmax
 
         P = read_problem(args.problem)
         V, E, L = P["vertices"], P["edges"], P["loads"]
-        n = len(V)
-        sup = np.zeros(n, bool)
+        sup = np.zeros(len(V), bool)
         sup[P["supports"]] = True
         t0 = time.perf_counter()
-        form = FormDiagram.from_mesh(Mesh.from_vertices_and_faces(V.tolist(), P["faces"]))
-        form.vertices_attribute("is_support", True, keys=np.flatnonzero(sup).tolist())
-        for i in range(n):
-            # compas-tna's pz is the load's magnitude, positive down (its self-weight adds
-            # +area·t·density): minus the problem's signed load
-            form.vertex_attributes(i, ["px", "py", "pz"], [0.0, 0.0, float(-L[i])])
-        # drops edges between supports on the boundary (and vertices left with none of them)
-        form.update_boundaries()
+        # compas-tna's pz is the load's magnitude, positive down (its self-weight adds
+        # +area·t·density): minus the problem's signed load
+        form, _ = form_diagram(P, -L)
         force = ForceDiagram.from_formdiagram(form)
         horizontal_nodal(form, force, alpha=100, kmax=KMAX)
         zmax = float(V[~sup, 2].max())
         form, scale = vertical_from_zmax(form, zmax, density=0.0)
         elapsed = time.perf_counter() - t0
-        X = np.array([form.vertex_coordinates(i) if form.has_vertex(i) else V[i].tolist() for i in range(n)], float)
-        q = {}
-        for u, v in form.edges_where(_is_edge=True):
-            q[(min(u, v), max(u, v))] = float(form.edge_attribute((u, v), "q"))
         # compas-tna's q > 0 is compression with pz > 0 down: the same as our w. Edges it dropped
         # (between supports) carry 0.
-        w = np.array([q.get((min(a, b), max(a, b)), 0.0) for a, b in E], float)
-        write_result(args.result, tool=TOOL, version="0.9.0", status="done",
+        X, w = read_back(form, P)
+        write_result(args.result, tool=TOOL, version=installed_version(TOOL), status="done",
                      message=f"horizontal_nodal alpha=100 kmax={KMAX}; vertical_from_zmax zmax={zmax:.4g}, scale {scale:.4g}",
                      time_s=elapsed, vertices=X, edges=E, weights=w)
     except Exception as exc:  # one failed row, not a crashed study

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from runner_io import fail, parse_args, read_problem, write_result
+from runner_io import fail, installed_version, parse_args, read_problem, write_result
 
 TOOL = "compas-tno"
 
@@ -23,25 +23,16 @@ TOOL = "compas-tno"
 def main() -> None:
     args = parse_args(__doc__.splitlines()[0])
     try:
-        from compas.datastructures import Mesh
-        from compas_tna.diagrams import FormDiagram
+        from compas_form import form_diagram, read_back
         from compas_tna.envelope import MeshEnvelope
         from compas_tno.analysis import Analysis
 
         P = read_problem(args.problem)
         V, E, L = P["vertices"], P["edges"], P["loads"]
-        n = len(V)
-        sup = np.zeros(n, bool)
-        sup[P["supports"]] = True
         scale = float(np.abs(L).sum())
         t0 = time.perf_counter()
-        mesh = Mesh.from_vertices_and_faces(V.tolist(), P["faces"])
-        form = FormDiagram.from_mesh(mesh)
-        form.vertices_attribute("is_support", True, keys=np.flatnonzero(sup).tolist())
-        for i in range(n):
-            # TNO's pz is signed, negative down (its apply_hor_multiplier: "swt (pz) is negative")
-            form.vertex_attributes(i, ["px", "py", "pz"], [0.0, 0.0, float(L[i] / scale)])
-        form.update_boundaries()
+        # TNO's pz is signed, negative down (its apply_hor_multiplier: "swt (pz) is negative")
+        form, mesh = form_diagram(P, L / scale)
         half = 0.5 * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
         for i in form.vertices():
             # what Envelope.apply_bounds/apply_target compute by vertical projection onto the
@@ -62,16 +53,13 @@ def main() -> None:
         ok = bool(getattr(res, "success", False))
         msg = f"{getattr(res, 'message', '')}; {getattr(res, 'niter', '?')} SLSQP iterations"
         if not ok:
-            write_result(args.result, tool=TOOL, version="0.4.0", status="failed", message=msg, time_s=elapsed,
+            write_result(args.result, tool=TOOL, version=installed_version(TOOL), status="failed", message=msg, time_s=elapsed,
                          vertices=[], edges=[], weights=[])
             return
-        X = np.array([form.vertex_coordinates(i) if form.has_vertex(i) else V[i].tolist() for i in range(n)], float)
-        q = {}
-        for u, v in form.edges_where(_is_edge=True):
-            q[(min(u, v), max(u, v))] = float(form.edge_attribute((u, v), "q"))
+        X, q = read_back(form, P)
         # TNO's q < 0 is compression (Σ q (v_j − v_i) + p = 0): w = −q, times the load scale
-        w = np.array([-scale * q.get((min(a, b), max(a, b)), 0.0) for a, b in E], float)
-        write_result(args.result, tool=TOOL, version="0.4.0", status="converged", message=msg, time_s=elapsed,
+        w = -scale * q
+        write_result(args.result, tool=TOOL, version=installed_version(TOOL), status="converged", message=msg, time_s=elapsed,
                      vertices=X, edges=E, weights=w)
     except Exception as exc:  # one failed row, not a crashed study
         fail(args.result, TOOL, exc)
