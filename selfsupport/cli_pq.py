@@ -48,7 +48,7 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
-    from .design.pq import solve_planar
+    from .design.pq import finish_summary, solve_planar
     from .design.remesh import remesh
     from .io import write_network
     from .io.network_json import read_network
@@ -65,12 +65,8 @@ def run_pq(args: argparse.Namespace) -> int:
     rows = summary_rows(result, q.scene)
     rows += [("remesh", f"{q.field}, spacing {q.spacing:.4g} m, faces {q.face_size_counts}"),
              ("max non-planarity", f"{planarity.get('max_nonplanarity', float('nan')):.2e} (tol {args.tol:g})")]
-    finish = result.parameters.get("planar_finish")
-    if finish is not None:
-        rows.append(("finish", finish["why"] if "why" in finish else
-                     f"{finish['first']['method']} {finish['first']['status']}, then {finish['finish']['method']} "
-                     f"{finish['finish']['status']} ({finish['finish']['max_relative_error']:.1e}); "
-                     f"returned: the {finish['returned']} run"))
+    if result.parameters.get("planar_finish") is not None:
+        rows.append(("finish", finish_summary(result)))
     print_table(f"selfsupport pq -> {args.out}", rows)
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
 

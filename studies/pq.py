@@ -41,21 +41,10 @@ def _nonplanarity(mesh) -> tuple[float, float]:
     return (float(q.max()), float(q.mean())) if q.size else (float("nan"), float("nan"))
 
 
-def _finish_note(res) -> str:
-    """How the planar solve ended: the staggered run alone, or staggered then the finish."""
-    f = res.parameters.get("planar_finish")
-    if f is None:
-        return "staggered"
-    if "why" in f:
-        return "staggered (no finish)"
-    return (f"{f['first']['method']} {f['first']['status']}, {f['finish']['method']} {f['finish']['status']}: "
-            f"{f['returned']}")
-
-
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
         finish: bool = True) -> list[dict[str, Any]]:
     from selfsupport import api
-    from selfsupport.design.pq import solve_planar
+    from selfsupport.design.pq import finish_summary, solve_planar
     from selfsupport.design.remesh import remesh
     from selfsupport.errors import SelfSupportError
     from selfsupport.evidence import distance_stats
@@ -86,7 +75,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
             row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
-                       solved_by=_finish_note(res),
+                       solved_by=finish_summary(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],

@@ -165,7 +165,7 @@ def test_the_ipopt_finish_makes_a_remeshed_barrel_vault_planar_where_the_stagger
     method with the planarity penalty stalls (its fit error and the penalty pull against each
     other); IPOPT, started from the same mesh's network in equilibrium without planar faces,
     reaches both. Measured 2026-11-25: staggered stalled, finish converged in ~1 s."""
-    from selfsupport.design.pq import solve_planar
+    from selfsupport.design.pq import finish_summary, solve_planar
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
     scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
@@ -175,6 +175,7 @@ def test_the_ipopt_finish_makes_a_remeshed_barrel_vault_planar_where_the_stagger
     assert res.status == "converged", res.message
     finish = res.parameters["planar_finish"]
     assert finish["returned"] == "finish" and finish["first"]["status"] == alone.status
+    assert finish_summary(res).endswith("returned: the finish run") and finish_summary(alone) == "the first method alone"
     assert res.max_relative_error <= 1e-8
     gaps = diagonal_gaps(res.network.mesh, scene.supports)
     assert gaps.max() <= 1e-3

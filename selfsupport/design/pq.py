@@ -30,7 +30,7 @@ import dataclasses
 import time
 from typing import Any
 
-__all__ = ["solve_planar", "FINISH_METHOD"]
+__all__ = ["solve_planar", "finish_summary", "FINISH_METHOD"]
 
 #: The method of the finish (its planarity rows are equations, not a penalty).
 FINISH_METHOD = "ipopt"
@@ -92,7 +92,7 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
                                    parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
     second = api.solve(scene, method=FINISH_METHOD, constraints=planar, warm_start=eq, **left(), **solve_kw)
-    chosen, other = (second, first) if _better(second, first) else (first, second)
+    chosen = second if _better(second, first) else first
     note = (f"{method} with planar faces ended {first.status} at max relative error {first.max_relative_error:.2e}; "
             f"{FINISH_METHOD} from the network in equilibrium without them ({eq.iterations} iterations) ended "
             f"{second.status} at {second.max_relative_error:.2e}")
@@ -106,5 +106,15 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
             "finish": {"method": FINISH_METHOD, "status": second.status,
                        "max_relative_error": second.max_relative_error, "iterations": second.iterations,
                        "wall_time": second.wall_time},
-            "returned": "finish" if chosen is second else "first",
-            "other_status": other.status}})
+            "returned": "finish" if chosen is second else "first"}})
+
+
+def finish_summary(result: Any) -> str:
+    """One line on how :func:`solve_planar` ended: the first method alone, or it and the finish."""
+    f = result.parameters.get("planar_finish")
+    if f is None:
+        return "the first method alone"
+    if "why" in f:
+        return f["why"]
+    return (f"{f['first']['method']} {f['first']['status']}, then {f['finish']['method']} {f['finish']['status']} "
+            f"({f['finish']['max_relative_error']:.1e}); returned: the {f['returned']} run")
