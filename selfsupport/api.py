@@ -100,6 +100,10 @@ METHODS: dict[str, MethodSpec] = {
     "staggered": MethodSpec("selfsupport.methods.staggered", "StaggeredLinearization",
                             "the paper's staggered linearization (§3): weights and positions in turn",
                             backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
+    "multilevel": MethodSpec("selfsupport.methods.multilevel", "Multilevel",
+                             "the staggered method on coarsened top views first, each level warm-starting "
+                             "the next (big meshes)",
+                             backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
     "ipopt": MethodSpec("selfsupport.methods.simultaneous", "Simultaneous",
                         "all positions and weights at once with IPOPT (CasADi, MUMPS)"),
     "nlopt": MethodSpec("selfsupport.methods.nlopt_methods", "NloptSimultaneous",
@@ -357,8 +361,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
                          constraints=constraints)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
-        if method != "staggered":
-            raise InputError(f"method options {sorted(options)} apply to the staggered method only, not {method!r}")
+        if method not in ("staggered", "multilevel"):
+            raise InputError(f"method options {sorted(options)} apply to the staggered method (and multilevel) "
+                             f"only, not {method!r}")
         from .methods.staggered import StaggeredOptions
         from .options import check_options
 
@@ -397,9 +402,10 @@ def _start_keywords(method: str, start: Any, *, hull: bool, name: str) -> tuple[
     (``name``: what ``start`` is)."""
     if start is None:
         return {}, "reference"
-    if (method == "staggered" and not hull) or method == "ipopt":
+    if (method in ("staggered", "multilevel") and not hull) or method == "ipopt":
         return {"warm_start": start}, name
-    why = "the staggered hull search starts there" if method == "staggered" else f"{method} takes no start"
+    why = ("the staggered hull search starts there" if method in ("staggered", "multilevel")
+           else f"{method} takes no start")
     return {}, f"reference ({why})"
 
 

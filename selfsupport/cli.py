@@ -79,7 +79,7 @@ STATUS_HINT: dict[str, str] = {
                   "add supports, raise --wmax or change the shape",
     "failed": "try the other method (--method staggered / --method ipopt) or a smoother reference",
     "iteration_limit": "raise --max-iter (or --time-limit), or try --method ipopt",
-    "time_limit": "raise --time-limit, or try the other method",
+    "time_limit": "raise --time-limit, try --method multilevel for a big mesh, or try the other method",
     "interrupted": "rerun and let it finish",
 }
 

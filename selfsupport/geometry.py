@@ -136,3 +136,15 @@ def edge_vectors(vertices: np.ndarray, edges: np.ndarray) -> np.ndarray:
 
 def mean_edge_length(vertices: np.ndarray, edges: np.ndarray) -> float:
     return float(np.linalg.norm(edge_vectors(vertices, edges), axis=1).mean())
+
+
+def turning_angles(loop: np.ndarray) -> np.ndarray:
+    """Unsigned turning angle [degrees] at each corner of a closed top-view polygon ``loop`` (k, 2).
+
+    >>> turning_angles(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])).tolist()
+    [90.0, 90.0, 90.0, 90.0]
+    """
+    a = loop - np.roll(loop, 1, axis=0)
+    b = np.roll(loop, -1, axis=0) - loop
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return np.degrees(np.abs(np.arctan2(cross, np.einsum("ij,ij->i", a, b))))

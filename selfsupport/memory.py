@@ -26,7 +26,7 @@ from .errors import TooLarge
 
 GIB = 1024.0 ** 3
 #: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
-BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "ipopt": 100e3, "nlopt": 100e3}
+BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "multilevel": 16e3, "ipopt": 100e3, "nlopt": 100e3}
 #: The interpreter and libraries before any mesh (measured: 96 MB).
 BASE_BYTES = 150e6
 

@@ -5,7 +5,9 @@
         [--time-limit S] [--ipopt-time-limit S] [--no-warmup]
 
 ``--methods`` also takes ``staggered/BACKEND`` (the staggered method with another Step-2
-backend). Rows run size by size with the methods interleaved, so that rows compared with one
+backend) and ``multilevel`` (:mod:`selfsupport.methods.multilevel`: its time covers every level,
+its iterations and Step-2/3 columns are those of its finest level; ``levels`` lists each
+level's vertices and iterations). Rows run size by size with the methods interleaved, so that rows compared with one
 another are measured side by side on a shared machine.
 
 For each generated shape (:func:`selfsupport.shapes.make_shape`) and target size one row per
@@ -74,8 +76,15 @@ def _ipopt() -> Any:
 
 #: method name -> (factory, default time limit [s]); ``staggered/BACKEND`` names the staggered
 #: method with another Step-2 backend (:data:`selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS`)
+def _multilevel() -> Any:
+    from selfsupport.methods.multilevel import Multilevel
+
+    return Multilevel()
+
+
 METHODS: dict[str, tuple[Callable[[], Any], float]] = {
     "staggered": (_staggered, 1200.0),
+    "multilevel": (_multilevel, 1200.0),
     "ipopt": (_ipopt, 180.0),
 }
 
@@ -97,7 +106,8 @@ def method_entry(method: str) -> tuple[Callable[[], Any], float]:
 
 
 def is_staggered(method: str) -> bool:
-    return method.partition("/")[0] == "staggered"
+    """Whether the rows have a staggered history (multilevel: its finest level's)."""
+    return method.partition("/")[0] in ("staggered", "multilevel")
 
 
 class _FactorRecorder:
@@ -200,7 +210,9 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
         "vertices": scene.mesh.n_vertices, "edges": scene.mesh.n_edges, "status": res.status, "message": res.message,
         "time_s": sw.seconds, "iterations": res.iterations, "reported_error": res.max_relative_error,
         "dist_ref_mean": res.distance_mean, "dist_ref_max": res.distance_max, "rss_before_mib": rss0,
-        "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name}
+        "peak_rss_mib": peak_rss_mib(), "network": Path(out_json).name,
+        "levels": " → ".join(f"{lv['n_vertices']}:{lv['iterations']}"
+                             for lv in res.parameters.get("multilevel", {}).get("levels", []))}
     if is_staggered(method):
         steps = [h for h in res.history if isinstance(h.get("iteration"), int)]
         row["step2_s"] = sum(h.get("t_weights", 0.0) for h in steps)
@@ -219,7 +231,8 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
 
 COLUMNS: tuple[Column, ...] = (
     Column("shape", "shape"), Column("target", "target n"), Column("vertices", "V"), Column("edges", "E"),
-    Column("method", "method"), Column("status", "status"), Column("time_s", "time [s]", "{:.2f}"),
+    Column("method", "method"), Column("levels", "levels (V:its)"), Column("status", "status"),
+    Column("time_s", "time [s]", "{:.2f}"),
     Column("iterations", "iterations", "{:d}"), Column("max_rel_error", "max rel. error", "{:.1e}"),
     Column("reported_error", "reported error", "{:.1e}"),
     Column("dist_ref_mean", "dist. to ref. mean", "{:.2e}"), Column("dist_ref_max", "dist. to ref. max", "{:.2e}"),
@@ -238,7 +251,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
 )
 _BY_KEY = {c.key: c for c in COLUMNS}
-MD_COLUMNS = ("shape", "vertices", "edges", "method", "status", "time_s", "iterations", "max_rel_error",
+MD_COLUMNS = ("shape", "vertices", "edges", "method", "levels", "status", "time_s", "iterations", "max_rel_error",
               "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
               "fit_its_mean", "factor_step2_s", "factor_K_s", "factor_step3_s", "factor_step3_pre_s",
               "per_iter_over_factor", "limit_ratio", "n_factorizations", "factor_share")

@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..evidence import triangulate
+from ..geometry import turning_angles
 from ..mesh import PolyMesh
 from ..result import Network
 from ..scene import Scene
@@ -386,10 +387,7 @@ def _corners(mesh: PolyMesh) -> np.ndarray:
     out = []
     for loop in mesh.boundary_loops:
         P = xy[loop]
-        a = P - np.roll(P, 1, axis=0)
-        b = np.roll(P, -1, axis=0) - P
-        ang = np.degrees(np.abs(np.arctan2(_cross2(a, b), np.einsum("ij,ij->i", a, b))))
-        out.append(P[ang > CORNER_ANGLE])
+        out.append(P[turning_angles(P) > CORNER_ANGLE])
     return np.vstack(out) if out else np.zeros((0, 2))
 
 

@@ -45,6 +45,19 @@ def as_problem(problem: Problem | Scene, loads: Any = None, *, eps: Any = None, 
     return Problem.build(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
 
 
+def loads_or_options(options: Any, loads: Any = None) -> tuple[Any, Any]:
+    """``(loads, options)`` of a short-form call ``solve(scene, LOADS)``: a second positional
+    argument that is a load model, a set of them or a mapping name -> load model is the loads."""
+    from formulations.loadcases import LoadCases
+
+    from ..loads import LoadCase
+
+    if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
+                                                       and all(isinstance(v, LoadCase) for v in options.values())):
+        return options, None
+    return loads, options
+
+
 def term_values(problem: Problem, network: Network, default: Any = None) -> dict[str, float]:
     """Each objective term's value at ``network`` in SI units (the reference term re-projected
     there), by name — for the summary and the JSON."""

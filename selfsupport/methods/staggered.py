@@ -103,7 +103,7 @@ from ..loads import LoadCase
 from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
-from .base import HULL_TOL, as_problem, case_networks, hull_report, planarity_report, term_values
+from .base import HULL_TOL, as_problem, loads_or_options, case_networks, hull_report, planarity_report, term_values
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import case_load_jacobians
@@ -155,6 +155,8 @@ class StaggeredOptions:
     warm_accept: float = _setting(0.5, "[0, inf)")  # a warm start whose first fit error is above finish_try but
     # below this gets one finish try as it is (a top-view move of 0.2% of lilium's diagonal: 0.11), and the
     # solve starts cold when that fails (iterating on from such a start measured slower than cold: 1.0-1.9x)
+    warm_iterate: bool = False  # a warm start above warm_accept is iterated from (not restarted cold):
+    # a prolongation from a coarser level (methods/multilevel.py), near the solution yet not in equilibrium
     finish_slack: float = _setting(0.05, "[0, inf)")  # ... kept if its mean distance grows by at most this
     finish_screen: float = _setting(0.25, "[0, inf]")  # ... and not even polished when one stress-Laplacian
     # solve with the iterate's loads already moves the mean distance up by more than this (see _try_finish)
@@ -259,9 +261,7 @@ class StaggeredLinearization:
             its best network so far); default: ``time_limit`` seconds from now. Every inner
             loop (Step 2, Step 3's CG, the polish, the refinement) honours it.
         """
-        if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
-                                                           and all(isinstance(v, LoadCase) for v in options.values())):
-            loads, options = options, None
+        loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
         if opt.coupled is not None or not _couples_first(problem):
@@ -549,6 +549,8 @@ class _Run:
             self.warm_info["used"] = True
         elif cur is not None and cur["max_rel_error"] <= opt.warm_accept:
             self.warm_info["used"] = warm_try = True
+        elif cur is not None and opt.warm_iterate:
+            self.warm_info["used"] = True
         else:  # (a warm start this far from equilibrium measured slower than a cold one: 1.0-1.9x on lilium)
             if self.w_warm is not None:
                 self.warm_info.update(used=False, first_error=cur["max_rel_error"] if cur else None)

@@ -7,10 +7,13 @@ reference and its weights:
 * same topology (same vertex count and edges): ``X₀ = R_new + (N − R_old)`` vertex by vertex
   and the weights as they are — after a small handle move only the region that moved is out
   of equilibrium;
-* changed topology (cuts, holes, subdivision): by position — every new vertex takes the offset
-  of the nearest old reference vertex, every new edge the weight of the old edge with the
-  nearest midpoint (weights are force per length: under refinement a smooth stress field keeps
-  them, it does not split them).
+* changed topology (cuts, holes, subdivision, a finer level of :mod:`.multilevel`): by
+  position — the offsets are interpolated over the old reference's top view (C¹ cubic on its
+  triangulation, :func:`interpolate_offsets`; a piecewise-linear one leaves kinks along the old
+  edges that the first fit on a 4× finer mesh reads as out-of-balance vertices: 4k → 16k pillar
+  vault, Step 2 of the warm solve 5.5 s linear vs 4.0 s cubic, same 7 iterations), every new edge
+  the weight of the old edge with the nearest midpoint (weights are force per length: under
+  refinement a smooth stress field keeps them, it does not split them).
 
 Supports start on the new reference (the staggered method never moves them).
 
@@ -36,7 +39,7 @@ from ..mesh import PolyMesh
 from ..result import Network, SolveResult
 from ..scene import Scene
 
-__all__ = ["WarmStart", "transfer", "as_warm_start"]
+__all__ = ["WarmStart", "transfer", "as_warm_start", "interpolate_offsets"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,8 +82,7 @@ def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, boo
     else:
         from scipy.spatial import cKDTree
 
-        _, iv = cKDTree(old_ref).query(R)
-        X = R + offset_old[iv]
+        X = R + interpolate_offsets(net.mesh.with_vertices(old_ref), offset_old, R[:, :2])
         Eo, En = net.mesh.edges, mesh.edges
         mid_old = 0.5 * (old_ref[Eo[:, 0]] + old_ref[Eo[:, 1]])
         _, ie = cKDTree(mid_old).query(0.5 * (R[En[:, 0]] + R[En[:, 1]]))
@@ -92,3 +94,38 @@ def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, boo
     sup = np.asarray(scene.supports, bool)
     X[sup] = R[sup]
     return X, w, same
+
+
+def interpolate_offsets(reference: PolyMesh, offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``offsets`` (one row per ``reference`` vertex) interpolated at top-view ``points`` (k, 2):
+    C¹ cubic over the reference's top-view triangulation (matplotlib's ``CubicTriInterpolator``,
+    gradients estimated geometrically); points outside it, or a top view matplotlib cannot
+    triangulate (degenerate triangles), take the offset of the nearest reference vertex.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> m = make_shape("dome", n_vertices=200).mesh
+    >>> off = np.c_[np.zeros((m.n_vertices, 2)), 0.1 * m.vertices[:, 0]]  # a linear field
+    >>> p = 0.5 * (m.vertices[0, :2] + m.vertices[5, :2])[None]
+    >>> bool(np.allclose(interpolate_offsets(m, off, p)[0, 2], 0.1 * p[0, 0]))
+    True
+    """
+    import matplotlib.tri as mtri
+    from scipy.spatial import cKDTree
+
+    from ..evidence import triangulate
+
+    xy = reference.vertices[:, :2]
+    offsets = np.asarray(offsets, float)
+    points = np.asarray(points, float)
+    out = np.full((len(points), offsets.shape[1]), np.nan)
+    try:
+        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(reference))
+        for k in range(offsets.shape[1]):
+            f = mtri.CubicTriInterpolator(tri, offsets[:, k], kind="geom")
+            out[:, k] = np.ma.filled(f(points[:, 0], points[:, 1]), np.nan)
+    except (ValueError, RuntimeError):  # (a top view with degenerate triangles: nearest for all)
+        pass
+    miss = ~np.isfinite(out).all(axis=1)
+    if miss.any():
+        out[miss] = offsets[cKDTree(xy).query(points[miss])[1]]
+    return out

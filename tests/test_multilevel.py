@@ -1,0 +1,127 @@
+"""The multilevel solve (methods/multilevel.py): coarsening keeps the top view and its supports,
+the prolongation is exact where it must be, and the levels end in the same equilibrium as a
+single-level solve with fewer fine iterations."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from selfsupport import api
+from selfsupport.evidence import distance_stats
+from selfsupport.mesh import PolyMesh
+from selfsupport.methods.multilevel import Multilevel, coarsen
+from selfsupport.methods.warm import interpolate_offsets
+from selfsupport.scene import Scene
+from selfsupport.shapes import make_shape
+
+from .conftest import independent_check
+
+
+def _loop_area(xy: np.ndarray) -> float:
+    return 0.5 * abs(float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])))
+
+
+def _top_area(mesh: PolyMesh) -> float:
+    from selfsupport.evidence import triangulate
+
+    xy = mesh.vertices[:, :2]
+    t = triangulate(mesh)
+    a, b, c = xy[t[:, 0]], xy[t[:, 1]], xy[t[:, 2]]
+    return 0.5 * float(np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]).sum())
+
+
+@pytest.mark.parametrize("shape", ["pillar_vault", "concave_disk"])
+def test_coarsening_keeps_the_top_view_its_boundary_and_its_supports(shape):
+    fine = make_shape(shape, n_vertices=3000)
+    c = coarsen(fine, 750)
+    m, V = c.mesh, fine.mesh.vertices
+    assert m.is_valid() and 0.85 * 750 <= m.n_vertices <= 1.15 * 750
+    # every coarse boundary vertex is a fine boundary vertex (x, y, z and support flag alike)
+    bc = np.flatnonzero(m.boundary_vertex_mask)
+    d = np.linalg.norm(m.vertices[bc][:, None, :] - V[None, fine.mesh.boundary_vertex_mask], axis=2)
+    assert d.min(axis=1).max() == 0.0
+    match = np.flatnonzero(fine.mesh.boundary_vertex_mask)[d.argmin(axis=1)]
+    assert np.array_equal(c.supports[bc], fine.supports[match])
+    # the domain: same area up to the chords cut off the curved boundary (a few per mille)
+    assert _top_area(m) == pytest.approx(_top_area(fine.mesh), rel=5e-3)
+    # interior supports (pillars) stay supports, inside the fine pillars
+    inner = c.supports & ~m.boundary_vertex_mask
+    if (fine.supports & ~fine.mesh.boundary_vertex_mask).any():
+        assert inner.any()
+        fine_inner = V[fine.supports & ~fine.mesh.boundary_vertex_mask]
+        assert np.isin(m.vertices[inner][:, :2].round(12), fine_inner[:, :2].round(12)).all()
+
+
+def test_coarse_heights_lie_on_the_reference():
+    """A tilted plane: every coarse vertex, new or kept, lies on it (linear interpolation is exact)."""
+    fine = make_shape("disk", n_vertices=2000)
+    V = fine.mesh.vertices.copy()
+    V[:, 2] = 0.3 * V[:, 0] - 0.2 * V[:, 1] + 1.0
+    c = coarsen(Scene(mesh=fine.mesh.with_vertices(V), supports=fine.supports), 400)
+    W = c.mesh.vertices
+    assert np.abs(W[:, 2] - (0.3 * W[:, 0] - 0.2 * W[:, 1] + 1.0)).max() < 1e-12
+
+
+def test_offsets_interpolate_linear_fields_exactly_and_smooth_ones_to_second_order():
+    m = make_shape("disk", n_vertices=800).mesh
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.6, 0.6, (200, 2))
+    lin = np.c_[m.vertices[:, 0], -2.0 * m.vertices[:, 1], m.vertices[:, 0] + m.vertices[:, 1]]
+    got = interpolate_offsets(m, lin, p)
+    assert np.abs(got - np.c_[p[:, 0], -2.0 * p[:, 1], p[:, 0] + p[:, 1]]).max() < 1e-12
+    # a smooth field: the error falls faster than the mesh spacing (halved spacing: > 4x smaller)
+    errs = []
+    for n in (400, 1600):
+        mm = make_shape("disk", n_vertices=n).mesh
+        f = np.sin(2.0 * mm.vertices[:, 0]) * np.cos(1.5 * mm.vertices[:, 1])
+        g = interpolate_offsets(mm, f[:, None], p)[:, 0]
+        errs.append(np.abs(g - np.sin(2.0 * p[:, 0]) * np.cos(1.5 * p[:, 1])).max())
+    assert errs[1] < errs[0] / 4.0
+
+
+@pytest.fixture(scope="module")
+def vault_runs():
+    scene = make_shape("pillar_vault", n_vertices=3000)
+    ml = Multilevel(direct_max=900).solve(scene)
+    cold = api.solve(scene)
+    return scene, ml, cold
+
+
+def test_multilevel_ends_in_equilibrium_with_fewer_fine_iterations(vault_runs):
+    scene, ml, cold = vault_runs
+    levels = ml.parameters["multilevel"]["levels"]
+    assert [lv["n_vertices"] for lv in levels][-1] == scene.mesh.n_vertices and len(levels) >= 2
+    assert all(a["n_vertices"] < b["n_vertices"] for a, b in zip(levels, levels[1:]))
+    assert ml.status == "converged" and ml.max_relative_error <= 1e-9
+    assert independent_check(ml).ok
+    assert levels[-1]["iterations"] < cold.iterations
+    # the same problem: about as close to the reference as the single-level network
+    d_ml = distance_stats(ml.network.vertices, scene.mesh)[0]
+    d_cold = distance_stats(cold.network.vertices, scene.mesh)[0]
+    assert d_ml <= 1.25 * d_cold
+
+
+def test_multilevel_solves_on_one_level_what_it_cannot_coarsen():
+    scene = make_shape("concave_disk", n_vertices=1200)
+    res = api.solve(scene, method="multilevel", point_loads={5: -100.0})
+    info = res.parameters["multilevel"]
+    assert len(info["levels"]) == 1 and "point loads" in info["why"]
+    assert res.status == "converged" and res.method == "multilevel"
+
+
+def test_the_command_line_solves_on_levels_and_the_file_stands(tmp_path):
+    """``selfsupport solve --method multilevel``: the levels in the file, the network passes the
+    independent checker."""
+    import json
+
+    from selfsupport import cli
+
+    out = tmp_path / "net.json"
+    code = cli.main(["solve", "shape:pillar_vault:7000", "--method", "multilevel", "--option", "tol=1e-10",
+                     "--out", str(out), "-q"])
+    assert code == 0
+    doc = json.loads(out.read_text())
+    levels = doc["parameters"]["multilevel"]["levels"]
+    assert [lv["status"] for lv in levels] == ["converged", "converged"]  # 7,000 vertices: two levels
+    assert levels[-1]["n_vertices"] == len(doc["vertices"]) and levels[0]["n_vertices"] < 2500
+    assert independent_check(out).ok
