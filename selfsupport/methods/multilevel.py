@@ -80,12 +80,13 @@ CORNER_ANGLE = 30.0
 # ------------------------------------------------------------------------------ coarsening
 def _boundary_keep(loop: np.ndarray, xy: np.ndarray, supports: np.ndarray, h: float) -> np.ndarray:
     """Indices into ``loop`` kept on the coarse boundary: about one per ``h`` of arc length, plus
-    every sharp corner and both ends of every supported run (supports must stay where they were)."""
+    every sharp corner and both ends of every supported run (supports stay where they were)."""
     P = xy[loop]
     s = supports[loop]
     forced = turning_angles(P) > CORNER_ANGLE
-    change = s != np.roll(s, 1)  # a supported run starts or ends here: keep this vertex and the one before
-    forced |= change | np.roll(change, -1)
+    # both ends of every supported run (the supported vertex only: keeping its unsupported
+    # neighbour too leaves a fine-length edge on every coarser level)
+    forced |= s & ~(np.roll(s, 1) & np.roll(s, -1))
     seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
     keep, acc = [], np.inf
     for i in range(len(loop)):
