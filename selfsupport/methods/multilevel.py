@@ -370,9 +370,11 @@ class Multilevel:
             res = self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline, warm_start=warm)
             levels.append(self._level(res, scene))
             prev_scene = scene
-            if scene is not problem.scene and (res.status != "converged" or out_of_time(deadline)):
-                # a coarse level that does not converge is no better a start than the reference:
-                # the fine level goes cold
+            in_equilibrium = res.max_relative_error <= float(opts.get("tol", self.staggered.options.tol))
+            if scene is not problem.scene and (not in_equilibrium or out_of_time(deadline)):
+                # a coarse network out of equilibrium is no better a start than the reference: the
+                # fine level goes cold (one that stalled but was polished into equilibrium is a
+                # network near the reference all the same, and the next level starts from it)
                 why = f"level {k} ({scene.mesh.n_vertices} vertices) ended {res.status}: the fine level started cold"
                 res = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
                 levels.append(self._level(res, problem.scene))
