@@ -3,17 +3,19 @@
 ::
 
     selfsupport pq NET.json --out PQ.json [--spacing H] [--field principal|grid] [--angle DEG]
-                   [--tol 1e-3] [--density RHO] [--thickness T] [--method staggered|ipopt]
-                   [--no-finish] [--time-limit S]
+                   [--remesher streamlines|param] [--tol 1e-3] [--density RHO] [--thickness T]
+                   [--method staggered|ipopt] [--no-finish] [--time-limit S]
 
 Remeshes the network's top view along its relative principal directions
 (:mod:`selfsupport.design.remesh`: quads, and triangles where a line of the field ends) and
 solves the remeshed design with planar faces required (:class:`formulations.Planar`): a
 network in equilibrium whose quads are planar to ``--tol`` (distance of the diagonals over the
 mean edge length). ``--field grid`` remeshes along a fixed grid instead (the naive, unaligned
-mesh of the paper's Fig. 12). When the method does not converge, IPOPT finishes from the
-network in equilibrium without planar faces (:func:`selfsupport.design.pq.solve_planar`;
-``--no-finish``: not). Prints the summary; exit codes as ``solve``.
+mesh of the paper's Fig. 12). ``--remesher param`` draws the lines as the integer iso-lines of
+a global parametrization along the field instead of streamlines (no line ends inside the
+domain; irregular vertices only at the field's singularities). When the method does not
+converge, IPOPT finishes from the network in equilibrium without planar faces
+(:func:`selfsupport.design.pq.solve_planar`; ``--no-finish``: not). Prints the summary; exit codes as ``solve``.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
 def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport pq``."""
-    from .design.remesh import FIELDS
+    from .design.remesh import FIELDS, METHODS
 
     p.add_argument("network", metavar="NET.json", help="a network (selfsupport solve --out)")
     p.add_argument("--out", "-o", required=True, metavar="PQ.json", help="the planar-quad network (JSON)")
@@ -34,6 +36,9 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                    help="distance between neighbouring lines [m] (default: the network's mean top-view edge length)")
     p.add_argument("--field", choices=FIELDS, default="principal",
                    help="directions to follow: the relative principal directions, or a fixed grid (default principal)")
+    p.add_argument("--remesher", choices=tuple(METHODS), default="streamlines",
+                   help="how the lines are drawn: evenly spaced streamlines (T-junctions where a line ends), or the "
+                        "integer iso-lines of a global parametrization along the field (default streamlines)")
     p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="the grid's angle to the x axis (--field grid)")
     p.add_argument("--tol", type=positive_float, default=1e-3, metavar="TOL",
                    help="largest quad non-planarity accepted (default 1e-3)")
@@ -56,14 +61,16 @@ def run_pq(args: argparse.Namespace) -> int:
 
     check_outputs([("--out", args.out)], [("network", args.network)])
     net = read_network(args.network)
-    q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle)
+    q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher)
     result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=args.time_limit,
                           density=args.density, thickness=args.thickness)
     planarity = result.parameters.get("planarity") or {}
-    write_network(args.out, result, remesh={"field": q.field, "spacing": q.spacing, "source": str(args.network),
-                                            "face_sizes": q.face_size_counts})
+    write_network(args.out, result, remesh={"field": q.field, "method": q.method, "spacing": q.spacing,
+                                            "source": str(args.network), "face_sizes": q.face_size_counts,
+                                            "irregular_vertices": q.irregular_vertices})
     rows = summary_rows(result, q.scene)
-    rows += [("remesh", f"{q.field}, spacing {q.spacing:.4g} m, faces {q.face_size_counts}"),
+    rows += [("remesh", f"{q.field} ({q.method}), spacing {q.spacing:.4g} m, faces {q.face_size_counts}, "
+                        f"{q.irregular_vertices} interior vertices of valence other than 4"),
              ("max non-planarity", f"{planarity.get('max_nonplanarity', float('nan')):.2e} (tol {args.tol:g})")]
     if result.parameters.get("planar_finish") is not None:
         rows.append(("finish", finish_summary(result)))

@@ -1,11 +1,12 @@
 """Fig. 12 as a study: planar faces on a mesh along the relative principal directions vs a grid.
 
     python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium]
-        [--spacing 1.0] [--time-limit 300]
+        [--spacing 1.0] [--time-limit 300] [--remesher streamlines[,param]]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
 scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
-directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length), each
+directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length; with
+each remesher of ``--remesher``, :data:`selfsupport.design.remesh.METHODS`), each
 solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
 :func:`selfsupport.design.pq.solve_planar` (the staggered method, and where it does not converge
 the IPOPT finish; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
@@ -25,7 +26,8 @@ import numpy as np
 
 from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
 
-COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"), Column("status", "status"),
+COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
+           Column("irregular", "interior valence ≠ 4"), Column("status", "status"),
            Column("solved_by", "solved by"),
            Column("max_rel_error", "max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
@@ -42,7 +44,7 @@ def _nonplanarity(mesh) -> tuple[float, float]:
 
 
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
-        finish: bool = True) -> list[dict[str, Any]]:
+        finish: bool = True, remeshers: Sequence[str] = ("streamlines",)) -> list[dict[str, Any]]:
     from selfsupport import api
     from selfsupport.design.pq import finish_summary, solve_planar
     from selfsupport.design.remesh import remesh
@@ -58,12 +60,14 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
         net = api.solve(scene, time_limit=time_limit).network
         e = net.mesh.edges
         h = spacing * float(np.linalg.norm(net.vertices[e[:, 1], :2] - net.vertices[e[:, 0], :2], axis=1).mean())
-        fields = ("as is", "principal", "grid") if (scene.mesh.face_sizes == 4).any() else ("principal", "grid")
-        for field in fields:
-            row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}"}
+        todo_meshes = [("as is", "")] if (scene.mesh.face_sizes == 4).any() else []
+        todo_meshes += [(field, how) for how in remeshers for field in ("principal", "grid")]
+        for field, how in todo_meshes:
+            tag = "" if how in ("", "streamlines") else f" ({how})"
+            row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}"}
             t0 = time.perf_counter()
             try:
-                q = None if field == "as is" else remesh(net, spacing=h, field=field)
+                q = None if field == "as is" else remesh(net, spacing=h, field=field, method=how)
                 todo = scene if q is None else q.scene
                 mx, mn = _nonplanarity(todo.mesh)
                 res = solve_planar(todo, tol=1e-3, finish=finish, time_limit=time_limit)
@@ -71,10 +75,12 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                 row.update(status=f"failed: {exc}")
                 rows.append(row)
                 continue
-            path = out / f"{name}__{field.replace(' ', '-')}.json"
+            path = out / f"{name}__{field.replace(' ', '-')}{'-' + how if tag else ''}.json"
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
+            val = np.bincount(todo.mesh.edges.ravel(), minlength=todo.mesh.n_vertices)
             row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
+                       irregular=int(((val != 4) & ~todo.mesh.boundary_vertex_mask).sum()),
                        solved_by=finish_summary(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
@@ -106,8 +112,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
     p.add_argument("--no-finish", dest="finish", action="store_false",
                    help="the staggered method alone (no IPOPT finish, selfsupport.design.pq)")
+    p.add_argument("--remesher", default="streamlines",
+                   help="remeshers to compare (comma-separated: streamlines, param; selfsupport.design.remesh)")
     a = p.parse_args(argv)
-    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish)
+    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","))
     return 0
 
 

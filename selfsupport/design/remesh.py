@@ -9,10 +9,18 @@ can be planar on both. This module draws the quad mesh in the top view:
    (``matplotlib.tri``: point location and interpolation on a non-convex domain with holes), as
    doubled-angle vectors so that ``d`` and ``−d`` agree; vertices without directions (supports,
    where Φ is not strictly convex) are filled harmonically from their neighbours;
-2. evenly spaced streamlines of each field (Jobard & Lefer 1997): traced with midpoint steps
-   from seeds at distance ``spacing`` beside the lines already drawn, ended at the domain's
-   boundary or closer than ``spacing / 2`` to a line of the same family (singularities of the
-   field are where lines end: their faces get five or three corners, not a hole);
+2. the lines of each family, drawn by one of :data:`METHODS` (``method=``):
+
+   * ``"streamlines"`` (the default): evenly spaced streamlines (Jobard & Lefer 1997), traced
+     with midpoint steps from seeds at distance ``spacing`` beside the lines already drawn,
+     ended at the domain's boundary or closer than ``spacing / 2`` to a line of the same family
+     (singularities of the field are where lines end: their faces get five or three corners,
+     not a hole);
+   * ``"param"``: the integer iso-lines of a global parametrization whose gradients are the
+     dual frame of the two directions over the spacing (:mod:`.param`: cut graph through the
+     field's singularities, least squares, seam translations rounded to integers, boundary
+     edges along the field held on an iso-line);
+
 3. the lines and the boundary loops are noded and polygonised (``shapely``); the corners of a
    face are the arrangement's nodes (crossings, ends on the boundary, sharp boundary corners);
    nodes closer than ``merge`` × ``spacing`` are merged;
@@ -20,14 +28,21 @@ can be planar on both. This module draws the quad mesh in the top view:
    are supports; each interior support (a pillar) becomes a vertex where it was, joined to the
    corners of the face that holds it.
 
-Why streamlines and not a global parametrisation (libigl's MIQ is not in its Python bindings,
-and the relative principal directions are not orthogonal, i.e. a frame field rather than a
-cross field): streamlines need neither a cut graph nor integer rounding, follow two non-orthogonal
-families as they are, and end cleanly at singularities. The price: a T-junction where a line
-ends, its pentagon split into a quad and a triangle (:func:`_split_polygon`). On the paper's
-lilium that leaves 158 triangles and 116 interior vertices of valence above four, where the
-paper's own quad mesh has none and five, and that mesh polishes to planar equilibrium where
-ours does not (README, ``selfsupport pq``): a quad-only remesh is what is missing there.
+Streamlines or a parametrization. Streamlines need neither a cut graph nor integer rounding
+and follow two non-orthogonal families as they are; but where the lines of a family spread
+apart a new one starts, and where they crowd one ends: a T-junction, its pentagon split into a
+quad and a triangle (:func:`_split_polygon`). On the paper's lilium at its mean edge length that
+leaves 158 triangles and 124 interior vertices of valence other than four (the paper's own quad
+mesh: no triangle, and 25 such vertices: a 12-valent pole ringed by 12 of valence 3, four of
+valence 6, and a pair of valence 3 in each lobe). The parametrization's lines end only at the
+boundary (no T-junction): the spacing varies instead (a family crowds or spreads where the
+field is not integrable, so the same ``spacing`` does not give the same number of faces), and
+the irregular vertices sit at the field's singularities and where lines meet the boundary. The
+same lilium: 69 triangles, 51 such vertices (and its planar polish stalls as well). libigl's
+MIQ, which does this for cross fields, is not in its Python bindings, and the relative principal
+directions are a frame field (not orthogonal), hence :mod:`.param`. It is an option, not the
+default: measured on four scenes at four spacings in the README (``selfsupport pq``), with
+what it does and does not change for the planar polish.
 
 Example
 -------
@@ -37,9 +52,17 @@ Example
 >>> q = remesh(net, spacing=0.12, relative=True)
 >>> q.scene.mesh.is_valid(), bool((q.scene.mesh.face_sizes == 4).mean() > 0.6)
 (True, True)
+
+Along a parametrization the lines end only at the boundary: nearly all faces are quads, and
+the only irregular vertices are next to the apex's singularities:
+
+>>> p = remesh(net, spacing=0.06, relative=True, method="param")
+>>> p.scene.mesh.is_valid(), bool((p.scene.mesh.face_sizes == 4).mean() > 0.9), p.irregular_vertices <= 4
+(True, True, True)
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
@@ -73,12 +96,23 @@ def _cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True, eq=False)
 class Remesh:
     """A remeshed design: the new scene (heights on the network, supports carried), the lines
-    traced per family, and counts for reports."""
+    drawn (per family; ``method="param"``: the iso-lines of ``u`` and of ``v``, which trade
+    families across a seam where the field's two directions swap), and counts for reports
+    (``info``: the parametrization's singular vertices, residual and rounding)."""
 
     scene: Scene
     lines: tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]
     spacing: float
     field: str
+    method: str = "streamlines"
+    info: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def irregular_vertices(self) -> int:
+        """Interior vertices whose valence is not four (pillars included)."""
+        m = self.scene.mesh
+        val = np.bincount(m.edges.ravel(), minlength=m.n_vertices)
+        return int(((val != 4) & ~m.boundary_vertex_mask).sum())
 
     @property
     def face_size_counts(self) -> dict[int, int]:
@@ -391,9 +425,83 @@ def _corners(mesh: PolyMesh) -> np.ndarray:
     return np.vstack(out) if out else np.zeros((0, 2))
 
 
+
+# ---------------------------------------------------------------------------- line builders
+@dataclass(frozen=True, eq=False)
+class _Setting:
+    """What a line builder gets: the network's mesh, its top-view triangulation, each family's
+    unit doubled-angle vectors per vertex (filled where undefined), the spacing, the domain."""
+
+    mesh: PolyMesh
+    tri: object  # matplotlib.tri.Triangulation
+    doubled: tuple[np.ndarray, np.ndarray]
+    spacing: float
+    domain: object  # shapely Polygon
+    max_lines: int
+
+
+def _streamline_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
+    """Evenly spaced streamlines of each family (module docstring, step 2)."""
+    xy = st.mesh.vertices[:, :2]
+    finder = st.tri.get_trifinder()
+    inside = lambda p: bool(finder(p[0], p[1]) >= 0)  # noqa: E731
+    diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
+    max_steps = int(4 * diag / (STEP * st.spacing)) + 10
+    c = np.asarray(st.domain.representative_point().coords[0])
+    inner = np.flatnonzero(~st.mesh.boundary_vertex_mask)  # fallback seeds, nearest the centre first
+    seeds = [c] + list(xy[inner[np.argsort(np.linalg.norm(xy[inner] - c, axis=1))]])
+    border = _Family()  # the boundary, sampled at a tenth of the spacing
+    for ring in [st.domain.exterior, *st.domain.interiors]:
+        border.add(np.asarray([ring.interpolate(t).coords[0] for t in np.arange(0, ring.length, 0.1 * st.spacing)]))
+    lines: list[list[np.ndarray]] = []
+    for k in range(2):
+        fam_lines = _streamlines(_Field(st.tri, st.doubled[k]), seeds, st.spacing, inside, max_steps, st.max_lines,
+                                 border)
+        if len(fam_lines) >= st.max_lines:
+            raise InputError(f"more than {st.max_lines} lines per direction at spacing {st.spacing:g}; "
+                             "choose a larger --spacing")
+        lines.append(fam_lines)
+    return lines, {}
+
+
+def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
+    """Integer iso-lines of a global parametrization along the two fields (:mod:`.param`),
+    each end extended a little past the boundary (the arrangement clips it there; an end a
+    round-off short of the boundary would be a dangle)."""
+    from .param import frame_parametrization, isolines
+
+    ang = np.stack([0.5 * np.arctan2(d[:, 1], d[:, 0]) for d in st.doubled], axis=1)  # (n, 2)
+    D = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (n, 2, 2), columns the two directions
+    xy = st.mesh.vertices[:, :2]
+    tris = np.asarray(st.tri.triangles)
+    p = frame_parametrization(xy, tris, D, st.spacing)
+    lines: list[list[np.ndarray]] = [[], []]
+    for k, fam in enumerate(isolines(xy, tris, p.uv)):
+        if sum(len(x) for x in fam) > st.max_lines / STEP:
+            raise InputError(f"too many iso-lines at spacing {st.spacing:g}; choose a larger --spacing")
+        for line in fam:
+            # a piece shorter than half the spacing (an iso-line grazing the boundary) bounds
+            # only slivers: the merge would fold them into triangles
+            if len(line) < 2 or np.linalg.norm(np.diff(line, axis=0), axis=1).sum() < 2 * MERGE * st.spacing:
+                continue
+            a = line[0] - line[1]
+            b = line[-1] - line[-2]
+            ext = 0.05 * st.spacing
+            lines[k].append(np.vstack([line[0] + ext * a / max(np.linalg.norm(a), 1e-300), line,
+                                       line[-1] + ext * b / max(np.linalg.norm(b), 1e-300)]))
+    return lines, {"singularities": int(len(p.singular)), "residual": p.residual, "rounded": p.rounded}
+
+
+#: Line builders by name (``remesh(method=...)``).
+METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = {
+    "streamlines": _streamline_lines,
+    "param": _param_lines,
+}
+
+
 # ---------------------------------------------------------------------------- main
 def remesh(network: Network, *, spacing: float | None = None, relative: bool = False, field: str = "principal",
-           angle: float = 0.0, max_lines: int = 20000) -> Remesh:
+           angle: float = 0.0, max_lines: int = 20000, method: str = "streamlines") -> Remesh:
     """Quad-dominant remesh of ``network``'s top view along a line field, lifted to its heights.
 
     Parameters
@@ -408,6 +516,11 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         directions at ``angle`` degrees to the x axis (the naive, unaligned quad mesh of Fig. 12).
     max_lines
         Most lines per family (a guard against a spacing far below the mesh's resolution).
+    method
+        How the lines are drawn (:data:`METHODS`): ``"streamlines"``, evenly spaced streamlines
+        of each family (lines end where the field spreads: T-junctions); ``"param"``, the integer
+        iso-lines of a global parametrization along both fields (:mod:`.param`: lines end only at
+        the boundary, quads grow or shrink instead; irregular vertices at the field's singularities).
 
     Returns
     -------
@@ -422,6 +535,8 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     mesh = network.mesh
     if field not in FIELDS:
         raise InputError(f"unknown field {field!r}; choose one of {', '.join(FIELDS)}")
+    if method not in METHODS:
+        raise InputError(f"unknown remesh method {method!r}; choose one of {', '.join(METHODS)}")
     sup = np.asarray(network.supports, bool)
     pillars = np.flatnonzero(sup & ~mesh.boundary_vertex_mask)
     xy = mesh.vertices[:, :2]
@@ -435,35 +550,22 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise InputError(f"--spacing must be a positive number, got {spacing!r}")
     if spacing < 1e-3 * diag:
         raise InputError(f"--spacing {spacing:g} is below 1/1000 of the top view's size ({diag:g}); choose a larger one")
-    tris = triangulate(mesh)
-    tri = mtri.Triangulation(xy[:, 0], xy[:, 1], tris)
-    finder = tri.get_trifinder()
-    inside = lambda p: bool(finder(p[0], p[1]) >= 0)  # noqa: E731
+    tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
     n = mesh.n_vertices
     if field == "principal":
         D = principal_line_fields(network)
     else:
         a = np.radians(angle)
         D = np.broadcast_to(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]), (n, 2, 2)).copy()
-    max_steps = int(4 * diag / (STEP * spacing)) + 10
-    domain = _domain(mesh)
-    c = np.asarray(domain.representative_point().coords[0])
-    inner = np.flatnonzero(~mesh.boundary_vertex_mask)  # fallback seeds, nearest the centre first
-    seeds = [c] + list(xy[inner[np.argsort(np.linalg.norm(xy[inner] - c, axis=1))]])
-    border = _Family()  # the boundary, sampled at a tenth of the spacing
-    for ring in [domain.exterior, *domain.interiors]:
-        border.add(np.asarray([ring.interpolate(t).coords[0] for t in np.arange(0, ring.length, 0.1 * spacing)]))
-    lines: list[list[np.ndarray]] = []
+    doubled = []
     for k in range(2):
         dk = D[:, :, k]
-        doubled = np.c_[dk[:, 0] ** 2 - dk[:, 1] ** 2, 2 * dk[:, 0] * dk[:, 1]]
-        doubled = _fill_doubled(mesh, doubled)
-        nrm = np.linalg.norm(doubled, axis=1, keepdims=True)
-        doubled = doubled / np.where(nrm > 0, nrm, 1.0)
-        fam_lines = _streamlines(_Field(tri, doubled), seeds, spacing, inside, max_steps, max_lines, border)
-        if len(fam_lines) >= max_lines:
-            raise InputError(f"more than {max_lines} lines per direction at spacing {spacing:g}; choose a larger --spacing")
-        lines.append(fam_lines)
+        dbl = _fill_doubled(mesh, np.c_[dk[:, 0] ** 2 - dk[:, 1] ** 2, 2 * dk[:, 0] * dk[:, 1]])
+        nrm = np.linalg.norm(dbl, axis=1, keepdims=True)
+        doubled.append(dbl / np.where(nrm > 0, nrm, 1.0))
+    domain = _domain(mesh)
+    lines, info = METHODS[method](_Setting(mesh=mesh, tri=tri, doubled=(doubled[0], doubled[1]), spacing=spacing,
+                                           domain=domain, max_lines=max_lines))
     V2, faces = _arrangement(lines[0] + lines[1], domain, _corners(mesh), spacing)
     V2, faces, pillar_ids = _insert_points(V2, faces, xy[pillars], MERGE * spacing)
     used = np.unique(np.concatenate([np.asarray(f) for f in faces]))
@@ -488,4 +590,5 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     supports[np.flatnonzero(bmask)] = sup[near]
     supports[remap[pillar_ids]] = True  # the pillars, where they were
     scene = Scene(mesh=new, supports=supports, name=f"{getattr(network, 'name', 'network')}-pq")
-    return Remesh(scene=scene, lines=(tuple(lines[0]), tuple(lines[1])), spacing=spacing, field=field)
+    return Remesh(scene=scene, lines=(tuple(lines[0]), tuple(lines[1])), spacing=spacing, field=field, method=method,
+                  info=info)
