@@ -425,7 +425,6 @@ def _corners(mesh: PolyMesh) -> np.ndarray:
     return np.vstack(out) if out else np.zeros((0, 2))
 
 
-
 # ---------------------------------------------------------------------------- line builders
 @dataclass(frozen=True, eq=False)
 class _Setting:
