@@ -409,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default=",".join(METHODS),
                    help=f"comma-separated, from {', '.join(METHODS)}, or staggered/BACKEND (a Step-2 backend)")
     p.add_argument("--time-limit", type=float, default=METHODS["staggered"][1],
-                   help="staggered time limit per row [s]")
+                   help="staggered and multilevel time limit per row [s]")
     p.add_argument("--ipopt-time-limit", type=float, default=METHODS["ipopt"][1], help="IPOPT time limit per row [s]")
     p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve in each row process")
     return p
@@ -435,7 +435,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     if bad:
         raise SystemExit(f"unknown shape(s) {bad}; choose from {', '.join(sorted(SHAPES))}")
     rows = run_scaling(out=a.out.resolve(), shapes=shapes, sizes=sizes, methods=methods,
-                       time_limits={"staggered": a.time_limit, "ipopt": a.ipopt_time_limit}, warmup=not a.no_warmup,
+                       time_limits={"staggered": a.time_limit, "multilevel": a.time_limit, "ipopt": a.ipopt_time_limit}, warmup=not a.no_warmup,
                        on_row=lambda rs: write_outputs(rs, a.out))
     md = write_outputs(rows, a.out)
     print(md)
