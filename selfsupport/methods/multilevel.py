@@ -84,10 +84,25 @@ def _boundary_keep(loop: np.ndarray, xy: np.ndarray, supports: np.ndarray, h: fl
     P = xy[loop]
     s = supports[loop]
     forced = turning_angles(P) > CORNER_ANGLE
-    # both ends of every supported run (the supported vertex only: keeping its unsupported
-    # neighbour too leaves a fine-length edge on every coarser level)
-    forced |= s & ~(np.roll(s, 1) & np.roll(s, -1))
+    # both ends of every supported run, and beside each the first unsupported vertex h/2 or more
+    # away along the loop: the coarse supports end where the fine ones do, give or take h/2
+    # (its direct neighbour leaves a fine-length edge on every coarser level; none at all let
+    # the coarse supports reach up to h into the free boundary)
+    ends = s & ~(np.roll(s, 1) & np.roll(s, -1))
+    forced |= ends
     seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
+    m = len(loop)
+    for i in np.flatnonzero(ends):
+        for step in (1, -1):  # along the loop and against it
+            j, d = i, 0.0
+            while True:
+                d += seg[j] if step == 1 else seg[(j - 1) % m]
+                j = (j + step) % m
+                if s[j] or j == i:
+                    break  # (another support within h/2: nothing to add)
+                if d >= 0.5 * h:
+                    forced[j] = True
+                    break
     keep, acc = [], np.inf
     for i in range(len(loop)):
         if forced[i] or acc >= h:
