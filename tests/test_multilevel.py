@@ -42,6 +42,14 @@ def test_coarsening_keeps_the_top_view_its_boundary_and_its_supports(shape):
     assert d.min(axis=1).max() == 0.0
     match = np.flatnonzero(fine.mesh.boundary_vertex_mask)[d.argmin(axis=1)]
     assert np.array_equal(c.supports[bc], fine.supports[match])
+    # supported boundary runs end where the fine ones do, give or take half a coarse spacing: a
+    # boundary edge from a support to a free vertex is about half as long as one between free ones
+    E = m.edges[m.boundary_edge_mask]
+    L = np.linalg.norm(m.vertices[E[:, 1], :2] - m.vertices[E[:, 0], :2], axis=1)
+    mixed = c.supports[E[:, 0]] != c.supports[E[:, 1]]
+    free = ~c.supports[E[:, 0]] & ~c.supports[E[:, 1]]
+    if mixed.any() and free.any():
+        assert L[mixed].max() <= 0.6 * L[free].mean()
     # the domain: same area up to the chords cut off the curved boundary (a few per mille)
     assert _top_area(m) == pytest.approx(_top_area(fine.mesh), rel=5e-3)
     # interior supports (pillars) stay supports, inside the fine pillars
