@@ -390,7 +390,10 @@ class Multilevel:
                 # a coarse network out of equilibrium is no better a start than the reference: the
                 # fine level goes cold (one that stalled but was polished into equilibrium is a
                 # network near the reference all the same, and the next level starts from it)
-                why = f"level {k} ({scene.mesh.n_vertices} vertices) ended {res.status}: the fine level started cold"
+                why = (f"the time limit was reached on level {k} ({scene.mesh.n_vertices} vertices)"
+                       if in_equilibrium else
+                       f"level {k} ({scene.mesh.n_vertices} vertices) ended {res.status} out of equilibrium: "
+                       "the fine level started cold")
                 res = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
                 levels.append(self._level(res, problem.scene))
                 break
