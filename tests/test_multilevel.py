@@ -133,3 +133,16 @@ def test_the_command_line_solves_on_levels_and_the_file_stands(tmp_path):
     assert [lv["status"] for lv in levels] == ["converged", "converged"]  # 7,000 vertices: two levels
     assert levels[-1]["n_vertices"] == len(doc["vertices"]) and levels[0]["n_vertices"] < 2500
     assert independent_check(out).ok
+
+
+def test_the_time_limit_holds_across_the_levels():
+    """One deadline for every level: a limit shorter than the coarse level's solve still returns a
+    network of the fine mesh, on time."""
+    import time
+
+    scene = make_shape("pillar_vault", n_vertices=7000)
+    t = time.perf_counter()
+    res = Multilevel().solve(scene, time_limit=1.0)
+    took = time.perf_counter() - t
+    assert res.network.mesh.n_vertices == scene.mesh.n_vertices
+    assert res.status == "time_limit" and took < 1.0 + 3.0  # (+ coarsening and one fit past the deadline)
