@@ -364,7 +364,8 @@ class Multilevel:
         loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads)
         opts = {**dict(options or {}), **overrides}
-        deadline = t0 + float(opts.pop("time_limit", self.staggered.options.time_limit)) if deadline is None else deadline
+        # one deadline for all levels (each level's messages name the whole limit)
+        deadline = t0 + float(opts.get("time_limit", self.staggered.options.time_limit)) if deadline is None else deadline
         why = _why_not(problem) if warm_start is None else "a warm start was given"
         scenes = [problem.scene] if why else self.levels(problem.scene)
         if len(scenes) == 1:
