@@ -62,7 +62,7 @@ from .deadline import out_of_time
 from .staggered import StaggeredLinearization
 from .warm import WarmStart
 
-__all__ = ["Multilevel", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0"]
+__all__ = ["Multilevel", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
 
 #: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
 #: two levels took half the time of one: pillar vault 11.7 vs 23.6 s, concave disk 10.0 vs 30.9 s).
@@ -73,6 +73,10 @@ FACTOR = 4.0
 #: mean distance to the reference; cold 16k: 25 it.): α₀ = 1 → 23 it. (the schedule from the
 #: top), 1e-2 → 18, 1e-4 → 7–10 it. at the cold solve's distance (±5%), 1e-6 → 8 it.
 WARM_ALPHA0 = 1e-4
+#: A coarser level's network starts the next one when its max relative error is at most this (a
+#: start needs to be near equilibrium, not at round-off: a 64k level of a 256k pillar vault that
+#: stalled and was polished to 2.8e-9 is a network near the reference all the same).
+START_TOL = 1e-6
 #: A boundary corner turning more than this [degrees] is kept on every level.
 CORNER_ANGLE = 30.0
 
@@ -386,7 +390,7 @@ class Multilevel:
             res = self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline, warm_start=warm)
             levels.append(self._level(res, scene))
             prev_scene = scene
-            in_equilibrium = res.max_relative_error <= float(opts.get("tol", self.staggered.options.tol))
+            in_equilibrium = res.max_relative_error <= START_TOL
             if scene is not problem.scene and (not in_equilibrium or out_of_time(deadline)):
                 # a coarse network out of equilibrium is no better a start than the reference: the
                 # fine level goes cold (one that stalled but was polished into equilibrium is a
