@@ -7,8 +7,8 @@
 ``--methods`` also takes ``staggered/BACKEND`` (the staggered method with another Step-2
 backend) and ``multilevel`` (:mod:`selfsupport.methods.multilevel`: its time covers every level,
 its iterations and Step-2/3 columns are those of its finest level; ``levels`` lists each
-level's vertices and iterations). Rows run size by size with the methods interleaved, so that rows compared with one
-another are measured side by side on a shared machine.
+level's vertices and iterations). Rows run size by size with the methods interleaved, so that
+rows compared with one another are measured side by side on a shared machine.
 
 For each generated shape (:func:`selfsupport.shapes.make_shape`) and target size one row per
 method: solve time, iterations, max relative error (recomputed from the saved JSON), distance to
@@ -74,14 +74,14 @@ def _ipopt() -> Any:
     return Simultaneous()
 
 
-#: method name -> (factory, default time limit [s]); ``staggered/BACKEND`` names the staggered
-#: method with another Step-2 backend (:data:`selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS`)
 def _multilevel() -> Any:
     from selfsupport.methods.multilevel import Multilevel
 
     return Multilevel()
 
 
+#: method name -> (factory, default time limit [s]); ``staggered/BACKEND`` names the staggered
+#: method with another Step-2 backend (:data:`selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS`)
 METHODS: dict[str, tuple[Callable[[], Any], float]] = {
     "staggered": (_staggered, 1200.0),
     "multilevel": (_multilevel, 1200.0),
