@@ -303,6 +303,8 @@ class NloptFit(WeightFitBackend):
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
         w0 = np.asarray(w0, float)
+        if out_of_time(deadline):  # as the other backends: a passed deadline runs nothing
+            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         m = A.shape[1]
         best = {"f": np.inf, "w": np.clip(w0, lower, upper)}
         count = [0]
