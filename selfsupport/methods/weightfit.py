@@ -53,11 +53,26 @@ class WeightFitBackend:
 
     def fit(self, *, A: sp.spmatrix, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
             w0: np.ndarray, prox: float = 0.0, rtol: float | None = None,
-            deadline: float | None = None) -> WeightFit:  # pragma: no cover - abstract
+            deadline: float | None = None) -> WeightFit:
         """Solve the fit. ``rtol``: a looser relative KKT tolerance the caller accepts for this
         fit (``None``: the backend's own); a backend may ignore it. ``deadline``: a
         ``time.perf_counter()`` value; past it the backend returns the point it has, status
-        ``"time_limit"`` (``None``: no deadline)."""
+        ``"time_limit"`` (``None``: no deadline). A deadline already passed runs no backend at
+        all: the start, clipped to the bounds, is returned (a fast backend would otherwise finish
+        within its own minimum time limit and report "optimal")."""
+        if out_of_time(deadline):
+            t0 = time.perf_counter()
+            w = np.clip(np.asarray(w0, float), lower, upper)
+            nl, nu = count_bounds(w, lower, upper)
+            return WeightFit(w=w, objective=_objective(A, b, w), iterations=0, status="time_limit",
+                             seconds=time.perf_counter() - t0, n_lower=nl, n_upper=nu)
+        return self._fit(A=A, b=b, lower=np.asarray(lower, float), upper=np.asarray(upper, float), w0=w0,
+                         prox=prox, rtol=rtol, deadline=deadline)
+
+    def _fit(self, *, A: sp.spmatrix, b: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+             w0: np.ndarray, prox: float, rtol: float | None,
+             deadline: float | None) -> WeightFit:  # pragma: no cover - abstract
+        """The backend's own fit (:meth:`fit` has checked the deadline)."""
         raise NotImplementedError
 
     def reset(self) -> None:
@@ -70,6 +85,12 @@ class WeightFitBackend:
 def _objective(A: sp.spmatrix, b: np.ndarray, w: np.ndarray) -> float:
     r = A @ w - b
     return 0.5 * float(r @ r)
+
+
+def count_bounds(w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[int, int]:
+    """How many weights sit at their lower / upper bound (to 1e-8 of the largest weight)."""
+    tol = 1e-8 * max(float(np.abs(w).max(initial=0.0)), 1e-300)
+    return int(np.sum(w <= lower + tol)), int(np.sum(np.isfinite(upper) & (w >= upper - tol)))
 
 
 class _LowerQ:
@@ -264,12 +285,8 @@ class ActiveSetFit(WeightFitBackend):
         tol = 1e-9 * np.maximum(np.abs(lower), 1e-300)
         self._active = (w <= lower + tol, np.isfinite(upper) & (w >= upper - tol))
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None):
+    def _fit(self, *, A, b, lower, upper, w0, prox, rtol, deadline):
         t0 = time.perf_counter()
-        if out_of_time(deadline):  # not even the normal equations: the starting point as it is
-            w = np.clip(np.asarray(w0, float), lower, upper)
-            return WeightFit(w=w, objective=_objective(A, b, w), iterations=0, status="time_limit",
-                             seconds=time.perf_counter() - t0)
         A = sp.csc_matrix(A)
         Q = (A.T @ A).tocsc()
         if prox > 0:

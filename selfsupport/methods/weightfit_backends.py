@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from ..errors import BackendUnavailable
 from .deadline import ipopt_stop_callback, out_of_time, remaining
-from .weightfit import WeightFit, WeightFitBackend, _objective
+from .weightfit import WeightFit, WeightFitBackend, _objective, count_bounds
 
 
 def kkt_residual(*, A: sp.spmatrix, b: np.ndarray, w: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -61,11 +61,6 @@ def nlopt_failures(nlopt: Any) -> tuple[type[BaseException], ...]:
     return tuple(found)
 
 
-def _count_bounds(w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[int, int]:
-    tol = 1e-8 * max(float(np.abs(w).max(initial=0.0)), 1e-300)
-    return int(np.sum(w <= lower + tol)), int(np.sum(np.isfinite(upper) & (w >= upper - tol)))
-
-
 def _csc(A: sp.spmatrix) -> sp.csc_matrix:
     A = sp.csc_matrix(A, dtype=float, copy=True)
     A.sum_duplicates()
@@ -79,7 +74,7 @@ def _pattern_key(A: sp.csc_matrix) -> tuple:
 
 def _finish(A, b, w, lower, upper, it, status, t0) -> WeightFit:
     w = np.clip(np.asarray(w, float), lower, upper)
-    nl, nu = _count_bounds(w, lower, upper)
+    nl, nu = count_bounds(w, lower, upper)
     return WeightFit(w=w, objective=_objective(A, b, w), iterations=int(it), status=status,
                      seconds=time.perf_counter() - t0, n_lower=nl, n_upper=nu)
 
@@ -130,14 +125,12 @@ class IpoptFit(WeightFitBackend):
                                             "iteration_callback": self._stop})
         return self._solvers[key]
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
+    def _fit(self, *, A, b, lower, upper, w0, prox, rtol, deadline) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
-        if out_of_time(deadline):
-            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         rows, m = A.shape
         solver = self._solver(A)
         self._stop.deadline = deadline
@@ -199,15 +192,13 @@ class OsqpFit(WeightFitBackend):
         C = sp.hstack([A, -sp.identity(rows)], format="csc")
         return H, C
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
+    def _fit(self, *, A, b, lower, upper, w0, prox, rtol, deadline) -> WeightFit:  # rtol: own tol used
         t0 = time.perf_counter()
         A = _csc(A)
         b = np.asarray(b, float)
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
         w0 = np.asarray(w0, float)
-        if out_of_time(deadline):
-            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         rows, m = A.shape
         H, C = self._lifted(A, prox)
         q = np.r_[-float(prox) * w0, np.zeros(rows)]
@@ -293,7 +284,7 @@ class NloptFit(WeightFitBackend):
             raise BackendUnavailable("the 'nlopt' weight-fit backend needs the nlopt package: "
                                      "`pip install nlopt`") from None
 
-    def fit(self, *, A, b, lower, upper, w0, prox=0.0, rtol=None, deadline=None) -> WeightFit:  # rtol: own tol used
+    def _fit(self, *, A, b, lower, upper, w0, prox, rtol, deadline) -> WeightFit:  # rtol: own tol used
         import nlopt
 
         t0 = time.perf_counter()
@@ -303,8 +294,6 @@ class NloptFit(WeightFitBackend):
         lower = np.asarray(lower, float)
         upper = np.asarray(upper, float)
         w0 = np.asarray(w0, float)
-        if out_of_time(deadline):  # as the other backends: a passed deadline runs nothing
-            return _finish(A, b, w0, lower, upper, 0, "time_limit", t0)
         m = A.shape[1]
         best = {"f": np.inf, "w": np.clip(w0, lower, upper)}
         count = [0]
