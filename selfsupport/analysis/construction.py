@@ -197,15 +197,18 @@ def _per_point(value, points: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
-def _restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.ndarray, free: np.ndarray,
-                                    tol: float = 1e-17) -> np.ndarray:
-    """Remove the round-off left in (2) by the smallest change of the non-zero weights.
+def restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.ndarray, free: np.ndarray,
+                                   tol: float = 1e-17, metric: np.ndarray | None = None) -> np.ndarray:
+    """The smallest change of the non-zero weights that puts them in horizontal equilibrium (2).
 
-    Weights from creases inherit the precision of the φ values, ``eps |φ|``, which on steep or
-    irregular inputs leaves horizontal residuals of ~1e-10 of the loads. The minimum-norm
-    correction ``δw = −Aᵀ (A Aᵀ)⁻¹ A w`` (``A`` the horizontal rows of (2) at free vertices,
-    restricted to edges that carry force) brings them to round-off; ``|δw|`` is of the same
-    tiny size, so signs and zero-force edges are kept.
+    The minimum-norm correction ``δw = −D Aᵀ (A D Aᵀ)⁻¹ A w`` (``A`` the horizontal rows of (2) at
+    free vertices, restricted to edges that carry force; ``D = diag(metric)``, default I: the
+    change minimises ``Σ δw_e² / metric_e``; one refinement step). Here it removes round-off:
+    weights from creases inherit the precision of the φ values, ``eps |φ|``, which on steep or
+    irregular inputs leaves horizontal residuals of ~1e-10 of the loads, and ``|δw|`` is of the
+    same tiny size, so signs and zero-force edges are kept. The multilevel prolongation
+    (:mod:`selfsupport.methods.prolong`) uses it on weights that are only near equilibrium, with
+    ``metric = w²`` (relative changes; the caller clips what leaves the bounds).
     """
     n = len(xy)
     ev = xy[edges[:, 1]] - xy[edges[:, 0]]
@@ -231,12 +234,13 @@ def _restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.nda
                       shape=(2 * int(free.sum()), len(cols)))
     # (a free vertex with collinear edges makes A Aᵀ singular; spd_factor then factors it with a
     # tiny diagonal shift, and Aᵀ removes the null-space part of the multipliers again)
-    lu = spd_factor(A @ A.T)
+    DAt = (A.T if metric is None else sp.diags(np.asarray(metric, float)[cols]) @ A.T).tocsc()
+    lu = spd_factor(A @ DAt)
     r = A @ w[cols]
     lam = lu.solve(r)
-    lam += lu.solve(r - A @ (A.T @ lam))
+    lam += lu.solve(r - A @ (DAt @ lam))
     out = w.copy()
-    out[cols] -= A.T @ lam
+    out[cols] -= DAt @ lam
     return out
 
 
@@ -448,7 +452,7 @@ def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.nda
                          "hole, so the removed edges carried force; support the rims (support_holes=True) or make "
                          "the rim points lie where φ is affine (co-circular rims for the paraboloid)")
     w[sup[e[:, 0]] & sup[e[:, 1]]] = 0.0  # the network convention: no unknown between two supports
-    w = _restore_horizontal_equilibrium(P, e, w, free)
+    w = restore_horizontal_equilibrium(P, e, w, free)
     heights = heights[keep_pts]
 
     top = Topology.build(n, e, sup)
