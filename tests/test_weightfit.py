@@ -168,3 +168,25 @@ def test_centred_restart_agrees_with_active_set_and_meets_kkt(name):
             assert f2.objective <= f1.objective * (1 + 1e-2)
         w_prev = f2.w
     assert used >= 3  # the interior point did restart from a centred iterate
+
+
+@pytest.mark.parametrize("name", ["active-set", "ipopt", "nlopt"])
+def test_a_start_that_already_fits_is_the_fit(name):
+    """``A w0 = b`` with w0 inside the box: w0 is the unique minimiser of ½‖Aw−b‖² + ½prox‖w−w0‖²,
+    returned as it is by every backend; a start that misses by more than FITS_ALREADY is fitted."""
+    from selfsupport.methods.weightfit import FITS_ALREADY
+
+    rng = np.random.default_rng(5)
+    m, n = 60, 90  # more columns than rows, as a triangle mesh's fit: a face of minimisers without prox
+    A = (sp.random(m, n, density=0.08, random_state=5, format="csc") + sp.eye(m, n, format="csc")).tocsc()
+    lo, up = np.full(n, 0.05), np.full(n, np.inf)
+    w_true = lo + rng.uniform(0.0, 1.0, n)
+    w_true[:10] = lo[:10]  # some at the bound: multipliers of zero there (degenerate)
+    b = A @ w_true
+    backend = make_backend(name)
+    got = backend.fit(A=A, b=b, lower=lo, upper=up, w0=w_true, prox=1e-8)
+    assert got.status == "optimal" and got.iterations == 0 and np.array_equal(got.w, w_true)
+    off = w_true.copy()
+    off[20] += 100 * FITS_ALREADY * float(np.abs(b).max()) / float(np.abs(A[:, 20]).max())
+    fitted = backend.fit(A=A, b=b, lower=lo, upper=up, w0=off, prox=1e-8)
+    assert fitted.iterations > 0
