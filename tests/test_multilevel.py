@@ -9,7 +9,7 @@ import pytest
 from selfsupport import api
 from selfsupport.evidence import distance_stats
 from selfsupport.mesh import PolyMesh
-from selfsupport.methods.multilevel import Multilevel, coarsen
+from selfsupport.methods.multilevel import RECLAIM, RECLAIM_STEPS, Multilevel, coarsen
 from selfsupport.methods.warm import interpolate_offsets
 from selfsupport.scene import Scene
 from selfsupport.shapes import make_shape
@@ -102,11 +102,43 @@ def test_multilevel_ends_in_equilibrium_with_fewer_fine_iterations(vault_runs):
     assert all(a["n_vertices"] < b["n_vertices"] for a, b in zip(levels, levels[1:]))
     assert ml.status == "converged" and ml.max_relative_error <= 1e-9
     assert independent_check(ml).ok
-    assert levels[-1]["iterations"] < cold.iterations
+    # each finer level starts in equilibrium (its stress carried over, methods/prolong.py): one
+    # iteration confirms it, where the cold solve needs its whole schedule
+    assert all(lv["prolongation"]["by"] == "stress" for lv in levels[1:])
+    assert levels[-1]["iterations"] <= 2 < cold.iterations
     # the same problem: about as close to the reference as the single-level network
     d_ml = distance_stats(ml.network.vertices, scene.mesh)[0]
     d_cold = distance_stats(cold.network.vertices, scene.mesh)[0]
     assert d_ml <= 1.25 * d_cold
+
+
+def test_the_interpolating_prolongation_iterates_to_equilibrium_too(vault_runs):
+    """``prolongation="interpolation"``: the offsets interpolated and iterated from (the
+    prolongation the stress one falls back to) reach the same equilibrium, about as close."""
+    scene, ml, cold = vault_runs
+    res = Multilevel(direct_max=900, prolongation="interpolation").solve(scene)
+    levels = res.parameters["multilevel"]["levels"]
+    assert all(lv["prolongation"]["by"] == "interpolation" for lv in levels[1:])
+    assert res.status == "converged" and res.max_relative_error <= 1e-9
+    assert independent_check(res).ok
+    assert levels[-1]["iterations"] < cold.iterations
+    d = distance_stats(res.network.vertices, scene.mesh)[0]
+    assert d <= 1.25 * distance_stats(cold.network.vertices, scene.mesh)[0]
+
+
+def test_a_prolonged_level_farther_than_the_one_below_is_refined():
+    """A barrel vault already in equilibrium: the carried stress reproduces it only to the fine
+    mesh's discretization (far more than 1.25× the coarse network's distance), so the fine level
+    walks back to the reference by SQP steps in equilibrium."""
+    scene = make_shape("barrel_vault", n_vertices=3000)
+    res = Multilevel(direct_max=900).solve(scene)
+    fine = res.parameters["multilevel"]["levels"][-1]
+    pro = fine["prolongation"]
+    assert pro["by"] == "stress" and pro["distance"] > RECLAIM * pro["distance_below"]
+    assert pro["refine"] == RECLAIM_STEPS
+    assert res.status == "converged" and independent_check(res).ok
+    d = distance_stats(res.network.vertices, scene.mesh)[0]
+    assert d < pro["distance"] / 10
 
 
 def test_multilevel_solves_on_one_level_what_it_cannot_coarsen():
