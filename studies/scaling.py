@@ -24,7 +24,8 @@ For staggered rows the worker also measures, at the final weights:
   free-vertex block of the stress Laplacian (``n_free × n_free``: the polish's matrix), median of 7;
 * ``factor_step3_s`` — one factorization of the Step-3 system itself, ``H ⊗ I₃ + c·⊕(b₀I + b₁nnᵀ)``
   (``3 n_free × 3 n_free``, ``H = K_tᵀK_t``, ``K_t`` = ``K_ff`` with rows over ``|A_i F_i|``):
-  what a direct Step 3 costs;
+  what a direct Step 3 costs (not measured above :data:`FLOOR_DIRECT_MAX` free vertices: the
+  solver never factors it, and at 256k vertices it took the row past its 6 GiB guard);
 * ``factor_step3_pre_s`` — one factorization of ``H + c I`` (``n_free × n_free``), what the
   solver's Step 3 actually factors (its conjugate gradients are preconditioned with it);
 * ``factor_step2_s`` — one numeric refactorization (symbolic analysis done beforehand, as in
@@ -34,7 +35,10 @@ For staggered rows the worker also measures, at the final weights:
   iteration's cost in direct Step-3 factorizations (1–3 would be a method that factors once per step);
 * ``limit_ratio`` — solve time / (outer iterations × ``factor_K_s``): an outer iteration's cost
   in Cholesky factorizations of the plain stress Laplacian of the mesh, the limit a method that
-  factors one mesh-sized Laplacian per step would approach (issue #21 asks for ≤ 10);
+  factors one mesh-sized Laplacian per step would approach (issue #21 asks for ≤ 10). For
+  multilevel rows the iterations are the finest level's (1 when it starts in equilibrium), so
+  this is the whole solve's cost; ``solve_over_factor`` — solve time / ``factor_K_s`` — is that
+  cost for every method alike (a 25-iteration staggered solve at ratio 10 would be 250);
 * from the solve's own history: ``step2_s`` and ``step3_s`` (time in the weight fits and in the
   position steps), ``cg_mean`` (mean CG iterations per position step), ``fit_its_mean`` (mean
   Step-2 iterations per fit — each one factorization of that matrix);
@@ -134,6 +138,10 @@ class _FactorRecorder:
         self._cls._factor = self._orig
 
 
+#: Above this many free vertices the floor skips the direct Step-3 factorization (see the module docstring).
+FLOOR_DIRECT_MAX = 100_000
+
+
 def _floor_measurements(result, scene) -> dict[str, float]:
     """Factorization times at the final weights (see the module docstring)."""
     import scipy.sparse as sp
@@ -156,9 +164,13 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     c = float(np.mean((negK.diagonal() * s) ** 2))
     # Step 3's anchor b0 I + b1 n nᵀ per vertex (here n = (1, 1, 1)/√3) couples a vertex's x, y, z:
     # as a direct solve one 3n system, not three scalar ones
-    blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) / 3 + np.eye(3))
-    M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
     pre = (H + c * sp.identity(top.n_free)).tocsc()
+    step3 = float("nan")
+    if top.n_free <= FLOOR_DIRECT_MAX:
+        blocks = sp.kron(sp.identity(top.n_free), np.ones((3, 3)) / 3 + np.eye(3))
+        M = (sp.kron(H, sp.identity(3), format="csr") + c * blocks).tocsc()
+        step3 = median_time(lambda: spd_factor(M), repeat=3, budget=120.0)
+        del M
     # Step 2's matrix AᵀA + prox·I (m×m, edges coupled through shared vertices): what every
     # interior-point iteration and PDAS solve of a fit factors
     A = weight_matrix(top, sc.pos(np.asarray(net.vertices)))
@@ -169,9 +181,22 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     return {"factor_step2_s": median_time(lambda: lowq.with_diagonal(np.ones(Q.shape[0])), repeat=3, budget=60.0),
             # (median of 7: the limit ratio divides by it, and a 1 ms factorization is as noisy as the machine)
             "factor_K_s": median_time(lambda: spd_factor(negK), repeat=7, budget=60.0),
-            "factor_step3_s": median_time(lambda: spd_factor(M), repeat=3, budget=120.0),
+            "factor_step3_s": step3,
             "factor_step3_pre_s": median_time(lambda: spd_factor(pre), repeat=3, budget=60.0),
             "n_free": top.n_free}
+
+
+def _solve_from_file(path: Path) -> dict[str, Any]:
+    """Status, solve time and iterations of a row's saved network (the worker writes it before
+    the floor measurements, which can be what a memory guard stops)."""
+    import json
+
+    doc = json.loads(Path(path).read_text())
+    study = doc.get("study") or {}
+    out = {"solve_status": doc.get("status"), "iterations": doc.get("iterations")}
+    if isinstance(study.get("solve_seconds"), (int, float)):
+        out["time_s"] = float(study["solve_seconds"])
+    return {k: v for k, v in out.items() if v is not None}
 
 
 def iteration_ratios(row: dict[str, Any]) -> dict[str, float]:
@@ -180,11 +205,12 @@ def iteration_ratios(row: dict[str, Any]) -> dict[str, float]:
     once per step). NaN where a number is missing.
 
     >>> iteration_ratios({"time_s": 6.0, "iterations": 3, "factor_step3_s": 0.5, "factor_K_s": 0.1})
-    {'time_per_iter_s': 2.0, 'per_iter_over_factor': 4.0, 'limit_ratio': 20.0}
+    {'time_per_iter_s': 2.0, 'per_iter_over_factor': 4.0, 'limit_ratio': 20.0, 'solve_over_factor': 60.0}
     """
     per = safe_ratio(row.get("time_s"), row.get("iterations"))
     return {"time_per_iter_s": per, "per_iter_over_factor": safe_ratio(per, row.get("factor_step3_s")),
-            "limit_ratio": safe_ratio(per, row.get("factor_K_s"))}
+            "limit_ratio": safe_ratio(per, row.get("factor_K_s")),
+            "solve_over_factor": safe_ratio(row.get("time_s"), row.get("factor_K_s"))}
 
 
 def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, out_json: str,
@@ -247,6 +273,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("factor_step3_pre_s", "factor H + cI (n) [s]", "{:.4f}"),
     Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
     Column("limit_ratio", "time / (its × factor −K_ff)", "{:.1f}"),
+    Column("solve_over_factor", "time / factor −K_ff", "{:.0f}"),
     Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
 )
@@ -254,7 +281,7 @@ _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "levels", "status", "time_s", "iterations", "max_rel_error",
               "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
               "fit_its_mean", "factor_step2_s", "factor_K_s", "factor_step3_s", "factor_step3_pre_s",
-              "per_iter_over_factor", "limit_ratio", "n_factorizations", "factor_share")
+              "per_iter_over_factor", "limit_ratio", "solve_over_factor", "n_factorizations", "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
                Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
@@ -356,11 +383,14 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                     r["vertices"], r["edges"] = mesh.n_vertices, mesh.n_edges
                 if out_json.is_file():
                     r["max_rel_error"] = json_max_relative_error(out_json)
+                    if "time_s" not in r:  # killed after the solve (in the floor): its file has the solve
+                        r.update(_solve_from_file(out_json))
                 r.update(iteration_ratios(r))
                 echo(f"    {r.get('status')}: {r.get('vertices', '?')} V, time {r.get('time_s', float('nan')):.2f} s, "
                      f"{r.get('iterations', '-')} it, error {r.get('max_rel_error', float('nan')):.2e}, "
                      f"peak RSS {r.get('peak_rss_mib', float('nan')):.0f} MiB, "
-                     f"limit ratio {r.get('limit_ratio', float('nan')):.1f}"
+                     f"limit ratio {r.get('limit_ratio', float('nan')):.1f}, "
+                     f"time / factor −K_ff {r.get('solve_over_factor', float('nan')):.0f}"
                      + (f" — {r['message']}" if r.get("message") else ""))
                 rows.append(r)
                 if on_row is not None:
