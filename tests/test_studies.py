@@ -219,6 +219,14 @@ def test_run_isolated_contains_failures():
     assert big["status"] == "killed" and big["peak_rss_mib"] > 200
 
 
+def test_a_row_process_reports_its_own_peak_memory_not_its_parents():
+    """A spawned row is forked from the study process first: its peak must not start from the
+    study's resident memory (``ru_maxrss`` does, through fork and exec)."""
+    held = np.ones(80_000_000)  # 610 MiB resident in this process
+    own = common.run_isolated("builtins:dict", {}, hard_timeout=60)
+    assert held.sum() > 0 and own["peak_rss_mib"] < 300
+
+
 def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
     """The IPOPT row meant for comparison with the refinement minimises the distance to the
     reference surface: its solve records that objective and, started from the same staggered
