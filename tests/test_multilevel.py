@@ -126,19 +126,21 @@ def test_the_interpolating_prolongation_iterates_to_equilibrium_too(vault_runs):
     assert d <= 1.25 * distance_stats(cold.network.vertices, scene.mesh)[0]
 
 
-def test_a_prolonged_level_farther_than_the_one_below_is_refined():
-    """A barrel vault already in equilibrium: the carried stress reproduces it only to the fine
-    mesh's discretization (far more than 1.25× the coarse network's distance), so the fine level
-    walks back to the reference by SQP steps in equilibrium."""
-    scene = make_shape("barrel_vault", n_vertices=3000)
+@pytest.mark.parametrize("shape, stands", [("barrel_vault", True), ("dome", False)])
+def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stands):
+    """Carried stress reproduces a surface already (nearly) in equilibrium only to the fine
+    mesh's discretization: far more than 1.25× the coarse network's distance from it. A barrel
+    vault stands as designed, so one cold iteration finds it; the dome does not quite, and its
+    fine level walks back to the reference by SQP steps in equilibrium."""
+    scene = make_shape(shape, n_vertices=3000)
     res = Multilevel(direct_max=900).solve(scene)
-    fine = res.parameters["multilevel"]["levels"][-1]
-    pro = fine["prolongation"]
+    pro = res.parameters["multilevel"]["levels"][-1]["prolongation"]
     assert pro["by"] == "stress" and pro["distance"] > RECLAIM * pro["distance_below"]
-    assert pro["refine"] == RECLAIM_STEPS
+    assert (pro["probe"]["status"] == "converged") == stands
+    assert pro.get("refine") == (None if stands else RECLAIM_STEPS)
     assert res.status == "converged" and independent_check(res).ok
     d = distance_stats(res.network.vertices, scene.mesh)[0]
-    assert d < pro["distance"] / 10
+    assert d < pro["distance"] / 5
 
 
 def test_multilevel_solves_on_one_level_what_it_cannot_coarsen():

@@ -22,9 +22,12 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
 2. The coarsest level is solved cold by :class:`~.staggered.StaggeredLinearization`.
 3. Each finer level starts from the level below carried over by its stress field
    (:mod:`.prolong`): a network in equilibrium on the finer mesh, about as near the reference as
-   the level below, so one iteration confirms it (the staggered method polishes it; a level
-   that ends more than :data:`RECLAIM` × farther from the reference than the one below is
-   walked back by up to :data:`RECLAIM_STEPS` SQP steps in equilibrium, :mod:`.refine`). Where
+   the level below, so one iteration confirms it (the staggered method polishes it). A level
+   that ends more than :data:`RECLAIM` × farther from the reference than the one below is first
+   solved cold for one iteration, which finds a reference that stands as designed (a barrel
+   vault: the carried stress reproduces it only to the fine mesh's discretization); failing
+   that, it is walked back by up to :data:`RECLAIM_STEPS` SQP steps in equilibrium
+   (:mod:`.refine`). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
    offsets from its reference interpolated C¹ over the top view with weights from the nearest
@@ -91,8 +94,8 @@ START_TOL = 1e-6
 #: or "interpolation" (its offsets interpolated and iterated from, :mod:`.warm`).
 PROLONGATIONS = ("stress", "interpolation")
 #: A level prolonged by its stress that ends more than this many times farther from the reference
-#: than the level below (mean distance) is refined by up to RECLAIM_STEPS SQP steps in equilibrium
-#: (refine.py). Measured on generated 3,000-vertex shapes, prolonged / below: concave disk 0.3–0.4,
+#: than the level below (mean distance) is probed by one cold iteration and, unless that converges,
+#: refined by up to RECLAIM_STEPS SQP steps in equilibrium (refine.py). Measured on generated 3,000-vertex shapes, prolonged / below: concave disk 0.3–0.4,
 #: cross vault 0.95, pillar vault 1.24, dome 3.6 and barrel vault 68 (4e-4 of the diagonal against 6e-6:
 #: a surface already in equilibrium, which the stress field reproduces only to the fine mesh's
 #: discretization).
@@ -423,7 +426,18 @@ class Multilevel:
                     carried = {"by": "stress", "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
                                "distance": d_pro, "distance_below": d_below}
                     if d_pro > RECLAIM * d_below:
-                        # farther from the reference than the level below: walk back in equilibrium
+                        # farther from the reference than the level below. A reference that stands
+                        # as it is (a surface already in equilibrium, which the carried stress only
+                        # reproduces to the fine mesh's discretization) is found by one cold
+                        # iteration; otherwise walk back in equilibrium
+                        probe = self.staggered.solve(prob, {**opts, "max_iter": 1}, progress=step,
+                                                     deadline=deadline)
+                        carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
+                        if probe.status == "converged":
+                            res = probe
+                            levels.append({**self._level(res, scene), "prolongation": carried})
+                            prev_scene = scene
+                            continue
                         extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
                         carried["refine"] = extra["refine"]
                 else:
