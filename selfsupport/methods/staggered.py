@@ -371,7 +371,9 @@ class _Run:
         ws, As_all, rels, fits = [], [], [], []
         for c in range(self.C):
             s = np.repeat(1.0 / np.abs(L[c, free]), 3)
-            As = sp.diags(s) @ A
+            # rows scaled in place: a product with diag(s) would drop A's stored zeros, the
+            # structure the weight fit's factorizations are ordered by (linalg.structural_gram)
+            As = sp.csc_matrix((A.data * s[A.indices], A.indices, A.indptr), shape=A.shape)
             b = s * load_vector(self.top, L[c])
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             try:
