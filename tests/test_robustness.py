@@ -616,7 +616,7 @@ def test_pillar_base_marked_free_is_predicted_and_stops_labelled(pillar_free):
     # so the solve either stops labelled, or holds the corner elsewhere: a network in equilibrium
     # whose freed corner slid along the surface (with the weight fit's matrix on its structural
     # pattern the staggered method converges here, the corner 6.4 units from where it was; before,
-    # it stalled at 0.17 with the corner in the same place)
+    # it stalled at max relative error 0.17 with the corner moved as far)
     if res.status in NOT_CONVERGED:
         assert res.max_relative_error > 1e-9
     else:

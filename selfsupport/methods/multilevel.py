@@ -424,7 +424,7 @@ class Multilevel:
                     d_pro = distance_stats(pro.network.vertices, scene.mesh)[0]
                     d_below = distance_stats(res.network.vertices, scene.mesh)[0]
                     carried = {"by": "stress", "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
-                               "distance": d_pro, "distance_below": d_below}
+                               "distance": d_pro, "distance_below": d_below, **pro.info}
                     if d_pro > RECLAIM * d_below:
                         # farther from the reference than the level below. A reference that stands
                         # as it is (a surface already in equilibrium, which the carried stress only
