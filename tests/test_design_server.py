@@ -54,6 +54,21 @@ def _until(ws, pred, limit=400):
     raise AssertionError("message not received")
 
 
+def _until_all(ws, *preds, limit=400):
+    """The first message matching each predicate, in whatever order they come: an edit's reply
+    (its state) and the worker's frame race each other — a solve that finishes at once (an undo
+    back to a solved design) can broadcast its frame before the reply is sent."""
+    got: list = [None] * len(preds)
+    for _ in range(limit):
+        m = ws.receive_json()
+        for k, pred in enumerate(preds):
+            if got[k] is None and pred(m):
+                got[k] = m
+        if all(g is not None for g in got):
+            return got
+    raise AssertionError("messages not received")
+
+
 # ------------------------------------------------------------------------------ security
 def test_no_token_is_403(served):
     client, token, _, _ = served
@@ -175,9 +190,8 @@ def test_edit_undo_save_over_the_websocket(served):
         assert f0["seq"] == 0 and f0["status"] == "converged"
         v = int(np.setdiff1d(np.arange(f0["n_vertices"]), f0["supports"])[5])
         ws.send_json({"type": "edit", "edit": {"op": "pin", "select": {"vertices": [v]}}})
-        st = _until(ws, lambda m: m["type"] == "state")
+        st, f1 = _until_all(ws, lambda m: m["type"] == "state", lambda m: m["type"] == "frame" and m["seq"] == 1)
         assert st["seq"] == 1 and st["n_edits"] == 1 and st["can_undo"]
-        f1 = _until(ws, lambda m: m["type"] == "frame" and m["seq"] == 1)
         assert v in f1["supports"] and v not in f0["supports"]
         ws.send_json({"type": "edit", "edit": {"op": "nonsense"}})
         err = _until(ws, lambda m: m["type"] == "error")
@@ -186,9 +200,8 @@ def test_edit_undo_save_over_the_websocket(served):
         saved = _until(ws, lambda m: m["type"] in ("saved", "error"))
         assert saved["type"] == "saved", saved
         ws.send_json({"type": "undo"})
-        st = _until(ws, lambda m: m["type"] == "state")
+        st, f2 = _until_all(ws, lambda m: m["type"] == "state", lambda m: m["type"] == "frame" and m["seq"] == 2)
         assert st["seq"] == 2 and st["n_edits"] == 0 and st["can_redo"]
-        f2 = _until(ws, lambda m: m["type"] == "frame" and m["seq"] == 2)
         assert v not in f2["supports"]
     rep = independent_check(root / "net.json")
     assert rep.ok and rep["max_rel_error"] < 1e-8, rep
