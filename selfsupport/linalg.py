@@ -173,7 +173,8 @@ def structural_gram(A: sp.spmatrix, shift: float = 0.0) -> sp.csc_matrix:
     A = sp.csc_matrix(A)
     n = A.shape[1]
     S = sp.csc_matrix((np.ones(A.nnz), A.indices, A.indptr), shape=A.shape)
-    P = (S.T @ S).tocsc()  # (products of ones: nothing cancels, the pattern is structural)
+    # (products of ones plus I: nothing cancels; the pattern is structural, the diagonal stored)
+    P = (S.T @ S + sp.identity(n, format="csc")).tocsc()
     P.sort_indices()
     Q = (A.T @ A).tocsc()
     Q.sort_indices()
@@ -184,17 +185,5 @@ def structural_gram(A: sp.spmatrix, shift: float = 0.0) -> sp.csc_matrix:
     kp = keys(P)
     data = np.zeros(P.nnz)
     data[np.searchsorted(kp, keys(Q))] = Q.data
-    out = sp.csc_matrix((data, P.indices, P.indptr), shape=(n, n))
-    if shift:
-        diag = np.arange(n, dtype=np.int64) * (n + 1)
-        pos = np.searchsorted(kp, diag)
-        has = (pos < len(kp)) & (kp[np.minimum(pos, len(kp) - 1)] == diag)
-        if has.all():
-            out.data[pos] += shift
-        else:  # (a column A stores nothing in: add its diagonal entry; coo -> csc keeps zeros)
-            C = out.tocoo()
-            ii = np.arange(n)
-            out = sp.coo_matrix((np.r_[C.data, np.full(n, float(shift))], (np.r_[C.row, ii], np.r_[C.col, ii])),
-                                shape=(n, n)).tocsc()
-            out.sort_indices()
-    return out
+    data[np.searchsorted(kp, np.arange(n, dtype=np.int64) * (n + 1))] += shift
+    return sp.csc_matrix((data, P.indices, P.indptr), shape=(n, n))

@@ -412,7 +412,7 @@ class Multilevel:
         for k, scene in enumerate(scenes):
             prob = problem if scene is problem.scene else coarse_problem(problem, scene)
             step = None if progress is None else (lambda rec, k=k: progress({**rec, "level": k}))
-            warm, extra, carried = None, {}, None
+            warm, extra, carried, probed = None, {}, None, None
             if res is not None:
                 # the level below carried over by its stress field, in equilibrium here (prolong.py);
                 # failing that, its offsets interpolated, iterated from (warm.py)
@@ -434,18 +434,17 @@ class Multilevel:
                                                      deadline=deadline)
                         carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
                         if probe.status == "converged":
-                            res = probe
-                            levels.append({**self._level(res, scene), "prolongation": carried})
-                            prev_scene = scene
-                            continue
-                        extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
-                        carried["refine"] = extra["refine"]
+                            probed = probe
+                        else:
+                            extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
+                            carried["refine"] = extra["refine"]
                 else:
                     warm = WarmStart(res.network, reference=prev_scene.mesh)
                     carried = {"by": "interpolation"}
                     if pro is not None:
                         carried["why"] = pro.info.get("why")
-            res = self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline, warm_start=warm)
+            res = probed or self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline,
+                                                 warm_start=warm)
             levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
             prev_scene = scene
             in_equilibrium = res.max_relative_error <= START_TOL

@@ -57,12 +57,12 @@ from formulations import Problem
 
 from ..analysis.airy import _J, face_orientation
 from ..analysis.construction import restore_horizontal_equilibrium
-from ..evidence import relative_errors, triangulate
+from ..evidence import relative_errors
 from ..mesh import PolyMesh
 from ..result import Network
 from .deadline import out_of_time
 from .polish import polish
-from .warm import WarmStart, transfer
+from .warm import WarmStart, interpolate_over_top_view, transfer
 
 __all__ = ["face_stress", "vertex_stress", "cofactor", "quadratic_lifting_weights", "stress_weights",
            "Prolongation", "prolong", "PROLONG_TOL"]
@@ -164,25 +164,6 @@ def quadratic_lifting_weights(mesh: PolyMesh, xy: np.ndarray, H_edge: np.ndarray
     return w
 
 
-def _interpolate(mesh: PolyMesh, xy: np.ndarray, values: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``values`` per vertex interpolated linearly over the top view of ``mesh`` (its faces fan
-    triangulated) at ``points``; outside it, the nearest vertex's value."""
-    import matplotlib.tri as mtri
-    from scipy.spatial import cKDTree
-
-    out = np.full((len(points), values.shape[1]), np.nan)
-    try:
-        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
-        for k in range(values.shape[1]):
-            out[:, k] = np.ma.filled(mtri.LinearTriInterpolator(tri, values[:, k])(points[:, 0], points[:, 1]), np.nan)
-    except (ValueError, RuntimeError):  # (degenerate top-view triangles: nearest everywhere)
-        pass
-    miss = ~np.isfinite(out).all(axis=1)
-    if miss.any():
-        out[miss] = values[cKDTree(xy).query(points[miss])[1]]
-    return out
-
-
 def stress_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np.ndarray, fine: PolyMesh,
                    fine_xy: np.ndarray) -> np.ndarray:
     """Weights of the interior edges of ``fine`` carrying the coarse network's stress field
@@ -190,7 +171,7 @@ def stress_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np.n
     Sv = vertex_stress(coarse, coarse_xy, coarse_weights)
     e = fine.edges
     mid = 0.5 * (fine_xy[e[:, 0]] + fine_xy[e[:, 1]])
-    s = _interpolate(coarse, coarse_xy, Sv.reshape(-1, 4)[:, [0, 1, 3]], mid)
+    s = interpolate_over_top_view(coarse, Sv.reshape(-1, 4)[:, [0, 1, 3]], mid, xy=coarse_xy, cubic=False)
     S = np.stack([np.stack([s[:, 0], s[:, 1]], axis=-1), np.stack([s[:, 1], s[:, 2]], axis=-1)], axis=1)
     return quadratic_lifting_weights(fine, fine_xy, cofactor(S))
 

@@ -39,7 +39,7 @@ from ..mesh import PolyMesh
 from ..result import Network, SolveResult
 from ..scene import Scene
 
-__all__ = ["WarmStart", "transfer", "as_warm_start", "interpolate_offsets"]
+__all__ = ["WarmStart", "transfer", "as_warm_start", "interpolate_offsets", "interpolate_over_top_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,9 +98,7 @@ def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, boo
 
 def interpolate_offsets(reference: PolyMesh, offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
     """``offsets`` (one row per ``reference`` vertex) interpolated at top-view ``points`` (k, 2):
-    C¹ cubic over the reference's top-view triangulation (matplotlib's ``CubicTriInterpolator``,
-    gradients estimated geometrically); points outside it, or a top view matplotlib cannot
-    triangulate (degenerate triangles), take the offset of the nearest reference vertex.
+    C¹ cubic over the reference's top-view triangulation (:func:`interpolate_over_top_view`).
 
     >>> from selfsupport.shapes import make_shape
     >>> m = make_shape("dome", n_vertices=200).mesh
@@ -109,23 +107,34 @@ def interpolate_offsets(reference: PolyMesh, offsets: np.ndarray, points: np.nda
     >>> bool(np.allclose(interpolate_offsets(m, off, p)[0, 2], 0.1 * p[0, 0]))
     True
     """
+    return interpolate_over_top_view(reference, offsets, points, cubic=True)
+
+
+def interpolate_over_top_view(mesh: PolyMesh, values: np.ndarray, points: np.ndarray, *,
+                              xy: np.ndarray | None = None, cubic: bool = True) -> np.ndarray:
+    """``values`` (one row per vertex of ``mesh``) at top-view ``points`` (k, 2), over the top
+    view ``xy`` (default the mesh's own) with its faces fan-triangulated: C¹ cubic (matplotlib's
+    ``CubicTriInterpolator``, gradients estimated geometrically) or linear. Points outside it, or
+    a top view matplotlib cannot triangulate (degenerate triangles), take the value of the
+    nearest vertex."""
     import matplotlib.tri as mtri
     from scipy.spatial import cKDTree
 
     from ..evidence import triangulate
 
-    xy = reference.vertices[:, :2]
-    offsets = np.asarray(offsets, float)
+    xy = mesh.vertices[:, :2] if xy is None else np.asarray(xy, float)
+    values = np.asarray(values, float)
     points = np.asarray(points, float)
-    out = np.full((len(points), offsets.shape[1]), np.nan)
+    out = np.full((len(points), values.shape[1]), np.nan)
     try:
-        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(reference))
-        for k in range(offsets.shape[1]):
-            f = mtri.CubicTriInterpolator(tri, offsets[:, k], kind="geom")
+        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
+        for k in range(values.shape[1]):
+            f = (mtri.CubicTriInterpolator(tri, values[:, k], kind="geom") if cubic
+                 else mtri.LinearTriInterpolator(tri, values[:, k]))
             out[:, k] = np.ma.filled(f(points[:, 0], points[:, 1]), np.nan)
     except (ValueError, RuntimeError):  # (a top view with degenerate triangles: nearest for all)
         pass
     miss = ~np.isfinite(out).all(axis=1)
     if miss.any():
-        out[miss] = offsets[cKDTree(xy).query(points[miss])[1]]
+        out[miss] = values[cKDTree(xy).query(points[miss])[1]]
     return out
