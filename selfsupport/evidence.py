@@ -33,6 +33,41 @@ def relative_errors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
     return np.linalg.norm(r[free], axis=1) / np.maximum(np.abs(loads[free]), 1e-300)
 
 
+#: A vertex whose relative error is at most this many times its round-off floor
+#: (:func:`roundoff_floors`) is in equilibrium as far as double precision can tell. Measured on
+#: polished 64k pillar vaults: the worst vertex's error / its floor 1.7 and 2.0 (99.9th
+#: percentile 1.2–1.3): the floor bounds the coordinates' rounding, the solve adds a little.
+FLOOR_MARGIN = 4.0
+#: ... but never a relative error above this: the floor grows without bound where a vertex's load
+#: vanishes (vertices slid together: a 256k prolongation's boundary vertices 5e-6 m apart, loads
+#: 1.6e-7 N, floor 1.6e-5), and such a network is degenerate, not in equilibrium.
+FLOOR_CAP = 1e-8
+
+
+def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
+                    loads: np.ndarray, supports: np.ndarray) -> np.ndarray:
+    """Per non-support vertex: the relative error that rounding the coordinates to doubles can
+    leave alone, ``eps ‖Σ_j |w_ij| (|v_i| + |v_j|)‖ / |A_i F_i|`` (absolute values taken per
+    coordinate). Where an edge's force is many times the vertex's load (next to a pillar of a
+    fine mesh, on a free boundary arch) no positions, however solved, balance that vertex better:
+    a 64k pillar vault's floor reached 1.05e-8 at vertices whose polished error was 4.8e-9.
+
+    >>> V = np.array([[0.0, 0, 0], [1.0, 0, 1], [2.0, 0, 0]])
+    >>> E = np.array([[0, 1], [1, 2]])
+    >>> f = roundoff_floors(vertices=V, edges=E, weights=np.array([1.0, 1.0]), loads=np.array([0, -2.0, 0]),
+    ...                     supports=np.array([True, False, True]))
+    >>> bool(np.isclose(f[0], np.finfo(float).eps * np.linalg.norm([4.0, 0, 2.0]) / 2))
+    True
+    """
+    V = np.abs(np.asarray(vertices, float))
+    a = np.abs(np.asarray(weights, float))[:, None] * (V[edges[:, 0]] + V[edges[:, 1]])
+    ends = np.concatenate([edges[:, 0], edges[:, 1]])
+    S = np.stack([np.bincount(ends, weights=np.concatenate([a[:, k], a[:, k]]), minlength=len(V))
+                  for k in range(3)], axis=1)
+    free = ~np.asarray(supports, bool)
+    return np.finfo(float).eps * np.linalg.norm(S[free], axis=1) / np.maximum(np.abs(loads[free]), 1e-300)
+
+
 def max_relative_error(**kw) -> float:
     rel = relative_errors(**kw)
     return float(rel.max()) if rel.size else 0.0

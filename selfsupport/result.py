@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .evidence import distance_stats, relative_errors
+from .evidence import FLOOR_CAP, FLOOR_MARGIN, distance_stats, relative_errors, roundoff_floors
 from .mesh import PolyMesh
 
 #: Statuses a method may report.
@@ -56,6 +56,23 @@ class Network:
     def max_relative_error(self) -> float:
         r = self.relative_errors()
         return float(r.max()) if r.size else 0.0
+
+    def roundoff_floors(self) -> np.ndarray:
+        """Per free vertex: the relative error rounding alone can leave (:func:`~.evidence.roundoff_floors`)."""
+        return roundoff_floors(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
+                               supports=self.supports)
+
+    def in_equilibrium(self, tol: float) -> bool:
+        """Every free vertex within ``tol`` relative error, or within
+        :data:`~.evidence.FLOOR_MARGIN` × its round-off floor (below which no positions can be
+        told apart from equilibrium in double precision) and :data:`~.evidence.FLOOR_CAP`."""
+        rel = self.relative_errors()
+        if not np.all(np.isfinite(rel)):
+            return False
+        over = rel > tol
+        if not over.any():
+            return True
+        return bool(np.all(rel[over] <= np.minimum(FLOOR_MARGIN * self.roundoff_floors()[over], FLOOR_CAP)))
 
     @property
     def active_edges(self) -> np.ndarray:

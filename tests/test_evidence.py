@@ -125,3 +125,36 @@ def test_residuals_sum_in_the_order_of_np_add_at():
     np.add.at(expect, e[:, 1], -f)
     expect[:, 2] -= L
     np.testing.assert_array_equal(residuals(vertices=V, edges=e, weights=w, loads=L), expect)
+
+
+def test_a_network_far_from_the_origin_is_in_equilibrium_to_its_roundoff_floor():
+    """Moved 10⁵ m from the origin, a network in equilibrium to 4e-13 reads a relative error of
+    ~3e-9: its coordinates are rounded to 1.5e-11 m and its forces are large against its loads.
+    That error is within the round-off floor (the floor bounds it), so the network is in
+    equilibrium to a tolerance of 1e-9 as far as doubles can tell; a vertex moved by 1e-7 m is
+    not (its error is ~100× the floor). Moved 10⁶ m (error ~3e-8) it is within its floor but
+    above FLOOR_CAP, which the floor never relaxes a tolerance past."""
+    from selfsupport.evidence import FLOOR_CAP, FLOOR_MARGIN
+    from selfsupport.methods.staggered import StaggeredLinearization
+    from selfsupport.result import Network
+
+    net = StaggeredLinearization().solve(make_shape("pillar_vault", n_vertices=400)).network
+    assert net.in_equilibrium(1e-9) and net.max_relative_error() <= 1e-11
+
+    def moved(V, by=1e5):
+        return Network(mesh=net.mesh.with_vertices(V + [by, by, 0.0]), weights=net.weights, loads=net.loads,
+                       supports=net.supports)
+
+    far = moved(net.vertices)
+    assert 1e-9 < far.max_relative_error() < FLOOR_CAP  # rounding alone
+    assert np.all(far.relative_errors() <= far.roundoff_floors())  # (measured ≤ 0.2× the floor)
+    assert far.in_equilibrium(1e-9)
+    farther = moved(net.vertices, 1e6)
+    assert np.all(farther.relative_errors() <= farther.roundoff_floors()) and farther.max_relative_error() > FLOOR_CAP
+    assert not farther.in_equilibrium(1e-9) and farther.in_equilibrium(1e-7)
+    V = net.vertices.copy()
+    i = int(np.flatnonzero(~net.supports)[10])
+    V[i, 2] += 1e-7
+    off = moved(V)
+    assert not off.in_equilibrium(1e-9)
+    assert off.max_relative_error() > 10 * FLOOR_MARGIN * off.roundoff_floors().max()  # (measured ~100×)

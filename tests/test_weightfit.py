@@ -190,3 +190,7 @@ def test_a_start_that_already_fits_is_the_fit(name):
     off[20] += 100 * FITS_ALREADY * float(np.abs(b).max()) / float(np.abs(A[:, 20]).max())
     fitted = backend.fit(A=A, b=b, lower=lo, upper=up, w0=off, prox=1e-8)
     assert fitted.iterations > 0
+    # a caller's per-row round-off floor above that residual: the start fits already; below it, not
+    r = np.abs(A @ off - b) / float(np.abs(b).max())
+    assert backend.fit(A=A, b=b, lower=lo, upper=up, w0=off, prox=1e-8, fits=2 * r).iterations == 0
+    assert backend.fit(A=A, b=b, lower=lo, upper=up, w0=off, prox=1e-8, fits=0.5 * r).iterations > 0
