@@ -26,7 +26,8 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    that ends more than :data:`RECLAIM` × farther from the reference than the one below is first
    solved cold for one iteration, which finds a reference that stands as designed (a barrel
    vault: the carried stress reproduces it only to the fine mesh's discretization); failing
-   that, it is walked back by up to :data:`RECLAIM_STEPS` SQP steps in equilibrium
+   that, an intermediate level of at most :data:`COLD_MAX` vertices is solved cold (the stress
+   below did not carry), the finest or a larger one walked back by up to :data:`RECLAIM_STEPS` SQP steps in equilibrium
    (:mod:`.refine`). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
@@ -99,8 +100,16 @@ PROLONGATIONS = ("stress", "interpolation")
 #: cross vault 0.95, pillar vault 1.24, dome 3.6 and barrel vault 68 (4e-4 of the diagonal against 6e-6:
 #: a surface already in equilibrium, which the stress field reproduces only to the fine mesh's
 #: discretization).
-RECLAIM = 1.25
+RECLAIM = 2.0
 RECLAIM_STEPS = 10
+#: ... and when that probe does not converge, an intermediate level of at most this many vertices is
+#: solved cold instead of refined (it is to start the next level, not to be the answer, where the
+#: refinement walks back closer): the level below's stress did not carry (its coarser mesh held a stress whose
+#: directions this mesh's edges cannot carry in compression: a 256k pillar vault's 4,527-vertex
+#: level, 4.3e-3 of the diagonal from the reference, put 21% of the next level's carried weights
+#: below zero; the polished 16k network lay 1.8e-2 away and ten refinement steps stalled there),
+#: and a cold solve at this size takes 10–25 s (16k dome, pillar vault). Larger levels are refined.
+COLD_MAX = 4 * DIRECT_MAX
 #: A boundary corner turning more than this [degrees] is kept on every level.
 CORNER_ANGLE = 30.0
 
@@ -435,6 +444,8 @@ class Multilevel:
                         carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
                         if probe.status == "converged":
                             probed = probe
+                        elif scene is not problem.scene and scene.mesh.n_vertices <= COLD_MAX:
+                            warm, extra, carried["cold"] = None, {}, True
                         else:
                             extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
                             carried["refine"] = extra["refine"]
