@@ -27,8 +27,8 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    solved cold for one iteration, which finds a reference that stands as designed (a barrel
    vault: the carried stress reproduces it only to the fine mesh's discretization); failing
    that, an intermediate level of at most :data:`COLD_MAX` vertices is solved cold (the stress
-   below did not carry), the finest or a larger one walked back by up to :data:`RECLAIM_STEPS` SQP steps in equilibrium
-   (:mod:`.refine`). Where
+   below did not carry), the finest or a larger one walked back by up to :data:`RECLAIM_STEPS`
+   SQP steps in equilibrium (:mod:`.refine`). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
    offsets from its reference interpolated C¹ over the top view with weights from the nearest
@@ -96,16 +96,18 @@ START_TOL = 1e-6
 PROLONGATIONS = ("stress", "interpolation")
 #: A level prolonged by its stress that ends more than this many times farther from the reference
 #: than the level below (mean distance) is probed by one cold iteration and, unless that converges,
-#: refined by up to RECLAIM_STEPS SQP steps in equilibrium (refine.py). Measured on generated 3,000-vertex shapes, prolonged / below: concave disk 0.3–0.4,
-#: cross vault 0.95, pillar vault 1.24, dome 3.6 and barrel vault 68 (4e-4 of the diagonal against 6e-6:
-#: a surface already in equilibrium, which the stress field reproduces only to the fine mesh's
-#: discretization).
+#: refined by up to RECLAIM_STEPS SQP steps in equilibrium (refine.py). Measured, prolonged / below:
+#: concave disk 0.3–0.4, cross vault 0.95, pillar vault 1.24–1.34, dome 3.6 and barrel vault 68
+#: (4e-4 of the diagonal against 6e-6: a surface already in equilibrium, which the stress field
+#: reproduces only to the fine mesh's discretization). 1.25 until a 256k pillar vault's 64k level
+#: at 1.34 (what that grid can do: 8.3e-3, the single level 8.0e-3) spent 228 s in a probe and ten
+#: refinement steps that stalled.
 RECLAIM = 2.0
 RECLAIM_STEPS = 10
-#: ... and when that probe does not converge, an intermediate level of at most this many vertices is
-#: solved cold instead of refined (it is to start the next level, not to be the answer, where the
-#: refinement walks back closer): the level below's stress did not carry (its coarser mesh held a stress whose
-#: directions this mesh's edges cannot carry in compression: a 256k pillar vault's 4,527-vertex
+#: ... and when that probe does not converge, an intermediate level of at most this many vertices
+#: is solved cold instead of refined (it is to start the next level, not to be the answer, where
+#: the refinement walks back closer): the level below's stress did not carry (its coarser mesh
+#: held a stress whose directions this mesh's edges cannot carry in compression: a 256k pillar vault's 4,527-vertex
 #: level, 4.3e-3 of the diagonal from the reference, put 21% of the next level's carried weights
 #: below zero; the polished 16k network lay 1.8e-2 away and ten refinement steps stalled there),
 #: and a cold solve at this size takes 10–25 s (16k dome, pillar vault). Larger levels are refined.

@@ -378,9 +378,9 @@ class _Run:
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             floor = None
             if w0 is self.w_warm:  # a warm start in equilibrium to its round-off floor fits already
-                floor = np.repeat(np.minimum(FLOOR_MARGIN * roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c],
-                                                                loads=L[c], supports=~free), FLOOR_CAP), 3)
-                floor *= 1.0 / max(float(np.abs(b).max(initial=0.0)), 1e-300)
+                at_floor = roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c], loads=L[c], supports=~free)
+                floor = np.repeat(np.minimum(FLOOR_MARGIN * at_floor, FLOOR_CAP), 3)
+                floor /= max(float(np.abs(b).max(initial=0.0)), 1e-300)
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
                                          rtol=rtol, deadline=self.deadline, fits=floor)
