@@ -129,7 +129,7 @@ def test_the_interpolating_prolongation_iterates_to_equilibrium_too(vault_runs):
 @pytest.mark.parametrize("shape, stands", [("barrel_vault", True), ("dome", False)])
 def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stands):
     """Carried stress reproduces a surface already (nearly) in equilibrium only to the fine
-    mesh's discretization: far more than 1.25× the coarse network's distance from it. A barrel
+    mesh's discretization: more than RECLAIM× the coarse network's distance from it. A barrel
     vault stands as designed, so one cold iteration finds it; the dome does not quite, and its
     fine level walks back to the reference by SQP steps in equilibrium."""
     scene = make_shape(shape, n_vertices=3000)

@@ -23,12 +23,12 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
 3. Each finer level starts from the level below carried over by its stress field
    (:mod:`.prolong`): a network in equilibrium on the finer mesh, about as near the reference as
    the level below, so one iteration confirms it (the staggered method polishes it). A level
-   that ends more than :data:`RECLAIM` × farther from the reference than the one below is first
-   solved cold for one iteration, which finds a reference that stands as designed (a barrel
-   vault: the carried stress reproduces it only to the fine mesh's discretization); failing
-   that, an intermediate level of at most :data:`COLD_MAX` vertices is solved cold (the stress
-   below did not carry), the finest or a larger one walked back by up to :data:`RECLAIM_STEPS`
-   SQP steps in equilibrium (:mod:`.refine`). Where
+   that ends more than :data:`RECLAIM` × farther from the reference than the one below is, when
+   it is an intermediate level of at most :data:`COLD_MAX` vertices, solved cold (the stress
+   below did not carry); the finest or a larger one is first solved cold for one iteration, which
+   finds a reference that stands as designed (a barrel vault: the carried stress reproduces it
+   only to the fine mesh's discretization), and failing that walked back by up to
+   :data:`RECLAIM_STEPS` SQP steps in equilibrium (:mod:`.refine`). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
    offsets from its reference interpolated C¹ over the top view with weights from the nearest
@@ -104,9 +104,9 @@ PROLONGATIONS = ("stress", "interpolation")
 #: refinement steps that stalled.
 RECLAIM = 2.0
 RECLAIM_STEPS = 10
-#: ... and when that probe does not converge, an intermediate level of at most this many vertices
-#: is solved cold instead of refined (it is to start the next level, not to be the answer, where
-#: the refinement walks back closer): the level below's stress did not carry (its coarser mesh
+#: ... but an intermediate level of at most this many vertices is solved cold instead (its first
+#: iteration is that probe; it is to start the next level, not to be the answer, where the
+#: refinement walks back closer): the level below's stress did not carry (its coarser mesh
 #: held a stress whose directions this mesh's edges cannot carry in compression: a 256k pillar vault's 4,527-vertex
 #: level, 4.3e-3 of the diagonal from the reference, put 21% of the next level's carried weights
 #: below zero; the polished 16k network lay 1.8e-2 away and ten refinement steps stalled there),
@@ -436,7 +436,12 @@ class Multilevel:
                     d_below = distance_stats(res.network.vertices, scene.mesh)[0]
                     carried = {"by": "stress", "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
                                "distance": d_pro, "distance_below": d_below, **pro.info}
-                    if d_pro > RECLAIM * d_below:
+                    if d_pro > RECLAIM * d_below and scene is not problem.scene \
+                            and scene.mesh.n_vertices <= COLD_MAX:
+                        # the stress below did not carry: an intermediate level this small is solved
+                        # cold (whose first iteration is the probe below)
+                        warm, extra, carried["cold"] = None, {}, True
+                    elif d_pro > RECLAIM * d_below:
                         # farther from the reference than the level below. A reference that stands
                         # as it is (a surface already in equilibrium, which the carried stress only
                         # reproduces to the fine mesh's discretization) is found by one cold
@@ -446,8 +451,6 @@ class Multilevel:
                         carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
                         if probe.status == "converged":
                             probed = probe
-                        elif scene is not problem.scene and scene.mesh.n_vertices <= COLD_MAX:
-                            warm, extra, carried["cold"] = None, {}, True
                         else:
                             extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
                             carried["refine"] = extra["refine"]

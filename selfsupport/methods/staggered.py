@@ -740,14 +740,14 @@ class _Run:
         err = _max_error(cases)
         if opt.refine > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history)
-        floor = None
-        if status == "converged" and err > opt.tol and _in_equilibrium(cases, opt.tol):
+        floor, balanced = None, _in_equilibrium(cases, opt.tol)
+        if status == "converged" and err > opt.tol and balanced:
             # (forces many times the loads: no positions balance those vertices better in doubles)
             floor = max(float(n.roundoff_floors().max(initial=0.0)) for _, n in cases)
             message = (f"max relative error {err:.2e} is above tol {opt.tol:g} but within {FLOOR_MARGIN:g}× the "
                        f"round-off floor of the vertices above it (max floor {floor:.2e}: forces far larger than "
                        f"those vertices' loads) and {FLOOR_CAP:g}; " + message).rstrip("; ")
-        if status == "converged" and not _in_equilibrium(cases, opt.tol):
+        if status == "converged" and not balanced:
             worst = np.argsort(net.relative_errors())[::-1][:5]
             status, message = "stalled", (
                 f"the polished network has max relative error {err:.2e} > tol {opt.tol:g}; vertices hardest to "
