@@ -231,16 +231,10 @@ def face_nonplanarity(mesh: PolyMesh) -> np.ndarray:
     >>> round(float(face_nonplanarity(m)[0]), 4)  # diagonals 0.0499 apart, edges 1.0025 long
     0.0498
     """
-    V = mesh.vertices
+    from formulations.terms.planarity import diagonal_distance
+
     out = np.full(mesh.n_faces, np.nan)
     quads = np.flatnonzero(mesh.face_sizes == 4)
-    if quads.size == 0:
-        return out
-    Q = np.array([mesh.faces[f] for f in quads], dtype=np.int64)
-    a, b, c, d = (V[Q[:, k]] for k in range(4))
-    n = np.cross(c - a, d - b)  # common normal of the diagonals a-c and b-d
-    nn = np.linalg.norm(n, axis=1)
-    dist = np.abs(np.einsum("ij,ij->i", b - a, n)) / np.where(nn > 0, nn, np.inf)
-    ell = np.mean([np.linalg.norm(V[np.roll(Q, -1, axis=1)[:, k]] - V[Q[:, k]], axis=1) for k in range(4)], axis=0)
-    out[quads] = dist / ell
+    if quads.size:
+        out[quads] = np.abs(diagonal_distance(mesh.vertices, np.array([mesh.faces[f] for f in quads]))[0])
     return out

@@ -166,28 +166,96 @@ def test_solve_planar_flag(tmp_path):
 
 
 @requires_checker
-def test_the_ipopt_finish_makes_a_remeshed_barrel_vault_planar_where_the_staggered_method_stalls():
+def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_method_stalls():
     """A catenary barrel vault remeshed along its relative principal directions: the staggered
     method with the planarity penalty stalls (its fit error and the penalty pull against each
-    other); IPOPT, started from the same mesh's network in equilibrium without planar faces,
-    reaches both. Measured 2026-11-25: staggered stalled, finish converged in ~1 s."""
-    from selfsupport.design.pq import finish_summary, solve_planar
+    other). From the same mesh's network in equilibrium without planar faces, the planar
+    homotopy reaches both (it is returned), and so does IPOPT with the planarity rows as
+    equations (the last resort of solve_planar). Measured 2026-11-27: staggered stalled, the
+    homotopy converged in 0.3 s, IPOPT in ~1 s."""
+    from selfsupport.design.pq import FINISH_METHOD, finish_summary, solve_planar
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
     scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
     alone = solve_planar(scene, tol=1e-3, finish=False)
     assert alone.status != "converged" and alone.parameters["planar_finish"] is None
     res = solve_planar(scene, tol=1e-3)
-    assert res.status == "converged", res.message
+    eq = api.solve(scene)
+    ipopt = api.solve(scene, method=FINISH_METHOD, constraints=[Planar(tol=1e-3)], warm_start=eq)
+    for r in (res, ipopt):
+        assert r.status == "converged", r.message
+        assert r.max_relative_error <= 1e-8
+        assert diagonal_gaps(r.network.mesh, scene.supports).max() <= 1e-3
+        assert independent_check(r).ok
+        # started from a network on the remeshed surface and stayed near it
+        assert distance_stats(r.network.vertices, scene.mesh)[0] < 1e-2
     finish = res.parameters["planar_finish"]
-    assert finish["returned"] == "finish" and finish["first"]["status"] == alone.status
-    assert finish_summary(res).endswith("returned: the finish run") and finish_summary(alone) == "the first method alone"
-    assert res.max_relative_error <= 1e-8
-    gaps = diagonal_gaps(res.network.mesh, scene.supports)
-    assert gaps.max() <= 1e-3
-    assert independent_check(res).ok
-    # the finish started from a network on the remeshed surface and stayed near it
-    assert distance_stats(res.network.vertices, scene.mesh)[0] < 1e-2
+    assert finish["returned"] == "homotopy" and finish["first"]["status"] == alone.status and "finish" not in finish
+    assert finish_summary(res).endswith("returned: the homotopy run") and finish_summary(alone) == "the first method alone"
+
+
+def test_diagonal_distance_is_the_distance_of_the_diagonals_and_its_jacobian_matches_finite_differences():
+    """The homotopy's rows (formulations) against the distance computed here, on random quads;
+    their Jacobian against central differences; and scale-free: a quad shrunk 1000× keeps it
+    while the determinant rows over the reference's ℓ³ fall 10⁹×."""
+    from formulations.terms.planarity import diagonal_distance
+
+    rng = np.random.default_rng(3)
+    V = rng.normal(size=(40, 3))
+    Q = np.arange(40).reshape(10, 4)
+    r, J = diagonal_distance(V, Q, jacobian=True)
+    m = PolyMesh.from_faces(V, Q.tolist())
+    assert np.allclose(np.abs(r), diagonal_gaps(m), rtol=1e-12)
+    h = 1e-6
+    fd = np.empty((len(Q), V.size))
+    for k in range(V.size):
+        e = np.zeros(V.size)
+        e[k] = h
+        fd[:, k] = (diagonal_distance(V + e.reshape(V.shape), Q)[0] - diagonal_distance(V - e.reshape(V.shape), Q)[0]) / (2 * h)
+    assert np.abs(J.toarray() - fd).max() <= 1e-7 * max(1.0, np.abs(fd).max())
+    small = V.copy()
+    small[:4] = V[0] + 1e-3 * (V[:4] - V[0])
+    assert np.isclose(diagonal_distance(small, Q[:1])[0][0], r[0], rtol=1e-9)
+    det = lambda P: (P[1] - P[0]) @ np.cross(P[2] - P[0], P[3] - P[0])  # noqa: E731
+    assert np.isclose(det(small[:4]), 1e-9 * det(V[:4]), rtol=1e-6)
+
+
+@requires_checker
+def test_the_planar_homotopy_narrows_the_band_in_equilibrium_and_ends_planar():
+    """Each accepted stage of the homotopy narrows the band and is in equilibrium; it ends with
+    every quad within the tolerance (by the distance computed here) and the independent
+    checker's equilibrium; the start's network was in equilibrium and far from planar."""
+    from selfsupport.methods.planar_homotopy import BAND_END, STAGE_TOL, planar_homotopy
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
+    eq = api.solve(scene)
+    start = diagonal_gaps(eq.network.mesh, scene.supports).max()
+    assert eq.max_relative_error <= 1e-9 and start > 1e-3  # (3.9e-3)
+    res = planar_homotopy(api.problem(scene, constraints=[Planar(tol=1e-3)]), eq)
+    assert res.status == "converged", res.message
+    accepted = [h for h in res.history if h["accepted"]]
+    bands = [h["band"] for h in accepted]
+    assert all(b1 < b0 for b0, b1 in zip(bands[1:], bands[2:]))  # after the first (equilibrium at the start)
+    assert bands[-1] == pytest.approx(BAND_END * 1e-3) and all(h["max_rel_error"] <= STAGE_TOL for h in accepted)
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= BAND_END * 1e-3 * 1.01
+    assert res.max_relative_error <= 1e-8 and independent_check(res).ok
+
+
+def test_remesh_leaves_no_quad_with_a_corner_outside_20_to_160_degrees(dome):
+    """Near-triangular quads (a straight corner) are split into two triangles by the remesher."""
+    from selfsupport.design.remesh import DEGENERATE_ANGLE
+
+    for method in ("streamlines", "param"):
+        q = remesh(dome[1], spacing=0.08, relative=True, method=method)
+        V = q.scene.mesh.vertices[:, :2]
+        for f in q.scene.mesh.faces:
+            if len(f) == 4:
+                P = V[list(f)]
+                u, w = np.roll(P, 1, axis=0) - P, np.roll(P, -1, axis=0) - P
+                ang = np.degrees(np.arccos(np.einsum("ij,ij->i", u, w) / np.linalg.norm(u, axis=1) / np.linalg.norm(w, axis=1)))
+                assert DEGENERATE_ANGLE - 1e-9 <= ang.min() and ang.max() <= 180 - DEGENERATE_ANGLE + 1e-9
+        assert q.info["degenerate_quads_split"] >= 0
 
 
 # ---------------------------------------------------------------------------- the param remesher

@@ -1,0 +1,189 @@
+"""Planar faces by a homotopy in the allowed non-planarity (paper §5; the finish of
+:func:`selfsupport.design.pq.solve_planar`).
+
+Start: a network in equilibrium on the quad mesh, faces not planar (the staggered method finds
+one in a fraction of a second). Each stage lowers the band ``b`` every face's non-planarity must
+stay within (distance of the diagonals over the mean side length,
+:func:`formulations.terms.planarity.diagonal_distance`) and restores equilibrium with it by the
+joint minimum-norm Gauss–Newton polish (:func:`~selfsupport.methods.polish.polish_joint`:
+positions and free weights together, loads of the moving geometry). A face inside the band is
+free; a face at or past it is held on it (an active set, re-read at every step). A stage that
+does not reach equilibrium is retried with a smaller cut (``shrink ← √shrink``); one that does
+lets the next cut grow (``shrink ← shrink^1.5``). The band ends at :data:`BAND_END` × the
+required tolerance.
+
+Why a homotopy: the planarity rows as equations all at once are far from the start (lilium's
+remesh: rows up to 0.27), and a full Gauss–Newton step there leaves equilibrium by 3e2 and
+diverges; the staggered method (planarity as a penalty) stalls at max relative error 0.5, and
+IPOPT from the same start wanders to its time limit. Small cuts keep every stage within
+Newton's reach of the last. Why a band rather than ``s × (initial rows)`` → 0: faces already
+planar to the tolerance need not be made exactly planar, and requiring it (all rows scaled
+together) met a fold at s ≈ 0.015 on that remesh. Why the diagonal distance rather than the
+determinant rows ``det / ℓ³`` of :class:`~formulations.terms.planarity.PlanarFaces` (``ℓ`` of the
+reference): those fall with the cube of a face's shrinking, and held small they were met by
+shrinking faces — the same remesh ended with every row within 9e-4 but quads 2.9e-3 from planar
+(after the remesher's split of its near-triangular quads; without the split, 5.4e-2 with corner
+angles of 0.1°).
+
+Example: a barrel vault remeshed along its relative principal directions, where the staggered
+method with planar faces stalls:
+
+>>> import numpy as np
+>>> from formulations import Planar
+>>> from selfsupport import api
+>>> from selfsupport.shapes import make_shape
+>>> from selfsupport.design.remesh import remesh
+>>> net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+>>> q = remesh(net, field="principal", spacing=0.1, relative=True).scene
+>>> eq = api.solve(q)  # in equilibrium, faces not planar
+>>> r = planar_homotopy(api.problem(q, constraints=[Planar(tol=1e-3)]), eq)
+>>> r.status, r.max_relative_error < 1e-8, r.parameters["planarity"]["max_nonplanarity"] <= 1e-3
+('converged', True, True)
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
+from formulations.terms.planarity import coplanarity_rows, diagonal_distance
+
+from ..errors import InputError
+from ..result import SolveResult
+from .base import case_networks, planarity_report, term_values
+from .deadline import out_of_time
+from .polish import case_load_jacobians, polish_joint
+from .staggered import DEFAULT_OBJECTIVE
+
+__all__ = ["planar_homotopy", "BAND_END"]
+
+#: The band ends at this fraction of the problem's planarity tolerance (the margin keeps the
+#: reported non-planarity, measured in SI units after the scaling's round trip, below it).
+BAND_END = 0.7
+#: First cut of the band (b ← shrink · b).
+FIRST_SHRINK = 0.9
+#: A stage whose cut would have to be finer than this gives up ("stalled").
+MAX_SHRINK = 0.9999
+#: Max relative equilibrium error every stage reaches before the band is cut again.
+STAGE_TOL = 1e-9
+#: Gauss–Newton steps a stage may take.
+STAGE_STEPS = 15
+
+
+@dataclass(frozen=True, eq=False)
+class _Band:
+    """The planarity rows of one stage, in the shape :func:`polish_joint` reads (``linearize``):
+    each face whose non-planarity is at or past ``band`` held on it, the rest left free."""
+
+    rows: np.ndarray  # (r, 4) corners, coplanarity_rows' order
+    band: float
+    n_vertices: int
+
+    def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        r, J = diagonal_distance(V, self.rows, jacobian=True)
+        held = np.flatnonzero(np.abs(r) > (1 - 1e-3) * self.band)
+        if held.size == 0:  # (one empty row: the polish's system keeps its shape)
+            return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
+        return r[held] - np.sign(r[held]) * self.band, J[held]
+
+
+def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
+                    progress: Callable[[dict], None] | None = None) -> SolveResult:
+    """Planar faces in equilibrium from a network in equilibrium on the same mesh (module docstring).
+
+    Parameters
+    ----------
+    problem
+        With the :class:`~formulations.problem.Planar` constraint; one load case, a free top
+        view and no hull (what the polish's band rows are written for).
+    warm_start
+        A network (or solve result) in equilibrium on ``problem``'s mesh, faces not yet planar.
+    deadline
+        ``time.perf_counter()`` value after which no stage starts and no polish step runs.
+    progress
+        Called with each stage's record.
+
+    Returns
+    -------
+    SolveResult
+        ``converged`` when the band reached :data:`BAND_END` × the tolerance with every stage in
+        equilibrium (the planarity report and the max relative error are recomputed from the
+        network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first;
+        ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
+    """
+    from .warm import as_warm_start, transfer
+
+    t0 = time.perf_counter()
+    planar = problem.constraint(Planar)
+    if planar is None:
+        raise InputError("the planar homotopy needs the Planar constraint in the problem")
+    if len(problem.loads) != 1 or problem.fixed_top_view or problem.hull_thickness() is not None:
+        raise InputError("the planar homotopy handles one load case, a free top view and no hull")
+    scene = problem.scene
+    mesh0 = scene.mesh
+    sp_ = problem.scaled()
+    top, sc = sp_.top, sp_.scaling
+    V, w, _ = transfer(as_warm_start(warm_start), scene)
+    X = sc.pos(V)
+    X[scene.supports] = sp_.X[scene.supports]
+    W = np.clip(sc.weight(w[scene.active_edges]), sp_.lower, sp_.upper)[None]
+    rows = coplanarity_rows(mesh0, ~np.asarray(scene.free, bool))[0]
+
+    def loads_at(Y: np.ndarray) -> np.ndarray:
+        return sc.load(problem.loads.nodal(mesh0, sc.pos_back(Y)))
+
+    jac = case_load_jacobians(problem.loads.models, mesh0, sc, top.free)
+    h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
+    start = float(np.abs(diagonal_distance(X, rows)[0]).max(initial=0.0))
+    target = BAND_END * planar.tol
+    band = max(start, target)
+    shrink, steps, history = FIRST_SHRINK, 0, []
+    status = "stalled"
+    first = True
+    while True:
+        if out_of_time(deadline):
+            status = "time_limit"
+            break
+        trial = band if first else max(band * shrink, target)  # (the first stage: equilibrium at the start's band)
+        form = ThrustNetworkProblem(top, X, loads_at(X), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
+                                    planar=_Band(rows, trial, mesh0.n_vertices))
+        Xn, Wn, k, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
+                                          load_jacobian=jac, deadline=deadline)
+        steps += k
+        rec = {"iteration": len(history), "band": trial, "steps": k, "max_rel_error": err, "accepted": bool(ok)}
+        history.append(rec)
+        if progress is not None:
+            progress(rec)
+        if ok:
+            X, W, band = Xn, Wn, trial
+            shrink = shrink if first else shrink ** 1.5
+            if band <= target:
+                status = "converged"
+                break
+        elif first:
+            break  # the start is not in equilibrium to within the polish's reach
+        else:
+            shrink = shrink ** 0.5
+            if shrink > MAX_SHRINK:
+                break
+        first = False
+    net, cases = case_networks(problem, sc, X, list(W))
+    report = planarity_report(problem, net)
+    if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):
+        status = "stalled"
+    message = "" if status == "converged" else (
+        f"the planar homotopy stopped ({status}) with every face within {band:.2e} of planar, above the "
+        f"{target:.2e} it aims at (max non-planarity {report['max_nonplanarity']:.2e}, max relative error "
+        f"{net.max_relative_error():.2e}); try another --spacing or remesher")
+    return SolveResult.build(
+        net, cases=cases, status=status, method="planar-homotopy", backend="joint-polish", iterations=steps,
+        wall_time=time.perf_counter() - t0, history=tuple(history), message=message,
+        parameters={"homotopy": {"start_nonplanarity": start, "band": band, "target": target,
+                                 "stages": len(history), "accepted": sum(r["accepted"] for r in history)},
+                    "planarity": report, "problem": problem.describe(), "load_cases": list(problem.loads.names),
+                    "scaling": asdict(sc)},
+        terms=term_values(problem, net, default=DEFAULT_OBJECTIVE))
