@@ -14,8 +14,9 @@ mean edge length). ``--field grid`` remeshes along a fixed grid instead (the nai
 mesh of the paper's Fig. 12). ``--remesher param`` draws the lines as the integer iso-lines of
 a global parametrization along the field instead of streamlines (no line ends inside the
 domain; irregular vertices only at the field's singularities). When the method does not
-converge, IPOPT finishes from the network in equilibrium without planar faces
-(:func:`selfsupport.design.pq.solve_planar`; ``--no-finish``: not). Prints the summary; exit codes as ``solve``.
+converge, the planar homotopy (and where that does not converge, IPOPT) finishes from the
+network in equilibrium without planar faces (:func:`selfsupport.design.pq.solve_planar`;
+``--no-finish``: not). Prints the summary; exit codes as ``solve``.
 """
 from __future__ import annotations
 
@@ -44,8 +45,8 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                    help="largest quad non-planarity accepted (default 1e-3)")
     p.add_argument("--method", choices=("staggered", "ipopt"), default="staggered", help="solver (default staggered)")
     p.add_argument("--no-finish", dest="finish", action="store_false",
-                   help="no IPOPT finish from the network in equilibrium without planar faces when the method "
-                        "does not converge (selfsupport.design.pq)")
+                   help="no finish (planar homotopy, IPOPT) from the network in equilibrium without planar faces "
+                        "when the method does not converge (selfsupport.design.pq)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit of the solve [s] (default: the method's)")
     add_load_arguments(p)

@@ -9,7 +9,7 @@ directions and along a fixed grid (``--spacing`` × the network's mean top-view 
 each remesher of ``--remesher``, :data:`selfsupport.design.remesh.METHODS`), each
 solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
 :func:`selfsupport.design.pq.solve_planar` (the staggered method, and where it does not converge
-the IPOPT finish; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
+the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
 (/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
@@ -111,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--spacing", type=float, default=1.0, help="line spacing / the network's mean top-view edge length")
     p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
     p.add_argument("--no-finish", dest="finish", action="store_false",
-                   help="the staggered method alone (no IPOPT finish, selfsupport.design.pq)")
+                   help="the staggered method alone (no finish, selfsupport.design.pq)")
     p.add_argument("--remesher", default="streamlines",
                    help="remeshers to compare (comma-separated: streamlines, param; selfsupport.design.remesh)")
     a = p.parse_args(argv)

@@ -420,7 +420,8 @@ def _split_degenerate(V2: np.ndarray, faces: list[list[int]]) -> tuple[list[list
         if len(f) == 4:
             P = V2[f]
             u, w = np.roll(P, 1, axis=0) - P, np.roll(P, -1, axis=0) - P
-            cos = np.einsum("ij,ij->i", u, w) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300)
+            lens = np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1)
+            cos = np.einsum("ij,ij->i", u, w) / np.maximum(lens, 1e-300)
             ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
             if ang.min() < DEGENERATE_ANGLE or ang.max() > 180.0 - DEGENERATE_ANGLE:
                 i = int(np.argmax(ang))
