@@ -107,7 +107,8 @@ class Remesh:
     """A remeshed design: the new scene (heights on the network, supports carried), the lines
     drawn (per family; ``method="param"``: the iso-lines of ``u`` and of ``v``, which trade
     families across a seam where the field's two directions swap), and counts for reports
-    (``info``: the parametrization's singular vertices, residual and rounding)."""
+    (``info``: the parametrization's singular vertices, residual and rounding; for either
+    method ``degenerate_quads_split``, the near-triangular quads split, :data:`DEGENERATE_ANGLE`)."""
 
     scene: Scene
     lines: tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]
