@@ -51,6 +51,13 @@ FLOOR_MARGIN = 4.0
 FLOOR_CAP = 1e-8
 
 
+def floor_tolerance(floors: np.ndarray) -> np.ndarray:
+    """Per vertex, the relative error that counts as equilibrium at its round-off floor:
+    :data:`FLOOR_MARGIN` × the floor, never above :data:`FLOOR_CAP` (one rule for the
+    equilibrium test and the weight fit's warm start)."""
+    return np.minimum(FLOOR_MARGIN * np.asarray(floors, float), FLOOR_CAP)
+
+
 def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
                     loads: np.ndarray, supports: np.ndarray) -> np.ndarray:
     """Per non-support vertex: the relative error that rounding the coordinates to doubles can

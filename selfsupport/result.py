@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .evidence import FLOOR_CAP, FLOOR_MARGIN, distance_stats, relative_errors, roundoff_floors
+from .evidence import distance_stats, floor_tolerance, relative_errors, roundoff_floors
 from .mesh import PolyMesh
 
 #: Statuses a method may report.
@@ -72,7 +72,7 @@ class Network:
         over = rel > tol
         if not over.any():
             return True
-        return bool(np.all(rel[over] <= np.minimum(FLOOR_MARGIN * self.roundoff_floors()[over], FLOOR_CAP)))
+        return bool(np.all(rel[over] <= floor_tolerance(self.roundoff_floors()[over])))
 
     @property
     def active_edges(self) -> np.ndarray:

@@ -258,7 +258,7 @@ def test_remesh_leaves_no_quad_with_a_corner_outside_20_to_160_degrees(dome):
                 cos = np.einsum("ij,ij->i", u, w) / np.linalg.norm(u, axis=1) / np.linalg.norm(w, axis=1)
                 ang = np.degrees(np.arccos(cos))
                 assert DEGENERATE_ANGLE - 1e-9 <= ang.min() and ang.max() <= 180 - DEGENERATE_ANGLE + 1e-9
-        assert q.info["degenerate_quads_split"] >= 0
+        assert "degenerate_quads_split" in q.info  # (reported for either method)
 
 
 # ---------------------------------------------------------------------------- the param remesher

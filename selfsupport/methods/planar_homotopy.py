@@ -53,6 +53,7 @@ from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
 from formulations.terms.planarity import coplanarity_rows, diagonal_distance
 
 from ..errors import InputError
+from ..geometry import mean_edge_length
 from ..result import SolveResult
 from .base import case_networks, planarity_report, term_values
 from .deadline import out_of_time
@@ -141,7 +142,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         return sc.load(problem.loads.nodal(mesh0, sc.pos_back(Y)))
 
     jac = case_load_jacobians(problem.loads.models, mesh0, sc, top.free)
-    h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
+    h = mean_edge_length(X, top.edges)
     start = float(np.abs(diagonal_distance(X, rows)[0]).max(initial=0.0))
     target = BAND_END * planar.tol
     band = max(start, target)

@@ -63,6 +63,7 @@ from formulations import Problem
 from ..analysis.airy import _J, face_orientation
 from ..analysis.construction import restore_horizontal_equilibrium
 from ..evidence import relative_errors
+from ..geometry import edge_vectors
 from ..mesh import PolyMesh
 from ..result import Network
 from .deadline import out_of_time
@@ -187,7 +188,7 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     from scipy.spatial import cKDTree
 
     def lengths(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(xy[mesh.edges[:, 1]] - xy[mesh.edges[:, 0]], axis=1)
+        return np.linalg.norm(edge_vectors(xy, mesh.edges), axis=1)
 
     def mids(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
         return 0.5 * (xy[mesh.edges[:, 0]] + xy[mesh.edges[:, 1]])

@@ -97,7 +97,7 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import FLOOR_CAP, FLOOR_MARGIN, closest_points, roundoff_floors
+from ..evidence import FLOOR_CAP, FLOOR_MARGIN, closest_points, floor_tolerance, roundoff_floors
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..options import check_options, check_range
@@ -379,7 +379,7 @@ class _Run:
             floor = None
             if w0 is self.w_warm:  # a warm start in equilibrium to its round-off floor fits already
                 at_floor = roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c], loads=L[c], supports=~free)
-                floor = np.repeat(np.minimum(FLOOR_MARGIN * at_floor, FLOOR_CAP), 3)
+                floor = np.repeat(floor_tolerance(at_floor), 3)
                 floor /= max(float(np.abs(b).max(initial=0.0)), 1e-300)
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
