@@ -8,6 +8,7 @@ In scaled units ``v̂ = (v − c) / D``, ``L̂ = L / F`` and, from ``Σ w (v_j �
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +38,11 @@ class Scaling:
 
     def load_back(self, L: np.ndarray) -> np.ndarray:
         return L * self.force
+
+    def loads_at(self, model: Any, mesh: Any, X: np.ndarray) -> np.ndarray:
+        """Scaled nodal loads of ``model`` (anything with ``nodal(mesh, vertices)``: a load case
+        or a set of cases) at scaled positions ``X``: the load models work in SI units."""
+        return self.load(model.nodal(mesh, self.pos_back(X)))
 
     def weight(self, w: np.ndarray) -> np.ndarray:
         return w * self.length / self.force

@@ -84,6 +84,8 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
 
     t0 = time.perf_counter()
     planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]
+    # the scene once, with the caller's supports and up-axis: every run below solves this one
+    scene = api.as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None))
 
     def left() -> dict[str, float]:
         return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
@@ -99,7 +101,7 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
                                    parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
     runs = [("first", first)]
     problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(api.problem).parameters}
-    problem = api.problem(api.as_scene(scene), constraints=planar, **problem_kw)
+    problem = api.problem(scene, constraints=planar, **problem_kw)
     if len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None:
         runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
                                                  else t0 + time_limit)))

@@ -139,7 +139,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     rows = coplanarity_rows(mesh0, ~np.asarray(scene.free, bool))[0]
 
     def loads_at(Y: np.ndarray) -> np.ndarray:
-        return sc.load(problem.loads.nodal(mesh0, sc.pos_back(Y)))
+        return sc.loads_at(problem.loads, mesh0, Y)
 
     jac = case_load_jacobians(problem.loads.models, mesh0, sc, top.free)
     h = mean_edge_length(X, top.edges)

@@ -53,7 +53,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
     refreshed Jacobian a SuperLU factorization of K + J, took 35 s to the same error)."""
     free = top.free
     if out_of_time(deadline):
-        return X.copy(), sc.load(loads.nodal(mesh0, sc.pos_back(X))), 0
+        return X.copy(), sc.loads_at(loads, mesh0, X), 0
     Kff, Kfs = position_blocks(top, w)
     K = (-Kff).tocsc()
     chol = spd_factor(K)
@@ -63,7 +63,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
 
     def loads_at(z: np.ndarray) -> np.ndarray:
         Xn[free, 2] = z
-        return sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))[free]
+        return sc.loads_at(loads, mesh0, Xn)[free]
 
     def G(z: np.ndarray) -> np.ndarray:
         return chol.solve(zs - loads_at(z))
@@ -85,7 +85,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         z, r3 = _newton_krylov(G, z_start, z, ftol, deadline=deadline)
         rounds += r3
     Xn[free, 2] = z
-    L = sc.load(loads.nodal(mesh0, sc.pos_back(Xn)))
+    L = sc.loads_at(loads, mesh0, Xn)
     return Xn, L, rounds
 
 
@@ -287,7 +287,7 @@ def load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.
         def loads_at(v: np.ndarray, c: int = c) -> np.ndarray:
             Xh = X.copy()
             Xh[fidx, c] = v
-            return sc.load(loads.nodal(mesh0, sc.pos_back(Xh)))[fidx]
+            return sc.loads_at(loads, mesh0, Xh)[fidx]
 
         blocks.append(load_jacobian(loads_at, X[fidx, c], L[fidx], *colouring).tocoo())
     R = np.concatenate([3 * J.row + 2 for J in blocks])

@@ -84,7 +84,7 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
     free = top.free
     if "colouring" not in ws and loads.depends_on_geometry:
         ws["colouring"] = load_colouring(mesh0, free)
-    L = sc.load(loads.nodal(mesh0, sc.pos_back(X)))
+    L = sc.loads_at(loads, mesh0, X)
     obj, F = objective_value(objective, X)
     rho, lin, rejected, small = rho0, None, 0, 0
     steps, history = 0, []

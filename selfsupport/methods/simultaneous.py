@@ -338,7 +338,7 @@ class Simultaneous:
         x = form.pack(sc.pos(V), W0)
 
         def loads_at(Vs: np.ndarray) -> np.ndarray:
-            return sc.load(problem.loads.nodal(mesh0, sc.pos_back(Vs)))
+            return sc.loads_at(problem.loads, mesh0, Vs)
 
         nlp = form.nlp()
         history: list[dict[str, Any]] = []
@@ -707,7 +707,7 @@ def polish_heights(top: Topology, V: np.ndarray, w: np.ndarray, *, loads: LoadCa
         V[free, c] = lu.solve(-(Kfs @ Vs[:, c]))
     rhs_s = Kfs @ Vs[:, 2]
     mixer = _Anderson(POLISH_ANDERSON_DEPTH, limit_step=False)  # must cure mildly unstable modes
-    L = scaling.load(loads.nodal(mesh, scaling.pos_back(V)))
+    L = scaling.loads_at(loads, mesh, V)
     change = np.inf
     z = V[free, 2].copy()
     for k in range(1, max_iter + 1):
@@ -716,7 +716,7 @@ def polish_heights(top: Topology, V: np.ndarray, w: np.ndarray, *, loads: LoadCa
         Gz = lu.solve(L[free] - rhs_s)
         z = mixer.next(z, Gz)
         V[free, 2] = z
-        L_new = scaling.load(loads.nodal(mesh, scaling.pos_back(V)))
+        L_new = scaling.loads_at(loads, mesh, V)
         change = _relative_change(L_new, L)
         L = L_new
         if change < tol:

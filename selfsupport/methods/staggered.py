@@ -355,7 +355,7 @@ class _Run:
     # ---------------------------------------------------------------- Steps 1-2
     def loads_at(self, X: np.ndarray) -> np.ndarray:
         """Step 1: scaled nodal loads of every case at positions ``X``, shape (n_cases, n)."""
-        return self.sc.load(self.loads.nodal(self.mesh0, self.sc.pos_back(X)))
+        return self.sc.loads_at(self.loads, self.mesh0, X)
 
     def fit(self, X: np.ndarray, w0: list[np.ndarray], prox_rel: float | None = None,
             rtol: float | None = None) -> dict | None:
