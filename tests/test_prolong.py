@@ -116,3 +116,29 @@ def test_boundary_edges_carry_the_coarse_boundarys_force():
         if len(inc) == 2 and not fine.supports[E[inc]].all(axis=1).any():
             ratios.append(force[inc].max() / force[inc].min())
     assert len(ratios) > 100 and max(ratios) < 1.1
+
+
+def test_top_view_interpolation_reproduces_linear_fields_and_agrees_with_matplotlib():
+    """The interpolation both transfers use (warm.interpolate_over_top_view, points located once
+    for every column): a linear field is reproduced exactly by the linear and the C¹ cubic
+    interpolant, and the linear one equals matplotlib's own LinearTriInterpolator elsewhere."""
+    import matplotlib.tri as mtri
+
+    from selfsupport.evidence import triangulate
+    from selfsupport.methods.warm import interpolate_over_top_view
+
+    mesh = make_shape("concave_disk", n_vertices=1500).mesh
+    xy = mesh.vertices[:, :2]
+    rng = np.random.default_rng(5)
+    T = triangulate(mesh)
+    bary = rng.dirichlet(np.ones(3), size=len(T))
+    pts = np.einsum("tk,tkj->tj", bary, xy[T])  # one random point inside every triangle
+    coef = rng.standard_normal((3, 3))
+    linear = coef[0] + xy @ coef[1:]
+    for cubic in (True, False):
+        got = interpolate_over_top_view(mesh, linear, pts, cubic=cubic)
+        np.testing.assert_allclose(got, coef[0] + pts @ coef[1:], rtol=0, atol=1e-12 * np.abs(linear).max())
+    values = rng.standard_normal((mesh.n_vertices, 2))
+    tri = mtri.Triangulation(xy[:, 0], xy[:, 1], T)
+    ref = np.stack([mtri.LinearTriInterpolator(tri, values[:, k])(pts[:, 0], pts[:, 1]) for k in range(2)], axis=1)
+    np.testing.assert_allclose(interpolate_over_top_view(mesh, values, pts, cubic=False), ref, rtol=0, atol=1e-12)

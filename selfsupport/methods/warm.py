@@ -127,11 +127,29 @@ def interpolate_over_top_view(mesh: PolyMesh, values: np.ndarray, points: np.nda
     points = np.asarray(points, float)
     out = np.full((len(points), values.shape[1]), np.nan)
     try:
-        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
-        for k in range(values.shape[1]):
-            f = (mtri.CubicTriInterpolator(tri, values[:, k], kind="geom") if cubic
-                 else mtri.LinearTriInterpolator(tri, values[:, k]))
-            out[:, k] = np.ma.filled(f(points[:, 0], points[:, 1]), np.nan)
+        T = triangulate(mesh)
+        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], T)
+        # the points located once for every column (each interpolator call locates them again:
+        # at 256k points that was a third of a prolongation)
+        where = np.asarray(tri.get_trifinder()(points[:, 0], points[:, 1]), np.int64)
+        inside = where >= 0
+        if cubic:
+            for k in range(values.shape[1]):
+                f = mtri.CubicTriInterpolator(tri, values[:, k], kind="geom")
+                try:
+                    z = f._interpolate_multikeys(points[:, 0], points[:, 1], tri_index=where)[0]
+                except (AttributeError, TypeError):  # (matplotlib's private call changed: the public one)
+                    z = f(points[:, 0], points[:, 1])
+                out[:, k] = np.ma.filled(z, np.nan)
+        else:  # linear: barycentric coordinates in the triangle found
+            t = T[where[inside]]
+            a, b, c = xy[t[:, 0]], xy[t[:, 1]], xy[t[:, 2]]
+            p = points[inside]
+            det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+            l1 = ((p[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (p[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) / det
+            l2 = ((b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (p[:, 0] - a[:, 0])) / det
+            out[inside] = ((1.0 - l1 - l2)[:, None] * values[t[:, 0]] + l1[:, None] * values[t[:, 1]]
+                           + l2[:, None] * values[t[:, 2]])
     except (ValueError, RuntimeError):  # (a top view with degenerate triangles: nearest for all)
         pass
     miss = ~np.isfinite(out).all(axis=1)
