@@ -126,6 +126,27 @@ def test_the_interpolating_prolongation_iterates_to_equilibrium_too(vault_runs):
     assert d <= 1.25 * distance_stats(cold.network.vertices, scene.mesh)[0]
 
 
+def test_a_prolongation_that_comes_near_equilibrium_starts_the_level(vault_runs, monkeypatch):
+    """A polish that ends near equilibrium but above the prolongation's own tolerance (here: a
+    tolerance of 0, which no polish meets) hands its nearest network on: the level iterates from
+    it to the same kind of equilibrium, not from interpolated heights."""
+    import selfsupport.methods.prolong as prolong_module
+    from selfsupport.methods.multilevel import START_TOL
+
+    scene, ml, cold = vault_runs
+    monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
+    res = Multilevel(direct_max=900).solve(scene)
+    levels = res.parameters["multilevel"]["levels"]
+    for lv in levels[1:]:
+        pro = lv["prolongation"]
+        assert pro["by"] == "stress, nearest" and 0.0 < pro["max_relative_error"] <= START_TOL
+    assert res.status == "converged" and res.max_relative_error <= 1e-9
+    assert independent_check(res).ok
+    assert levels[-1]["iterations"] < cold.iterations
+    d = distance_stats(res.network.vertices, scene.mesh)[0]
+    assert d <= 1.25 * distance_stats(cold.network.vertices, scene.mesh)[0]
+
+
 @pytest.mark.parametrize("shape, stands", [("barrel_vault", True), ("dome", False)])
 def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stands):
     """Carried stress reproduces a surface already (nearly) in equilibrium only to the fine

@@ -142,3 +142,18 @@ def test_top_view_interpolation_reproduces_linear_fields_and_agrees_with_matplot
     tri = mtri.Triangulation(xy[:, 0], xy[:, 1], T)
     ref = np.stack([mtri.LinearTriInterpolator(tri, values[:, k])(pts[:, 0], pts[:, 1]) for k in range(2)], axis=1)
     np.testing.assert_allclose(interpolate_over_top_view(mesh, values, pts, cubic=False), ref, rtol=0, atol=1e-12)
+
+
+def test_a_prolongation_short_of_its_tolerance_returns_its_nearest_network(monkeypatch):
+    """With a tolerance no polish meets (0), ``network`` is None and ``nearest`` is the candidate
+    whose polish came nearest: its max relative error, recomputed from the network itself, is the
+    one reported, and it is near equilibrium (the polish reaches round-off)."""
+    import selfsupport.methods.prolong as prolong_module
+
+    coarse_scene = make_shape("concave_disk", n_vertices=600)
+    fine_scene = make_shape("concave_disk", n_vertices=2400)
+    coarse = StaggeredLinearization().solve(coarse_scene, {})
+    monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
+    p = prolong(as_problem(fine_scene, None), coarse.network, coarse_scene.mesh)
+    assert p.network is None and p.nearest is not None and p.info["nearest"] in ("projected", "as carried")
+    assert p.nearest.max_relative_error() == p.max_relative_error <= 1e-9

@@ -52,6 +52,7 @@ True
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -226,13 +227,17 @@ class Prolongation:
     max_relative_error: float
     seconds: float
     info: dict[str, Any]
+    #: where no candidate reached PROLONG_TOL: the one whose polish came nearest (lowest max
+    #: relative error; ``max_relative_error`` is its error), or None when none polished to finite values
+    nearest: Network | None = None
 
 
 def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: float | None = None) -> Prolongation:
     """Carry ``network`` (solved for ``reference``, a coarser mesh of the same surface) to the
     scene of ``problem`` through its stress field (see the module docstring). The returned
     network is in equilibrium on the fine mesh with loads of its own geometry when
-    ``max_relative_error`` ≤ :data:`PROLONG_TOL`; otherwise ``network`` is None and ``info``
+    ``max_relative_error`` ≤ :data:`PROLONG_TOL`; otherwise ``network`` is None, ``nearest`` the
+    candidate whose polish came nearest (its error in ``max_relative_error``) and ``info``
     says why (a problem with several load cases, a fixed top view or a hull is not prolonged:
     its frozen weights cannot balance every case or hold the constraint)."""
     t0 = time.perf_counter()
@@ -281,6 +286,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
         return (float(rel.max()) if rel.size else 0.0), V, weights, L_phys, rounds
 
     err, tried = float("inf"), []
+    best: tuple[float, Network | None, str] = (float("inf"), None, "")
     for name, cand in (("projected", projected), ("as carried", w)):
         wc = np.clip(cand, sp_.lower, sp_.upper)
         # Anderson first (cheap rounds: 2.8 s at 256k vertices), Newton where it does not settle
@@ -288,11 +294,16 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
             if out_of_time(deadline):
                 break
             err, V, weights, L_phys, rounds = balanced(wc, newton)
-            if err <= PROLONG_TOL:
+            if err <= PROLONG_TOL or err < best[0]:
                 net = Network(mesh=scene.mesh.with_vertices(V), weights=weights, loads=L_phys,
                               supports=scene.supports, reference=scene.mesh)
+                best = (err, net, name)
+            if err <= PROLONG_TOL:
                 return Prolongation(net, err, time.perf_counter() - t0, {
                     "weights": name, "polish": "newton" if newton else "anderson", "polish_rounds": int(rounds),
                     "at_lower": int(np.sum(wc <= sp_.lower))})
         tried.append(f"{name}: the polish ended at {err:.2e}" if np.isfinite(err) else f"{name}: the polish broke down")
-    return failed("; ".join(tried) or "the time limit was reached", err)
+    out = failed("; ".join(tried) or "the time limit was reached", best[0])
+    if best[1] is None:
+        return out
+    return dataclasses.replace(out, nearest=best[1], info={**out.info, "nearest": best[2]})
