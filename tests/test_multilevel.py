@@ -147,6 +147,41 @@ def test_a_prolongation_that_comes_near_equilibrium_starts_the_level(vault_runs,
     assert d <= 1.25 * distance_stats(cold.network.vertices, scene.mesh)[0]
 
 
+def test_a_level_that_ends_farther_from_equilibrium_than_its_prolonged_start_returns_the_start(
+        vault_runs, monkeypatch):
+    """When iterating from a nearest prolongation stops out of equilibrium (here: the fine
+    solve's network moved off equilibrium and labelled a time limit) and farther from it than the
+    start, the start is the answer: its evidence recomputed from it, the run's status kept."""
+    import dataclasses
+
+    import selfsupport.methods.prolong as prolong_module
+    from selfsupport.methods.staggered import StaggeredLinearization
+    from selfsupport.result import SolveResult
+
+    scene, _, _ = vault_runs
+    monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
+    real = StaggeredLinearization.solve
+
+    def stopped_early(self, problem, options=None, **kw):
+        res = real(self, problem, options, **kw)
+        if kw.get("warm_start") is None:
+            return res
+        net = res.network
+        V = net.vertices.copy()
+        V[~net.supports, 2] += 1e-3 * np.ptp(V[:, 2])
+        moved = dataclasses.replace(net, mesh=net.mesh.with_vertices(V))
+        return SolveResult.build(moved, status="time_limit", method=res.method, backend=res.backend,
+                                 iterations=res.iterations, wall_time=res.wall_time, parameters=res.parameters)
+
+    monkeypatch.setattr(StaggeredLinearization, "solve", stopped_early)
+    res = Multilevel(direct_max=900).solve(scene)
+    last = res.parameters["multilevel"]["levels"][-1]
+    assert last["prolongation"]["by"] == "stress, nearest" and last["prolongation"]["returned"]
+    assert res.status == "time_limit" and "its prolonged network" in res.message
+    assert res.max_relative_error == res.network.max_relative_error() == last["prolongation"]["max_relative_error"]
+    assert res.max_relative_error <= 1e-9 and independent_check(res).ok
+
+
 @pytest.mark.parametrize("shape, stands", [("barrel_vault", True), ("dome", False)])
 def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stands):
     """Carried stress reproduces a surface already (nearly) in equilibrium only to the fine

@@ -71,9 +71,9 @@ from ..loads import CombinedLoad, SelfWeight
 from ..mesh import PolyMesh
 from ..result import SolveResult
 from ..scene import Scene
-from .base import as_problem, loads_or_options
+from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
-from .staggered import StaggeredLinearization
+from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from .prolong import prolong
 from .warm import WarmStart
 
@@ -116,6 +116,15 @@ RECLAIM_STEPS = 10
 COLD_MAX = 4 * DIRECT_MAX
 #: A boundary corner turning more than this [degrees] is kept on every level.
 CORNER_ANGLE = 30.0
+
+
+def _with_network(res: SolveResult, problem: Problem, network: Any, note: str) -> SolveResult:
+    """``res`` with ``network`` as its answer: the evidence and the objective's terms recomputed
+    from that network, the run's status, iterations, time and settings kept."""
+    return SolveResult.build(network, status=res.status, method=res.method, backend=res.backend,
+                             iterations=res.iterations, wall_time=res.wall_time, history=res.history,
+                             message=f"{res.message}; {note}" if res.message else note, parameters=res.parameters,
+                             terms=term_values(problem, network, default=DEFAULT_OBJECTIVE))
 
 
 # ------------------------------------------------------------------------------ coarsening
@@ -471,6 +480,14 @@ class Multilevel:
                         carried["why"] = pro.info.get("why")
             res = probed or self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline,
                                                  warm_start=warm)
+            if (carried is not None and carried["by"] == "stress, nearest" and res.status != "converged"
+                    and not res.max_relative_error <= pro.max_relative_error):
+                # iterating did not reach equilibrium and ended farther from it than its start (the
+                # 256k pillar vault: 1.06e-7 -> 5.6e-6 at the time limit): the start is the answer
+                res = _with_network(res, prob, pro.nearest, (
+                    f"the level's start, its prolonged network (max relative error {pro.max_relative_error:.2e}), "
+                    f"is returned: iterating from it ended at {res.max_relative_error:.2e}"))
+                carried["returned"] = True
             levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
             prev_scene = scene
             in_equilibrium = res.max_relative_error <= START_TOL
