@@ -30,7 +30,8 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    only to the fine mesh's discretization), and failing that walked back by up to
    :data:`RECLAIM_STEPS` SQP steps in equilibrium (:mod:`.refine`). Where the polish comes
    within :data:`START_TOL` of equilibrium but not to the prolongation's own tolerance, the
-   level iterates from that network. Where
+   level iterates from that network (and returns it when it stops out of equilibrium farther
+   from it: a 256k pillar vault's free-boundary arches hold it at its round-off floor). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
    offsets from its reference interpolated C¹ over the top view with weights from the nearest
