@@ -124,7 +124,7 @@ def _with_network(res: SolveResult, problem: Problem, network: Any, note: str) -
     from that network, the run's status, iterations, time and settings kept."""
     return SolveResult.build(network, status=res.status, method=res.method, backend=res.backend,
                              iterations=res.iterations, wall_time=res.wall_time, history=res.history,
-                             message=f"{res.message}; {note}" if res.message else note, parameters=res.parameters,
+                             message=f"{note} ({res.message})" if res.message else note, parameters=res.parameters,
                              terms=term_values(problem, network, default=DEFAULT_OBJECTIVE))
 
 
@@ -487,7 +487,7 @@ class Multilevel:
                 # 256k pillar vault: 1.06e-7 -> 5.6e-6 at the time limit): the start is the answer
                 res = _with_network(res, prob, pro.nearest, (
                     f"the level's start, its prolonged network (max relative error {pro.max_relative_error:.2e}), "
-                    f"is returned: iterating from it ended at {res.max_relative_error:.2e}"))
+                    f"is returned: iterating from it ended at {res.max_relative_error:.2e}, {res.status}"))
                 carried["returned"] = True
             levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
             prev_scene = scene
