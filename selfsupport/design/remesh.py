@@ -385,10 +385,15 @@ def _insert_points(V2: np.ndarray, faces: list[list[int]], points: np.ndarray, t
     return V2, faces, ids
 
 
+def _corner_angles(P: np.ndarray) -> np.ndarray:
+    """Interior angles [rad] at the corners of the top-view polygon ``P`` (k, 2), in [0, π]."""
+    u, w = np.roll(P, 1, axis=0) - P, np.roll(P, -1, axis=0) - P
+    return np.arctan2(np.abs(_cross2(u, w)), np.einsum("ij,ij->i", u, w))
+
+
 def _min_angle(T: np.ndarray) -> float:
     """Smallest angle of the top-view triangle ``T`` (3, 2)."""
-    u, w = np.roll(T, 1, axis=0) - T, np.roll(T, -1, axis=0) - T
-    return float(np.arctan2(np.abs(_cross2(u, w)), np.einsum("ij,ij->i", u, w)).min())
+    return float(_corner_angles(T).min())
 
 
 def _split_polygon(P: np.ndarray, face: list[int]) -> list[list[int]]:
@@ -419,11 +424,7 @@ def _split_degenerate(V2: np.ndarray, faces: list[list[int]]) -> tuple[list[list
     split = 0
     for f in faces:
         if len(f) == 4:
-            P = V2[f]
-            u, w = np.roll(P, 1, axis=0) - P, np.roll(P, -1, axis=0) - P
-            lens = np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1)
-            cos = np.einsum("ij,ij->i", u, w) / np.maximum(lens, 1e-300)
-            ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+            ang = np.degrees(_corner_angles(V2[f]))
             if ang.min() < DEGENERATE_ANGLE or ang.max() > 180.0 - DEGENERATE_ANGLE:
                 i = int(np.argmax(ang))
                 out += [[f[i], f[(i + 1) % 4], f[(i + 2) % 4]], [f[i], f[(i + 2) % 4], f[(i + 3) % 4]]]
