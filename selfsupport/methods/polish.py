@@ -80,11 +80,12 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
     z_start = X[free, 2].copy()
     ftol = 1e-15 * max(float(np.abs(z_start).max()), 1.0)
     z, rounds, converged = z_start, 0, False
-    if newton and ANDERSON_FIRST:
+    first = min(ANDERSON_FIRST, max_rounds) if newton else 0
+    if first:
         # a start already near the fixed point (the fit was nearly exact; a warm start or a
         # prolonged network in equilibrium) settles in a few cheap rounds, before Newton's
         # colouring and factorization
-        za, rounds, converged = _anderson(G, z_start, ftol, min(ANDERSON_FIRST, max_rounds), deadline=deadline)
+        za, rounds, converged = _anderson(G, z_start, ftol, first, deadline=deadline)
         z = za if converged else z_start
     if newton and not converged:
         ws = workspace if workspace is not None else {}
@@ -94,7 +95,8 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         z, r1, converged = _newton(K, zs, loads_at, chol, z_start, ws.get("colouring"), ftol, max_rounds,
                                    constant=constant, deadline=deadline)
         rounds += r1
-    if not converged and fallbacks and not out_of_time(deadline):
+    if not converged and fallbacks and max_rounds > first and not out_of_time(deadline):
+        # (with no more rounds than the first try had, it would repeat that try round for round)
         z, r2, converged = _anderson(G, z_start, ftol, max_rounds, deadline=deadline)
         rounds += r2
     if not converged and fallbacks and krylov and not out_of_time(deadline):
