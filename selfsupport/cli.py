@@ -272,7 +272,10 @@ def _not_converged_line(result) -> str:
     solved exactly. Its network can then be in equilibrium, only not the one nearest to the
     reference, so the line says which of the two cases it is.
     """
-    hint = STATUS_HINT.get(result.status, "try the other method")
+    # (a network held above tol by rounding alone: its message says what to change, the status's
+    # usual hint — other methods, more supports — would not help)
+    hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
+            else STATUS_HINT.get(result.status, "try the other method"))
     msg = f" ({result.message})" if result.message else ""
     tol = float(result.parameters.get("tol", 1e-9) or 1e-9)
     if result.max_relative_error <= tol:

@@ -49,6 +49,11 @@ FLOOR_MARGIN = 4.0
 #: vanishes (vertices slid together: a 256k prolongation's boundary vertices 5e-6 m apart, loads
 #: 1.6e-7 N, floor 1.6e-5), and such a network is degenerate, not in equilibrium.
 FLOOR_CAP = 1e-8
+#: A vertex whose load is below this fraction of the median free vertex's load has (nearly) no
+#: area of its own: it slid onto its neighbours. Its floor is then large because the network is
+#: degenerate, so :func:`roundoff_limit` does not blame rounding (the 256k pillar vault's
+#: vertices held above 1e-9 by rounding carry at least 0.026 of the median load).
+DEGENERATE_LOAD = 1e-3
 
 
 def floor_tolerance(floors: np.ndarray) -> np.ndarray:
@@ -78,6 +83,72 @@ def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
     S = _sum_at_ends(edges, a, a, len(V))
     free = ~np.asarray(supports, bool)
     return np.finfo(float).eps * np.linalg.norm(S[free], axis=1) / np.maximum(np.abs(loads[free]), 1e-300)
+
+
+def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray, loads: np.ndarray,
+                   supports: np.ndarray, tol: float) -> dict | None:
+    """Why a network misses ``tol`` when rounding alone is the reason, else ``None``.
+
+    Such a network has vertices above ``tol``, and each one is within :data:`FLOOR_MARGIN` ×
+    its round-off floor (:func:`roundoff_floors`). Some of them are above :data:`FLOOR_CAP`,
+    so it is not in equilibrium. No positions in doubles balance these vertices better, so
+    iterating on is wasted. None of them may be a degenerate vertex (:data:`DEGENERATE_LOAD`).
+
+    The floor is ``eps Σ|w_ij|(|v_i| + |v_j|)``. It grows with the distance from the origin: a
+    design in site coordinates 10⁶ m away has a floor 10⁵ times that at the origin. It also grows
+    with the edge force over the vertex's load: a fine mesh's free-boundary arches carry 10⁶
+    times it. The report gives both: ``floor`` (the largest floor among the vertices above
+    ``tol``), ``centred_floor`` (the same with the bounding-box centre moved to the origin),
+    ``offset`` (that centre's distance from the origin) and ``force_ratio`` (the largest edge
+    force at those vertices over their load).
+
+    >>> V = np.array([[0.0, 0, 0], [1.0, 0, 1], [2.0, 0, 0]])
+    >>> E, S = np.array([[0, 1], [1, 2]]), np.array([True, False, True])
+    >>> kw = dict(edges=E, weights=np.array([1.0, 1.0]), loads=np.array([0, -2.0, 0]), supports=S, tol=1e-9)
+    >>> roundoff_limit(vertices=V, **kw) is None  # in equilibrium
+    True
+    >>> far = V + [1e9, 0, 0]
+    >>> far[1, 0] = np.nextafter(far[1, 0], 2e9)   # one spacing of doubles (1.2e-7) off
+    >>> rep = roundoff_limit(vertices=far, **kw)
+    >>> rep["n_vertices"], rep["offset"] > 1e9 - 2, rep["centred_floor"] < 1e-15
+    (1, True, True)
+    """
+    rel = relative_errors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
+    over = rel > tol
+    if not over.any() or not np.all(np.isfinite(rel)):
+        return None
+    floors = roundoff_floors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
+    if np.all(rel[over] <= floor_tolerance(floors[over])) or np.any(rel[over] > FLOOR_MARGIN * floors[over]):
+        return None  # in equilibrium (at the floor, within the cap), or off it for other reasons
+    free = ~np.asarray(supports, bool)
+    load = np.abs(np.asarray(loads, float)[free])
+    if np.any(load[over] < DEGENERATE_LOAD * float(np.median(load))):
+        return None  # a vertex with next to no load: slid onto its neighbours, a degenerate network
+    V = np.asarray(vertices, float)
+    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    centred = roundoff_floors(vertices=V - centre, edges=edges, weights=weights, loads=loads, supports=supports)
+    force = np.abs(weights) * np.linalg.norm(V[edges[:, 1]] - V[edges[:, 0]], axis=1)
+    at_vertex = np.zeros(len(V))
+    np.maximum.at(at_vertex, edges[:, 0], force)
+    np.maximum.at(at_vertex, edges[:, 1], force)
+    ratio = at_vertex[free][over] / np.maximum(load[over], 1e-300)
+    return {"max_relative_error": float(rel.max()), "n_vertices": int(over.sum()), "floor": float(floors[over].max()),
+            "centred_floor": float(centred[over].max()), "offset": float(np.linalg.norm(centre)),
+            "force_ratio": float(ratio.max())}
+
+
+def roundoff_message(report: dict, tol: float) -> str:
+    """One sentence on a :func:`roundoff_limit` report: what limits the network, and what to change."""
+    head = (f"max relative error {report['max_relative_error']:.2e} > tol {tol:g}, but each of the "
+            f"{report['n_vertices']} vertices above tol is within {FLOOR_MARGIN:g}× its round-off floor (largest "
+            f"{report['floor']:.2e}): rounding the coordinates to doubles leaves that much, and no positions "
+            "balance those vertices better")
+    if FLOOR_MARGIN * report["centred_floor"] <= tol:
+        return (f"{head}; the design lies {report['offset']:.3g} m from the origin, so translate it near the "
+                f"origin (its floor there: {report['centred_floor']:.1e})")
+    return (f"{head}; edge forces there reach {report['force_ratio']:.2g}× those vertices' loads (e.g. the "
+            f"free-boundary arches of a fine mesh): use a coarser mesh, support that boundary, or a tol of at "
+            f"least {FLOOR_MARGIN * report['floor']:.1e}")
 
 
 def max_relative_error(**kw) -> float:

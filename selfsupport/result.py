@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .evidence import distance_stats, floor_tolerance, relative_errors, roundoff_floors
+from .evidence import distance_stats, floor_tolerance, relative_errors, roundoff_floors, roundoff_limit
 from .mesh import PolyMesh
 
 #: Statuses a method may report.
@@ -73,6 +73,12 @@ class Network:
         if not over.any():
             return True
         return bool(np.all(rel[over] <= floor_tolerance(self.roundoff_floors()[over])))
+
+    def roundoff_limit(self, tol: float) -> dict | None:
+        """Why the network misses ``tol`` when only rounding to doubles holds it there, else
+        ``None`` (:func:`~.evidence.roundoff_limit`)."""
+        return roundoff_limit(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
+                              supports=self.supports, tol=tol)
 
     @property
     def active_edges(self) -> np.ndarray:

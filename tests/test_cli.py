@@ -148,6 +148,22 @@ def test_a_network_out_of_equilibrium_is_written_labelled_and_exits_4(tmp_path, 
     assert len(err) == 1 and "NOT in equilibrium" in err[0] and "try" in err[0]
 
 
+def test_a_design_in_site_coordinates_is_told_to_move_to_the_origin(tmp_path, capsys):
+    """A vault 10⁶ m from the origin can only be balanced to ~1e-7 in its own coordinates: the
+    line says so and what to do (translate it), not the stalled solve's usual hint."""
+    scene = make_shape("pillar_vault", n_vertices=600)
+    obj, sup = tmp_path / "site.obj", tmp_path / "site.sup"
+    write_mesh(obj, scene.mesh.with_vertices(scene.mesh.vertices + [1e6, 3e5, 0.0]))
+    sup.write_text("\n".join(str(i) for i in np.flatnonzero(scene.supports)) + "\n")
+    out = tmp_path / "site.json"
+    code = cli.main(["solve", str(obj), "--supports", str(sup), "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and len(err) == 1
+    assert "translate it near the origin" in err[0] and "see the message" in err[0] and "ipopt" not in err[0]
+    d = json.loads(out.read_text())
+    assert d["status"] == "stalled" and 1e-9 < document_check(d)["max_rel"] < 1e-6
+
+
 # ------------------------------------------------------------------------- bad input
 def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     (tmp / "garbage.obj").write_text("this is not a mesh\n\x00\x01 binary junk\n")

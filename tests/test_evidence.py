@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
-from selfsupport.evidence import closest_points, distance_stats, triangulate
+from selfsupport.evidence import closest_points, distance_stats, roundoff_message, triangulate
 from selfsupport.shapes import make_shape
 
 
@@ -152,9 +153,64 @@ def test_a_network_far_from_the_origin_is_in_equilibrium_to_its_roundoff_floor()
     farther = moved(net.vertices, 1e6)
     assert np.all(farther.relative_errors() <= farther.roundoff_floors()) and farther.max_relative_error() > FLOOR_CAP
     assert not farther.in_equilibrium(1e-9) and farther.in_equilibrium(1e-7)
+    # ... and its report says why: the offset, not its forces (centred, its floor is ~1e-12)
+    assert far.roundoff_limit(1e-9) is None and net.roundoff_limit(1e-9) is None
+    limit = farther.roundoff_limit(1e-9)
+    assert limit["max_relative_error"] == farther.max_relative_error()
+    assert limit["n_vertices"] == int(np.sum(farther.relative_errors() > 1e-9))
+    assert abs(limit["offset"] - np.linalg.norm(0.5 * (farther.vertices.min(0) + farther.vertices.max(0)))) < 1e-6
+    assert limit["centred_floor"] < 1e-4 * limit["floor"] and FLOOR_MARGIN * limit["centred_floor"] < 1e-9
+    assert "translate it near the origin" in roundoff_message(limit, 1e-9)
     V = net.vertices.copy()
     i = int(np.flatnonzero(~net.supports)[10])
     V[i, 2] += 1e-7
     off = moved(V)
     assert not off.in_equilibrium(1e-9)
     assert off.max_relative_error() > 10 * FLOOR_MARGIN * off.roundoff_floors().max()  # (measured ~100×)
+    assert off.roundoff_limit(1e-9) is None  # (off for a reason other than rounding)
+
+
+def test_a_flat_arch_is_held_above_tol_by_its_thrust_not_by_where_it_lies():
+    """A two-bar arch of rise 1e-9 m at the origin: its thrust (1 N) is 5e8 times its crown's
+    load (2e-9 N), so one spacing of doubles in the crown's x (2.2e-16 m) is a relative error of
+    2.2e-7 — above the cap, within the floor (eps·4 N·m / 2e-9 N = 4.4e-7). Moving it to the
+    origin would not help; the report says the forces are why."""
+    from selfsupport.evidence import FLOOR_CAP, roundoff_limit
+
+    h = 1e-9
+    V = np.array([[0.0, 0, 0], [1.0, 0, h], [2.0, 0, 0]])
+    kw = dict(edges=np.array([[0, 1], [1, 2]]), weights=np.ones(2), loads=np.array([0.0, -2 * h, 0.0]),
+              supports=np.array([True, False, True]))
+    assert roundoff_limit(vertices=V, tol=1e-12, **kw) is None  # exactly in equilibrium
+    V[1, 0] = np.nextafter(1.0, 2.0)
+    limit = roundoff_limit(vertices=V, tol=1e-12, **kw)
+    assert FLOOR_CAP < limit["max_relative_error"] <= limit["floor"]
+    assert limit["force_ratio"] == pytest.approx(1 / (2 * h), rel=1e-6)
+    assert limit["centred_floor"] == pytest.approx(limit["floor"] / 2, rel=1e-6)  # (|x| sums 4 → 2)
+    assert "edge forces there reach 5e+08×" in roundoff_message(limit, 1e-12)
+    # a vertex off by more than its floor allows is not held there by rounding
+    V[1, 0] = 1.0 + 1e-12
+    assert roundoff_limit(vertices=V, tol=1e-12, **kw) is None
+
+
+def test_a_vertex_with_next_to_no_load_is_degenerate_not_held_by_rounding():
+    """A four-bar chain 10⁹ m from the origin, horizontal thrust 1 N, whose middle vertex has
+    a kink of 1e-6 (load 1e-6 N against 0.5 N and 2.5 N at its neighbours): moved by one spacing
+    of doubles, every vertex is within its floor — the middle one only because its load nearly
+    vanishes. That is a degenerate vertex (load < DEGENERATE_LOAD × the median), so the report
+    does not blame rounding; with a proper load there it does."""
+    from selfsupport.evidence import DEGENERATE_LOAD, residuals, roundoff_limit
+
+    def chain(kink: float) -> dict:
+        V = np.array([[0.0, 0, 0], [1, 0, 1], [2, 0, 1.5], [3, 0, 2 - kink], [4, 0, 0]])
+        E = np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
+        L = residuals(vertices=V, edges=E, weights=np.ones(4), loads=np.zeros(5))[:, 2]
+        V[:, 0] += 1e9
+        V[2, 0] = np.nextafter(V[2, 0], 2e9)
+        return dict(vertices=V, edges=E, weights=np.ones(4), loads=L, supports=np.array([1, 0, 0, 0, 1], bool))
+
+    kw = chain(1e-6)
+    assert abs(kw["loads"][2]) < DEGENERATE_LOAD * np.median(np.abs(kw["loads"][1:4]))
+    assert roundoff_limit(tol=1e-9, **kw) is None
+    rep = roundoff_limit(tol=1e-9, **chain(0.25))  # (load 0.25 N there)
+    assert rep is not None and rep["offset"] > 1e9

@@ -97,7 +97,7 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import FLOOR_CAP, FLOOR_MARGIN, closest_points, floor_tolerance, roundoff_floors
+from ..evidence import FLOOR_CAP, FLOOR_MARGIN, closest_points, roundoff_floors, roundoff_message
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..options import check_options, check_range
@@ -378,8 +378,11 @@ class _Run:
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             floor = None
             if w0 is self.w_warm:  # a warm start in equilibrium to its round-off floor fits already
+                # (uncapped, unlike the equilibrium test: a fit cannot balance those rows better in
+                # doubles; a 256k pillar vault's start at 1.06e-7, floor 1.6e-7, ran the interior
+                # point 150 s for nothing, and the final fit as long again)
                 at_floor = roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c], loads=L[c], supports=~free)
-                floor = np.repeat(floor_tolerance(at_floor), 3)
+                floor = np.repeat(FLOOR_MARGIN * at_floor, 3)
                 floor /= max(float(np.abs(b).max(initial=0.0)), 1e-300)
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
@@ -481,6 +484,14 @@ class _Run:
     def networks(self, X: np.ndarray, ws: list[np.ndarray]) -> tuple[Network, tuple[tuple[str, Network], ...]]:
         return case_networks(self.problem, self.sc, X, ws)
 
+    def roundoff_limit(self, cases) -> dict | None:
+        """The worst case's report when every case out of equilibrium is held there by rounding
+        alone (:meth:`Network.roundoff_limit`), else ``None``."""
+        reports = [n.roundoff_limit(self.opt.tol) for _, n in cases if not n.in_equilibrium(self.opt.tol)]
+        if not reports or any(r is None for r in reports):
+            return None
+        return max(reports, key=lambda r: r["max_relative_error"])
+
     def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True, stop: bool = False):
         """Positions (and, with several cases or a fixed top view, weights) in exact equilibrium:
         (X, ws, L, rounds). ``stop``: what the polishes return past their deadline (``X`` as it
@@ -513,7 +524,24 @@ class _Run:
         weights with the positions: near equilibrium its Newton steps converge where Step 3, with
         the weights held, creeps (a dome with an apex load in a 5 cm hull: the fit error fell by
         half in 30 iterations at α's minimum; the joint polish, tried there, moved vertices by
-        7e-4 of the diagonal to 1e-14)."""
+        7e-4 of the diagonal to 1e-14).
+
+        A polish that meets everything but ``tol``, and is held above it by rounding alone
+        (:meth:`roundoff_limit`), says so in ``info["roundoff_limit"]``: the iteration stops there
+        (a 256k pillar vault's prolonged start, 1.06e-7 at its floor, iterated 640 s to 5.6e-6)."""
+        early = self._try_finish(X, cur, d_it)
+        if early is None or early[3]["ok"] or early[0] is None:
+            return early
+        Xp, ws, _, info = early
+        slack = self.opt.finish_slack
+        if (info["error"] > self.opt.tol and info.get("inside_hull", True) and info.get("planar", True)
+                and info["dist_mean_ratio"] <= 1 + slack and info["dist_max_ratio"] <= 1 + 4 * slack):
+            limit = self.roundoff_limit(self.networks(Xp, ws)[1])
+            if limit is not None:
+                info["roundoff_limit"] = limit
+        return early
+
+    def _try_finish(self, X: np.ndarray, cur: dict, d_it: np.ndarray) -> tuple | None:
         opt = self.opt
         if not self.joint:
             early = _try_finish(self.top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, self.sc,
@@ -543,6 +571,7 @@ class _Run:
         alpha, beta = opt.alpha0, opt.beta0
         history: list[dict[str, Any]] = []
         status, message = "iteration_limit", ""
+        at_floor = False  # stopped by a finish try held above tol by rounding alone
         # proximal centre of the first fit: the best uniform weight (scale-free, deterministic)
         A0 = weight_matrix(top, X) @ np.ones(top.m)
         w_start = []
@@ -551,6 +580,8 @@ class _Run:
             w_uniform = float(A0 @ b0 / max(float(A0 @ A0), 1e-300))
             w_start.append(np.clip(np.full(top.m, w_uniform), self.lower, self.upper))
         cur = self.fit(X, self.w_warm) if self.w_warm is not None else None
+        warm_fit = cur  # (the warm start's own fit: when it fitted already and the loop ends on it,
+        # the final refit below is skipped — it cannot balance the start better than its floor)
         warm_try = False  # one finish try from the warm start, else a cold start
         if cur is not None and cur["max_rel_error"] <= opt.finish_try:
             self.warm_info["used"] = True
@@ -605,6 +636,11 @@ class _Run:
                         rec["finish_try"] = early[3] if early is not None else None
                         if early is not None and early[3]["ok"]:
                             status = "converged"
+                            history.append(rec)
+                            break
+                        if early is not None and "roundoff_limit" in early[3]:
+                            # in equilibrium as far as doubles can tell, but above tol: stop here
+                            status, at_floor = "stalled", True
                             history.append(rec)
                             break
                         early = None
@@ -684,7 +720,7 @@ class _Run:
             except DeadlineReached:  # inside Step 3: the current iterate is the best network
                 status, message = "time_limit", self.time_message()
 
-            if status not in ("converged", "interrupted"):
+            if status not in ("converged", "interrupted") and not at_floor:
                 message = (f"{message or status}; vertices hardest to balance: {cur['worst_vertices'][:5]} "
                            f"(max relative fit error {cur['max_rel_error']:.2e}); try more supports there, a larger "
                            "w_max, a pillar, or more iterations").lstrip("; ")
@@ -697,7 +733,8 @@ class _Run:
                 # (when the deadline would cut it — a fit's factorizations cannot stop early, and
                 # one at 200k vertices takes seconds — keep the current weights)
                 t_fit = cur["t_loads"] + cur["t_weights"]
-                last = None if out_of_time(self.deadline, t_fit) else self.fit(X, cur["w"], opt.prox_w_final)
+                as_warm = cur is warm_fit and cur["fit_iterations"] == 0
+                last = None if out_of_time(self.deadline, t_fit) or as_warm else self.fit(X, cur["w"], opt.prox_w_final)
                 ws = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
                 # Polish: weights frozen (or, with several cases, moved least), positions exact.
                 # It factors a system of the mesh's size before it can check the deadline (2.3 s
@@ -725,7 +762,7 @@ class _Run:
                 message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
                             "of the bounding-box diagonal, so this network may be far from the design")
             if (status == "converged" and early is None and not _in_equilibrium(cases, opt.tol) and polish_tol > 1e-9
-                    and it < opt.max_iter and not out_of_time(self.deadline)):
+                    and it < opt.max_iter and not out_of_time(self.deadline) and self.roundoff_limit(cases) is None):
                 # the polish did not reach equilibrium (the load fixed point stalled, e.g. on a
                 # kink of the area model): iterate on to a much tighter fit and polish again
                 history.append({**final, "kept": False, "retry": True})
@@ -747,6 +784,12 @@ class _Run:
             message = (f"max relative error {err:.2e} is above tol {opt.tol:g} but within {FLOOR_MARGIN:g}× the "
                        f"round-off floor of the vertices above it (max floor {floor:.2e}: forces far larger than "
                        f"those vertices' loads) and {FLOOR_CAP:g}; " + message).rstrip("; ")
+        limit = self.roundoff_limit(cases) if (status == "converged" or at_floor) and not balanced else None
+        if limit is not None:  # (held above tol by rounding alone: more supports or iterations cannot help)
+            status, message = "stalled", "; ".join(m for m in (roundoff_message(limit, opt.tol), message) if m)
+        elif at_floor:  # (the last iterate was returned instead, and it is off the floor)
+            message = "; ".join(m for m in (message, "the iteration stopped at a polish held above tol by "
+                                            "rounding alone") if m)
         if status == "converged" and not balanced:
             worst = np.argsort(net.relative_errors())[::-1][:5]
             status, message = "stalled", (
@@ -757,6 +800,8 @@ class _Run:
                                   "load_cases": list(self.loads.names), "warm_start": self.warm_info}
         if floor is not None:  # (converged at the round-off floor, above tol)
             params["roundoff_floor"] = floor
+        if limit is not None:  # (stalled: held above tol by rounding alone)
+            params["roundoff_limit"] = limit
         hull = hull_report(self.problem, net)
         if hull is not None:
             params["hull"] = hull
