@@ -1,5 +1,7 @@
-"""Scale-free units: lengths relative to the bounding-box diagonal, forces relative to the
-mean nodal load. Every solver works in these units so one set of defaults serves scenes
+"""Scale-free units: lengths relative to the diagonal of the smallest upright box around the
+scene (:func:`~selfsupport.geometry.plan_box_diagonal`: unchanged by turning the scene about the
+vertical axis, and equal to the axis-aligned box's diagonal wherever that box is the smallest),
+forces relative to the mean nodal load. Every solver works in these units so one set of defaults serves scenes
 from 2 m to 30 m and any density or thickness; a scaled scene gives the scaled network.
 
 In scaled units ``v̂ = (v − c) / D``, ``L̂ = L / F`` and, from ``Σ w (v_j − v_i) = L``,
@@ -12,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from selfsupport.geometry import bbox_diagonal
+from selfsupport.geometry import plan_box_diagonal
 
 
 @dataclass(frozen=True)
@@ -25,7 +27,7 @@ class Scaling:
     def of(cls, vertices: np.ndarray, loads: np.ndarray, free: np.ndarray) -> "Scaling":
         c = vertices.min(axis=0) * 0.5 + vertices.max(axis=0) * 0.5
         f = float(np.abs(loads[free]).mean()) if free.any() else 1.0
-        return cls(tuple(map(float, c)), bbox_diagonal(vertices), f if f > 0 else 1.0)
+        return cls(tuple(map(float, c)), plan_box_diagonal(vertices), f if f > 0 else 1.0)
 
     def pos(self, v: np.ndarray) -> np.ndarray:
         return (v - np.asarray(self.center)) / self.length

@@ -28,6 +28,48 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
     return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
 
 
+def plan_box_diagonal(vertices: np.ndarray) -> float:
+    """Diagonal of the box around the points that is upright and smallest in plan. Its plan is
+    the smallest-area rectangle around the top view (rotating calipers over the convex hull's
+    edges); its height is the height range.
+
+    Turning a design about the vertical axis leaves this length alone. The axis-aligned box's
+    diagonal grows by up to √2 instead: a unit of length taken from it changed the relative
+    weights of a solve's terms, and lilium turned by 0.3 rad gave a network 4.7e-3 of its
+    diagonal away from the unturned one (the paper's Fig. 16 vault 3.5e-2). Where the
+    axis-aligned box is already the smallest, the two are equal: every generated shape, and
+    the paper's scenes to within 3.5%. Tied rectangles take the shortest diagonal. Points with
+    no area in plan give the axis-aligned diagonal.
+
+    >>> sq = np.array([[0.0, 0, 0], [2, 0, 0], [2, 1, 1], [0, 1, 1]])
+    >>> plan_box_diagonal(sq) == bbox_diagonal(sq) == 6 ** 0.5
+    True
+    >>> t = 0.3
+    >>> R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    >>> bool(abs(plan_box_diagonal(sq @ R.T) - 6 ** 0.5) < 1e-12), bbox_diagonal(sq @ R.T) > 2.6
+    (True, True)
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    v = np.asarray(vertices, float)
+    try:
+        hull = v[ConvexHull(v[:, :2]).vertices, :2]
+    except (QhullError, ValueError):  # collinear or too few points in plan
+        return bbox_diagonal(v)
+    edges = np.roll(hull, -1, axis=0) - hull
+    u = edges / np.linalg.norm(edges, axis=1)[:, None]
+    area, diag2 = [], []
+    for k in range(0, len(u), 512):  # (directions in chunks: a 256k disk's hull has ~2,000 points)
+        uk = u[k:k + 512]
+        along = np.ptp(hull @ uk.T, axis=0)
+        across = np.ptp(hull @ np.c_[-uk[:, 1], uk[:, 0]].T, axis=0)
+        area.append(along * across)
+        diag2.append(along ** 2 + across ** 2)
+    area, diag2 = np.concatenate(area), np.concatenate(diag2)
+    smallest = area <= area.min() * (1 + 1e-9)
+    return float(np.sqrt(diag2[smallest].min() + np.ptp(v[:, 2]) ** 2))
+
+
 def face_centroids(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
     v = mesh.vertices if vertices is None else vertices
     face_of, _, _ = mesh.corner_data
