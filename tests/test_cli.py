@@ -164,6 +164,27 @@ def test_a_design_in_site_coordinates_is_told_to_move_to_the_origin(tmp_path, ca
     assert d["status"] == "stalled" and 1e-9 < document_check(d)["max_rel"] < 1e-6
 
 
+@pytest.mark.parametrize("n, suggested", [(100, False), (6500, True)])
+def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys, monkeypatch, n, suggested):
+    """Above the multilevel method's one-level size, a stalled staggered solve's line suggests it
+    (subdivided paper scenes, 28k quads, stalled there and converge by levels); below, not."""
+    from selfsupport import api
+    from selfsupport.methods.multilevel import DIRECT_MAX
+    from selfsupport.result import Network, SolveResult
+
+    scene = make_shape("dome", n_vertices=n)
+    assert (scene.mesh.n_vertices > DIRECT_MAX) == suggested
+    net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
+                  supports=scene.supports, reference=scene.mesh)
+    fake = SolveResult.build(net, status="stalled", method="staggered", backend="active-set", iterations=57,
+                             wall_time=0.1, message="the fit error stopped falling", parameters={"tol": 1e-9})
+    monkeypatch.setattr(api, "solve", lambda *a, **k: fake)
+    code = cli.main(["solve", f"shape:dome:{n}", "--out", str(tmp_path / "n.json"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and len(err) == 1
+    assert ("try --method multilevel" in err[0]) == suggested and "--method ipopt" in err[0]
+
+
 # ------------------------------------------------------------------------- bad input
 def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     (tmp / "garbage.obj").write_text("this is not a mesh\n\x00\x01 binary junk\n")

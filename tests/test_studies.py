@@ -281,3 +281,29 @@ def test_dome_study_configuration_supports_the_ground_ring_and_loads_the_apex():
     scene, at = experiment_configuration(dataclasses.replace(s, supports=stored))
     np.testing.assert_array_equal(scene.supports, ground)
     assert at == [int(np.argmax(V[:, 2]))] and not scene.supports[at[0]]
+
+
+def test_subdivided_study_solves_the_refined_scene_and_recomputes_its_evidence(tmp_path):
+    """The subdivided-designs study on a 150-vertex dome stored as 'structural': one Catmull–Clark
+    step gives V + E + F vertices, all quads; each method's row is converged, its error recomputed
+    from the saved JSON equals the solve's own and the shared checker agrees."""
+    from studies import subdivided
+
+    scenes, out = tmp_path / "scenes", tmp_path / "out"
+    scenes.mkdir()
+    scene = make_shape("dome", n_vertices=150)
+    write_mesh(scenes / "structural.obj", scene.mesh, up="-y")
+    (scenes / "structural.supports").write_text(" ".join(map(str, np.flatnonzero(scene.supports))))
+    rows = subdivided.main(["--scenes", str(scenes), "--out", str(out), "--only", "structural", "--levels", "1",
+                            "--checker", str(CHECKER), "--no-warmup", "--time-limit", "120"])
+    m = scene.mesh
+    assert [r["method"] for r in rows] == ["staggered", "multilevel"]
+    for r in rows:
+        assert r["status"] == "converged" and r["subdivisions"] == 1
+        assert r["vertices"] == m.n_vertices + m.n_edges + m.n_faces and r["quad_share"] == 1.0
+        assert r["max_rel_error"] == pytest.approx(r["reported_error"], rel=1e-6, abs=1e-15) and r["max_rel_error"] <= 1e-9
+        if CHECKER.is_file():
+            assert r["checker_error"] == pytest.approx(r["max_rel_error"], rel=1e-3, abs=1e-14)
+        assert (out / f"structural-x1__{r['method']}.json").is_file()
+    md = (out / "subdivided.md").read_text()
+    assert md.count("| structural | 1 |") == 2
