@@ -238,3 +238,48 @@ def test_the_time_limit_holds_across_the_levels():
     took = time.perf_counter() - t
     assert res.network.mesh.n_vertices == scene.mesh.n_vertices
     assert res.status == "time_limit" and took < 1.0 + 3.0  # (+ coarsening and one fit past the deadline)
+
+
+def _subdivided_vault_folded_in_plan() -> Scene:
+    """A 300-vertex pillar vault subdivided once (quads: the clusters refuse them, so the
+    Delaunay coarsening runs), one interior vertex pushed past its neighbour in plan: its
+    triangles overlap in the top view, which matplotlib's point location refuses."""
+    from selfsupport.design.subdivision import subdivide_scene
+
+    sc = subdivide_scene(make_shape("pillar_vault", n_vertices=300), 1)
+    m = sc.mesh
+    V = m.vertices.copy()
+    i = int(np.flatnonzero(~m.boundary_vertex_mask & ~sc.supports)[len(V) // 3])
+    j = int(m.vertex_neighbors[i][0])
+    V[i, :2] = V[j, :2] + 0.5 * (V[j, :2] - V[i, :2])
+    return Scene(mesh=m.with_vertices(V), supports=sc.supports, name="folded")
+
+
+def test_a_top_view_that_folds_is_coarsened_with_heights_from_nearby_vertices():
+    """The Delaunay coarsening interpolates its new vertices' heights over the fine top view;
+    where that cannot locate points (the Fig. 16 vault subdivided twice: 'Triangulation is
+    invalid', the multilevel solve crashed) the nearest fine vertex gives them. Every height is
+    then within the fine mesh's height range."""
+    scene = _subdivided_vault_folded_in_plan()
+    coarse = coarsen(scene, scene.mesh.n_vertices // 4)
+    z, zf = coarse.mesh.vertices[:, 2], scene.mesh.vertices[:, 2]
+    assert coarse.meta["coarsening"] == "delaunay" and coarse.mesh.is_valid()
+    assert np.all(np.isfinite(z)) and zf.min() - 1e-12 <= z.min() and z.max() <= zf.max() + 1e-12
+
+
+def test_a_coarsening_that_pinches_ends_the_hierarchy_instead_of_failing(monkeypatch):
+    """A coarse mesh that is not a manifold (Triangle pinched the Fig. 16 vault's touching
+    boundary loops; the coarse level then failed the mesh check) is refused as a coarsening:
+    the levels stop there and the multilevel solve goes on with those it has."""
+    import igl.triangle
+
+    from selfsupport.errors import InputError
+
+    def pinched(pts, segs, holes, flags):  # two triangles sharing one corner only
+        return pts, np.array([[0, 1, 2], [0, 3, 4]]), None, None, None
+
+    scene = _subdivided_vault_folded_in_plan()
+    monkeypatch.setattr(igl.triangle, "triangulate", pinched)
+    with pytest.raises(InputError, match="could not be coarsened"):
+        coarsen(scene, scene.mesh.n_vertices // 4)
+    assert [s.mesh.n_vertices for s in Multilevel(direct_max=500).levels(scene)] == [scene.mesh.n_vertices]

@@ -78,7 +78,7 @@ from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
 from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from .prolong import prolong
-from .warm import WarmStart
+from .warm import WarmStart, interpolate_over_top_view
 
 __all__ = ["Multilevel", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
 
@@ -286,11 +286,7 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     (True, True, True)
     """
     import igl.triangle
-    import matplotlib.tri as mtri
-    from scipy.spatial import cKDTree
     from shapely.geometry import Polygon
-
-    from ..evidence import triangulate
 
     mesh = scene.mesh
     V = mesh.vertices
@@ -336,13 +332,13 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     z = np.empty(len(V2))
     z[:len(fixed)] = V[fixed, 2]
     new = V2[len(fixed):]
-    if len(new):
-        tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
-        zi = np.ma.filled(mtri.LinearTriInterpolator(tri, V[:, 2])(new[:, 0], new[:, 1]), np.nan)
-        miss = ~np.isfinite(zi)
-        zi[miss] = V[cKDTree(xy).query(new[miss])[1], 2]
-        z[len(fixed):] = zi
+    if len(new):  # (linear over the fine top view; nearest vertex outside it, or where matplotlib
+        # cannot locate points: the paper's Fig. 16 vault subdivided twice has degenerate triangles)
+        z[len(fixed):] = interpolate_over_top_view(mesh, V[:, 2:3], new, cubic=False)[:, 0]
     coarse = PolyMesh.from_faces(np.c_[V2, z], F2.tolist())
+    if not coarse.is_valid():  # (the Fig. 16 vault subdivided twice: its boundary loops touch in
+        # the top view, and Triangle's mesh pinched there)
+        raise InputError(f"the top view could not be coarsened ({coarse.problems()[0]}); solve on one level")
     supports = np.zeros(len(V2), bool)
     supports[:len(fixed)] = sup[fixed]
     return Scene(mesh=coarse, supports=supports, name=f"{scene.name}-coarse{len(V2)}",
