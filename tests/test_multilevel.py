@@ -283,3 +283,20 @@ def test_a_coarsening_that_pinches_ends_the_hierarchy_instead_of_failing(monkeyp
     with pytest.raises(InputError, match="could not be coarsened"):
         coarsen(scene, scene.mesh.n_vertices // 4)
     assert [s.mesh.n_vertices for s in Multilevel(direct_max=500).levels(scene)] == [scene.mesh.n_vertices]
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_the_delaunay_coarsening_is_the_same_at_any_scale(scale):
+    """A scaled scene coarsens into as fine a mesh as the unscaled one (Triangle's Steiner points
+    differ in round-off, so the counts within 2%). Triangle's area bound used to be written as
+    "a5e-05" for a small scene, which Triangle reads as a = 5 and the switch "e"; the process
+    then died (lilium subdivided three times, 2 m across, killed a study's row)."""
+    from selfsupport.design.subdivision import subdivide_scene
+
+    scene = subdivide_scene(make_shape("pillar_vault", n_vertices=300), 1)  # quads: the Delaunay path
+    small = Scene(mesh=scene.mesh.with_vertices(scale * scene.mesh.vertices), supports=scene.supports, name="s")
+    a, b = coarsen(scene, scene.mesh.n_vertices // 4), coarsen(small, scene.mesh.n_vertices // 4)
+    assert a.meta["coarsening"] == b.meta["coarsening"] == "delaunay"
+    assert abs(b.mesh.n_vertices / a.mesh.n_vertices - 1) < 0.02 and b.mesh.is_valid()
+    lo, hi = scale * scene.mesh.vertices.min(axis=0), scale * scene.mesh.vertices.max(axis=0)
+    assert np.all(b.mesh.vertices >= lo - 1e-9 * scale) and np.all(b.mesh.vertices <= hi + 1e-9 * scale)

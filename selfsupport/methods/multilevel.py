@@ -321,7 +321,10 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     pts, segs = np.ascontiguousarray(xy[fixed]), np.ascontiguousarray(np.vstack(segments), dtype=np.int64)
     hole_pts = np.asarray(holes, float).reshape(-1, 2)
     for _ in range(3):  # Triangle's triangles stay below the area bound, ~0.65 of it on average: rescale
-        V2, F2, *_ = igl.triangle.triangulate(pts, segs, hole_pts, flags=f"pq30a{area:.17g}YQ")
+        # (the area in positional notation: Triangle reads "5e-05" as a = 5 and the switch "e",
+        # whose extra output crashed the process — lilium subdivided three times, 2 m across)
+        flags = f"pq30a{np.format_float_positional(area, trim='-')}YQ"
+        V2, F2, *_ = igl.triangle.triangulate(pts, segs, hole_pts, flags=flags)
         ratio = len(V2) / max(int(n_target), 3)
         if abs(ratio - 1.0) < 0.15:
             break
