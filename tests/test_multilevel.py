@@ -268,9 +268,9 @@ def test_a_top_view_that_folds_is_coarsened_with_heights_from_nearby_vertices():
 
 
 def test_a_coarsening_that_pinches_ends_the_hierarchy_instead_of_failing(monkeypatch):
-    """A coarse mesh that is not a manifold (Triangle pinched the Fig. 16 vault's touching
-    boundary loops; the coarse level then failed the mesh check) is refused as a coarsening:
-    the levels stop there and the multilevel solve goes on with those it has."""
+    """A coarse mesh that is not valid (Triangle's mesh of the Fig. 16 vault subdivided twice had
+    a vertex joining two boundary fans; the coarse level then failed the mesh check) is refused
+    as a coarsening: the levels stop there and the multilevel solve goes on with those it has."""
     import igl.triangle
 
     from selfsupport.errors import InputError

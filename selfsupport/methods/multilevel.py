@@ -336,11 +336,11 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     z[:len(fixed)] = V[fixed, 2]
     new = V2[len(fixed):]
     if len(new):  # (linear over the fine top view; nearest vertex outside it, or where matplotlib
-        # cannot locate points: the paper's Fig. 16 vault subdivided twice has degenerate triangles)
+        # cannot locate points: the Fig. 16 vault subdivided twice, "Triangulation is invalid")
         z[len(fixed):] = interpolate_over_top_view(mesh, V[:, 2:3], new, cubic=False)[:, 0]
     coarse = PolyMesh.from_faces(np.c_[V2, z], F2.tolist())
-    if not coarse.is_valid():  # (the Fig. 16 vault subdivided twice: its boundary loops touch in
-        # the top view, and Triangle's mesh pinched there)
+    if not coarse.is_valid():  # (Triangle's mesh of the Fig. 16 vault subdivided twice had a
+        # vertex joining two boundary fans, and the coarse level's mesh check raised)
         raise InputError(f"the top view could not be coarsened ({coarse.problems()[0]}); solve on one level")
     supports = np.zeros(len(V2), bool)
     supports[:len(fixed)] = sup[fixed]
