@@ -97,7 +97,8 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import FLOOR_CAP, FLOOR_MARGIN, closest_points, roundoff_floors, roundoff_message
+from ..evidence import (DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, closest_points, floor_tolerance, roundoff_floors,
+                        roundoff_message)
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..options import check_options, check_range
@@ -382,7 +383,11 @@ class _Run:
                 # doubles; a 256k pillar vault's start at 1.06e-7, floor 1.6e-7, ran the interior
                 # point 150 s for nothing, and the final fit as long again)
                 at_floor = roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c], loads=L[c], supports=~free)
-                floor = np.repeat(FLOOR_MARGIN * at_floor, 3)
+                # (capped at a vertex with next to no load: its floor is large because it slid
+                # onto its neighbours, and a fit may still mend that)
+                load = np.abs(L[c, free])
+                sound = load >= DEGENERATE_LOAD * float(np.median(load))
+                floor = np.repeat(np.where(sound, FLOOR_MARGIN * at_floor, floor_tolerance(at_floor)), 3)
                 floor /= max(float(np.abs(b).max(initial=0.0)), 1e-300)
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
@@ -733,7 +738,7 @@ class _Run:
                 # (when the deadline would cut it — a fit's factorizations cannot stop early, and
                 # one at 200k vertices takes seconds — keep the current weights)
                 t_fit = cur["t_loads"] + cur["t_weights"]
-                as_warm = cur is warm_fit and cur["fit_iterations"] == 0
+                as_warm = cur is warm_fit and cur["fit_iterations"] == 0 and retry_errors is None
                 last = None if out_of_time(self.deadline, t_fit) or as_warm else self.fit(X, cur["w"], opt.prox_w_final)
                 ws = last["w"] if last is not None and last["E"] <= cur["E"] else cur["w"]
                 # Polish: weights frozen (or, with several cases, moved least), positions exact.
