@@ -58,9 +58,30 @@ DEGENERATE_LOAD = 1e-3
 
 def floor_tolerance(floors: np.ndarray) -> np.ndarray:
     """Per vertex, the relative error that counts as equilibrium at its round-off floor:
-    :data:`FLOOR_MARGIN` × the floor, never above :data:`FLOOR_CAP` (one rule for the
-    equilibrium test and the weight fit's warm start)."""
+    :data:`FLOOR_MARGIN` × the floor, never above :data:`FLOOR_CAP` (the equilibrium test's
+    rule; a warm start's weight fit uses :func:`fit_floor_tolerance`)."""
     return np.minimum(FLOOR_MARGIN * np.asarray(floors, float), FLOOR_CAP)
+
+
+def degenerate(loads: np.ndarray) -> np.ndarray:
+    """Per free vertex (``loads``: theirs): a load below :data:`DEGENERATE_LOAD` × the median
+    |load|, i.e. a vertex that slid onto its neighbours.
+
+    >>> degenerate(np.array([-1.0, -2.0, -1.5, -1e-4]))
+    array([False, False, False,  True])
+    """
+    load = np.abs(np.asarray(loads, float))
+    return load < DEGENERATE_LOAD * float(np.median(load)) if load.size else np.zeros(0, bool)
+
+
+def fit_floor_tolerance(floors: np.ndarray, loads: np.ndarray) -> np.ndarray:
+    """Per free vertex, the relative residual below which a warm start's weights fit already:
+    :data:`FLOOR_MARGIN` × its round-off floor, without :data:`FLOOR_CAP` (a fit cannot
+    balance such a vertex better in doubles), except at a :func:`degenerate` vertex, where
+    the cap stays (its floor is large because it slid onto its neighbours, which a fit may
+    still mend)."""
+    floors = np.asarray(floors, float)
+    return np.where(degenerate(loads), floor_tolerance(floors), FLOOR_MARGIN * floors)
 
 
 def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
@@ -122,7 +143,7 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
         return None  # in equilibrium (at the floor, within the cap), or off it for other reasons
     free = ~np.asarray(supports, bool)
     load = np.abs(np.asarray(loads, float)[free])
-    if np.any(load[over] < DEGENERATE_LOAD * float(np.median(load))):
+    if np.any(degenerate(load)[over]):
         return None  # a vertex with next to no load: slid onto its neighbours, a degenerate network
     V = np.asarray(vertices, float)
     centre = 0.5 * (V.min(axis=0) + V.max(axis=0))

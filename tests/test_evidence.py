@@ -214,3 +214,16 @@ def test_a_vertex_with_next_to_no_load_is_degenerate_not_held_by_rounding():
     assert roundoff_limit(tol=1e-9, **kw) is None
     rep = roundoff_limit(tol=1e-9, **chain(0.25))  # (load 0.25 N there)
     assert rep is not None and rep["offset"] > 1e9
+
+
+def test_a_warm_fit_counts_a_vertex_at_its_floor_as_fitted_unless_it_slid_onto_its_neighbours():
+    """The warm start's 'fits already' tolerance: 4× the floor without the 1e-8 cap (the 256k
+    pillar vault's start, floor 1.6e-7, ran the interior point 150 s for nothing), but capped
+    at a vertex whose load is below DEGENERATE_LOAD × the median."""
+    from selfsupport.evidence import DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, degenerate, fit_floor_tolerance
+
+    floors = np.array([1e-13, 2.4e-7, 2.4e-7])
+    loads = -np.array([1.0, 0.5, 0.1 * DEGENERATE_LOAD])
+    assert degenerate(loads).tolist() == [False, False, True]
+    np.testing.assert_array_equal(fit_floor_tolerance(floors, loads),
+                                  [FLOOR_MARGIN * 1e-13, FLOOR_MARGIN * 2.4e-7, FLOOR_CAP])

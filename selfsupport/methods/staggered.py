@@ -97,7 +97,7 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import (DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, closest_points, floor_tolerance, roundoff_floors,
+from ..evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
                         roundoff_message)
 from ..linalg import spd_factor
 from ..loads import LoadCase
@@ -379,15 +379,10 @@ class _Run:
             prox = prox_rel * float(np.asarray(As.multiply(As).sum(axis=0)).mean())
             floor = None
             if w0 is self.w_warm:  # a warm start in equilibrium to its round-off floor fits already
-                # (uncapped, unlike the equilibrium test: a fit cannot balance those rows better in
-                # doubles; a 256k pillar vault's start at 1.06e-7, floor 1.6e-7, ran the interior
-                # point 150 s for nothing, and the final fit as long again)
+                # (evidence.fit_floor_tolerance: with the equilibrium test's cap, a 256k pillar
+                # vault's start at 1.06e-7, floor 1.6e-7, ran the interior point 150 s for nothing)
                 at_floor = roundoff_floors(vertices=X, edges=self.top.edges, weights=w0[c], loads=L[c], supports=~free)
-                # (capped at a vertex with next to no load: its floor is large because it slid
-                # onto its neighbours, and a fit may still mend that)
-                load = np.abs(L[c, free])
-                sound = load >= DEGENERATE_LOAD * float(np.median(load))
-                floor = np.repeat(np.where(sound, FLOOR_MARGIN * at_floor, floor_tolerance(at_floor)), 3)
+                floor = np.repeat(fit_floor_tolerance(at_floor, L[c, free]), 3)
                 floor /= max(float(np.abs(b).max(initial=0.0)), 1e-300)
             try:
                 f = self.backends[c].fit(A=As, b=b, lower=self.lower, upper=self.upper, w0=w0[c], prox=prox,
@@ -534,7 +529,7 @@ class _Run:
         A polish that meets everything but ``tol``, and is held above it by rounding alone
         (:meth:`roundoff_limit`), says so in ``info["roundoff_limit"]``: the iteration stops there
         (a 256k pillar vault's prolonged start, 1.06e-7 at its floor, iterated 640 s to 5.6e-6)."""
-        early = self._try_finish(X, cur, d_it)
+        early = self._polish_try(X, cur, d_it)
         if early is None or early[3]["ok"] or early[0] is None:
             return early
         Xp, ws, _, info = early
@@ -546,7 +541,7 @@ class _Run:
                 info["roundoff_limit"] = limit
         return early
 
-    def _try_finish(self, X: np.ndarray, cur: dict, d_it: np.ndarray) -> tuple | None:
+    def _polish_try(self, X: np.ndarray, cur: dict, d_it: np.ndarray) -> tuple | None:
         opt = self.opt
         if not self.joint:
             early = _try_finish(self.top, X, cur["w"][0], cur["L"][0], self.loads.primary, self.mesh0, self.sc,
