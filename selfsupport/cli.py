@@ -282,7 +282,7 @@ def _not_converged_line(result) -> str:
         if result.network.mesh.n_vertices > DIRECT_MAX:
             # (lilium and lilium-pillar subdivided twice, 28k quads: the single level stalled at
             # max relative error 7.8 and 2.6, the multilevel solve converged in 47 and 53 s)
-            hint = "try --method multilevel (a mesh this large, e.g. a subdivided design), or " + hint[4:]
+            hint = f"try --method multilevel (a mesh this large, e.g. a subdivided design); otherwise {hint}"
     msg = f" ({result.message})" if result.message else ""
     tol = float(result.parameters.get("tol", 1e-9) or 1e-9)
     if result.max_relative_error <= tol:

@@ -286,7 +286,7 @@ def test_a_coarsening_that_pinches_ends_the_hierarchy_instead_of_failing(monkeyp
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
-def test_the_delaunay_coarsening_is_the_same_at_any_scale(scale):
+def test_the_delaunay_coarsening_is_as_fine_at_any_scale(scale):
     """A scaled scene coarsens into as fine a mesh as the unscaled one (Triangle's Steiner points
     differ in round-off, so the counts within 2%). Triangle's area bound used to be written as
     "a5e-05" for a small scene, which Triangle reads as a = 5 and the switch "e"; the process
