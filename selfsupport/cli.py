@@ -306,6 +306,10 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
     p.add_argument("--method", choices=list(METHODS), default="staggered",
                    help="solution method (default staggered)")
+    p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
+                   help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
+                        "creases), e.g. to fabrication resolution; --method multilevel then solves the "
+                        "design and each step in turn, each from the one before")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
                         "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")
@@ -402,6 +406,15 @@ def _run_solve(args: argparse.Namespace) -> int:
     options = dict(parse_option(o) for o in args.option)
     check_scene_spec(args.scene, args.method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
+    if args.subdivide:  # (of the design a network file stores, not of its network)
+        from dataclasses import replace
+
+        from .design.subdivision import subdivide_scene
+
+        scene = subdivide_scene(api.design_of(scene)[0], args.subdivide)
+        if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
+            design = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
+            scene = replace(scene, meta={**scene.meta, "design": design})
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,

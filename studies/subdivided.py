@@ -2,13 +2,15 @@
 fabrication, solved on one level and by levels.
 
     python -m studies.subdivided --scenes ../shared/paper-scenes/scenes --out OUT
-        [--only lilium,cyl2] [--levels 1,2] [--methods staggered,multilevel]
+        [--only lilium,cyl2] [--levels 1,2] [--methods staggered,multilevel,multilevel/clusters]
         [--time-limit S] [--checker PATH]
 
 Each scene of Table 1 (:data:`studies.common.PAPER_TABLE1`) is subdivided ``--levels`` times
 (:func:`selfsupport.design.subdivision.subdivide_scene`: quads, supports kept along creases).
-That is how a designer takes a 1k-vertex design to 7k, 28k or 110k vertices. Then one row per
-method:
+That is how a designer takes a 1k-vertex design to 7k, 28k or 110k vertices. The multilevel
+method solves the scenes it was refined from as its levels (the designer's own hierarchy);
+``multilevel/clusters`` coarsens the subdivided top view instead, as for any other mesh. Then one
+row per method:
 - wall time of the ``solve()`` call alone (subdivision, imports and a warm-up solve of a tiny
   dome excluded);
 - outer iterations, and the levels of a multilevel solve;
@@ -35,13 +37,22 @@ from .common import (PAPER_TABLE1, Column, Stopwatch, current_rss_mib, exit_on_s
                      load_average, peak_rss_mib, read_study_scene, run_checker, run_isolated, write_csv,
                      write_markdown)
 
-METHODS = ("staggered", "multilevel")
+#: method names; ``multilevel`` solves the designer's coarser scenes first (the subdivision's own
+#: hierarchy), ``multilevel/clusters`` coarsens the subdivided top view like any other mesh
+METHODS = ("staggered", "multilevel", "multilevel/clusters")
+
+
+def _solver(method: str) -> Any:
+    from selfsupport.api import make_method
+    from selfsupport.methods.multilevel import Multilevel
+
+    return Multilevel(use_subdivision=False) if method == "multilevel/clusters" else make_method(method)
 
 
 def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out_json: str, time_limit: float,
               warmup: bool = True) -> dict[str, Any]:
     """Worker (own process): subdivide the scene, solve it, save the network, return the row."""
-    from selfsupport.api import make_method, scene_loads
+    from selfsupport.api import scene_loads
     from selfsupport.design.subdivision import subdivide_scene
     from selfsupport.io import write_network
     from selfsupport.shapes import make_shape
@@ -51,8 +62,8 @@ def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out
     loads = scene_loads(scene)
     if warmup:  # solver plug-ins and caches, untimed
         tiny = make_shape("dome", n_vertices=60)
-        make_method(method).solve(tiny, scene_loads(tiny), time_limit=30.0)
-    solver = make_method(method)
+        _solver(method).solve(tiny, scene_loads(tiny), time_limit=30.0)
+    solver = _solver(method)
     rss0 = current_rss_mib()
     with Stopwatch() as sw:
         res = solver.solve(scene, loads, time_limit=float(time_limit))
@@ -87,7 +98,7 @@ def run(*, scenes: Path, out: Path, names: Sequence[str], levels: Sequence[int],
     for name in names:
         for k in levels:
             for method in methods:
-                net = out / f"{name}-x{k}__{method}.json"
+                net = out / f"{name}-x{k}__{method.replace('/', '-')}.json"
                 print(f"{name} ×{k} {method} ...", file=sys.stderr, flush=True)
                 row = {"scene": name, "subdivisions": k, "method": method, **run_isolated(
                     "studies.subdivided:solve_row",

@@ -185,6 +185,34 @@ def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys
     assert ("try --method multilevel" in err[0]) == suggested and "--method ipopt" in err[0]
 
 
+def test_solve_subdivides_the_design_and_solves_it_on_the_designers_levels(tmp_path):
+    """``--subdivide K``: the design refined by K Catmull–Clark steps is what is solved (V + E + F
+    vertices per step, the same supports), by levels that are the design and its steps; the file
+    stands by the independent checker. A network file's *design* is subdivided (its stored
+    reference), not its network."""
+    from selfsupport.design.subdivision import subdivide_scene
+
+    out = tmp_path / "fine.json"
+    code = cli.main(["solve", "shape:pillar_vault:450", "--subdivide", "2", "--method", "multilevel",
+                     "--out", str(out), "-q"])
+    assert code == 0
+    expected = subdivide_scene(make_shape("pillar_vault", n_vertices=450), 2)
+    doc = json.loads(out.read_text())
+    assert np.array_equal(np.asarray(doc["reference_vertices"]), expected.mesh.vertices)
+    assert sorted(doc["supports"]) == np.flatnonzero(expected.supports).tolist()
+    levels = doc["parameters"]["multilevel"]["levels"]
+    assert expected.mesh.n_vertices > 6000 and [lv["coarsening"] for lv in levels] == ["subdivision", None]
+    assert independent_check(out).ok
+    coarse, again = tmp_path / "coarse.json", tmp_path / "again.json"
+    assert cli.main(["solve", "shape:pillar_vault:150", "--out", str(coarse), "-q"]) == 0
+    assert cli.main(["solve", str(coarse), "--subdivide", "1", "--out", str(again), "-q"]) == 0
+    design = make_shape("pillar_vault", n_vertices=150)
+    ref = np.asarray(json.loads(again.read_text())["reference_vertices"])
+    assert np.allclose(ref, subdivide_scene(design, 1).mesh.vertices, atol=1e-12)
+    solved = np.asarray(json.loads(coarse.read_text())["vertices"])
+    assert np.abs(solved - design.mesh.vertices).max() > 1e-3  # (so the two would differ)
+
+
 # ------------------------------------------------------------------------- bad input
 def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     (tmp / "garbage.obj").write_text("this is not a mesh\n\x00\x01 binary junk\n")

@@ -138,6 +138,32 @@ def test_subdivision_carries_supports() -> None:
     assert sub.supports[springing].all() and np.all(sub.mesh.vertices[springing, 2] == 0.0)  # still on the ground
 
 
+def test_a_subdivided_scene_remembers_its_coarser_scenes_until_it_is_edited() -> None:
+    """``subdivision_parents``: the scenes of every step, coarsest first, each the subdivision of
+    the one before (subdividing them one step at a time gives the same meshes); after an edit of
+    positions or supports the coarser scenes no longer describe this design, and none are given."""
+    from dataclasses import replace
+
+    from selfsupport.design.subdivision import subdivision_parents
+
+    scene = make_shape("pillar_vault", n_vertices=120)
+    fine = subdivide_scene(scene, 2)
+    parents = subdivision_parents(fine)
+    assert parents[0] is scene and len(parents) == 2
+    once = subdivide_scene(scene, 1)
+    assert np.array_equal(parents[1].mesh.vertices, once.mesh.vertices)
+    assert np.array_equal(parents[1].supports, once.supports)
+    assert [p.mesh.n_vertices for p in subdivision_parents(subdivide_scene(fine, 1))] == \
+        [p.mesh.n_vertices for p in (*parents, fine)]  # a further step extends the chain
+    moved = fine.mesh.vertices.copy()
+    moved[7, 2] += 1e-9
+    assert subdivision_parents(replace(fine, mesh=fine.mesh.with_vertices(moved))) == ()
+    pinned = fine.supports.copy()
+    pinned[np.flatnonzero(~pinned)[0]] = True
+    assert subdivision_parents(replace(fine, supports=pinned)) == ()
+    assert subdivision_parents(scene) == ()
+
+
 @requires_checker
 def test_upsampled_then_polished_network_passes_the_checker() -> None:
     method = StaggeredLinearization()

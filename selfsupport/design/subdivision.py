@@ -31,6 +31,7 @@ Example
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -39,7 +40,7 @@ from ..errors import InputError
 from ..mesh import PolyMesh
 from ..scene import Scene
 
-__all__ = ["Subdivision", "catmull_clark", "subdivide_scene"]
+__all__ = ["Subdivision", "catmull_clark", "subdivide_scene", "subdivision_parents"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,13 +166,23 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
     lie on exactly two such edges (isolated pins, ends of support chains) are corners and stay
     put. Supports carry over as in the module docstring; handles, extra masses and point loads
     stay on the old vertices (new vertices get none), so a total extra load is unchanged.
+
+    The result remembers the scenes it was refined from, coarsest first (:func:`subdivision_parents`):
+    the multilevel method solves them first, the paper's upsample-then-polish.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> fine = subdivide_scene(make_shape("dome", n_vertices=200), 2)
+    >>> [p.mesh.n_vertices for p in subdivision_parents(fine)] + [fine.mesh.n_vertices]
+    [217, 1201, 4705]
     """
     if int(levels) < 0:
         raise InputError(f"subdivision levels must be >= 0, got {levels}")
     mesh, sup = scene.mesh, np.asarray(scene.supports, bool)
     extras = {k: getattr(scene, k) for k in ("handles", "extra_mass", "point_loads")}
     crease = corner = None
-    for _ in range(int(levels)):
+    parents = [*subdivision_parents(scene), scene]
+    out = scene
+    for k in range(int(levels)):
         E = mesh.edges
         ss = sup[E[:, 0]] & sup[E[:, 1]]
         crease = (ss if crease is None else (crease | ss)) if crease_supports else crease
@@ -183,8 +194,34 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
         face_sup = np.logical_and.reduceat(sup[fv], fo[:-1])
         sup = np.r_[sup, ss, face_sup]
         extra_n = s.mesh.n_vertices - mesh.n_vertices
-        for k, a in extras.items():
+        for key, a in extras.items():
             if a is not None:
-                extras[k] = np.r_[a, np.zeros(extra_n, dtype=a.dtype)]
+                extras[key] = np.r_[a, np.zeros(extra_n, dtype=a.dtype)]
         mesh, crease, corner = s.mesh, s.crease, s.corner
-    return replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{levels}", **extras)
+        out = replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{k + 1}", **extras)
+        out = replace(out, meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(out))})
+        parents.append(out)
+    return replace(out, name=f"{scene.name}+cc{levels}")
+
+
+#: ``scene.meta`` key of the coarser scenes a subdivided scene came from (and its fingerprint then)
+_PARENTS = "subdivided_from"
+
+
+def _fingerprint(scene: Scene) -> str:
+    """A digest of what a coarser level must still match: positions, faces and supports."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in (scene.mesh.vertices, scene.mesh.face_vertices, scene.mesh.face_offsets, scene.supports):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def subdivision_parents(scene: Scene) -> tuple[Scene, ...]:
+    """The scenes ``scene`` was refined from by :func:`subdivide_scene`, coarsest first; empty when
+    it was not, or when its mesh or supports changed since (an edit after the subdivision: the
+    coarser scenes are then no longer the same design)."""
+    stored = scene.meta.get(_PARENTS)
+    if not stored:
+        return ()
+    parents, key = stored
+    return tuple(parents) if key == _fingerprint(scene) else ()
