@@ -298,6 +298,35 @@ select = { near = [0.3, 0.7], radius = 0.06, relative = true }
     assert a[2].design.density == 2000.0 and a[1].warm
 
 
+def test_a_subdivide_stage_goes_up_from_the_previous_network_by_its_stress() -> None:
+    """A ``subdivide`` stage (two steps) starts from the previous stage's network and goes up level
+    by level (:class:`Multilevel` with that network as the coarse level's start); the fine network
+    stands by the independent checker."""
+    s = EditScript.loads("""
+[start]
+scene = "shape:pillar_vault:150"
+
+[[edit]]
+op = "subdivide"
+levels = 2
+""")
+    start, sub = replay(s)
+    assert start.result.status == "converged" and sub.warm
+    res = sub.result
+    levels = res.parameters["multilevel"]["levels"]
+    assert res.method == "multilevel" and res.status == "converged" and res.max_relative_error <= 1e-9
+    assert [lv["n_vertices"] for lv in levels] == [start.design.scene.mesh.n_vertices,
+                                                   subdivide_scene(start.design.scene, 1).mesh.n_vertices,
+                                                   sub.design.scene.mesh.n_vertices]
+    # the previous network confirmed as it is, the fine level from the carried stress (the
+    # middle one, carried 2.6x farther from its reference than the level below, is solved
+    # cold: the multilevel RECLAIM rule)
+    assert levels[0]["iterations"] == 1 and levels[-1]["iterations"] == 1
+    assert all(lv["status"] == "converged" for lv in levels)
+    assert levels[-1]["prolongation"]["by"] == "stress"
+    assert independent_check(res).ok
+
+
 def test_edit_script_rejects_unknown_keys() -> None:
     from selfsupport.errors import InputError
 

@@ -233,6 +233,27 @@ def test_a_subdivided_design_is_solved_on_the_designers_own_coarser_scenes():
     assert all(s.meta.get("coarsening") in ("clusters", "delaunay") for s in other[:-1])
 
 
+def test_a_warm_start_goes_up_from_its_own_level_or_skips_the_levels():
+    """A warm start on the mesh of a scene the problem was subdivided from starts the levels at
+    that scene; one on any other mesh (here the fine mesh itself) gives one level, as the
+    staggered method would take it."""
+    from selfsupport.design.subdivision import subdivide_scene, subdivision_parents
+
+    coarse = make_shape("concave_disk", n_vertices=300)
+    scene = subdivide_scene(coarse, 2)
+    first = StaggeredLinearization().solve(coarse)
+    ml = Multilevel(direct_max=500)
+    assert [s.mesh.n_vertices for s in ml.levels_from(first.network, scene)] == \
+        [p.mesh.n_vertices for p in subdivision_parents(scene)] + [scene.mesh.n_vertices]
+    res = ml.solve(scene, warm_start=first)
+    levels = res.parameters["multilevel"]["levels"]
+    assert levels[0]["n_vertices"] == coarse.mesh.n_vertices and levels[0]["iterations"] == 1
+    assert res.status == "converged" and independent_check(res).ok
+    again = ml.solve(scene, warm_start=res)
+    assert again.parameters["multilevel"]["why"] == "a warm start was given"
+    assert len(again.parameters["multilevel"]["levels"]) == 1 and again.iterations == 1
+
+
 def test_multilevel_solves_on_one_level_what_it_cannot_coarsen():
     scene = make_shape("concave_disk", n_vertices=1200)
     res = api.solve(scene, method="multilevel", point_loads={5: -100.0})

@@ -25,7 +25,10 @@
 
 Stage 0 is the starting scene solved; every edit with a solve ends a stage. After stage 0 each
 solve is warm-started from the previous stage's network (:mod:`selfsupport.methods.warm`) unless
-``warm = false``. Replays are deterministic (no randomness anywhere on the path).
+``warm = false``. A ``subdivide`` stage goes up from the previous stage's network through the
+intermediate steps, each started from the stress of the one below
+(:class:`~selfsupport.methods.multilevel.Multilevel`). Replays are deterministic (no randomness
+anywhere on the path).
 """
 from __future__ import annotations
 
@@ -149,6 +152,7 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     warm
         Override the script's ``[solve] warm``.
     """
+    from ..methods.multilevel import Multilevel
     from ..methods.staggered import StaggeredLinearization
     from ..methods.warm import WarmStart
 
@@ -156,6 +160,7 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     use_warm = bool(opts.pop("warm", True)) if warm is None else bool(warm)
     backend = opts.pop("backend", "active-set")
     method = StaggeredLinearization(backend=backend)
+    levels = Multilevel(backend=backend)
     design = Design(_start_scene(script, scene), density=script.density, thickness=script.thickness,
                     w_max=script.w_max)
     stages: list[Stage] = []
@@ -166,7 +171,11 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     def solve_stage(edits: tuple[Edit, ...]) -> None:
         nonlocal prev, design
         ws = WarmStart(prev.network) if (use_warm and prev is not None) else None
-        res = method.solve(design.problem(), dict(opts), warm_start=ws)
+        # a subdivided design goes up from the previous stage's network level by level, each
+        # level's start carried by its stress (lilium subdivided twice: 1 iteration a level,
+        # where the warm start interpolated onto 28k vertices went cold and stalled)
+        up = ws is not None and len(levels.levels_from(ws.network, design.scene)) > 1
+        res = (levels if up else method).solve(design.problem(), dict(opts), warm_start=ws)
         st = Stage(index=len(stages), edits=edits, design=design, result=res, warm=ws is not None,
                    edit_seconds=t_edit)
         stages.append(st)

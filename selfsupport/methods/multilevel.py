@@ -87,7 +87,7 @@ from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
 from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from .prolong import prolong
-from .warm import WarmStart, interpolate_over_top_view
+from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 
 __all__ = ["Multilevel", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
 
@@ -441,21 +441,41 @@ class Multilevel:
             out.append(coarse)
         return out[::-1]
 
+    def levels_from(self, network: Any, scene: Scene) -> list[Scene]:
+        """The subdivision levels from the scene ``network`` has the mesh of up to ``scene``;
+        ``[scene]`` when it has none of theirs."""
+        parents = subdivision_parents(scene) if self.use_subdivision else ()
+        for k, p in enumerate(parents):
+            if p.mesh.n_vertices == network.mesh.n_vertices and np.array_equal(p.mesh.edges, network.mesh.edges):
+                return [dataclasses.replace(q, meta={**q.meta, "coarsening": "subdivision"})
+                        for q in parents[k:]] + [scene]
+        return [scene]
+
     def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | None = None, *,
               progress: Callable[[dict], None] | None = None, loads: Any = None, deadline: float | None = None,
               warm_start: Any = None, **overrides: Any) -> SolveResult:
         """Solve ``problem`` level by level; ``options`` are staggered settings (every level).
 
-        A ``warm_start`` skips the hierarchy: the fine level starts from it as the staggered
-        method would."""
+        A ``warm_start`` on the mesh of a scene this one was subdivided from starts that level
+        (one iteration confirms it when it is that scene's network), and the levels go up from
+        there; any other warm start skips the hierarchy: the fine level starts from it as the
+        staggered method would."""
         t0 = time.perf_counter()
         loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads)
         opts = {**dict(options or {}), **overrides}
         # one deadline for all levels (each level's messages name the whole limit)
         deadline = t0 + float(opts.get("time_limit", self.staggered.options.time_limit)) if deadline is None else deadline
-        why = _why_not(problem) if warm_start is None else "a warm start was given"
-        scenes = [problem.scene] if why else self.levels(problem.scene)
+        why = _why_not(problem)
+        if why:
+            scenes = [problem.scene]
+        elif warm_start is not None:
+            # a network of one of the scenes this one was subdivided from (the edit tool's
+            # subdivide stage): the levels go up from that scene, starting from the network
+            scenes = self.levels_from(as_warm_start(warm_start).network, problem.scene)
+            why = None if len(scenes) > 1 else "a warm start was given"
+        else:
+            scenes = self.levels(problem.scene)
         if len(scenes) == 1:
             res = self.staggered.solve(problem, opts, progress=progress, deadline=deadline, warm_start=warm_start)
             info = {"levels": [self._level(res, problem.scene)], "why": why or
@@ -467,7 +487,7 @@ class Multilevel:
         for k, scene in enumerate(scenes):
             prob = problem if scene is problem.scene else coarse_problem(problem, scene)
             step = None if progress is None else (lambda rec, k=k: progress({**rec, "level": k}))
-            warm, extra, carried, probed = None, {}, None, None
+            warm, extra, carried, probed = (warm_start if k == 0 else None), {}, None, None
             if res is not None:
                 # the level below carried over by its stress field, in equilibrium here (prolong.py);
                 # failing that, its offsets interpolated, iterated from (warm.py)
