@@ -152,7 +152,7 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     warm
         Override the script's ``[solve] warm``.
     """
-    from ..methods.multilevel import Multilevel
+    from ..methods.multilevel import solve_warm
     from ..methods.staggered import StaggeredLinearization
     from ..methods.warm import WarmStart
 
@@ -160,7 +160,6 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     use_warm = bool(opts.pop("warm", True)) if warm is None else bool(warm)
     backend = opts.pop("backend", "active-set")
     method = StaggeredLinearization(backend=backend)
-    levels = Multilevel(backend=backend)
     design = Design(_start_scene(script, scene), density=script.density, thickness=script.thickness,
                     w_max=script.w_max)
     stages: list[Stage] = []
@@ -171,11 +170,7 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     def solve_stage(edits: tuple[Edit, ...]) -> None:
         nonlocal prev, design
         ws = WarmStart(prev.network) if (use_warm and prev is not None) else None
-        # a subdivided design goes up from the previous stage's network level by level, each
-        # level's start carried by its stress (lilium subdivided twice: 1 iteration a level,
-        # where the warm start interpolated onto 28k vertices went cold and stalled)
-        up = ws is not None and len(levels.levels_from(ws.network, design.scene)) > 1
-        res = (levels if up else method).solve(design.problem(), dict(opts), warm_start=ws)
+        res = solve_warm(method, design.problem(), dict(opts), warm_start=ws)
         st = Stage(index=len(stages), edits=edits, design=design, result=res, warm=ws is not None,
                    edit_seconds=t_edit)
         stages.append(st)

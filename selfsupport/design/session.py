@@ -314,6 +314,7 @@ class SolveWorker:
                            "message": f"{type(e).__name__}: {e}"})
 
     def _solve(self, job: _Job) -> None:
+        from ..methods.multilevel import solve_warm
         from ..methods.warm import WarmStart
         from ..validate import validate_scene
 
@@ -329,7 +330,7 @@ class SolveWorker:
                        "error": _finite(rec.get("max_rel_error", rec.get("rel_error")))})
 
         ws = WarmStart(self.last.network) if (self.warm and self.last is not None) else None
-        res = self.method.solve(design.problem(), dict(self.options), progress=progress, warm_start=ws)
+        res = solve_warm(self.method, design.problem(), dict(self.options), progress=progress, warm_start=ws)
         if self._newer(job.seq):
             raise Superseded
         self.last, self.last_seq = res, job.seq

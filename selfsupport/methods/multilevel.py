@@ -88,8 +88,9 @@ from .deadline import out_of_time
 from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from .prolong import prolong
 from .warm import WarmStart, as_warm_start, interpolate_over_top_view
+from .weightfit import WeightFitBackend
 
-__all__ = ["Multilevel", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
+__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
 
 #: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
 #: two levels took half the time of one: pillar vault 11.7 vs 23.6 s, concave disk 10.0 vs 30.9 s).
@@ -407,7 +408,7 @@ class Multilevel:
 
     name = "multilevel"
 
-    def __init__(self, backend: str = "active-set", *, direct_max: int = DIRECT_MAX, factor: float = FACTOR,
+    def __init__(self, backend: str | WeightFitBackend = "active-set", *, direct_max: int = DIRECT_MAX, factor: float = FACTOR,
                  prolongation: str = "stress", use_subdivision: bool = True, **options: Any) -> None:
         if not factor > 1.5:
             raise InputError(f"the multilevel factor must exceed 1.5, got {factor}")
@@ -569,3 +570,17 @@ class Multilevel:
                 "coarsening": scene.meta.get("coarsening"), "status": res.status,
                 "iterations": res.iterations, "time": res.wall_time, "first_fit_error": first,
                 "max_relative_error": res.max_relative_error}
+
+
+def solve_warm(method: StaggeredLinearization, problem: Problem, options: Mapping[str, Any] | None = None, *,
+               warm_start: Any = None, progress: Callable[[dict], None] | None = None) -> SolveResult:
+    """``method`` from ``warm_start`` (the design tools' next stage after an edit), except that a
+    warm start on the mesh of a scene ``problem`` was subdivided from goes up level by level
+    from it (:meth:`Multilevel.levels_from`): a warm start interpolated onto a mesh 23× finer
+    (lilium subdivided twice) was too far from equilibrium, and the cold solve then stalled."""
+    if warm_start is not None:
+        ml = Multilevel(method.backend)
+        ml.staggered = method  # (every level with the caller's settings)
+        if len(ml.levels_from(as_warm_start(warm_start).network, as_problem(problem).scene)) > 1:
+            return ml.solve(problem, options, progress=progress, warm_start=warm_start)
+    return method.solve(problem, options, progress=progress, warm_start=warm_start)
