@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -90,7 +90,8 @@ from .prolong import prolong
 from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 from .weightfit import WeightFitBackend
 
-__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0", "START_TOL"]
+__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
+           "START_TOL"]
 
 #: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
 #: two levels took half the time of one: pillar vault 11.7 vs 23.6 s, concave disk 10.0 vs 30.9 s).
@@ -378,6 +379,11 @@ def _why_not(problem: Problem) -> str | None:
     return None
 
 
+def _subdivision_levels(parents: Sequence[Scene]) -> list[Scene]:
+    """The designer's coarser scenes as levels (marked so in each level's report)."""
+    return [dataclasses.replace(p, meta={**p.meta, "coarsening": "subdivision"}) for p in parents]
+
+
 def coarse_problem(problem: Problem, scene: Scene) -> Problem:
     """``problem`` restated on ``scene`` (a coarsening of its scene): same load models, bounds,
     objective and constraints."""
@@ -408,8 +414,9 @@ class Multilevel:
 
     name = "multilevel"
 
-    def __init__(self, backend: str | WeightFitBackend = "active-set", *, direct_max: int = DIRECT_MAX, factor: float = FACTOR,
-                 prolongation: str = "stress", use_subdivision: bool = True, **options: Any) -> None:
+    def __init__(self, backend: str | WeightFitBackend = "active-set", *, direct_max: int = DIRECT_MAX,
+                 factor: float = FACTOR, prolongation: str = "stress", use_subdivision: bool = True,
+                 **options: Any) -> None:
         if not factor > 1.5:
             raise InputError(f"the multilevel factor must exceed 1.5, got {factor}")
         if prolongation not in PROLONGATIONS:
@@ -428,8 +435,7 @@ class Multilevel:
         parents = subdivision_parents(scene) if self.use_subdivision else ()
         if parents and scene.mesh.n_vertices > self.direct_max:
             small = [k for k, p in enumerate(parents) if p.mesh.n_vertices <= self.direct_max]
-            chain = [dataclasses.replace(p, meta={**p.meta, "coarsening": "subdivision"})
-                     for p in parents[(small[-1] if small else 0):]]
+            chain = _subdivision_levels(parents[(small[-1] if small else 0):])
             return self.levels(chain[0])[:-1] + chain + [scene]
         out = [scene]
         while out[-1].mesh.n_vertices > self.direct_max:
@@ -448,8 +454,7 @@ class Multilevel:
         parents = subdivision_parents(scene) if self.use_subdivision else ()
         for k, p in enumerate(parents):
             if p.mesh.n_vertices == network.mesh.n_vertices and np.array_equal(p.mesh.edges, network.mesh.edges):
-                return [dataclasses.replace(q, meta={**q.meta, "coarsening": "subdivision"})
-                        for q in parents[k:]] + [scene]
+                return _subdivision_levels(parents[k:]) + [scene]
         return [scene]
 
     def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | None = None, *,
