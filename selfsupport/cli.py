@@ -304,11 +304,11 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
     p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
-    p.add_argument("--method", choices=list(METHODS), default="staggered",
-                   help="solution method (default staggered)")
+    p.add_argument("--method", choices=list(METHODS), default=None,
+                   help="solution method (default staggered; with --subdivide, multilevel)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
                    help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
-                        "creases), e.g. to fabrication resolution; --method multilevel then solves the "
+                        "creases), e.g. to fabrication resolution; the multilevel method then solves the "
                         "design and each step in turn, each from the one before")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
@@ -404,7 +404,10 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
-    check_scene_spec(args.scene, args.method, args.max_memory)  # a built-in shape: before it is built
+    # a subdivided design by its own levels unless told otherwise (lilium subdivided twice: the single
+    # level stalled, the levels converged in 3.3 s)
+    method = args.method or ("multilevel" if args.subdivide else "staggered")
+    check_scene_spec(args.scene, method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     if args.subdivide:  # (of the design a network file stores, not of its network)
         from dataclasses import replace
@@ -416,7 +419,7 @@ def _run_solve(args: argparse.Namespace) -> int:
             design = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
             scene = replace(scene, meta={**scene.meta, "design": design})
     progress = ProgressDisplay(enabled=False if args.quiet else None)
-    result = api.solve(scene, method=args.method, backend=args.backend, density=args.density,
+    result = api.solve(scene, method=method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
                        options=options, max_memory=args.max_memory, started=started, **problem_kwargs(args))

@@ -186,20 +186,20 @@ def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys
 
 
 def test_solve_subdivides_the_design_and_solves_it_on_the_designers_levels(tmp_path):
-    """``--subdivide K``: the design refined by K Catmull–Clark steps is what is solved (V + E + F
-    vertices per step, the same supports), by levels that are the design and its steps; the file
-    stands by the independent checker. A network file's *design* is subdivided (its stored
-    reference), not its network."""
+    """``--subdivide K``: the design refined by K Catmull–Clark steps is what is solved (the same
+    supports), by default with the multilevel method on levels that are the design and its steps;
+    the file stands by the independent checker. A network file's *design* is subdivided (its
+    stored reference), not its network."""
     from selfsupport.design.subdivision import subdivide_scene
 
     out = tmp_path / "fine.json"
-    code = cli.main(["solve", "shape:pillar_vault:450", "--subdivide", "2", "--method", "multilevel",
-                     "--out", str(out), "-q"])
+    code = cli.main(["solve", "shape:pillar_vault:450", "--subdivide", "2", "--out", str(out), "-q"])
     assert code == 0
     expected = subdivide_scene(make_shape("pillar_vault", n_vertices=450), 2)
     doc = json.loads(out.read_text())
     assert np.array_equal(np.asarray(doc["reference_vertices"]), expected.mesh.vertices)
     assert sorted(doc["supports"]) == np.flatnonzero(expected.supports).tolist()
+    assert doc["method"] == "multilevel"
     levels = doc["parameters"]["multilevel"]["levels"]
     assert expected.mesh.n_vertices > 6000 and [lv["coarsening"] for lv in levels] == ["subdivision", None]
     assert independent_check(out).ok
