@@ -203,9 +203,9 @@ def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stan
 def test_a_subdivided_design_is_solved_on_the_designers_own_coarser_scenes():
     """A scene made by ``subdivide_scene`` is solved level by level on the scenes it came from (the
     paper's upsample-then-polish): the coarsest of at most ``direct_max`` vertices cold, each
-    finer one from the stress carried up, confirmed in one iteration, the fine network in
-    equilibrium by the independent checker and about as close as the single-level solve. (On
-    paper scenes subdivided twice this converged where a single level stalled; README.)"""
+    finer one from the stress carried up, the fine level confirmed in one iteration, the fine
+    network in equilibrium by the independent checker. (On paper scenes subdivided twice this
+    converged where a single level stalled; README.)"""
     from selfsupport.design.subdivision import subdivide_scene, subdivision_parents
 
     scene = subdivide_scene(make_shape("pillar_vault", n_vertices=120), 2)
