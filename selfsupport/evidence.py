@@ -107,7 +107,8 @@ def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
 
 
 def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray, loads: np.ndarray,
-                   supports: np.ndarray, tol: float) -> dict | None:
+                   supports: np.ndarray, tol: float, rel: np.ndarray | None = None,
+                   floors: np.ndarray | None = None) -> dict | None:
     """Why a network misses ``tol`` when rounding alone is the reason, else ``None``.
 
     Such a network has vertices above ``tol``, and each one is within :data:`FLOOR_MARGIN` ×
@@ -121,7 +122,9 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
     times it. The report gives both: ``floor`` (the largest floor among the vertices above
     ``tol``), ``centred_floor`` (the same with the bounding-box centre moved to the origin),
     ``offset`` (that centre's distance from the origin) and ``force_ratio`` (the largest edge
-    force at those vertices over their load).
+    force at those vertices over their load). ``rel`` and ``floors``, when given, are the
+    network's :func:`relative_errors` and :func:`roundoff_floors` (a network keeps them; at 443k
+    vertices they cost 0.24 and 0.05 s).
 
     >>> V = np.array([[0.0, 0, 0], [1.0, 0, 1], [2.0, 0, 0]])
     >>> E, S = np.array([[0, 1], [1, 2]]), np.array([True, False, True])
@@ -134,11 +137,13 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
     >>> rep["n_vertices"], rep["offset"] > 1e9 - 2, rep["centred_floor"] < 1e-15
     (1, True, True)
     """
-    rel = relative_errors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
+    if rel is None:
+        rel = relative_errors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
     over = rel > tol
     if not over.any() or not np.all(np.isfinite(rel)):
         return None
-    floors = roundoff_floors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
+    if floors is None:
+        floors = roundoff_floors(vertices=vertices, edges=edges, weights=weights, loads=loads, supports=supports)
     if np.all(rel[over] <= floor_tolerance(floors[over])) or np.any(rel[over] > FLOOR_MARGIN * floors[over]):
         return None  # in equilibrium (at the floor, within the cap), or off it for other reasons
     free = ~np.asarray(supports, bool)

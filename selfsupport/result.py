@@ -58,9 +58,15 @@ class Network:
         return float(r.max()) if r.size else 0.0
 
     def roundoff_floors(self) -> np.ndarray:
-        """Per free vertex: the relative error rounding alone can leave (:func:`~.evidence.roundoff_floors`)."""
-        return roundoff_floors(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
-                               supports=self.supports)
+        """Per free vertex: the relative error rounding alone can leave (:func:`~.evidence.roundoff_floors`;
+        read-only, computed once per network like :meth:`relative_errors`)."""
+        f = self.__dict__.get("_roundoff_floors")
+        if f is None:
+            f = roundoff_floors(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
+                                supports=self.supports)
+            f.setflags(write=False)
+            self.__dict__["_roundoff_floors"] = f
+        return f
 
     def in_equilibrium(self, tol: float) -> bool:
         """Every free vertex within ``tol`` relative error, or within
@@ -78,7 +84,8 @@ class Network:
         """Why the network misses ``tol`` when only rounding to doubles holds it there, else
         ``None`` (:func:`~.evidence.roundoff_limit`)."""
         return roundoff_limit(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
-                              supports=self.supports, tol=tol)
+                              supports=self.supports, tol=tol, rel=self.relative_errors(),
+                              floors=self.roundoff_floors())
 
     @property
     def active_edges(self) -> np.ndarray:
