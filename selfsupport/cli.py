@@ -412,12 +412,16 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.subdivide:  # (of the design a network file stores, not of its network)
         from dataclasses import replace
 
-        from .design.subdivision import subdivide_scene
+        from .design.subdivision import subdivide_scene, subdivided_vertex_count
+        from .memory import check_memory
 
-        scene = subdivide_scene(api.design_of(scene)[0], args.subdivide)
+        design = api.design_of(scene)[0]
+        # (the refined mesh's size, refused before it is built: each step quadruples it)
+        check_memory(subdivided_vertex_count(design.mesh, args.subdivide), method, args.max_memory)
+        scene = subdivide_scene(design, args.subdivide)
         if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
-            design = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
-            scene = replace(scene, meta={**scene.meta, "design": design})
+            info = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
+            scene = replace(scene, meta={**scene.meta, "design": info})
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=method, backend=args.backend, density=args.density,
                        thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,

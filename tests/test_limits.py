@@ -176,6 +176,22 @@ def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypa
     assert code == cli.EXIT_CODES["input"] and len(err) == 1 and "coarser mesh" in err[0] and not out.exists()
 
 
+def test_a_subdivision_beyond_the_memory_is_refused_before_it_is_built(monkeypatch, tmp_path, capsys):
+    """``--subdivide K`` quadruples the mesh per step: the refined size is checked before the
+    subdivision runs (ten steps of a 200-vertex dome would be 3·10⁸ vertices)."""
+    from selfsupport.design import subdivision
+
+    monkeypatch.setattr(subdivision, "subdivide_scene", lambda *a, **k: pytest.fail("subdivided"))
+    out = tmp_path / "x.json"
+    t0 = time.perf_counter()
+    code = cli.main(["solve", "shape:dome:200", "--subdivide", "10", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert time.perf_counter() - t0 < 5.0
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1 and not out.exists()
+    n = subdivision.subdivided_vertex_count(make_shape("dome", n_vertices=200).mesh, 10)
+    assert f"a multilevel solve of {n:,} vertices" in err[0] and "--max-memory or a coarser mesh" in err[0]
+
+
 def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsys):
     from selfsupport import memory
 

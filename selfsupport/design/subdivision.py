@@ -40,7 +40,7 @@ from ..errors import InputError
 from ..mesh import PolyMesh
 from ..scene import Scene
 
-__all__ = ["Subdivision", "catmull_clark", "subdivide_scene", "subdivision_parents"]
+__all__ = ["Subdivision", "catmull_clark", "subdivide_scene", "subdivision_parents", "subdivided_vertex_count"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,6 +202,22 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
         out = replace(out, meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(out))})
         parents.append(out)
     return replace(out, name=f"{scene.name}+cc{levels}")
+
+
+def subdivided_vertex_count(mesh: PolyMesh, levels: int) -> int:
+    """Vertices after ``levels`` Catmull–Clark steps, counted without subdividing (a size check
+    before the work): each step adds a point per edge and per face; an n-gon becomes n quads
+    with n new edges.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> m = make_shape("dome", n_vertices=200).mesh
+    >>> subdivided_vertex_count(m, 2) == catmull_clark(catmull_clark(m).mesh).mesh.n_vertices
+    True
+    """
+    v, e, f, corners = mesh.n_vertices, mesh.n_edges, mesh.n_faces, int(mesh.face_sizes.sum())
+    for _ in range(int(levels)):
+        v, e, f, corners = v + e + f, 2 * e + corners, corners, 4 * corners
+    return int(v)
 
 
 #: ``scene.meta`` key of the coarser scenes a subdivided scene came from (and its fingerprint then)
