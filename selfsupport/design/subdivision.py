@@ -198,8 +198,8 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
             if a is not None:
                 extras[key] = np.r_[a, np.zeros(extra_n, dtype=a.dtype)]
         mesh, crease, corner = s.mesh, s.crease, s.corner
-        out = replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{k + 1}", **extras)
-        out = replace(out, meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(out))})
+        out = replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{k + 1}", **extras,
+                      meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(mesh, sup))})
         parents.append(out)
     return replace(out, name=f"{scene.name}+cc{levels}")
 
@@ -224,10 +224,10 @@ def subdivided_vertex_count(mesh: PolyMesh, levels: int) -> int:
 _PARENTS = "subdivided_from"
 
 
-def _fingerprint(scene: Scene) -> str:
-    """A digest of what a coarser level must still match: positions, faces and supports."""
+def _fingerprint(mesh: PolyMesh, supports: np.ndarray) -> str:
+    """A digest of what the coarser scenes must still describe: positions, faces and supports."""
     h = hashlib.blake2b(digest_size=16)
-    for a in (scene.mesh.vertices, scene.mesh.face_vertices, scene.mesh.face_offsets, scene.supports):
+    for a in (mesh.vertices, mesh.face_vertices, mesh.face_offsets, np.asarray(supports, bool)):
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
 
@@ -240,4 +240,4 @@ def subdivision_parents(scene: Scene) -> tuple[Scene, ...]:
     if not stored:
         return ()
     parents, key = stored
-    return tuple(parents) if key == _fingerprint(scene) else ()
+    return tuple(parents) if key == _fingerprint(scene.mesh, scene.supports) else ()
