@@ -16,6 +16,7 @@ The table of outcomes is :data:`CORPUS` plus :data:`REPAIRS`; ``pytest -k corpus
 from __future__ import annotations
 
 import json
+import re
 import math
 import struct
 import subprocess
@@ -1440,3 +1441,22 @@ def test_design_of_a_network_file_without_weights_or_with_a_foreign_reference(va
     assert cli.main(["solve", str(q), "--out", str(out), "-q"]) == 0
     err = capsys.readouterr().err
     assert "reference_vertices has" in err and "cannot be carried over" in err
+
+
+def test_a_polish_short_of_tol_names_the_worst_vertices_by_their_numbers(monkeypatch):
+    """The message of a polish left above tol names vertices by their numbers in the mesh, not by
+    their positions among the free vertices (it did until 2026-11-27: on a mesh whose supports
+    are not numbered last those are other vertices, supports among them)."""
+    import selfsupport.methods.staggered as st
+
+    scene = make_shape("pillar_vault", n_vertices=300)
+    # (a support numbered before a free vertex: positions among the free ones are other numbers)
+    assert np.flatnonzero(scene.supports)[0] < np.flatnonzero(~scene.supports)[-1]
+    monkeypatch.setattr(st, "_in_equilibrium", lambda cases, tol: False)  # every polish counts as short
+    res = st.StaggeredLinearization().solve(scene)
+    assert res.status == "stalled" and "the polished network has max relative error" in res.message
+    m = re.search(r"vertices hardest to balance: \[([\d, ]+)\]", res.message)
+    named = [int(x) for x in m.group(1).split(",")]
+    free = np.flatnonzero(~scene.supports)
+    expected = free[np.argsort(res.network.relative_errors())[::-1][:5]]
+    assert named == expected.tolist() and not scene.supports[named].any()

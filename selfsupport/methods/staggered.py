@@ -791,7 +791,8 @@ class _Run:
             message = "; ".join(m for m in (message, "the iteration stopped at a polish held above tol by "
                                             "rounding alone") if m)
         if status == "converged" and not balanced:
-            worst = np.argsort(net.relative_errors())[::-1][:5]
+            # (relative_errors is per free vertex: its positions mapped back to vertex numbers)
+            worst = self.free_idx[np.argsort(net.relative_errors())[::-1][:5]]
             status, message = "stalled", (
                 f"the polished network has max relative error {err:.2e} > tol {opt.tol:g}; vertices hardest to "
                 f"balance: {[int(v) for v in worst]}; try more supports there, a larger w_max, or a pillar")
