@@ -40,7 +40,8 @@ from ..errors import InputError
 from ..mesh import PolyMesh
 from ..scene import Scene
 
-__all__ = ["Subdivision", "catmull_clark", "subdivide_scene", "subdivision_parents", "subdivided_vertex_count"]
+__all__ = ["Subdivision", "catmull_clark", "subdivide_like", "subdivide_scene", "subdivision_parents",
+           "subdivided_vertex_count"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,6 +191,7 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
         pin_corner = sup & (nc != 2) & ~mesh.boundary_vertex_mask
         corner = pin_corner if corner is None else (corner | pin_corner)
         s = catmull_clark(mesh, crease=crease, corner=corner)
+        step = (_fingerprint(mesh, sup), crease.copy() if crease is not None else None, corner.copy())
         fv, fo = mesh.face_vertices, mesh.face_offsets
         face_sup = np.logical_and.reduceat(sup[fv], fo[:-1])
         sup = np.r_[sup, ss, face_sup]
@@ -199,7 +201,7 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
                 extras[key] = np.r_[a, np.zeros(extra_n, dtype=a.dtype)]
         mesh, crease, corner = s.mesh, s.crease, s.corner
         out = replace(scene, mesh=mesh, supports=sup, name=f"{scene.name}+cc{k + 1}", **extras,
-                      meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(mesh, sup))})
+                      meta={**scene.meta, _PARENTS: (tuple(parents), _fingerprint(mesh, sup)), _STEP: step})
         parents.append(out)
     return replace(out, name=f"{scene.name}+cc{levels}")
 
@@ -222,6 +224,8 @@ def subdivided_vertex_count(mesh: PolyMesh, levels: int) -> int:
 
 #: ``scene.meta`` key of the coarser scenes a subdivided scene came from (and its fingerprint then)
 _PARENTS = "subdivided_from"
+#: ``scene.meta`` key of the last step: the parent's fingerprint and the crease and corner masks
+_STEP = "subdivision_step"
 
 
 def _fingerprint(mesh: PolyMesh, supports: np.ndarray) -> str:
@@ -241,3 +245,26 @@ def subdivision_parents(scene: Scene) -> tuple[Scene, ...]:
         return ()
     parents, key = stored
     return tuple(parents) if key == _fingerprint(scene.mesh, scene.supports) else ()
+
+
+def subdivide_like(child: Scene, parent: Scene, vertices: np.ndarray) -> Subdivision | None:
+    """The Catmull–Clark step that made ``child`` from ``parent`` (:func:`subdivide_scene`, same
+    creases and corners), applied to other positions of the parent's mesh, e.g. a thrust network
+    solved on it. None when ``child`` was not made from ``parent`` by one step, or either changed
+    since.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> coarse = make_shape("pillar_vault", n_vertices=200)
+    >>> fine = subdivide_scene(coarse, 1)
+    >>> bool(np.allclose(subdivide_like(fine, coarse, coarse.mesh.vertices).mesh.vertices, fine.mesh.vertices))
+    True
+    >>> subdivide_like(fine, fine, fine.mesh.vertices) is None
+    True
+    """
+    step = child.meta.get(_STEP)
+    if step is None or not subdivision_parents(child) or step[0] != _fingerprint(parent.mesh, parent.supports):
+        return None
+    V = np.asarray(vertices, float)
+    if V.shape != parent.mesh.vertices.shape:
+        raise InputError(f"{V.shape[0]} positions for a mesh of {parent.mesh.n_vertices} vertices")
+    return catmull_clark(parent.mesh.with_vertices(V), crease=step[1], corner=step[2])

@@ -25,8 +25,8 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    the subdivision. On the paper's scenes subdivided twice they converged in 2.8–3.8 s (one
    level stalled on lilium and lilium-pillar; the clusters took up to 47 s), three times in
    14 s (lilium, 111k vertices; clusters 327 s), ending 0.4–3.5× as far from the reference as
-   the clusters' network (README, subdivided designs). cyl2, whose stress does not carry, is
-   not helped.
+   the clusters' network (README, subdivided designs). Where the stress does not carry (cyl2's
+   quads), the level below subdivided by the same step starts the level (:mod:`.prolong`, step 5).
 2. The coarsest level is solved cold by :class:`~.staggered.StaggeredLinearization`.
 3. Each finer level starts from the level below carried over by its stress field
    (:mod:`.prolong`): a network in equilibrium on the finer mesh, about as near the reference as
@@ -82,7 +82,7 @@ from ..loads import CombinedLoad, SelfWeight
 from ..mesh import PolyMesh
 from ..result import SolveResult
 from ..scene import Scene
-from ..design.subdivision import subdivision_parents
+from ..design.subdivision import subdivide_like, subdivision_parents
 from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
 from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
@@ -497,14 +497,16 @@ class Multilevel:
             if res is not None:
                 # the level below carried over by its stress field, in equilibrium here (prolong.py);
                 # failing that, its offsets interpolated, iterated from (warm.py)
-                pro = prolong(prob, res.network, prev_scene.mesh, deadline=deadline) if self.prolongation == "stress" \
-                    else None
+                pro = prolong(prob, res.network, prev_scene.mesh, deadline=deadline,
+                              subdivision=subdivide_like(scene, prev_scene, res.network.vertices)) \
+                    if self.prolongation == "stress" else None
                 extra = {"warm_iterate": True, "alpha0": min(WARM_ALPHA0, float(opts.get("alpha0", 1.0)))}
                 if pro is not None and pro.network is not None:
                     warm = WarmStart(pro.network, reference=scene.mesh)
                     d_pro = distance_stats(pro.network.vertices, scene.mesh)[0]
                     d_below = distance_stats(res.network.vertices, scene.mesh)[0]
-                    carried = {"by": "stress", "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
+                    carried = {"by": "subdivision" if pro.info.get("weights") == "subdivided" else "stress",
+                               "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
                                "distance": d_pro, "distance_below": d_below, **pro.info}
                     if d_pro > RECLAIM * d_below and scene is not problem.scene \
                             and scene.mesh.n_vertices <= COLD_MAX:

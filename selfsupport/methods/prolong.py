@@ -30,6 +30,18 @@ sample along the coarse edges. So:
    Newton's steps where they do not settle). Where that fails, step 4 with the
    weights of step 2 as they are (clipped): the polish then moves the top view into horizontal
    equilibrium with them.
+5. Where the fine scene is the coarse one refined by Catmull–Clark (a designer's subdivided
+   design, :func:`~selfsupport.design.subdivision.subdivide_like`) and steps 1–4 fail: the
+   network itself subdivided by the same step, its weights carried edge by edge
+   (:func:`subdivided_weights`), polished as in step 4. A quad network has about as many edges
+   as horizontal equations (2 per free vertex; cyl2 subdivided once: 15,916 edges that carry
+   force against 16,422 equations), so its top view has to move with its weights: the projection
+   of step 3 drove 98% of the weights to the lower bound there, and the stress of step 2 lifted
+   over quads did not balance either (cyl2 8,566 → 32,498 vertices: polishes ended at 1.6e3 and
+   0.2). The subdivided network polished in 0.5 s to 1.3e-10, at 1.27× the coarse network's
+   distance to the reference. Tried first it lands farther than steps 1–4 where those work
+   (lilium ×1 → ×2: 4.4e-2 against 2.7e-2 of the diagonal, twocirc-3 1.1e-2 against 2.9e-3), and
+   over triangles, whose subdivision is not a grid, it does not balance (lilium: 3.2), hence last.
 
 The result is a fine network in equilibrium to round-off, as near the reference as the coarse
 one was (measured at 16k: concave disk 3.8e-3 of the diagonal, its coarse network 3.8e-3;
@@ -63,6 +75,7 @@ from formulations import Problem
 
 from ..analysis.airy import _J, face_orientation
 from ..analysis.construction import restore_horizontal_equilibrium
+from ..design.subdivision import Subdivision
 from ..evidence import relative_errors
 from ..geometry import edge_vectors
 from ..mesh import PolyMesh
@@ -72,7 +85,7 @@ from .polish import polish
 from .warm import WarmStart, interpolate_over_top_view, transfer
 
 __all__ = ["face_stress", "vertex_stress", "cofactor", "quadratic_lifting_weights", "stress_weights",
-           "Prolongation", "prolong", "PROLONG_TOL"]
+           "subdivided_weights", "Prolongation", "prolong", "PROLONG_TOL"]
 
 #: A prolonged network is used when its max relative error is at most this (the polish reaches
 #: 1e-11–1e-10; a polish that did not converge is far above).
@@ -219,6 +232,51 @@ def stress_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np.n
     return quadratic_lifting_weights(fine, fine_xy, cofactor(S))
 
 
+def subdivided_weights(coarse: PolyMesh, sub: Subdivision, weights: np.ndarray) -> np.ndarray:
+    """Weights of the edges of ``sub.mesh``, one Catmull–Clark step of ``coarse`` (step 5 of the
+    module docstring): each half of a coarse edge keeps its weight, and the edge from a face
+    point to an edge point takes the mean of the face's two edges beside that edge (parallel to
+    it in a quad). On a grid refined twice as finely each line of edges carries half the force over
+    half the length, so a weight, force per top-view length, stays.
+
+    >>> from selfsupport.design.subdivision import catmull_clark
+    >>> from selfsupport.shapes import make_shape
+    >>> m = make_shape("barrel_vault", n_vertices=100).mesh
+    >>> w = np.arange(m.n_edges, dtype=float)
+    >>> sub = catmull_clark(m)
+    >>> wf = subdivided_weights(m, sub, w)
+    >>> e = m.edges[7]  # both halves of coarse edge 7 keep its weight
+    >>> halves = [np.flatnonzero((sub.mesh.edges == sorted(p)).all(axis=1))[0]
+    ...           for p in ((e[0], sub.edge_point(7)), (e[1], sub.edge_point(7)))]
+    >>> wf[halves].tolist()
+    [7.0, 7.0]
+    """
+    w = np.asarray(weights, float)
+    fo = coarse.face_offsets
+    sizes = np.diff(fo)
+    face_of, _, _ = coarse.corner_data
+    pos = np.arange(fo[-1]) - fo[face_of]
+    prev = fo[face_of] + (pos - 1) % sizes[face_of]
+    nxt = fo[face_of] + (pos + 1) % sizes[face_of]
+    he = coarse.halfedge_data["halfedge_edge"]  # coarse corner c -> its edge (v_c, v_next)
+    # fine face c (one per coarse corner) is (v_c, e_c, f, e_prev): its edges in corner order are
+    # half of edge c, the face edge at e_c, the face edge at e_prev, half of edge prev(c)
+    fine = sub.mesh.halfedge_data["halfedge_edge"].reshape(-1, 4)
+    out = np.empty(sub.mesh.n_edges)
+    out[fine[:, 0]] = w[he]
+    out[fine[:, 3]] = w[he[prev]]
+    out[fine[:, 1]] = 0.5 * (w[he[prev]] + w[he[nxt]])
+    # a boundary arch stays one line: its halves carry the whole force w ℓ (boundary_weights)
+    bf = sub.mesh.boundary_edge_mask
+    ef = sub.mesh.edges[bf]
+    Vf, Vc = sub.mesh.vertices[:, :2], coarse.vertices[:, :2]
+    parent = np.where(ef[:, 0] < sub.n_old, ef[:, 1], ef[:, 0]) - sub.n_old  # the edge point's edge
+    ce = coarse.edges[parent]
+    force = w[parent] * np.linalg.norm(Vc[ce[:, 1]] - Vc[ce[:, 0]], axis=1)
+    out[bf] = force / np.maximum(np.linalg.norm(Vf[ef[:, 1]] - Vf[ef[:, 0]], axis=1), 1e-300)
+    return out
+
+
 @dataclass(frozen=True)
 class Prolongation:
     """A coarse network carried to a finer scene: ``network`` (None when it failed) and why."""
@@ -232,9 +290,12 @@ class Prolongation:
     nearest: Network | None = None
 
 
-def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: float | None = None) -> Prolongation:
+def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: float | None = None,
+            subdivision: Subdivision | None = None) -> Prolongation:
     """Carry ``network`` (solved for ``reference``, a coarser mesh of the same surface) to the
-    scene of ``problem`` through its stress field (see the module docstring). The returned
+    scene of ``problem`` through its stress field (see the module docstring); ``subdivision``:
+    the Catmull–Clark step that made the fine scene, applied to the network (its positions and
+    :func:`subdivided_weights` are the last candidate, step 5). The returned
     network is in equilibrium on the fine mesh with loads of its own geometry when
     ``max_relative_error`` ≤ :data:`PROLONG_TOL`; otherwise ``network`` is None, ``nearest`` the
     candidate whose polish came nearest (its error in ``max_relative_error``) and ``info``
@@ -263,15 +324,28 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
     # (a coarse boundary that carries nothing: the nearest coarse edge's weight)
     w[boundary] = np.where(np.isfinite(wb), wb, sc.weight(w_near[boundary]))
     w = w[scene.active_edges]
-    if not np.all(np.isfinite(w)):
-        return failed("the stress weights are not finite")
-    # step 3 with relative changes (small weights stay small rather than being pushed across
-    # zero by the large ones' corrections); where the polish cannot balance those, the weights
-    # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
-    # concave disk needed that, its 2,400- and 16,000-vertex versions the first)
-    projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
-                                               metric=np.maximum(w, sp_.lower) ** 2)
-    def balanced(wc: np.ndarray, newton: bool) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
+    candidates, tried = [], []
+    if np.all(np.isfinite(w)):
+        # step 3 with relative changes (small weights stay small rather than being pushed across
+        # zero by the large ones' corrections); where the polish cannot balance those, the weights
+        # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
+        # concave disk needed that, its 2,400- and 16,000-vertex versions the first)
+        projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
+                                                   metric=np.maximum(w, sp_.lower) ** 2)
+        candidates += [("projected", X, projected), ("as carried", X, w)]
+    else:
+        tried.append("the stress weights are not finite")
+    if subdivision is not None and subdivision.mesh.n_vertices == scene.mesh.n_vertices \
+            and np.array_equal(subdivision.mesh.face_vertices, scene.mesh.face_vertices):
+        # the network itself subdivided, its weights along (a quad network's top view must move
+        # with its weights, which the interpolated top view and the projection cannot: cyl2)
+        ws = sc.weight(subdivided_weights(network.mesh, subdivision, np.asarray(network.weights, float)))
+        Vs = subdivision.mesh.vertices.copy()
+        sup = np.asarray(scene.supports, bool)
+        Vs[sup] = scene.mesh.vertices[sup]  # (a support beside a free vertex would follow it: stays put)
+        candidates.append(("subdivided", sc.pos(Vs), ws[scene.active_edges]))
+
+    def balanced(X: np.ndarray, wc: np.ndarray, newton: bool) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
         # the polish (Anderson's rounds, or Newton's steps), judged by the max relative error
         Xp, _, rounds = polish(top, X, wc, problem.loads.primary, scene.mesh, sc, newton=newton,
                                fallbacks=not newton, krylov=False, deadline=deadline)
@@ -285,15 +359,15 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
                               supports=scene.supports)
         return (float(rel.max()) if rel.size else 0.0), V, weights, L_phys, rounds
 
-    err, tried = float("inf"), []
+    err = float("inf")
     best: tuple[float, Network | None, str] = (float("inf"), None, "")
-    for name, cand in (("projected", projected), ("as carried", w)):
+    for name, Xs, cand in candidates:
         wc = np.clip(cand, sp_.lower, sp_.upper)
         # Anderson first (cheap rounds: 2.8 s at 256k vertices), Newton where it does not settle
         for newton in (False, True):
             if out_of_time(deadline):
                 break
-            err, V, weights, L_phys, rounds = balanced(wc, newton)
+            err, V, weights, L_phys, rounds = balanced(Xs, wc, newton)
             if err <= PROLONG_TOL or err < best[0]:
                 net = Network(mesh=scene.mesh.with_vertices(V), weights=weights, loads=L_phys,
                               supports=scene.supports, reference=scene.mesh)
