@@ -105,3 +105,13 @@ def test_structural_gram_is_the_gram_on_a_pattern_fixed_by_the_structure(shift):
     assert (A_flat.T @ A_flat).nnz < grams[0].nnz  # the plain product lost entries on the flat grid...
     for G in grams[1:]:  # ...the structural one did not
         assert np.array_equal(G.indptr, grams[0].indptr) and np.array_equal(G.indices, grams[0].indices)
+    # one GramPattern, taken at the moved positions, serves the flat grid's matrix too (a solve
+    # keeps it across its fits), and its lower triangle is the lower triangle of that matrix
+    from selfsupport.linalg import GramPattern
+
+    pattern = GramPattern(weight_matrix(top, moved))
+    assert pattern.matches(A_flat)
+    G = pattern.gram(A_flat, shift)
+    assert np.array_equal(G.toarray(), grams[0].toarray())
+    low = sp.csc_matrix((pattern.lower(G.data), pattern.lower_indices, pattern.lower_indptr), shape=G.shape)
+    assert np.array_equal(low.toarray(), np.tril(G.toarray()))

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..linalg import spd_factor, structural_gram
+from ..linalg import GramPattern, spd_factor
 from .deadline import out_of_time
 
 
@@ -120,12 +120,16 @@ class _LowerQ:
     diagonal in PDAS — so that each is a numeric refactorization only (the symbolic analysis
     is done once per pattern, and kept across fits while the pattern holds)."""
 
-    def __init__(self, Q: sp.spmatrix, factor: Any = None) -> None:
+    def __init__(self, Q: sp.spmatrix, factor: Any = None, pattern: GramPattern | None = None) -> None:
         n = Q.shape[0]
-        Qc = sp.tril(Q, format="coo")
         ii = np.arange(n)
-        M = sp.coo_matrix((np.r_[Qc.data, np.zeros(n)], (np.r_[Qc.row, ii], np.r_[Qc.col, ii])), shape=Q.shape).tocsc()
-        M.sort_indices()  # explicit zeros survive coo -> csc: the diagonal is always stored
+        if pattern is not None:  # Q on a GramPattern: its lower triangle by indexing (diagonal stored)
+            M = sp.csc_matrix((pattern.lower(Q.data), pattern.lower_indices, pattern.lower_indptr), shape=Q.shape)
+        else:
+            Qc = sp.tril(Q, format="coo")
+            M = sp.coo_matrix((np.r_[Qc.data, np.zeros(n)], (np.r_[Qc.row, ii], np.r_[Qc.col, ii])),
+                              shape=Q.shape).tocsc()
+            M.sort_indices()  # explicit zeros survive coo -> csc: the diagonal is always stored
         self.M, self.base = M, M.data.copy()
         self.diag_pos = M.indptr[:-1]  # a sorted lower-triangular column starts at its diagonal
         self.diag = self.base[self.diag_pos]
@@ -292,12 +296,14 @@ class ActiveSetFit(WeightFitBackend):
         self._active: tuple[np.ndarray, np.ndarray] | None = None
         self._ipm_warm: tuple[np.ndarray, np.ndarray] | None = None
         self._factor = None  # kept across fits: its symbolic analysis holds while Q's pattern does
+        self._pattern: GramPattern | None = None
         self._centred: tuple | None = None
 
     def reset(self) -> None:
         self._active = None
         self._ipm_warm = None
         self._factor = None
+        self._pattern = None
         self._centred = None
 
     def warm(self, w: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
@@ -308,10 +314,13 @@ class ActiveSetFit(WeightFitBackend):
     def _fit(self, *, A, b, lower, upper, w0, prox, rtol, deadline):
         t0 = time.perf_counter()
         A = sp.csc_matrix(A)
-        Q = structural_gram(A, shift=prox if prox > 0 else 0.0)  # (the pattern CHOLMOD orders well)
+        if self._pattern is None or not self._pattern.matches(A):  # (one structure for a whole solve)
+            self._pattern = GramPattern(A)
+        Q = self._pattern.gram(A, shift=prox if prox > 0 else 0.0)  # (linalg.structural_gram: the pattern
+        # CHOLMOD orders well)
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
-        lowq = _LowerQ(Q, self._factor)  # (spd_factor starts afresh when the size changed)
+        lowq = _LowerQ(Q, self._factor, self._pattern)  # (spd_factor starts afresh when the size changed)
         guess = None
         if self._active is not None and self._active[0].shape == w0.shape:
             w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active, deadline=deadline)
