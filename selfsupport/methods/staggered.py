@@ -97,8 +97,8 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
-                        roundoff_message)
+from ..evidence import (DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, closest_points, degenerate, fit_floor_tolerance,
+                        roundoff_floors, roundoff_message)
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..options import check_options, check_range
@@ -792,10 +792,7 @@ class _Run:
                                             "rounding alone") if m)
         if status == "converged" and not balanced:
             # (relative_errors is per free vertex: its positions mapped back to vertex numbers)
-            worst = self.free_idx[np.argsort(net.relative_errors())[::-1][:5]]
-            status, message = "stalled", (
-                f"the polished network has max relative error {err:.2e} > tol {opt.tol:g}; vertices hardest to "
-                f"balance: {[int(v) for v in worst]}; try more supports there, a larger w_max, or a pillar")
+            status, message = "stalled", short_of_tol(net, opt.tol, err)
         params: dict[str, Any] = {**asdict(opt), "eps": _si_bound(sc, self.lower), "w_max": _si_bound(sc, self.upper),
                                   "scaling": asdict(sc), "problem": self.problem.describe(),
                                   "load_cases": list(self.loads.names), "warm_start": self.warm_info}
@@ -887,6 +884,34 @@ def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> n
 
 def _max_error(cases) -> float:
     return max(n.max_relative_error() for _, n in cases)
+
+
+def short_of_tol(net: Network, tol: float, err: float | None = None) -> str:
+    """Why a polished network misses ``tol`` (``err``: its max relative error over every load
+    case, default the network's own): its worst vertices by number and, where they carry almost
+    no load (:func:`~selfsupport.evidence.degenerate`), that their faces collapsed.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> net = StaggeredLinearization().solve(make_shape("dome", n_vertices=60)).network
+    >>> v = int(np.flatnonzero(~net.supports)[3])
+    >>> loads = net.loads.copy(); loads[v] *= 1e-5  # that vertex's area collapsed
+    >>> msg = short_of_tol(dataclasses.replace(net, loads=loads), 1e-9)
+    >>> f"balance: [{v}," in msg, "1 of them carry under 0.001 of the median load" in msg
+    (True, True)
+    """
+    free = np.flatnonzero(~np.asarray(net.supports, bool))
+    rel = net.relative_errors()
+    order = np.argsort(rel)[::-1][:5]  # (relative_errors is per free vertex: mapped back to numbers)
+    err = float(rel.max(initial=0.0)) if err is None else err
+    message = (f"the polished network has max relative error {err:.2e} > tol {tol:g}; "
+               f"vertices hardest to balance: {[int(v) for v in free[order]]}; try more supports there, a larger "
+               "w_max, or a pillar")
+    flat = degenerate(net.loads[free])[order]
+    if flat.any():  # (a collapsed face, e.g. at the free corner of a quad mesh, forced straight)
+        message += (f"; {int(flat.sum())} of them carry under {DEGENERATE_LOAD:g} of the median load: their faces "
+                    "collapsed onto their neighbours (as at a free corner of a quad mesh, whose two edges must lie "
+                    "in line); supports there avoid it")
+    return message
 
 
 def _in_equilibrium(cases, tol: float) -> bool:
