@@ -16,8 +16,8 @@ The table of outcomes is :data:`CORPUS` plus :data:`REPAIRS`; ``pytest -k corpus
 from __future__ import annotations
 
 import json
-import re
 import math
+import re
 import struct
 import subprocess
 import sys

@@ -33,15 +33,16 @@ sample along the coarse edges. So:
 5. Where the fine scene is the coarse one refined by Catmull–Clark (a designer's subdivided
    design, :func:`~selfsupport.design.subdivision.subdivide_like`) and steps 1–4 fail: the
    network itself subdivided by the same step, its weights carried edge by edge
-   (:func:`subdivided_weights`), polished as in step 4. A quad network has about as many edges
-   as horizontal equations (2 per free vertex; cyl2 subdivided once: 15,916 edges that carry
-   force against 16,422 equations), so its top view has to move with its weights: the projection
-   of step 3 drove 98% of the weights to the lower bound there, and the stress of step 2 lifted
-   over quads did not balance either (cyl2 8,566 → 32,498 vertices: polishes ended at 1.6e3 and
-   0.2). The subdivided network polished in 0.5 s to 1.3e-10, at 1.27× the coarse network's
-   distance to the reference. Tried first it lands farther than steps 1–4 where those work
-   (lilium ×1 → ×2: 4.4e-2 against 2.7e-2 of the diagonal, twocirc-3 1.1e-2 against 2.9e-3), and
-   over triangles, whose subdivision is not a grid, it does not balance (lilium: 3.2), hence last.
+   (:func:`subdivided_weights`), its supports put back where the design has them, polished as in
+   step 4. A quad network has about as many edges as horizontal equations (2 per free vertex;
+   cyl2 subdivided once: 15,916 edges that carry force against 16,422 equations), so its top
+   view has to move with its weights: the projection of step 3 drove 98% of the weights to the
+   lower bound there, and the stress of step 2 lifted over quads did not balance either (cyl2
+   2,348 → 8,566 vertices: the polishes ended at 1.2 and 11). The subdivided network polished
+   to 2.5e-10 in 1.1 s, 0.98× as far from the reference as the coarse network. Tried first it
+   lands farther than steps 1–4 where those work (lilium ×1 → ×2: 4.4e-2 against 2.7e-2 of the
+   diagonal, twocirc-3 1.1e-2 against 2.9e-3), and over triangles, whose subdivision is not a
+   grid, it does not balance (lilium: 3.2), hence last.
 
 The result is a fine network in equilibrium to round-off, as near the reference as the coarse
 one was (measured at 16k: concave disk 3.8e-3 of the diagonal, its coarse network 3.8e-3;
@@ -237,7 +238,9 @@ def subdivided_weights(coarse: PolyMesh, sub: Subdivision, weights: np.ndarray) 
     module docstring): each half of a coarse edge keeps its weight, and the edge from a face
     point to an edge point takes the mean of the face's two edges beside that edge (parallel to
     it in a quad). On a grid refined twice as finely each line of edges carries half the force over
-    half the length, so a weight, force per top-view length, stays.
+    half the length, so a weight, force per top-view length, stays. A boundary arch stays one line:
+    the halves of a boundary edge keep its *force* w ℓ (top-view lengths of ``coarse`` and
+    ``sub.mesh``), as in :func:`boundary_weights`.
 
     >>> from selfsupport.design.subdivision import catmull_clark
     >>> from selfsupport.shapes import make_shape
@@ -245,7 +248,7 @@ def subdivided_weights(coarse: PolyMesh, sub: Subdivision, weights: np.ndarray) 
     >>> w = np.arange(m.n_edges, dtype=float)
     >>> sub = catmull_clark(m)
     >>> wf = subdivided_weights(m, sub, w)
-    >>> e = m.edges[7]  # both halves of coarse edge 7 keep its weight
+    >>> e = m.edges[7]  # both halves of coarse edge 7 (an interior edge) keep its weight
     >>> halves = [np.flatnonzero((sub.mesh.edges == sorted(p)).all(axis=1))[0]
     ...           for p in ((e[0], sub.edge_point(7)), (e[1], sub.edge_point(7)))]
     >>> wf[halves].tolist()

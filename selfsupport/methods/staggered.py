@@ -791,7 +791,6 @@ class _Run:
             message = "; ".join(m for m in (message, "the iteration stopped at a polish held above tol by "
                                             "rounding alone") if m)
         if status == "converged" and not balanced:
-            # (relative_errors is per free vertex: its positions mapped back to vertex numbers)
             status, message = "stalled", short_of_tol(net, opt.tol, err)
         params: dict[str, Any] = {**asdict(opt), "eps": _si_bound(sc, self.lower), "w_max": _si_bound(sc, self.upper),
                                   "scaling": asdict(sc), "problem": self.problem.describe(),
