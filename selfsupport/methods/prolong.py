@@ -202,9 +202,6 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     """
     from scipy.spatial import cKDTree
 
-    def lengths(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(edge_vectors(xy, mesh.edges), axis=1)
-
     def mids(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
         return 0.5 * (xy[mesh.edges[:, 0]] + xy[mesh.edges[:, 1]])
 
@@ -215,9 +212,9 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     if not src.size:
         w[at] = np.nan
         return w
-    force = cw[src] * lengths(coarse, coarse_xy)[src]
+    force = cw[src] * _plan_lengths(coarse.edges[src], coarse_xy)
     _, k = cKDTree(mids(coarse, coarse_xy)[src]).query(mids(fine, fine_xy)[at])
-    w[at] = force[k] / np.maximum(lengths(fine, fine_xy)[at], 1e-300)
+    w[at] = force[k] / np.maximum(_plan_lengths(fine.edges[at], fine_xy), 1e-300)
     return w
 
 
@@ -272,12 +269,15 @@ def subdivided_weights(coarse: PolyMesh, sub: Subdivision, weights: np.ndarray) 
     # a boundary arch stays one line: its halves carry the whole force w ℓ (boundary_weights)
     bf = sub.mesh.boundary_edge_mask
     ef = sub.mesh.edges[bf]
-    Vf, Vc = sub.mesh.vertices[:, :2], coarse.vertices[:, :2]
     parent = np.where(ef[:, 0] < sub.n_old, ef[:, 1], ef[:, 0]) - sub.n_old  # the edge point's edge
-    ce = coarse.edges[parent]
-    force = w[parent] * np.linalg.norm(Vc[ce[:, 1]] - Vc[ce[:, 0]], axis=1)
-    out[bf] = force / np.maximum(np.linalg.norm(Vf[ef[:, 1]] - Vf[ef[:, 0]], axis=1), 1e-300)
+    force = w[parent] * _plan_lengths(coarse.edges[parent], coarse.vertices)
+    out[bf] = force / np.maximum(_plan_lengths(ef, sub.mesh.vertices), 1e-300)
     return out
+
+
+def _plan_lengths(edges: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Top-view lengths of ``edges`` (``xy``: positions, their first two columns used)."""
+    return np.linalg.norm(edge_vectors(np.asarray(xy)[:, :2], edges), axis=1)
 
 
 @dataclass(frozen=True)
