@@ -119,6 +119,13 @@ def test_rotation_about_the_vertical_axis(base, degrees):
     check_equivariant(base, api.solve(transformed(base[0], f)), f)
 
 
+def test_mirror_image(base):
+    """x → −x turns every face clockwise in the top view (the Airy function's orientation sign,
+    DESIGN.md §1); the network is the mirror image all the same."""
+    f = lambda V: V * np.array([-1.0, 1.0, 1.0])  # noqa: E731
+    check_equivariant(base, api.solve(transformed(base[0], f)), f)
+
+
 def test_turning_about_the_vertical_axis_leaves_the_unit_of_length_alone():
     """The scale-free unit (:class:`formulations.scaling.Scaling`) is the diagonal of the
     smallest upright box, not of the axis-aligned one, which grows up to √2× as the scene turns:
