@@ -3,7 +3,7 @@ fabrication, solved on one level and by levels.
 
     python -m studies.subdivided --scenes ../shared/paper-scenes/scenes --out OUT
         [--only lilium,cyl2] [--levels 1,2] [--methods staggered,multilevel,multilevel/clusters]
-        [--time-limit S] [--checker PATH]
+        [--time-limit S] [--checker PATH] [--variants none,turned,flat,tall,bumpy,mirrored]
 
 Each scene of Table 1 (:data:`studies.common.PAPER_TABLE1`) is subdivided ``--levels`` times
 (:func:`selfsupport.design.subdivision.subdivide_scene`: quads, supports kept along creases).
@@ -20,6 +20,10 @@ row per method:
 - the mean distance to the subdivided reference, over its bounding-box diagonal;
 - the peak memory of the row.
 
+``--variants`` also runs each scene as variants no solver setting was chosen on (turned, scaled
+and moved; flatter; taller; bumpy; mirrored: :data:`studies.variants.VARIANTS`), each before it
+is subdivided, as a held-out check; ``--levels 0`` keeps the designs as they are.
+
 Every row runs in its own spawned process (:func:`studies.common.run_isolated`). A crash, a
 hang or a memory blow-up costs that row only.
 
@@ -29,6 +33,7 @@ row into ``--out``, and prints the Markdown.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -36,6 +41,7 @@ from typing import Any, Sequence
 from .common import (PAPER_TABLE1, Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error,
                      load_average, peak_rss_mib, read_study_scene, run_checker, run_isolated, write_csv,
                      write_markdown)
+from .variants import VARIANTS, variant_scene
 
 #: method names; ``multilevel`` solves the designer's coarser scenes first (the subdivision's own
 #: hierarchy), ``multilevel/clusters`` coarsens the subdivided top view like any other mesh
@@ -50,15 +56,15 @@ def _solver(method: str) -> Any:
 
 
 def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out_json: str, time_limit: float,
-              warmup: bool = True) -> dict[str, Any]:
+              warmup: bool = True, variant: str = "none") -> dict[str, Any]:
     """Worker (own process): subdivide the scene, solve it, save the network, return the row."""
     from selfsupport.api import scene_loads
     from selfsupport.design.subdivision import subdivide_scene
     from selfsupport.io import write_network
     from selfsupport.shapes import make_shape
 
-    scene = subdivide_scene(read_study_scene(scenes_dir, scene_name), levels) if levels else \
-        read_study_scene(scenes_dir, scene_name)
+    design = variant_scene(read_study_scene(scenes_dir, scene_name), variant)
+    scene = subdivide_scene(design, levels) if levels else design
     loads = scene_loads(scene)
     if warmup:  # solver plug-ins and caches, untimed
         tiny = make_shape("dome", n_vertices=60)
@@ -67,7 +73,7 @@ def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out
     rss0 = current_rss_mib()
     with Stopwatch() as sw:
         res = solver.solve(scene, loads, time_limit=float(time_limit))
-    write_network(out_json, res, study={"scene": scene_name, "subdivisions": levels, "method": method,
+    write_network(out_json, res, study={"scene": scene_name, "variant": variant, "subdivisions": levels, "method": method,
                                         "solve_seconds": sw.seconds, "time_limit": time_limit})
     ml = res.parameters.get("multilevel", {}).get("levels", [])
     quads = int((scene.mesh.face_sizes == 4).sum())
@@ -80,7 +86,7 @@ def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out
 
 
 COLUMNS = [
-    Column("scene", "scene"), Column("subdivisions", "subdivisions"), Column("vertices", "V"),
+    Column("scene", "scene"), Column("variant", "variant"), Column("subdivisions", "subdivisions"), Column("vertices", "V"),
     Column("edges", "E"), Column("quad_share", "quads", "{:.0%}"), Column("method", "method"),
     Column("levels", "levels (V:its)"), Column("status", "status"), Column("time_s", "time [s]", "{:.2f}"),
     Column("iterations", "iterations"), Column("max_rel_error", "max rel. error", "{:.1e}"),
@@ -90,28 +96,28 @@ COLUMNS = [
 
 
 def run(*, scenes: Path, out: Path, names: Sequence[str], levels: Sequence[int], methods: Sequence[str],
-        time_limit: float, checker: Path | None, warmup: bool = True) -> list[dict[str, Any]]:
-    """Every (scene, levels, method) row, each in its own process; the tables are rewritten after
+        time_limit: float, checker: Path | None, warmup: bool = True,
+        variants: Sequence[str] = ("none",)) -> list[dict[str, Any]]:
+    """Every (scene, variant, levels, method) row, each in its own process; the tables are rewritten after
     each row (a long run can be read while it goes on)."""
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    for name in names:
-        for k in levels:
-            for method in methods:
-                net = out / f"{name}-x{k}__{method.replace('/', '-')}.json"
-                print(f"{name} ×{k} {method} ...", file=sys.stderr, flush=True)
-                row = {"scene": name, "subdivisions": k, "method": method, **run_isolated(
-                    "studies.subdivided:solve_row",
-                    {"scenes_dir": str(scenes), "scene_name": name, "levels": k, "method": method,
-                     "out_json": str(net), "time_limit": time_limit, "warmup": warmup},
-                    hard_timeout=time_limit + 600.0)}
-                if net.is_file() and row.get("status") not in ("killed", "crashed"):
-                    row["max_rel_error"] = json_max_relative_error(net)
-                    row["checker_error"] = run_checker(checker, net)
-                rows.append(row)
-                print(f"    {row.get('status')}: {row.get('vertices')} V, {row.get('time_s', float('nan')):.1f} s, "
-                      f"error {row.get('max_rel_error', float('nan')):.1e}", file=sys.stderr, flush=True)
-                _write(out, rows, scenes, time_limit)
+    for name, variant, k, method in itertools.product(names, variants, levels, methods):
+        tag = name if variant == "none" else f"{name}-{variant}"
+        net = out / f"{tag}-x{k}__{method.replace('/', '-')}.json"
+        print(f"{tag} ×{k} {method} ...", file=sys.stderr, flush=True)
+        row = {"scene": name, "variant": variant, "subdivisions": k, "method": method, **run_isolated(
+            "studies.subdivided:solve_row",
+            {"scenes_dir": str(scenes), "scene_name": name, "levels": k, "method": method,
+             "out_json": str(net), "time_limit": time_limit, "warmup": warmup, "variant": variant},
+            hard_timeout=time_limit + 600.0)}
+        if net.is_file() and row.get("status") not in ("killed", "crashed"):
+            row["max_rel_error"] = json_max_relative_error(net)
+            row["checker_error"] = run_checker(checker, net)
+        rows.append(row)
+        print(f"    {row.get('status')}: {row.get('vertices')} V, {row.get('time_s', float('nan')):.1f} s, "
+              f"error {row.get('max_rel_error', float('nan')):.1e}", file=sys.stderr, flush=True)
+        _write(out, rows, scenes, time_limit)
     return rows
 
 
@@ -139,6 +145,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     p.add_argument("--checker", type=Path, default=None,
                    help="check_network.py (default: ../tools/check_network.py next to --scenes)")
     p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve")
+    p.add_argument("--variants", default="none",
+                   help=f"comma-separated variants of each scene, from {', '.join(VARIANTS)} (default none)")
     a = p.parse_args(argv)
     names = [s for s in a.only.split(",") if s] or list(PAPER_TABLE1)
     methods = [m for m in a.methods.split(",") if m]
@@ -149,6 +157,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         levels = [int(k) for k in a.levels.split(",") if k]
     except ValueError:
         raise SystemExit(f"--levels takes comma-separated integers, got {a.levels!r}") from None
+    variants = [v for v in a.variants.split(",") if v]
+    if not variants or any(v not in VARIANTS for v in variants):
+        raise SystemExit(f"--variants takes names from {', '.join(VARIANTS)}, got {a.variants!r}")
     if not levels or min(levels) < 0:
         raise SystemExit(f"--levels takes integers >= 0, got {a.levels!r}")
     if not a.scenes.is_dir():
@@ -156,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     checker = a.checker if a.checker is not None else a.scenes.resolve().parent.parent / "tools" / "check_network.py"
     exit_on_sigterm()
     rows = run(scenes=a.scenes, out=a.out, names=names, levels=levels, methods=methods, time_limit=a.time_limit,
-               checker=checker, warmup=not a.no_warmup)
+               checker=checker, warmup=not a.no_warmup, variants=variants)
     print((a.out / "subdivided.md").read_text(encoding="utf-8"))
     return rows
 

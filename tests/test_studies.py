@@ -306,4 +306,34 @@ def test_subdivided_study_solves_the_refined_scene_and_recomputes_its_evidence(t
             assert r["checker_error"] == pytest.approx(r["max_rel_error"], rel=1e-3, abs=1e-14)
         assert (out / f"structural-x1__{r['method'].replace('/', '-')}.json").is_file()
     md = (out / "subdivided.md").read_text()
-    assert md.count("| structural | 1 |") == 3
+    assert md.count("| structural | none | 1 |") == 3
+
+
+def test_subdivided_study_variants_are_the_designs_mapped_and_solve_to_the_mapped_network(tmp_path):
+    """``--variants``: the turned variant (a similarity: turned, scaled by 2.5, moved) of a
+    150-vertex dome solves to the original's network mapped the same way (to 1e-4 of the scaled
+    diagonal, the invariance tests' tolerance); the flattened one keeps the plan and supports but
+    is a different design, whose network differs; every row is converged by the checker."""
+    from selfsupport.io.network_json import read_network
+    from studies import subdivided
+    from studies.variants import SCALE, VARIANTS
+
+    scenes, out = tmp_path / "scenes", tmp_path / "out"
+    scenes.mkdir()
+    scene = make_shape("dome", n_vertices=150)
+    write_mesh(scenes / "structural.obj", scene.mesh, up="-y")
+    (scenes / "structural.supports").write_text(" ".join(map(str, np.flatnonzero(scene.supports))))
+    rows = subdivided.main(["--scenes", str(scenes), "--out", str(out), "--only", "structural", "--levels", "0",
+                            "--methods", "staggered", "--variants", "none,turned,flat", "--checker", str(CHECKER),
+                            "--no-warmup", "--time-limit", "120"])
+    assert [r["variant"] for r in rows] == ["none", "turned", "flat"]
+    for r in rows:
+        assert r["status"] == "converged" and r["max_rel_error"] <= 1e-9
+        if CHECKER.is_file():
+            assert r["checker_error"] <= 1e-8
+    base, turned, flat = (read_network(out / f"{tag}-x0__staggered.json")
+                          for tag in ("structural", "structural-turned", "structural-flat"))
+    diag = float(np.linalg.norm(np.ptp(base.vertices, axis=0)))
+    assert np.abs(turned.vertices - VARIANTS["turned"](base.vertices)).max() <= 1e-4 * SCALE * diag
+    np.testing.assert_allclose(flat.reference.vertices[:, :2], base.reference.vertices[:, :2], atol=1e-12)
+    assert np.abs(flat.vertices[:, 2] - base.vertices[:, 2]).max() > 1e-2 * diag
