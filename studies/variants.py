@@ -6,14 +6,15 @@ positions (z up) and keeps the mesh, the supports and the loads' definition. ``s
 --variants`` runs them (also subdivided, the issue #21 case):
 
 - ``turned``: turned by 1.1 rad about the vertical, scaled by 2.5 and moved by (30, −12, 5) m. A
-  similarity, so the network should be the original's, turned, scaled and moved (distances over
-  the diagonal the same);
+  similarity, so the network should be the original's, turned, scaled and moved (its distance
+  to the reference 2.5× as many metres; over the axis-aligned diagonal, which turning changes,
+  not the same number);
 - ``flat`` / ``tall``: heights above the lowest vertex scaled by 0.6 / 1.6 (other thrusts);
 - ``bumpy``: smooth bumps of 1% of the top-view diagonal added to the heights;
 - ``mirrored``: x → −x, which reverses the faces' orientation in the top view.
 
-Example
--------
+Example (run by ``tests/test_studies.py``)
+------------------------------------------
 >>> V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [0.0, 2.0, 1.0]])
 >>> W = VARIANTS["turned"](V)
 >>> d = lambda P: np.linalg.norm(P[:, None] - P[None], axis=-1)

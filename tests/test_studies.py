@@ -337,3 +337,13 @@ def test_subdivided_study_variants_are_the_designs_mapped_and_solve_to_the_mappe
     assert np.abs(turned.vertices - VARIANTS["turned"](base.vertices)).max() <= 1e-4 * SCALE * diag
     np.testing.assert_allclose(flat.reference.vertices[:, :2], base.reference.vertices[:, :2], atol=1e-12)
     assert np.abs(flat.vertices[:, 2] - base.vertices[:, 2]).max() > 1e-2 * diag
+
+
+def test_variants_docstring_examples():
+    """studies/ is not collected for doctests (scripts); the variants' examples run here."""
+    import doctest
+
+    from studies import variants
+
+    result = doctest.testmod(variants, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 5 and result.failed == 0
