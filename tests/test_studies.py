@@ -283,17 +283,23 @@ def test_dome_study_configuration_supports_the_ground_ring_and_loads_the_apex():
     assert at == [int(np.argmax(V[:, 2]))] and not scene.supports[at[0]]
 
 
+def _dome_as_structural(tmp_path: Path):
+    """A 150-vertex dome stored as the scenes folder's 'structural' (OBJ, -y up, supports file)."""
+    scenes, out = tmp_path / "scenes", tmp_path / "out"
+    scenes.mkdir()
+    scene = make_shape("dome", n_vertices=150)
+    write_mesh(scenes / "structural.obj", scene.mesh, up="-y")
+    (scenes / "structural.supports").write_text(" ".join(map(str, np.flatnonzero(scene.supports))))
+    return scenes, out, scene
+
+
 def test_subdivided_study_solves_the_refined_scene_and_recomputes_its_evidence(tmp_path):
     """The subdivided-designs study on a 150-vertex dome stored as 'structural': one Catmull–Clark
     step gives V + E + F vertices, all quads; each method's row is converged, its error recomputed
     from the saved JSON equals the solve's own and the shared checker agrees."""
     from studies import subdivided
 
-    scenes, out = tmp_path / "scenes", tmp_path / "out"
-    scenes.mkdir()
-    scene = make_shape("dome", n_vertices=150)
-    write_mesh(scenes / "structural.obj", scene.mesh, up="-y")
-    (scenes / "structural.supports").write_text(" ".join(map(str, np.flatnonzero(scene.supports))))
+    scenes, out, scene = _dome_as_structural(tmp_path)
     rows = subdivided.main(["--scenes", str(scenes), "--out", str(out), "--only", "structural", "--levels", "1",
                             "--checker", str(CHECKER), "--no-warmup", "--time-limit", "120"])
     m = scene.mesh
@@ -318,11 +324,7 @@ def test_subdivided_study_variants_are_the_designs_mapped_and_solve_to_the_mappe
     from studies import subdivided
     from studies.variants import SCALE, VARIANTS
 
-    scenes, out = tmp_path / "scenes", tmp_path / "out"
-    scenes.mkdir()
-    scene = make_shape("dome", n_vertices=150)
-    write_mesh(scenes / "structural.obj", scene.mesh, up="-y")
-    (scenes / "structural.supports").write_text(" ".join(map(str, np.flatnonzero(scene.supports))))
+    scenes, out, scene = _dome_as_structural(tmp_path)
     rows = subdivided.main(["--scenes", str(scenes), "--out", str(out), "--only", "structural", "--levels", "0",
                             "--methods", "staggered", "--variants", "none,turned,flat", "--checker", str(CHECKER),
                             "--no-warmup", "--time-limit", "120"])
