@@ -563,9 +563,8 @@ class Multilevel:
                 cold = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
                 levels.append({**self._level(cold, scene), "cold_after": res.status})
                 if cold.status == "converged" or cold.max_relative_error < res.max_relative_error:
+                    why = f"the fine level iterated from interpolated heights ended {res.status}: it was solved cold"
                     res = cold
-                    why = (f"the fine level iterated from interpolated heights ended {levels[-2]['status']}: "
-                           "it was solved cold")
             prev_scene = scene
             in_equilibrium = res.max_relative_error <= START_TOL
             if scene is not problem.scene and (not in_equilibrium or out_of_time(deadline)):

@@ -316,8 +316,8 @@ class ActiveSetFit(WeightFitBackend):
         A = sp.csc_matrix(A)
         if self._pattern is None or not self._pattern.matches(A):  # (one structure for a whole solve)
             self._pattern = GramPattern(A)
-        Q = self._pattern.gram(A, shift=prox if prox > 0 else 0.0)  # (linalg.structural_gram: the pattern
-        # CHOLMOD orders well)
+        # (the structural pattern, linalg.structural_gram: the one CHOLMOD orders well)
+        Q = self._pattern.gram(A, shift=prox if prox > 0 else 0.0)
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
         lowq = _LowerQ(Q, self._factor, self._pattern)  # (spd_factor starts afresh when the size changed)
