@@ -349,3 +349,55 @@ def test_variants_docstring_examples():
 
     result = doctest.testmod(variants, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 5 and result.failed == 0
+
+
+def test_newton_systems_are_the_fits_gram_plus_a_positive_diagonal():
+    """The captured systems are the interior point's Q + diag(D), Q = AᵀA + prox·I of the same fit
+    (recomputed by the study from the recorded A), D > 0; the capture stops the solve after the
+    last fit wanted and leaves the backend as it was."""
+    from selfsupport.methods import weightfit
+    from studies import newton_systems as ns
+
+    before = weightfit._LowerQ.with_diagonal
+    scene, systems = ns.record("pillar_vault", 400, [0, 2])
+    assert weightfit._LowerQ.with_diagonal is before
+    assert systems and {s[0] for s in systems} <= {0, 2}
+    for _fit, L, Q in systems:
+        M = ns.symmetric(L)
+        diff = (M - Q).tocoo()
+        off = diff.row != diff.col
+        assert np.abs(diff.data[off]).max(initial=0.0) <= 1e-12 * np.abs(Q.data).max()
+        D = (M - Q).diagonal()
+        assert D.min() > 0 and Q.diagonal().min() > 0
+
+
+def test_newton_systems_direct_solve_is_exact_and_cg_reports_what_it_reached():
+    """CHOLMOD solves each system to round-off; a CG row counts as converged only with its true
+    residual at the requested tolerance; the stale factor of the fit's own previous system is
+    used from the fit's second system on."""
+    from studies import newton_systems as ns
+
+    _scene, systems = ns.record("concave_disk", 400, [0])
+    rtol = 1e-8
+    rows = ns.solve_systems(systems, ["cholmod", "cholmod-stale", "jacobi"], every=1, rtol=rtol, maxiter=200)
+    chol = [r for r in rows if r["solver"] == "cholmod"]
+    assert len(chol) == len(systems) >= 3
+    assert max(r["residual"] for r in chol) < 1e-10
+    stale = [r for r in rows if r["solver"] == "cholmod-stale"]
+    assert len(stale) == len(systems) - 1 and all(r["converged"] for r in stale)
+    for r in rows:
+        if r["solver"] != "cholmod":
+            assert not r["converged"] or r["residual"] <= 10 * rtol
+    summary = ns.summarize([dict(r, shape="disk", vertices=400) for r in rows])
+    assert {s["solver"] for s in summary} == {"cholmod", "cholmod-stale", "jacobi"}
+    assert next(s for s in summary if s["solver"] == "cholmod")["over_cholmod"] == 1.0
+
+
+def test_newton_systems_docstring_examples():
+    """studies/ is not collected for doctests (scripts); the study's examples run here."""
+    import doctest
+
+    from studies import newton_systems
+
+    result = doctest.testmod(newton_systems, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 3 and result.failed == 0
