@@ -248,8 +248,9 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
                                           f"({result.distance_max * diag:.3g} m)")]
     design = result.parameters.get("design")
-    if design and "start" in design:  # a re-solved network file: say what the solve was for and began at
-        rows += [("reference", design["reference"]), ("start", design["start"])]
+    if design and "start" in design:  # a re-solved network file or a warm start: what the solve was for
+        # and began at (a warm start on a plain scene has no stored reference: the pq finish on a turned vault)
+        rows += [(key, design[key]) for key in ("reference", "start") if key in design]
     for name, value in result.terms.items():  # the objective, term by term (SI units: m²)
         rows.append((f"objective {name}", f"{value:.4g} m^2"))
     for name, case in result.cases:

@@ -485,3 +485,16 @@ def test_option_reaches_the_staggered_method(tmp_path):
     assert rc == 0
     params = json.loads(out.read_text())["parameters"]
     assert params["coupled"] is True and params["finish_slack"] == 0.1
+
+
+def test_summary_of_a_warm_started_solve_names_its_start_without_a_stored_reference():
+    """A warm start on a plain scene records only where the solve began (the pq command's finish on
+    a turned vault printed ``KeyError: 'reference'`` after writing its file)."""
+    from selfsupport import api
+
+    scene = make_shape("barrel_vault", n_vertices=200)
+    first = api.solve(scene)
+    again = api.solve(scene, warm_start=first)
+    assert set(again.parameters["design"]) == {"start"}
+    rows = dict(cli.summary_rows(again, scene))
+    assert rows["start"] == again.parameters["design"]["start"] and "reference" not in rows
