@@ -113,6 +113,21 @@ def test_check_finds_equilibrium_weights_of_solved_networks(shape):
     assert relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
 
 
+def test_check_of_a_network_fits_from_its_own_weights_too():
+    """A flattened pillar vault (heights × 0.6): the fit from ε alone stalls near 1e-5, while the
+    solved network's own weights balance it to 1e-12; check must not deny what they prove."""
+    base = make_shape("pillar_vault", n_vertices=500)
+    V = base.mesh.vertices.copy()
+    V[:, 2] = V[:, 2].min() + 0.6 * (V[:, 2] - V[:, 2].min())
+    res = api.solve(Scene(mesh=base.mesh.with_vertices(V), supports=base.supports))
+    assert res.status == "converged" and res.max_relative_error <= 1e-10
+    rep = api.check(res.network)
+    assert rep.self_supporting and rep.stored_self_supporting and rep.max_relative_error <= 1e-10
+    net = rep.network
+    assert relative_residuals(net.vertices, net.edges, net.weights, net.loads, net.supports).max() <= 1e-10
+    assert net.weights[net.active_edges].min() >= 0
+
+
 def test_check_a_solved_network_is_self_supporting(barrel_result, tmp_path):
     rep = api.check(barrel_result.network)
     assert rep.self_supporting and rep.max_relative_error <= 1e-10
