@@ -135,7 +135,7 @@ def _run_stability(args: argparse.Namespace) -> int:
     print_table(f"selfsupport stability -> {out}", [
         (f"{r['added_kg']:g} kg", ("found inside the hull" if r["found"] else "NOT found") +
          f"; max rel. error {r['max_relative_error']:.1e}; max hull excess {r['max_hull_excess_m']:.3g} m "
-         f"({r['outside']} outside); {r['seconds']:.1f} s") for r in rows])
+         f"({r['outside']} outside the tolerance {r['hull_tolerance_m']:.2g} m); {r['seconds']:.1f} s") for r in rows])
     return EXIT_CODES["ok"]
 
 

@@ -199,11 +199,12 @@ class LoadStep:
         return bool(self.result.parameters.get("hull", {}).get("certified"))
 
     def row(self) -> dict[str, Any]:
-        """A table row: load, found, max relative error, max hull violation, outside count, time."""
+        """A table row: load, found, max relative error, max hull violation, outside count (beyond
+        the hull's tolerance), time."""
         h = self.result.parameters.get("hull", {})
         return {"added_kg": self.kg, "found": self.certified, "status": self.result.status,
                 "max_relative_error": self.result.max_relative_error, "max_hull_excess_m": h.get("max_excess"),
-                "outside": h.get("outside"), "penalty": h.get("penalty"),
+                "outside": h.get("outside"), "hull_tolerance_m": h.get("tolerance"), "penalty": h.get("penalty"),
                 "distance_mean": self.result.distance_mean, "seconds": self.result.wall_time}
 
 
