@@ -417,10 +417,10 @@ class Simultaneous:
                 if best[0] < POLISH_ACCEPT:  # an earlier round was consistent enough: polish that one
                     x, polish, polished_change = best[1], True, best[0]
                     break
-                # (vault with its heights ×0.6: IPOPT's objective settles to 1e-5 while the loads keep
-                # changing by ~1e-2, the optimum's positions being nearly free along some directions)
-                # the most consistent round is polished like the last converged round of a run that
+                # The most consistent round is polished, like the last converged round of a run that
                 # stopped early: equilibrium for its weights, though optimal only for nearby loads
+                # (vault with its heights ×0.6: IPOPT's objective agrees to 1e-5 from round to round
+                # while the loads keep changing by ~1e-2).
                 status, polish, unsettled = "stalled", True, True
                 x = best[1]
                 message = (f"the loads do not settle: the geometry changes them by {change:.2e} (relative) "
