@@ -258,6 +258,28 @@ def unbalanceable_vertices(scene: Scene, vertices: np.ndarray | None = None) -> 
     return low, one_sided
 
 
+def require_top_view_balance(scene: Scene, vertices: np.ndarray) -> None:
+    """Raise :class:`~selfsupport.errors.InfeasibleDesign` when the top view is to stay as it is
+    (:class:`~formulations.FixedTopView`) and a free vertex has all its neighbours on one side of
+    it there: equation (2) then has no solution with every weight ≥ ε > 0, whatever the heights
+    (the ``one_sided`` vertices of :func:`unbalanceable_vertices`). Without this the methods
+    iterate to their limits (a vault with free edges: 30 iterations, then "stalled" at 0.1).
+
+    >>> from selfsupport.shapes import make_shape
+    >>> dome = make_shape("dome", n_vertices=100)  # supported along its whole rim: balanced
+    >>> require_top_view_balance(dome, dome.mesh.vertices)
+    """
+    one_sided = unbalanceable_vertices(scene, vertices)[1]
+    if one_sided.size:
+        from .errors import InfeasibleDesign
+
+        raise InfeasibleDesign(
+            f"with the top view fixed, {one_sided.size} free vertices have all their neighbours on one side of them "
+            f"in the top view (a free straight or convex boundary, a free corner: {_few(one_sided)}), so no "
+            "compressive network balances them horizontally; support them, or let the top view move (drop "
+            "--fixed-top-view)")
+
+
 def _largest_angular_gap(i: np.ndarray, ang: np.ndarray, n: int) -> np.ndarray:
     """Per vertex, the largest gap between the directions ``ang`` (radians in [-π, π]) of the
     half-edges leaving it (``i``), the wrap-around gap included; 0 where none leaves.

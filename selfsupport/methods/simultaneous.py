@@ -64,6 +64,7 @@ from formulations.terms import HullPenalty, PlanarFaces, Sum
 from ..errors import InputError
 from ..loads import LoadCase
 from ..result import Network, SolveResult
+from ..validate import require_top_view_balance
 from ..scene import Scene
 from .base import HULL_TOL, as_problem, case_networks, planarity_report, term_values
 from .deadline import out_of_time
@@ -327,6 +328,8 @@ class Simultaneous:
         mesh0 = scene.mesh
 
         V = _start_vertices(scene, opts.warm_start)
+        if problem.fixed_top_view:  # (the top view the solve keeps: the start's)
+            require_top_view_balance(scene, V)
         form, sc = self.formulation(problem, V, weight_regularization=self.weight_regularization)
         top = form.topology
         free = top.free

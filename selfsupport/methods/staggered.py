@@ -104,6 +104,7 @@ from ..loads import LoadCase
 from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
+from ..validate import require_top_view_balance
 from .base import HULL_TOL, as_problem, loads_or_options, case_networks, hull_report, planarity_report, term_values
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
@@ -346,6 +347,8 @@ class _Run:
             self.warm_info = {"same_topology": same}
             if same:  # its active set seeds the first fit (PDAS then needs a few factorizations)
                 method.backend.warm(self.w_warm[0], self.lower, self.upper)
+        if self.fixed_xy:  # (the top view the solve keeps: the start's)
+            require_top_view_balance(self.scene, self.sc.pos_back(self.X_start))
         # one backend per load case: each keeps its own warm start (active set, factor patterns)
         self.backends = [method.backend] + [type(method.backend)(**getattr(method.backend, "options", {}))
                                             for _ in range(self.C - 1)]
