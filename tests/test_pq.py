@@ -58,6 +58,10 @@ def test_planar_constraint_gives_planar_quads_in_equilibrium(method, n):
     assert gaps.max() <= 1e-3
     assert res.parameters["planarity"]["met"] and res.parameters["planarity"]["max_nonplanarity"] == pytest.approx(
         gaps.max(), abs=1e-12)
+    # the quads left out (three supported corners: the grid's 4 corner cells) are reported as such
+    all_gaps, held = diagonal_gaps(res.network.mesh), [sum(scene.supports[list(f)]) >= 3 for f in scene.mesh.faces]
+    assert res.parameters["planarity"]["exempt_faces"] == sum(held) == 4
+    assert res.parameters["planarity"]["max_nonplanarity_exempt"] == pytest.approx(all_gaps[held].max(), abs=1e-12)
     assert independent_check(res).ok
 
 

@@ -132,7 +132,8 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     than four corners (over ``ℓ_f³``: for a square twice its non-planarity), the tolerance and
     whether it is met; ``None`` without the constraint. Faces with three or more supported
     corners are not counted (their plane is the supports'; see
-    :func:`~formulations.terms.planarity.coplanarity_rows`)."""
+    :func:`~formulations.terms.planarity.coplanarity_rows`): ``exempt_faces`` says how many there
+    are and ``max_nonplanarity_exempt`` how far from planar they are."""
     from formulations import Planar
     from formulations.terms.planarity import coplanarity_rows
 
@@ -145,8 +146,9 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     sup = np.asarray(network.supports, bool)
     face_of, _, _ = mesh.corner_data  # (faces with three supported corners are the supports' own plane)
     held = np.bincount(face_of, weights=sup[mesh.face_vertices], minlength=mesh.n_faces) >= 3
-    q = face_nonplanarity(mesh)
-    q = q[np.isfinite(q) & ~held]
+    q_all = face_nonplanarity(mesh)
+    exempt = q_all[np.isfinite(q_all) & held]
+    q = q_all[np.isfinite(q_all) & ~held]
     Q, owner, inv_ell2 = coplanarity_rows(mesh, sup)
     big = mesh.face_sizes[owner] > 4
     poly = 0.0
@@ -156,7 +158,8 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
         poly = float((np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3))) * inv_ell2[big] ** 1.5).max())
     qmax = float(q.max()) if q.size else 0.0
     return {"tol": planar.tol, "max_nonplanarity": qmax, "mean_nonplanarity": float(q.mean()) if q.size else 0.0,
-            "max_polygon_row": poly, "met": bool(qmax <= planar.tol and poly <= 2 * planar.tol)}
+            "max_polygon_row": poly, "met": bool(qmax <= planar.tol and poly <= 2 * planar.tol),
+            "exempt_faces": int(exempt.size), "max_nonplanarity_exempt": float(exempt.max(initial=0.0))}
 
 
 def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np.ndarray]
