@@ -82,6 +82,10 @@ STATUS_HINT: dict[str, str] = {
     "time_limit": "raise --time-limit, try --method multilevel for a big mesh, or try the other method",
     "interrupted": "rerun and let it finish",
 }
+#: The hint of an "infeasible" hull search (``--hull``): its search is a heuristic, so not finding a
+#: network inside the hull proves nothing (see selfsupport.stability).
+HULL_HINT = ("not finding a network inside the hull is no proof of collapse; try a larger --thickness, more "
+             "supports, or --method ipopt")
 
 
 # --------------------------------------------------------------------------- registry
@@ -276,6 +280,7 @@ def _not_converged_line(result) -> str:
     # (a network held above tol by rounding alone: its message says what to change, the status's
     # usual hint — other methods, more supports — would not help)
     hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
+            else HULL_HINT if result.status == "infeasible" and result.parameters.get("hull")
             else STATUS_HINT.get(result.status, "try the other method"))
     if result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]:
         from .methods.multilevel import DIRECT_MAX
@@ -287,9 +292,11 @@ def _not_converged_line(result) -> str:
     msg = f" ({result.message})" if result.message else ""
     tol = float(result.parameters.get("tol", 1e-9) or 1e-9)
     if result.max_relative_error <= tol:
+        short = ("is not inside the masonry hull" if hint is HULL_HINT else
+                 f"is not the solution nearest to the reference (mean distance {result.distance_mean:.2e} of the "
+                 "bbox diagonal)")
         return (f"did NOT converge: status {result.status}{msg}; the written network is in equilibrium "
-                f"(max relative error {result.max_relative_error:.2e}) but is not the solution nearest to the "
-                f"reference (mean distance {result.distance_mean:.2e} of the bbox diagonal); {hint}")
+                f"(max relative error {result.max_relative_error:.2e}) but {short}; {hint}")
     return (f"the network is NOT in equilibrium: status {result.status}{msg}, max relative error "
             f"{result.max_relative_error:.2e} > {tol:g}; {hint}")
 

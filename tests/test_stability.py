@@ -87,6 +87,25 @@ def test_pillar_vault_solve_with_hull_stays_within_half_thickness(tmp_path, caps
     assert independent_check(out).ok
 
 
+def test_a_hull_search_that_finds_nothing_is_not_called_a_proof(tmp_path, capsys):
+    """The thin hemisphere below through the CLI: the last line says the network written is in
+    equilibrium but outside the hull, and that this proves no collapse (not the generic
+    "no compressive network exists" of an infeasible solve)."""
+    from selfsupport.cli import main
+    from selfsupport.io import write_mesh
+
+    scene = make_shape("dome", rings=8, radius=5.0, height=5.0)
+    mesh, sup = tmp_path / "dome.obj", tmp_path / "dome.supports"
+    write_mesh(mesh, scene.mesh)
+    sup.write_text("\n".join(str(i) for i in np.flatnonzero(scene.supports)) + "\n")
+    code = main(["solve", str(mesh), "--supports", str(sup), "--hull", "--thickness", "0.1",
+                 "--out", str(tmp_path / "n.json"), "-q"])
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 4 and "status infeasible" in last
+    assert "but is not inside the masonry hull" in last and "no proof of collapse" in last
+    assert "no compressive network exists" not in last
+
+
 def test_thin_hemisphere_is_reported_infeasible():
     """Heyman (1977): a hemispherical dome needs t/R >= 0.042 under self-weight (no tension, thrust
     anywhere in the section). Here the supports even hold the thrust at the mid-surface, which can
