@@ -565,7 +565,8 @@ class Simultaneous:
                                     weight_regularization=(WEIGHT_REGULARIZATION if weight_regularization is None
                                                            else weight_regularization),
                                     weight_scale=1.0 / h ** 2, hull=hull, planar=planar,
-                                    fixed_xy=sp_.X[top.free, :2] if problem.fixed_top_view else None,
+                                    # (the start's top view, as in the staggered method: a warm start's)
+                                    fixed_xy=sc.pos(start)[top.free, :2] if problem.fixed_top_view else None,
                                     case_names=problem.loads.names)
         return form, sc
 
