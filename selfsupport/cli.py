@@ -282,6 +282,8 @@ def _not_converged_line(result) -> str:
     hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
             else HULL_HINT if result.status == "infeasible" and result.parameters.get("hull")
             else STATUS_HINT.get(result.status, "try the other method"))
+    if result.method == "simultaneous":  # (IPOPT or nlopt ran already: the other method to try is the staggered one)
+        hint = hint.replace("--method ipopt", "--method staggered")
     if result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]:
         from .methods.multilevel import DIRECT_MAX
 

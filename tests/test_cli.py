@@ -498,3 +498,13 @@ def test_summary_of_a_warm_started_solve_names_its_start_without_a_stored_refere
     assert set(again.parameters["design"]) == {"start"}
     rows = dict(cli.summary_rows(again, scene))
     assert rows["start"] == again.parameters["design"]["start"] and "reference" not in rows
+
+
+def test_the_hint_of_an_unfinished_ipopt_solve_suggests_the_other_method():
+    """An IPOPT run stopped at its iteration limit was told to "try --method ipopt"."""
+    from selfsupport import api
+
+    res = api.solve(make_shape("dome", n_vertices=100), method="ipopt", max_iter=2)
+    assert res.status == "iteration_limit"
+    line = cli._not_converged_line(res)
+    assert "--method ipopt" not in line and "--method staggered" in line
