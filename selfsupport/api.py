@@ -557,7 +557,7 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
         # clipped, stalled like the fit from eps.
         floor = min(float(w.min(initial=np.inf)) for w in starts if w is not None)
         loose = eps is None and 0.0 < floor < fits[0].eps
-        prob_s = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=floor, w_max=w_max) if loose else prob
+        prob_s = replace(prob, bounds=replace(prob.bounds, lower=floor)) if loose else prob
         again = fit_weights(prob_s, L, backend=backend, start=starts)
         fits = [b if w is not None and b.relative_errors.max(initial=0.0) < a.relative_errors.max(initial=0.0) else a
                 for a, b, w in zip(fits, again, starts)]

@@ -215,7 +215,10 @@ def solve_systems(systems: list, solvers: Sequence[str], *, every: int = 1, rtol
                 row["residual"] = float(np.linalg.norm(M @ x - b) / np.linalg.norm(b))
                 row["total_s"] = row["setup_s"] + row["solve_s"]
                 rows.append(row)
-        previous[fit] = linalg.spd_factor(L, lower=True)  # its own object: `shared` is refactored
+        if "cholmod-stale" in solvers and (k + 1) % every == 0:  # (the next system is solved)
+            previous[fit] = linalg.spd_factor(L, lower=True)  # its own object: `shared` is refactored
+        else:
+            previous.pop(fit, None)  # (no stale factor of any but the system just before)
     return rows
 
 

@@ -65,7 +65,7 @@ def fit_weights(problem: Problem, loads: np.ndarray | None = None, *, backend: s
     free = top.free
     A = weight_matrix(top, X)
     reports = []
-    for L in prob.L:
+    for k, L in enumerate(prob.L):
         s = np.repeat(1.0 / np.abs(L[free]), 3)
         As = sp.diags(s) @ A
         bs = s * load_vector(top, L)
@@ -75,7 +75,7 @@ def fit_weights(problem: Problem, loads: np.ndarray | None = None, *, backend: s
             rel_prox.append(rel_prox[-1] / PROX_STEP)
         be = make_backend(backend)
         fit, rel, iterations = None, None, 0
-        given = start[len(reports)] if start is not None and len(reports) < len(start) else None
+        given = start[k] if start is not None and k < len(start) else None
         w0 = lower.copy() if given is None else np.clip(sc.weight(np.asarray(given, float)), lower, upper)
         # The proximal term (needed: A has more columns than rows, so the plain fit has a face of
         # minimisers) biases the answer towards w0; in the staggered loop w0 is the previous iterate
