@@ -84,8 +84,15 @@ STATUS_HINT: dict[str, str] = {
 }
 #: The hint of an "infeasible" hull search (``--hull``): its search is a heuristic, so not finding a
 #: network inside the hull proves nothing (see selfsupport.stability).
-HULL_HINT = ("not finding a network inside the hull is no proof of collapse; try a larger --thickness, more "
+HULL_HINT = ("not finding a network inside the hull is no proof of collapse; try a larger --thickness or more "
              "supports, or --method ipopt")
+#: Above this many vertices a hint does not suggest IPOPT: the largest meshes its simultaneous
+#: solve converged on are lilium-pillar (1,200 vertices, 107 s) and a 1,000-vertex disk (15 s);
+#: it ran out of time on lilium, cyl2 and dome2 (README, *Why IPOPT fails on the complex scenes*).
+IPOPT_HINT_MAX = 2000
+#: How each hint's IPOPT alternative is struck out for a mesh above IPOPT_HINT_MAX.
+_NO_IPOPT = (("try --method ipopt, ", "try "), (", or try --method ipopt", ""), (", or --method ipopt", ""),
+             (" / --method ipopt", ""))
 
 
 # --------------------------------------------------------------------------- registry
@@ -279,22 +286,26 @@ def _not_converged_line(result) -> str:
     """
     # (a network held above tol by rounding alone: its message says what to change, the status's
     # usual hint — other methods, more supports — would not help)
+    in_hull = result.status == "infeasible" and bool(result.parameters.get("hull"))
     hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
-            else HULL_HINT if result.status == "infeasible" and result.parameters.get("hull")
-            else STATUS_HINT.get(result.status, "try the other method"))
-    if result.method == "simultaneous":  # (IPOPT or nlopt ran already: the other method to try is the staggered one)
-        hint = hint.replace("--method ipopt", "--method staggered")
+            else HULL_HINT if in_hull else STATUS_HINT.get(result.status, "try the other method"))
+    n = result.network.mesh.n_vertices
     if result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]:
         from .methods.multilevel import DIRECT_MAX
 
-        if result.network.mesh.n_vertices > DIRECT_MAX:
+        if n > DIRECT_MAX:
             # (lilium and lilium-pillar subdivided twice, 28k quads: the single level stalled at
             # max relative error 7.8 and 2.6, the multilevel solve converged in 47 and 53 s)
             hint = f"try --method multilevel (a mesh this large, e.g. a subdivided design); otherwise {hint}"
+    if result.method == "simultaneous":  # (IPOPT or nlopt ran already: the other method to try is the staggered one)
+        hint = hint.replace("--method ipopt", "--method staggered")
+    elif n > IPOPT_HINT_MAX:
+        for phrase, instead in _NO_IPOPT:
+            hint = hint.replace(phrase, instead)
     msg = f" ({result.message})" if result.message else ""
     tol = float(result.parameters.get("tol", 1e-9) or 1e-9)
     if result.max_relative_error <= tol:
-        short = ("is not inside the masonry hull" if hint is HULL_HINT else
+        short = ("is not inside the masonry hull" if in_hull else
                  f"is not the solution nearest to the reference (mean distance {result.distance_mean:.2e} of the "
                  "bbox diagonal)")
         return (f"did NOT converge: status {result.status}{msg}; the written network is in equilibrium "
