@@ -9,6 +9,8 @@ Example
 >>> loads = SelfWeight(density=1000.0, thickness=0.1) + PointLoad(np.array([0.0, 0.0, -5.0]))
 >>> round(float(loads.nodal(m, m.vertices).sum()), 3)  # -(1000*0.1*9.81*0.5) - 5
 -495.5
+>>> loads.concentrated, SelfWeight().concentrated  # (a load on single vertices: point loads, extra masses)
+(True, False)
 """
 from __future__ import annotations
 
@@ -32,6 +34,11 @@ class LoadCase:
     def depends_on_geometry(self) -> bool:
         return False
 
+    @property
+    def concentrated(self) -> bool:
+        """Does the case put loads on single vertices (point loads, extra masses)?"""
+        return False
+
     def __add__(self, other: "LoadCase") -> "CombinedLoad":
         return CombinedLoad((self, other))
 
@@ -49,6 +56,10 @@ class CombinedLoad(LoadCase):
     @property
     def depends_on_geometry(self) -> bool:
         return any(c.depends_on_geometry for c in self.cases)
+
+    @property
+    def concentrated(self) -> bool:
+        return any(c.concentrated for c in self.cases)
 
     def __add__(self, other: LoadCase) -> "CombinedLoad":
         return CombinedLoad(self.cases + (other,))
@@ -84,6 +95,10 @@ class PointLoad(LoadCase):
     def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
         return np.asarray(self.forces, float)
 
+    @property
+    def concentrated(self) -> bool:
+        return bool(np.any(np.asarray(self.forces, float) != 0))
+
 
 @dataclass(frozen=True, eq=False)
 class ExtraMass(LoadCase):
@@ -94,6 +109,10 @@ class ExtraMass(LoadCase):
 
     def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
         return -self.g * np.asarray(self.mass, float)
+
+    @property
+    def concentrated(self) -> bool:
+        return bool(np.any(np.asarray(self.mass, float) != 0))
 
 
 def with_scene_extras(loads: LoadCase, scene) -> LoadCase:

@@ -420,3 +420,84 @@ def test_loose_far_fits_converge_as_close_as_exact_ones_on_a_4k_concave_disk():
     assert loose.status == exact.status == "converged"
     assert loose.max_relative_error <= 1e-9
     assert loose.distance_mean <= 1.1 * exact.distance_mean
+
+
+def _point_loaded_vault(share: float, n_vertices: int = 300):
+    """A pillar vault (289 vertices by default) with ``share`` of its self-weight hung on one
+    free vertex (off-centre, away from the pillars)."""
+    from selfsupport.loads import PointLoad
+
+    scene = make_shape("pillar_vault", n_vertices=n_vertices)
+    V, free = scene.mesh.vertices, np.flatnonzero(~scene.supports)
+    target = V[free, :2].mean(0) - 0.13 * np.ptp(V[:, :2], axis=0)
+    v = int(free[np.argmin(np.linalg.norm(V[free, :2] - target, axis=1))])
+    self_weight = SelfWeight(density=2000, thickness=0.1)
+    total = -float(self_weight.nodal(scene.mesh, V).sum())
+    forces = np.zeros(scene.mesh.n_vertices)
+    forces[v] = -share * total
+    return scene, self_weight + PointLoad(forces), v
+
+
+def _check(scene, res):
+    net = res.network
+    err = max_relative_error(net.vertices, net.edges, net.weights, net.loads, scene.supports)
+    assert err <= res.parameters["tol"] and err == pytest.approx(res.max_relative_error, rel=1e-6, abs=1e-15)
+    return err
+
+
+def test_a_point_load_is_refined_back_towards_the_reference():
+    """The penalty path carries a point load by a spike under it; the refinement that runs by
+    default for concentrated loads (``refine_concentrated``) walks the network back along the
+    equilibrium manifold: still in equilibrium, many times closer, the spike gone."""
+    scene, loads, v = _point_loaded_vault(0.1)
+    plain = StaggeredLinearization(refine_concentrated=0).solve(scene, loads)
+    refined = StaggeredLinearization().solve(scene, loads)
+    assert plain.status == refined.status == "converged"
+    _check(scene, plain), _check(scene, refined)
+    rec = [h for h in refined.history if h.get("iteration") == "refine"]
+    assert len(rec) == 1 and rec[0]["applied"] and not any(h.get("iteration") == "refine" for h in plain.history)
+    assert refined.distance_mean < 0.1 * plain.distance_mean
+    # the spike: the loaded vertex is the plain network's farthest from the reference surface
+    from selfsupport.evidence import closest_points
+
+    d_plain, d_refined = (closest_points(r.network.vertices, scene.mesh)[1] for r in (plain, refined))
+    assert int(np.argmax(d_plain)) == v and d_refined[v] < 0.1 * d_plain[v]
+    # the same options without a point load: the paper's method as it is (no refinement)
+    bare = StaggeredLinearization().solve(scene, SelfWeight(density=2000, thickness=0.1))
+    assert not any(h.get("iteration") == "refine" for h in bare.history)
+
+
+def test_once_alpha_is_at_its_minimum_a_finish_try_has_the_released_slack():
+    """At α's minimum the reference no longer holds the iterate: a finish try in equilibrium
+    within ``finish_slack_released`` ends the solve. With the ordinary slack there, a point load
+    of 30% of the weight ran into the stall rule instead (30 more iterations, "stalled")."""
+    scene, loads, _ = _point_loaded_vault(0.3)
+    opts = dict(refine_concentrated=0)
+    strict = StaggeredLinearization(finish_slack_released=0.05, **opts).solve(scene, loads)
+    released = StaggeredLinearization(**opts).solve(scene, loads)
+    assert strict.status == "stalled" and released.status == "converged"
+    _check(scene, released)
+    assert released.iterations < strict.iterations
+    tries = [h for h in released.history if h.get("finish_try")]
+    last = tries[-1]
+    assert last["alpha"] == released.parameters["alpha_min"] and last["finish_try"]["ok"]
+    assert 1 + released.parameters["finish_slack"] < last["finish_try"]["dist_mean_ratio"] \
+        <= 1 + released.parameters["finish_slack_released"]
+
+
+def test_the_stall_rule_tries_a_finish_first():
+    """When the fit error has not halved in ``stall_window`` iterations at α's minimum, the
+    polish of the current weights is tried once more (the fit error may be above
+    ``finish_try``: Step 3 creeping with the weights held) and kept within the released slack;
+    otherwise the run stalls as before. Here the try lands 1.40× the iterate's mean distance."""
+    scene, loads, _ = _point_loaded_vault(0.5)
+    runs = {slack: StaggeredLinearization(refine_concentrated=0, finish_slack_released=slack).solve(scene, loads)
+            for slack in (0.25, 0.5)}
+    for res in runs.values():
+        last = [h for h in res.history if isinstance(h.get("iteration"), int)][-1]
+        assert last["alpha"] == res.parameters["alpha_min"]
+        assert last["max_rel_error"] > res.parameters["finish_try"]  # (no ordinary try would run here)
+        assert 1.25 < last["finish_try"]["dist_mean_ratio"] <= 1.5
+    assert runs[0.25].status == "stalled" and runs[0.5].status == "converged"
+    assert runs[0.25].iterations == runs[0.5].iterations
+    _check(scene, runs[0.5])
