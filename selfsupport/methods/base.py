@@ -13,6 +13,7 @@ import numpy as np
 from formulations import Problem, TermContext
 from formulations.scaling import Scaling
 
+from ..evidence import DEGENERATE_LOAD, degenerate
 from ..result import Network, SolveResult
 from ..scene import Scene
 
@@ -178,3 +179,38 @@ def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np
         nets.append((name, Network(mesh=mesh, weights=weights, loads=model.nodal(mesh0, V), supports=scene.supports,
                                    reference=mesh0, handles=scene.handles)))
     return nets[0][1], tuple(nets)
+
+
+def short_of_tol(net: Network, tol: float, err: float | None = None) -> str:
+    """Why a polished network misses ``tol`` (``err``: its max relative error over every load
+    case, default the network's own): its worst vertices by number and, where they carry almost
+    no load (:func:`~selfsupport.evidence.degenerate`), that their faces collapsed.
+
+    >>> import dataclasses
+    >>> from selfsupport.methods.staggered import StaggeredLinearization
+    >>> from selfsupport.shapes import make_shape
+    >>> net = StaggeredLinearization().solve(make_shape("dome", n_vertices=60)).network
+    >>> v = int(np.flatnonzero(~net.supports)[3])
+    >>> loads = net.loads.copy(); loads[v] *= 1e-5  # that vertex's area collapsed
+    >>> msg = short_of_tol(dataclasses.replace(net, loads=loads), 1e-9)
+    >>> f"balance: [{v}," in msg, "1 of them carry under 0.001 of the median load" in msg
+    (True, True)
+    """
+    free = np.flatnonzero(~np.asarray(net.supports, bool))
+    rel = net.relative_errors()
+    order = np.argsort(rel)[::-1][:5]  # (relative_errors is per free vertex: mapped back to numbers)
+    err = float(rel.max(initial=0.0)) if err is None else err
+    message = (f"the polished network has max relative error {err:.2e} > tol {tol:g}; "
+               f"vertices hardest to balance: {[int(v) for v in free[order]]}; try more supports there, a larger "
+               "w_max, or a pillar")
+    flat = degenerate(net.loads[free])[order]
+    if flat.any():  # (a collapsed face, e.g. at the free corner of a quad mesh, forced straight)
+        message += (f"; {int(flat.sum())} of them carry under {DEGENERATE_LOAD:g} of the median load: their faces "
+                    "collapsed onto their neighbours (as at a free corner of a quad mesh, whose two edges must lie "
+                    "in line); supports there avoid it")
+    return message
+
+
+def cases_in_equilibrium(cases, tol: float) -> bool:
+    """Every case's network within ``tol``, or at its round-off floor (:meth:`Network.in_equilibrium`)."""
+    return bool(cases) and all(n.in_equilibrium(tol) for _, n in cases)

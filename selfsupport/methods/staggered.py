@@ -98,15 +98,16 @@ from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
 from ..errors import InfeasibleDesign, InputError
-from ..evidence import (DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, closest_points, degenerate, fit_floor_tolerance,
-                        roundoff_floors, roundoff_message)
+from ..evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
+                        roundoff_message)
 from ..linalg import spd_factor
 from ..loads import LoadCase
 from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_top_view_balance
-from .base import HULL_TOL, as_problem, loads_or_options, case_networks, hull_report, planarity_report, term_values
+from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, hull_report, loads_or_options,
+                   planarity_report, short_of_tol, term_values)
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import case_load_jacobians
@@ -786,7 +787,7 @@ class _Run:
             elif status != "converged" and polish_move > opt.polish_tol:
                 message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
                             "of the bounding-box diagonal, so this network may be far from the design")
-            if (status == "converged" and early is None and not _in_equilibrium(cases, opt.tol) and polish_tol > 1e-9
+            if (status == "converged" and early is None and not cases_in_equilibrium(cases, opt.tol) and polish_tol > 1e-9
                     and it < opt.max_iter and not out_of_time(self.deadline) and self.roundoff_limit(cases) is None):
                 # the polish did not reach equilibrium (the load fixed point stalled, e.g. on a
                 # kink of the area model): iterate on to a much tighter fit and polish again
@@ -803,7 +804,7 @@ class _Run:
         steps = opt.refine or (opt.refine_concentrated if any(c.concentrated for c in self.loads.models) else 0)
         if steps > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history, steps)
-        floor, balanced = None, _in_equilibrium(cases, opt.tol)
+        floor, balanced = None, cases_in_equilibrium(cases, opt.tol)
         if status == "converged" and err > opt.tol and balanced:
             # (forces many times the loads: no positions balance those vertices better in doubles)
             floor = max(float(n.roundoff_floors().max(initial=0.0)) for _, n in cases)
@@ -910,39 +911,6 @@ def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> n
 
 def _max_error(cases) -> float:
     return max(n.max_relative_error() for _, n in cases)
-
-
-def short_of_tol(net: Network, tol: float, err: float | None = None) -> str:
-    """Why a polished network misses ``tol`` (``err``: its max relative error over every load
-    case, default the network's own): its worst vertices by number and, where they carry almost
-    no load (:func:`~selfsupport.evidence.degenerate`), that their faces collapsed.
-
-    >>> from selfsupport.shapes import make_shape
-    >>> net = StaggeredLinearization().solve(make_shape("dome", n_vertices=60)).network
-    >>> v = int(np.flatnonzero(~net.supports)[3])
-    >>> loads = net.loads.copy(); loads[v] *= 1e-5  # that vertex's area collapsed
-    >>> msg = short_of_tol(dataclasses.replace(net, loads=loads), 1e-9)
-    >>> f"balance: [{v}," in msg, "1 of them carry under 0.001 of the median load" in msg
-    (True, True)
-    """
-    free = np.flatnonzero(~np.asarray(net.supports, bool))
-    rel = net.relative_errors()
-    order = np.argsort(rel)[::-1][:5]  # (relative_errors is per free vertex: mapped back to numbers)
-    err = float(rel.max(initial=0.0)) if err is None else err
-    message = (f"the polished network has max relative error {err:.2e} > tol {tol:g}; "
-               f"vertices hardest to balance: {[int(v) for v in free[order]]}; try more supports there, a larger "
-               "w_max, or a pillar")
-    flat = degenerate(net.loads[free])[order]
-    if flat.any():  # (a collapsed face, e.g. at the free corner of a quad mesh, forced straight)
-        message += (f"; {int(flat.sum())} of them carry under {DEGENERATE_LOAD:g} of the median load: their faces "
-                    "collapsed onto their neighbours (as at a free corner of a quad mesh, whose two edges must lie "
-                    "in line); supports there avoid it")
-    return message
-
-
-def _in_equilibrium(cases, tol: float) -> bool:
-    """Every case's network within ``tol``, or at its round-off floor (:meth:`Network.in_equilibrium`)."""
-    return bool(cases) and all(n.in_equilibrium(tol) for _, n in cases)
 
 
 def _si_bound(sc: Scaling, b: np.ndarray) -> Any:
