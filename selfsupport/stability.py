@@ -167,11 +167,15 @@ def stands_line(parameters: Mapping[str, Any]) -> str:
 
 # ------------------------------------------------------------------------ added loads
 def spread_mass(scene: Scene, at: Sequence[int] | None, kg: float) -> dict[int, float]:
-    """``kg`` spread evenly over the vertices ``at`` (default: the scene's handled vertices)."""
+    """``kg`` spread evenly over the vertices ``at`` (default: the scene's free handled vertices;
+    a handled vertex that is also pinned carries nothing, lilium-pillar has one)."""
     if at is None or len(at) == 0:
         if scene.handles is None or not np.any(scene.handles):
             raise InputError("no vertices to load: give --load-at VERTEX[,VERTEX...] (the scene has no handled vertices)")
-        at = np.flatnonzero(scene.handles).tolist()
+        at = np.flatnonzero(scene.handles & ~scene.supports).tolist()
+        if not at:
+            raise InputError("no vertices to load: the scene's handled vertices are all supports; give --load-at "
+                             "VERTEX[,VERTEX...] (free vertices)")
     at = sorted({int(v) for v in at})
     n = scene.mesh.n_vertices
     bad = [v for v in at if not 0 <= v < n]

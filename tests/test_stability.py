@@ -251,3 +251,24 @@ def test_the_papers_cuts_are_recovered_from_renumbered_stages(tmp_path):
     assert [s["kind"] for s in steps] == ["cut", "collapse"]
     assert set(steps[0]["paper_lost"]) == cut and set(steps[1]["paper_lost"]) == collapse
     assert [s["paper_faces"] for s in steps] == [len(F) - 3, len(F) - 3 - len(collapse)]
+
+
+def test_the_default_load_points_are_the_free_handled_vertices():
+    """A scene's handled vertices are where the added mass goes by default; one that is also
+    pinned carries nothing (lilium-pillar has one) and is left out, not blamed on --load-at."""
+    import dataclasses
+
+    from selfsupport.stability import spread_mass
+
+    scene = make_shape("dome", n_vertices=100)
+    free, pinned = np.flatnonzero(~scene.supports)[:3], np.flatnonzero(scene.supports)[:1]
+    handles = np.zeros(scene.mesh.n_vertices, bool)
+    handles[np.r_[free, pinned]] = True
+    spread = spread_mass(dataclasses.replace(scene, handles=handles), None, 300.0)
+    assert sorted(spread) == sorted(free.tolist()) and sum(spread.values()) == pytest.approx(300.0)
+    with pytest.raises(InputError, match="is a support"):  # (named by the user: refused)
+        spread_mass(scene, [int(pinned[0])], 300.0)
+    only_pinned = np.zeros_like(handles)
+    only_pinned[pinned] = True
+    with pytest.raises(InputError, match="handled vertices are all supports"):
+        spread_mass(dataclasses.replace(scene, handles=only_pinned), None, 300.0)
