@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import EXIT_CODES, STATUS_EXIT, Command, add_load_arguments, positive_float, print_table, summary_rows
+from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, _not_converged_line, add_load_arguments, positive_float,
+                  print_table, summary_rows)
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
@@ -76,6 +77,12 @@ def run_pq(args: argparse.Namespace) -> int:
     if result.parameters.get("planar_finish") is not None:
         rows.append(("finish", finish_summary(result)))
     print_table(f"selfsupport pq -> {args.out}", rows)
+    if result.status != "converged":  # (one line on stderr, as for solve: what is wrong, what to do)
+        limit = result.status in ("time_limit", "iteration_limit")  # (then the limit is what to change)
+        short = ("" if planarity.get("met", True) else
+                 f"the quads are not all planar (max non-planarity {planarity.get('max_nonplanarity', float('nan')):.2e}"
+                 f" > tol {args.tol:g}{'' if limit else '; a larger --spacing or --tol, or another --field'}); ")
+        _err(short + _not_converged_line(result))
     return STATUS_EXIT.get(result.status, EXIT_CODES["not_converged"])
 
 

@@ -373,3 +373,18 @@ def test_param_remesh_of_a_dome_has_fewer_triangles_than_streamlines_and_polishe
     assert res.parameters["planar_finish"] is None  # the staggered method alone
     assert diagonal_gaps(res.network.mesh, par.scene.supports).max() <= 1e-3
     assert independent_check(res).ok
+
+
+def test_an_unfinished_pq_run_says_why_on_stderr(tmp_path, dome, capsys):
+    """A pq run that ends before its quads are planar says so in one line on stderr (before:
+    exit code 5 and nothing on stderr, the cause only in the table)."""
+    from selfsupport import cli
+    from selfsupport.io import write_network
+
+    _, net = dome
+    src = tmp_path / "dome.json"
+    write_network(src, net)
+    code = cli.main(["pq", str(src), "--out", str(tmp_path / "pq.json"), "--spacing", "0.85", "--time-limit", "0.01"])
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" not in line]
+    assert code == cli.EXIT_CODES["limit"] and len(err) == 1
+    assert "the quads are not all planar" in err[0] and "> tol 0.001)" in err[0] and "time limit" in err[0]
