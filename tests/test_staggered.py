@@ -472,7 +472,7 @@ def test_once_alpha_is_at_its_minimum_a_finish_try_has_the_released_slack():
     within ``finish_slack_released`` ends the solve. With the ordinary slack there, a point load
     of 30% of the weight ran into the stall rule instead (30 more iterations, "stalled")."""
     scene, loads, _ = _point_loaded_vault(0.3)
-    opts = dict(refine_concentrated=0)
+    opts = dict(refine_concentrated=0, creep_window=0)  # (the rule alone, without the coupled switch)
     strict = StaggeredLinearization(finish_slack_released=0.05, **opts).solve(scene, loads)
     released = StaggeredLinearization(**opts).solve(scene, loads)
     assert strict.status == "stalled" and released.status == "converged"
@@ -491,7 +491,8 @@ def test_the_stall_rule_tries_a_finish_first():
     ``finish_try``: Step 3 creeping with the weights held) and kept within the released slack;
     otherwise the run stalls as before. Here the try lands 1.40× the iterate's mean distance."""
     scene, loads, _ = _point_loaded_vault(0.5)
-    runs = {slack: StaggeredLinearization(refine_concentrated=0, finish_slack_released=slack).solve(scene, loads)
+    runs = {slack: StaggeredLinearization(refine_concentrated=0, creep_window=0,
+                                          finish_slack_released=slack).solve(scene, loads)
             for slack in (0.25, 0.5)}
     for res in runs.values():
         last = [h for h in res.history if isinstance(h.get("iteration"), int)][-1]
@@ -501,3 +502,23 @@ def test_the_stall_rule_tries_a_finish_first():
     assert runs[0.25].status == "stalled" and runs[0.5].status == "converged"
     assert runs[0.25].iterations == runs[0.5].iterations
     _check(scene, runs[0.5])
+
+
+def test_a_creeping_fit_at_alphas_minimum_turns_step_3_coupled():
+    """With the weights held, Step 3 creeps under a point load of 30% of the weight (the fit
+    error not halving in ``creep_window`` iterations at α's minimum): the run then moves the free
+    weights with the positions (the coupled step) and converges, where it had stalled. (The
+    finish tries hold the ordinary slack here, so that only the switch decides.)"""
+    scene, loads, _ = _point_loaded_vault(0.3)
+    opts = dict(refine_concentrated=0, finish_slack_released=0.05)
+    plain = StaggeredLinearization(creep_window=0, **opts).solve(scene, loads)
+    switched = StaggeredLinearization(**opts).solve(scene, loads)
+    assert plain.status == "stalled" and switched.status == "converged"
+    _check(scene, switched)
+    turn = [h for h in switched.history if h.get("coupled_from_here")]
+    assert len(turn) == 1 and turn[0]["alpha"] == switched.parameters["alpha_min"]
+    k = switched.history.index(turn[0])
+    at_min = [h["max_rel_error"] for h in switched.history[:k + 1] if isinstance(h.get("iteration"), int)
+              and h["alpha"] == switched.parameters["alpha_min"]]
+    window = switched.parameters["creep_window"]
+    assert len(at_min) > window and at_min[-1] > 0.5 * at_min[-1 - window]

@@ -137,6 +137,8 @@ class StaggeredOptions:
     alpha_min: float = _setting(1e-8, "(0, inf)")
     beta_min: float = _setting(1e-8, "(0, inf)")
     max_rejections: int = _setting(12, "[1, inf)")  # consecutive rejected position steps before "stalled"
+    creep_window: int = _setting(10, "[0, inf)")  # iterations at alpha_min in which the fit error must halve,
+    # else Step 3 turns coupled for the rest of the run (one load case, free top view; 0: never)
     stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
     # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
     smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
@@ -613,6 +615,7 @@ class _Run:
         released: list[float] = []  # fit errors of the iterations since α reached alpha_min
         fresh, early, last_try = True, None, np.inf
         polish_tol = opt.joint_polish_tol if self.joint else opt.polish_tol
+        coupled = bool(opt.coupled)  # (turned on when the fit creeps at α's minimum: creep_window)
         retry_errors: list[float] | None = None  # fit errors since a retry began
         # duration of the last iteration (Step 3 and its fits): the next one is started only if it
         # can end before the deadline; before the first, the first fit stands in for it
@@ -669,6 +672,13 @@ class _Run:
                         last_try = gap  # try again once the fit error has halved
                     fresh = False
                     released = released + [cur["max_rel_error"]] if alpha <= opt.alpha_min else []
+                    if (not coupled and self.C == 1 and not self.fixed_xy and opt.creep_window
+                            and len(released) > opt.creep_window
+                            and released[-1] > 0.5 * released[-1 - opt.creep_window]):
+                        # Step 3 creeps with the weights held (a point load: the cone under it needs
+                        # the weights and the positions to move together): move them together
+                        coupled, released = True, released[-1:]
+                        rec["coupled_from_here"] = True
                     if len(released) > opt.stall_window and released[-1] > 0.5 * released[-1 - opt.stall_window]:
                         # the reference no longer holds the positions, yet the fit does not improve:
                         # more iterations only move the network further (an infeasible design) — or
@@ -707,12 +717,12 @@ class _Run:
                         # iteration (fixed slabs let vertices slide out of the curved shell)
                         proj = proj if proj is not None else closest_points(X, self.reference)
                         self.hull = self.hull.at(X, projection=proj)
-                    Xt = self.position_step(X, cur, alpha, beta, coupled=opt.coupled)
+                    Xt = self.position_step(X, cur, alpha, beta, coupled=coupled)
                     rec["t_positions"] = time.perf_counter() - t0
                     # Steps 1-2 at the trial positions; far from equilibrium the fit only steers the
                     # iteration, so it may stop at a looser tolerance
                     trial, accepted = self.judge(Xt, cur, rec)
-                    if opt.coupled and not accepted:
+                    if coupled and not accepted:
                         # the coupled model over-promised (weights it moved were clamped by the
                         # refit): fall back to the plain position step before shrinking the region
                         Xt = self.position_step(X, cur, alpha, beta)
