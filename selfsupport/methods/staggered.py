@@ -230,6 +230,12 @@ def _couples_first(problem: Problem) -> bool:
             and not problem.fixed_top_view)
 
 
+#: Largest mesh (vertices) on which a creeping fit turns Step 3 coupled (``creep_window``): the
+#: coupled step factors a (3n + m) system (a 16k pillar vault: 67 s with the switch, 66 s without),
+#: beyond this the memory of that factor, not the iterations, would decide.
+COUPLE_MAX = 24_000
+
+
 class StaggeredLinearization:
     """The paper's method. ``backend`` names the Step-2 solver (see ``WEIGHT_FIT_BACKENDS``).
 
@@ -673,6 +679,7 @@ class _Run:
                     fresh = False
                     released = released + [cur["max_rel_error"]] if alpha <= opt.alpha_min else []
                     if (not coupled and self.C == 1 and not self.fixed_xy and opt.creep_window
+                            and self.mesh0.n_vertices <= COUPLE_MAX
                             and len(released) > opt.creep_window
                             and released[-1] > 0.5 * released[-1 - opt.creep_window]):
                         # Step 3 creeps with the weights held (a point load: the cone under it needs
