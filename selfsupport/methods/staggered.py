@@ -53,7 +53,10 @@ Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smal
         then does not halve within ``stall_window`` iterations the design is taken as
         infeasible and the solve stops "stalled" (the paper's scenes spend at most 2 iterations
         at ``alpha_min``; without the rule a 1200-vertex vault with one pillar base freed ran on
-        to the 200-iteration limit, the network drifting further all the while).
+        to the 200-iteration limit, the network drifting further all the while). Before it
+        stalls, the run tries the finish once more (below). If the fit error does not halve in
+        ``creep_window`` iterations there, Step 3 turns coupled (below) for the rest of the run:
+        with the weights held it creeps under a point load, whose cone needs both to move.
 Coupled (option ``coupled``) Step 3 may also move the weights that are not at a bound, with a
         damping ∝ 1/(w − ε)² so that weights near ε hardly move: a Gauss-Newton step on the
         reduced error min_w E(X, w) instead of on E(X, w_k). It follows the penalty path more
