@@ -563,6 +563,20 @@ class _Run:
                 info["roundoff_limit"] = limit
         return early
 
+    def finish_attempt(self, X: np.ndarray, cur: dict, d_it: np.ndarray, slack: float,
+                       rec: dict) -> tuple[tuple | None, tuple[str, bool] | None]:
+        """One finish try (:meth:`try_finish`), recorded in ``rec``: the try when it ends the
+        iteration, and how — ("converged", False), or ("stalled", True) when it is in equilibrium
+        as far as doubles can tell but above tol (its round-off floor: stop there) — else
+        (None, None)."""
+        early = self.try_finish(X, cur, d_it, slack)
+        rec["finish_try"] = early[3] if early is not None else None
+        if early is not None and early[3]["ok"]:
+            return early, ("converged", False)
+        if early is not None and "roundoff_limit" in early[3]:
+            return early, ("stalled", True)
+        return None, None
+
     def _polish_try(self, X: np.ndarray, cur: dict, d_it: np.ndarray, slack: float) -> tuple | None:
         opt = self.opt
         if not self.joint:
@@ -656,18 +670,11 @@ class _Run:
                         # next fit is exact, and the finish polishes exact weights only)
                         proj = proj if proj is not None else closest_points(X, self.reference)
                         slack = opt.finish_slack if alpha > opt.alpha_min else opt.finish_slack_released
-                        early = self.try_finish(X, cur, proj[1], slack)
-                        rec["finish_try"] = early[3] if early is not None else None
-                        if early is not None and early[3]["ok"]:
-                            status = "converged"
+                        early, ended = self.finish_attempt(X, cur, proj[1], slack, rec)
+                        if ended:
+                            status, at_floor = ended
                             history.append(rec)
                             break
-                        if early is not None and "roundoff_limit" in early[3]:
-                            # in equilibrium as far as doubles can tell, but above tol: stop here
-                            status, at_floor = "stalled", True
-                            history.append(rec)
-                            break
-                        early = None
                         if warm_try:  # the warm start does not finish as it is: start cold
                             warm_try = False
                             self.warm_info.update(used=False, first_error=cur["max_rel_error"])
@@ -695,17 +702,11 @@ class _Run:
                         # Step 3 creeps with the weights held (a point load: the fit error fell 0.39 ->
                         # 0.25 in 30 iterations on lilium), and the polish of these weights finishes
                         proj = proj if proj is not None else closest_points(X, self.reference)
-                        early = self.try_finish(X, cur, proj[1], opt.finish_slack_released)
-                        rec["finish_try"] = early[3] if early is not None else None
-                        if early is not None and early[3]["ok"]:
-                            status = "converged"
+                        early, ended = self.finish_attempt(X, cur, proj[1], opt.finish_slack_released, rec)
+                        if ended:
+                            status, at_floor = ended
                             history.append(rec)
                             break
-                        if early is not None and "roundoff_limit" in early[3]:
-                            status, at_floor = "stalled", True
-                            history.append(rec)
-                            break
-                        early = None
                         status, message = "stalled", (
                             f"the fit error stopped falling (max relative error {cur['max_rel_error']:.2e}) although "
                             f"the pull towards the reference is fully released (α at its minimum for "
