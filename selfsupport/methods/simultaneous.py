@@ -447,8 +447,9 @@ class Simultaneous:
                 # round and meets the method's tolerance, as the staggered method judges it
                 ok = ok or perr <= tol
             else:
+                # (loads consistent to a tenth of tol at least: at LOAD_TOL a tol of 1e-12 ended at 1.6e-12)
                 Vp, k, perr, ok = polish_heights(top, Vp, Wp[0], loads=problem.loads.primary, mesh=mesh0, scaling=sc,
-                                                 deadline=deadline)
+                                                 tol=min(LOAD_TOL, 0.1 * tol), deadline=deadline)
                 what = f"load change {perr:.1e}"
             switch = (history[-1]["load_change"] if polished_change is None else polished_change) \
                 if status == "converged" else float("nan")
