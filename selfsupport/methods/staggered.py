@@ -69,8 +69,9 @@ Finish  once the fit's max relative error is below ``finish_try``, every accepte
         equilibrium and its mean distance to the reference exceeds the iterate's by at most
         ``finish_slack``: finishing then costs (almost) no closeness, and iterating on could only
         drift. Once α is at ``alpha_min`` nothing pulls the iterate towards the reference any
-        more, and the slack is ``finish_slack_released``. A try is screened first: positions in equilibrium with the weights and the
-        iterate's loads (one stress-Laplacian solve) predict the polished distance, and a try
+        more, and the slack is ``finish_slack_released``. A try is screened first: positions in
+        equilibrium with the weights and the iterate's loads (one stress-Laplacian solve)
+        predict the polished distance, and a try
         predicted far beyond the slack is not polished (twocirc-3: 4 tries of 20–33 ms skipped,
         0.83× the time, the same network). A try uses Newton only: one that Newton cannot
         finish fails cheaply (the fixed-point fallbacks took 0.7 s of 1.9 s on a 1k concave
