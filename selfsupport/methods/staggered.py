@@ -609,6 +609,7 @@ class _Run:
         history: list[dict[str, Any]] = []
         status, message = "iteration_limit", ""
         at_floor = False  # stopped by a finish try held above tol by rounding alone
+        stalled_at = None  # the mean distance of the iterate at which the stall rule stopped the run
         # proximal centre of the first fit: the best uniform weight (scale-free, deterministic)
         A0 = weight_matrix(top, X) @ np.ones(top.m)
         w_start = []
@@ -708,6 +709,7 @@ class _Run:
                             status, at_floor = ended
                             history.append(rec)
                             break
+                        stalled_at = float(proj[1].mean())
                         status, message = "stalled", (
                             f"the fit error stopped falling (max relative error {cur['max_rel_error']:.2e}) although "
                             f"the pull towards the reference is fully released (α at its minimum for "
@@ -826,6 +828,17 @@ class _Run:
         steps = opt.refine or (opt.refine_concentrated if any(c.concentrated for c in self.loads.models) else 0)
         if steps > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history, steps)
+        elif steps > 0 and status == "stalled" and stalled_at is not None and err <= opt.tol and not self.joint:
+            # (the stall rule stopped a creeping fit and the final polish moved the network away, 1.9x
+            # the iterate's distance on a 4k pillar vault under a point load: the refinement walks it
+            # back in equilibrium; as near the reference as the iterate, it is the method's answer)
+            net, cases, err = self.refine(net, cases, err, history, steps)
+            d = float(closest_points(sc.pos(net.vertices), self.reference)[1].mean())
+            history[-1]["stalled_at"], history[-1]["refined_to"] = stalled_at, d
+            if err <= opt.tol and d <= (1 + opt.finish_slack_released) * stalled_at:
+                status, message = "converged", (
+                    f"the fit stopped falling at α's minimum; its polish, refined in equilibrium, is as near the "
+                    f"reference as the last iterate ({d / stalled_at:.2f}× its mean distance)")
         floor, balanced = None, cases_in_equilibrium(cases, opt.tol)
         if status == "converged" and err > opt.tol and balanced:
             # (forces many times the loads: no positions balance those vertices better in doubles)
