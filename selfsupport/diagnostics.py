@@ -7,7 +7,10 @@ Each is one line (the CLI prints them as ``selfsupport: warning: ...`` on stderr
   of the bounding-box diagonal (an upside-down dome read with the wrong ``--up`` converges
   to a network 0.42 of the diagonal away and said nothing);
 * a converged network with most free vertices outside the masonry hull, reference ± t/2
-  (:data:`HULL_MAJORITY`; the demo left 504 of 652 outside, which only a figure showed).
+  (:data:`HULL_MAJORITY`; the demo left 504 of 652 outside, which only a figure showed);
+* a refinement that kept none of its trial steps (under a point load the unrefined network can
+  be the spike the refinement is there to remove: a half-supported vault ended 0.11 of the
+  diagonal from its reference, and only the history said why).
 """
 from __future__ import annotations
 
@@ -37,6 +40,11 @@ def solve_warnings(result: Any, scene: Any) -> list[str]:
         out.append(f"{hull['outside']} of {hull['free']} free vertices lie outside the masonry hull (reference "
                    f"± t/2, t = {hull['thickness']:.3g} m; up to {hull['max_excess']:.3g} m beyond it): the network "
                    "does not fit in the shell; solve with the hull constraint (--hull) or a thicker shell")
+    refine = [h for h in result.history if isinstance(h, dict) and h.get("iteration") == "refine"]
+    if result.converged and refine and refine[-1].get("tried") and not refine[-1].get("applied"):
+        out.append(f"the refinement towards the reference kept none of its {refine[-1]['tried']} trial steps: the "
+                   f"network is the unrefined one (max distance {result.distance_max:.2g} of the bounding-box "
+                   "diagonal; under a point load often a spike under it)")
     return out
 
 

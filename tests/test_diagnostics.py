@@ -58,3 +58,27 @@ def test_a_network_outside_the_masonry_hull_is_reported(tmp_path, capsys):
 def test_a_network_near_its_reference_gets_no_warning(capsys, tmp_path):
     code = cli.main(["solve", "shape:dome:300", "--out", str(tmp_path / "n.json"), "-q"])
     assert code == 0 and _warnings(capsys.readouterr().err) == []
+
+
+def test_a_refinement_that_kept_no_step_is_told():
+    """A cross vault supported along one half with 5% of its weight on a free vertex: the
+    refinement (on by default for point loads) rejects all its trial steps; the CLI says so
+    instead of leaving it to the history (the network is the unrefined one)."""
+    import dataclasses
+
+    import numpy as np
+
+    scene = make_shape("cross_vault", n_vertices=100)
+    V = scene.mesh.vertices
+    half = dataclasses.replace(scene, supports=scene.supports & (V[:, 0] <= np.median(V[:, 0])))
+    weight = abs(float(api.solve(half).network.loads.sum()))
+    res = api.solve(half, point_loads={5: 0.05 * weight})
+    refine = [h for h in res.history if h.get("iteration") == "refine"][-1]
+    assert res.converged and refine["tried"] > 0 and not refine["applied"]
+    (line,) = [w for w in solve_warnings(res, half) if "refinement" in w]
+    assert f"none of its {refine['tried']} trial steps" in line and "kept none" in res.message
+    # (a refinement that did move the network gives no such line)
+    plain = make_shape("cross_vault", n_vertices=100)
+    moved = api.solve(plain, point_loads={int(np.flatnonzero(~plain.supports)[20]): 0.05 * weight})
+    assert [h for h in moved.history if h.get("iteration") == "refine"][-1]["applied"]
+    assert not [w for w in solve_warnings(moved, plain) if "refinement" in w]

@@ -828,6 +828,11 @@ class _Run:
         steps = opt.refine or (opt.refine_concentrated if any(c.concentrated for c in self.loads.models) else 0)
         if steps > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history, steps)
+            if not history[-1].get("applied") and history[-1].get("tried"):
+                # (say so: with a point load the unrefined network may be the spike under it)
+                message = "; ".join(m for m in (message, (
+                    f"the refinement towards the reference kept none of its {history[-1]['tried']} trial steps "
+                    "(none stayed in equilibrium and came closer): the network is the unrefined one")) if m)
         elif steps > 0 and status == "stalled" and stalled_at is not None and err <= opt.tol and not self.joint:
             # (the stall rule stopped a creeping fit and the final polish moved the network away, 1.9x
             # the iterate's distance on a 4k pillar vault under a point load: the refinement walks it
