@@ -211,6 +211,11 @@ def short_of_tol(net: Network, tol: float, err: float | None = None) -> str:
     return message
 
 
+def cases_max_error(cases) -> float:
+    """The max relative error over every case's network (``cases``: (name, network) pairs)."""
+    return max(n.max_relative_error() for _, n in cases)
+
+
 def cases_in_equilibrium(cases, tol: float) -> bool:
     """Every case's network within ``tol``, or at its round-off floor (:meth:`Network.in_equilibrium`)."""
     return bool(cases) and all(n.in_equilibrium(tol) for _, n in cases)

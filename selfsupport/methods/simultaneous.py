@@ -66,7 +66,8 @@ from ..loads import LoadCase
 from ..result import Network, SolveResult
 from ..validate import require_top_view_balance
 from ..scene import Scene
-from .base import HULL_TOL, as_problem, case_networks, cases_in_equilibrium, planarity_report, short_of_tol, term_values
+from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, planarity_report,
+                   short_of_tol, term_values)
 from .deadline import out_of_time
 from .polish import HULL_ACTIVE_REL, case_load_jacobians, polish_joint
 from .polish import max_rel_error as _max_rel_error
@@ -492,7 +493,7 @@ class Simultaneous:
         if status == "converged" and not cases_in_equilibrium(cases, tol):
             # (IPOPT's rows are relative to |L_i| as the metric is, but a vertex whose faces collapsed
             # carries almost no load: 3.7e-4 on a vault with half its supports, "converged")
-            status, message = "stalled", short_of_tol(first, tol, max(n.max_relative_error() for _, n in cases))
+            status, message = "stalled", short_of_tol(first, tol, cases_max_error(cases))
         lo, up = problem.bounds.active(scene)
         planarity = planarity_report(problem, first)
         if planarity is not None and status == "converged" and not planarity["met"]:

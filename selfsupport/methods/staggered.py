@@ -110,8 +110,8 @@ from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_top_view_balance
-from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, hull_report, loads_or_options,
-                   planarity_report, short_of_tol, term_values)
+from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, hull_report,
+                   loads_or_options, planarity_report, short_of_tol, term_values)
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import case_load_jacobians
@@ -588,7 +588,7 @@ class _Run:
         if not np.all(np.isfinite(Xp)):
             return None
         net, cases = self.networks(Xp, ws)
-        err = _max_error(cases)
+        err = cases_max_error(cases)
         d_p = closest_points(Xp, self.reference)[1]
         # (the true distance: the slabs re-anchored at the polished positions)
         inside = self.hull is None or bool(np.all(
@@ -805,7 +805,7 @@ class _Run:
                 net, cases = self.networks(X, ws)
                 if ws is not cur["w"]:  # the final fit minimises the sum of squares, not the max error
                     alt = self.networks(X, cur["w"])
-                    if _max_error(alt[1]) < _max_error(cases):
+                    if cases_max_error(alt[1]) < cases_max_error(cases):
                         net, cases = alt
                 message += "; the final polish did not improve the network, so the last iterate is returned (not in equilibrium)"
             elif status != "converged" and polish_move > opt.polish_tol:
@@ -824,7 +824,7 @@ class _Run:
         history.append(final)
         if self.progress:
             self.progress(final)
-        err = _max_error(cases)
+        err = cases_max_error(cases)
         steps = opt.refine or (opt.refine_concentrated if any(c.concentrated for c in self.loads.models) else 0)
         if steps > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history, steps)
@@ -903,9 +903,9 @@ class _Run:
         applied = False
         if ref.steps:
             refined, rcases = self.networks(ref.X, [ref.w])
-            applied = _max_error(rcases) <= opt.tol  # (never trade equilibrium)
+            applied = cases_max_error(rcases) <= opt.tol  # (never trade equilibrium)
             if applied:
-                net, cases, err = refined, rcases, _max_error(rcases)
+                net, cases, err = refined, rcases, cases_max_error(rcases)
         rec.update(steps=ref.steps, tried=ref.tried, applied=applied, t_refine=time.perf_counter() - t0,
                    max_rel_error=err, objective=[h["objective"] for h in ref.history if h["accepted"]],
                    rho=[h["rho"] for h in ref.history])
@@ -947,10 +947,6 @@ def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> n
     else:
         X[idx] -= excess[out][:, None] * n
     return X
-
-
-def _max_error(cases) -> float:
-    return max(n.max_relative_error() for _, n in cases)
 
 
 def _si_bound(sc: Scaling, b: np.ndarray) -> Any:
