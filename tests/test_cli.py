@@ -511,3 +511,20 @@ def test_the_hint_of_an_unfinished_ipopt_solve_suggests_the_other_method():
     assert res.status == "iteration_limit"
     line = cli._not_converged_line(res)
     assert "--method ipopt" not in line and "--method staggered" in line
+
+
+@pytest.mark.parametrize("status", sorted(cli.STATUS_HINT) + ["hull"])
+def test_no_hint_points_a_big_mesh_to_ipopt(status):
+    """Above IPOPT_HINT_MAX vertices every hint has its IPOPT alternative struck out
+    (cli._NO_IPOPT rewrites the phrases of STATUS_HINT and HULL_HINT: this keeps the two in step)."""
+    from selfsupport.result import Network, SolveResult
+
+    scene = make_shape("dome", n_vertices=cli.IPOPT_HINT_MAX + 500)
+    assert scene.mesh.n_vertices > cli.IPOPT_HINT_MAX
+    net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
+                  supports=scene.supports, reference=scene.mesh)
+    hull = {"hull": {"thickness": 0.1}} if status == "hull" else {}
+    res = SolveResult.build(net, status="infeasible" if status == "hull" else status, method="multilevel",
+                            backend="active-set", iterations=1, wall_time=0.1, parameters={"tol": 1e-9, **hull})
+    line = cli._not_converged_line(res)
+    assert "ipopt" not in line.lower() and "  " not in line and ", ;" not in line
