@@ -219,3 +219,49 @@ def cases_max_error(cases) -> float:
 def cases_in_equilibrium(cases, tol: float) -> bool:
     """Every case's network within ``tol``, or at its round-off floor (:meth:`Network.in_equilibrium`)."""
     return bool(cases) and all(n.in_equilibrium(tol) for _, n in cases)
+
+
+#: Relative difference above which two load cases' nodal loads count as not proportional.
+PROPORTIONAL_RTOL = 1e-6
+
+
+def free_edge_cases_note(problem: Problem) -> str | None:
+    """Why several load cases may have no common network: a sentence for the message of a solve
+    that did not converge, or None when it does not apply.
+
+    It applies when the cases' loads are not proportional at the reference (a point load or
+    extra mass in one case, not a uniform surcharge, which scales the self-weight) and the mesh
+    has boundary vertices that are not supports. One geometry must carry every case; their
+    difference, a load of no fixed sign, is carried by a difference of weights that no free edge
+    can anchor. Measured (2026-11-28, ``selfsupport solve --load-cases``, ~400 vertices):
+    generated domes and dented disks with a supported boundary converge under self-weight and
+    self-weight plus a point load of up to a third of it; a pillar vault with free edges
+    stalls under the same cases with both methods, as do lilium, a triangulated vault with free
+    edges and dome2 with an oculus (and the pillar vault under a surcharge on half of it).
+
+    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.loads import PointLoad, SelfWeight
+    >>> from formulations import Problem
+    >>> scene = make_shape("pillar_vault", n_vertices=100)
+    >>> f = np.zeros(scene.mesh.n_vertices); f[45] = -1000.0
+    >>> cases = {"empty": SelfWeight(), "hoist": SelfWeight() + PointLoad(f)}
+    >>> free_edge_cases_note(Problem.build(scene, loads=cases)).startswith("the load cases are not proportional")
+    True
+    >>> free_edge_cases_note(Problem.build(scene, loads={"a": SelfWeight(), "b": SelfWeight(density=3000)})) is None
+    True
+    """
+    if len(problem.loads) < 2:
+        return None
+    scene = problem.scene
+    L = problem.loads.nodal(scene.mesh, scene.mesh.vertices)[:, ~scene.supports]
+    ref = L[0]
+    scale = (L @ ref) / max(float(ref @ ref), 1e-300)  # best factor of each case onto the first
+    off = np.abs(L - scale[:, None] * ref[None]).max(axis=1) / np.abs(L).max(axis=1)
+    free_edge = np.flatnonzero(scene.mesh.boundary_vertex_mask & ~scene.supports)
+    if off.max() <= PROPORTIONAL_RTOL or free_edge.size == 0:
+        return None
+    shown = ", ".join(str(int(v)) for v in free_edge[:8]) + (", ..." if free_edge.size > 8 else "")
+    return (f"the load cases are not proportional and {free_edge.size} boundary vertices are not supports "
+            f"({shown}): one geometry must carry every case, and with free edges such a geometry may not "
+            "exist (domes with a supported boundary carry such cases; vaults with free edges stalled with "
+            "both methods); solve the cases one at a time, or support the free boundary")
