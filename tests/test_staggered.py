@@ -525,15 +525,98 @@ def test_a_creeping_fit_at_alphas_minimum_turns_step_3_coupled():
 
 
 def test_a_stalled_run_under_a_point_load_is_refined_back_and_then_converged():
-    """Half the weight on one vertex: the fit creeps at α's minimum even with the coupled step
-    and the stall rule stops the run; the final polish is in equilibrium but moved the network
-    away. The refinement (on by default for concentrated loads) walks it back in equilibrium to
-    within the released slack of the last iterate's distance (here to 1/40 of it): converged."""
+    """Half the weight on one vertex, the creep switch off: the fit creeps at α's minimum with
+    the weights held and the stall rule stops the run; the final polish is in equilibrium but
+    moved the network away. The refinement (on by default for concentrated loads) walks it back
+    in equilibrium to within the released slack of the last iterate's distance (here to 1/50 of
+    it): converged. (With the switch, this run now converges before the stall rule.)"""
     scene, loads, _ = _point_loaded_vault(0.5)
-    plain = StaggeredLinearization(refine_concentrated=0).solve(scene, loads)
-    refined = StaggeredLinearization().solve(scene, loads)
+    plain = StaggeredLinearization(refine_concentrated=0, creep_window=0).solve(scene, loads)
+    refined = StaggeredLinearization(creep_window=0).solve(scene, loads)
     assert plain.status == "stalled" and refined.status == "converged"
     _check(scene, plain), _check(scene, refined)  # (both in equilibrium: the polish did that)
     rec = [h for h in refined.history if h.get("iteration") == "refine"][-1]
     assert rec["applied"] and rec["refined_to"] <= (1 + refined.parameters["finish_slack_released"]) * rec["stalled_at"]
     assert refined.distance_mean < 0.1 * plain.distance_mean
+
+
+def _two_cases(shape: str, share: float, vertex: int = 150):
+    """A generated shape (~400 vertices) and two load cases one geometry must carry: its
+    self-weight alone, and with ``share`` of that weight hung on ``vertex``."""
+    from selfsupport.loads import PointLoad
+
+    scene = make_shape(shape, n_vertices=400)
+    self_weight = SelfWeight(density=2000, thickness=0.1)
+    forces = np.zeros(scene.mesh.n_vertices)
+    forces[vertex] = share * float(self_weight.nodal(scene.mesh, scene.mesh.vertices).sum())
+    assert not scene.supports[vertex]
+    return scene, {"empty": self_weight, "hoist": self_weight + PointLoad(forces)}
+
+
+def _check_cases(scene, res):
+    """Every case's network (the same vertices, its own weights and loads) in equilibrium."""
+    for _, net in res.case_networks:
+        assert np.array_equal(net.vertices, res.network.vertices)
+        assert max_relative_error(net.vertices, net.edges, net.weights, net.loads, scene.supports) <= res.parameters["tol"]
+        assert np.min(np.asarray(net.weights)) >= 0
+
+
+def test_the_coupled_step_moves_every_load_cases_weights():
+    """With two load cases (self-weight, and self-weight with 1% of it on one vertex) one
+    geometry carries both. The coupled Step 3 moves each case's free weights with the positions
+    (one Gauss-Newton system over the positions and both cases' weights): in equilibrium in
+    both cases, and nearer the reference than the plain step, whose weights stay frozen."""
+    scene, cases = _two_cases("dome", 0.01)
+    plain = StaggeredLinearization().solve(scene, cases)
+    coupled = StaggeredLinearization(coupled=True).solve(scene, cases)
+    assert plain.status == coupled.status == "converged"
+    assert len(coupled.case_networks) == 2
+    _check_cases(scene, plain), _check_cases(scene, coupled)
+    assert coupled.distance_mean < plain.distance_mean
+
+
+def test_rejected_coupled_steps_hold_the_weights_harder(monkeypatch):
+    """A concave disk with two load cases, one hanging 16.5% of the weight on a vertex: the
+    plain step creeps at α's minimum and the run stalls; after the creep switch every coupled
+    step at the default hold on the weights over-promised (rejected, the plain step taken
+    instead) and the run stalled too. Raising the hold after a rejected coupled step (×10, and
+    halved back after an accepted one) lets the coupled steps through: converged."""
+    import selfsupport.methods.staggered as stg
+
+    scene, cases = _two_cases("concave_disk", 0.165)
+    plain = StaggeredLinearization(creep_window=0).solve(scene, cases)
+    adaptive = StaggeredLinearization().solve(scene, cases)
+    monkeypatch.setattr(stg, "DAMPING_MAX", adaptive.parameters["coupled_damping"])  # (the hold never raised)
+    fixed = StaggeredLinearization().solve(scene, cases)
+    assert plain.status == fixed.status == "stalled" and adaptive.status == "converged"
+    _check_cases(scene, adaptive)
+    steps = [h for h in adaptive.history if isinstance(h.get("iteration"), int) and h.get("coupled_damping")]
+    assert max(h["coupled_damping"] for h in steps) > adaptive.parameters["coupled_damping"]
+    assert sum(not h.get("fallback") for h in steps) > 0  # (coupled steps were taken)
+
+
+def test_cases_that_differ_by_a_point_load_stall_on_free_edges_and_the_message_says_why():
+    """Self-weight, and self-weight with 10% of it on the middle vertex, on a 100-vertex pillar
+    vault: with its free edges the run stalls, and the message names the cause (the cases are not
+    proportional and boundary vertices are free); the same mesh and cases with the boundary
+    supported converge, in equilibrium in both cases, and the note is absent."""
+    import dataclasses
+
+    from selfsupport.loads import PointLoad
+
+    scene = make_shape("pillar_vault", n_vertices=100)
+    sw = SelfWeight(density=2000, thickness=0.1)
+    V, free = scene.mesh.vertices, np.flatnonzero(~scene.supports)
+    v = int(free[np.argmin(np.linalg.norm(V[free, :2] - V[free, :2].mean(0), axis=1))])
+    forces = np.zeros(scene.mesh.n_vertices)
+    forces[v] = 0.1 * float(sw.nodal(scene.mesh, V).sum())
+    cases = {"empty": sw, "hoist": sw + PointLoad(forces)}
+    free_edges = StaggeredLinearization().solve(scene, cases)
+    assert free_edges.status == "stalled" and "the load cases are not proportional" in free_edges.message
+    supported = dataclasses.replace(scene, supports=scene.supports | scene.mesh.boundary_vertex_mask)
+    held = StaggeredLinearization().solve(supported, cases)
+    assert held.status == "converged" and "not proportional" not in held.message
+    _check_cases(supported, held)
+    # proportional cases (a heavier material) on the free-edged vault: no note, and converged
+    heavier = StaggeredLinearization().solve(scene, {"a": sw, "b": SelfWeight(density=3000, thickness=0.1)})
+    assert heavier.status == "converged"

@@ -61,8 +61,10 @@ Coupled (option ``coupled``) Step 3 may also move the weights that are not at a 
         damping ∝ 1/(w − ε)² so that weights near ε hardly move: a Gauss-Newton step on the
         reduced error min_w E(X, w) instead of on E(X, w_k). It follows the penalty path more
         faithfully (measured: up to 1.65× closer to the reference on the paper's scenes) but costs a
-        (3n + m)-sized factorization per step; a rejected coupled step falls back to the plain
-        one. Not the default: slower, and its weights are less reproducible under rotations and
+        (3n + C·m)-sized factorization per step (C load cases, each moving its own weights); a
+        rejected coupled step falls back to the plain one, and when that one is taken the
+        damping is raised tenfold for the next coupled step (halved after an accepted one, down
+        to ``coupled_damping``, up to :data:`DAMPING_MAX`). Not the default: slower, and its weights are less reproducible under rotations and
         scalings of the input (up to ~1.5% of the weight moves, against < 1% for the plain step).
 Finish  once the fit's max relative error is below ``finish_try``, every accepted step tries the
         polish below with the current weights and keeps it when the polished network is in
@@ -110,8 +112,9 @@ from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_top_view_balance
-from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, hull_report,
-                   loads_or_options, planarity_report, short_of_tol, term_values)
+from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
+                   free_edge_cases_note, hull_report, loads_or_options, planarity_report, short_of_tol,
+                   term_values)
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import case_load_jacobians
@@ -142,7 +145,7 @@ class StaggeredOptions:
     beta_min: float = _setting(1e-8, "(0, inf)")
     max_rejections: int = _setting(12, "[1, inf)")  # consecutive rejected position steps before "stalled"
     creep_window: int = _setting(10, "[0, inf)")  # iterations at alpha_min in which the fit error must halve,
-    # else Step 3 turns coupled for the rest of the run (one load case, free top view; 0: never)
+    # else Step 3 turns coupled for the rest of the run (free top view; 0: never)
     stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
     # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
     smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
@@ -234,10 +237,16 @@ def _couples_first(problem: Problem) -> bool:
             and not problem.fixed_top_view)
 
 
-#: Largest mesh (vertices) on which a creeping fit turns Step 3 coupled (``creep_window``): the
-#: coupled step factors a (3n + m) system (a 16k pillar vault: 67 s with the switch, 66 s without),
-#: beyond this the memory of that factor, not the iterations, would decide.
+#: Largest mesh (vertices) on which a creeping fit of one load case turns Step 3 coupled
+#: (``creep_window``): the coupled step factors a (3n + m) system (a 16k pillar vault: 67 s with
+#: the switch, 66 s without), beyond this the memory of that factor, not the iterations, would
+#: decide. With C load cases the system is 3n + C·m (m ≈ 3n): the limit is scaled by 2 / (1 + C).
 COUPLE_MAX = 24_000
+
+#: Strongest hold on the weights the coupled step's damping is raised to after rejected steps
+#: (relative to the mean diagonal of the weights' Gram block, at the median gap to the bound):
+#: beyond it the coupled step is the plain one in all but cost.
+DAMPING_MAX = 1.0
 
 
 class StaggeredLinearization:
@@ -328,9 +337,8 @@ class _Run:
         self.mesh0 = self.scene.mesh
         self.C = len(self.loads)
         self.fixed_xy = problem.fixed_top_view
-        if opt.coupled and (self.C > 1 or self.fixed_xy):
-            raise InputError("the coupled step (coupled=true) handles one load case with a free top view; "
-                             "drop coupled=true")
+        if opt.coupled and self.fixed_xy:
+            raise InputError("the coupled step (coupled=true) needs a free top view; drop coupled=true")
         sp_ = problem.scaled()
         self.top, self.sc = sp_.top, sp_.scaling
         self.lower, self.upper = sp_.lower, sp_.upper
@@ -375,6 +383,7 @@ class _Run:
         self.step3: dict = {}  # Step 3's constant parts and its factor, kept across iterations
         self.polish_ws: dict = {}  # the polish's load-Jacobian colouring
         self.rtol_far = opt.fit_rtol  # the far-phase fits' KKT tolerance (tightened when it proves too loose)
+        self.damping = opt.coupled_damping  # the coupled step's hold on the weights (raised when it over-promises)
 
     # ---------------------------------------------------------------- Steps 1-2
     def loads_at(self, X: np.ndarray) -> np.ndarray:
@@ -474,10 +483,10 @@ class _Run:
     def position_step(self, X: np.ndarray, cur: dict, alpha: float, beta: float, coupled: bool = False) -> np.ndarray:
         """Step 3 at the current fit (see the module docstring)."""
         G = gap = None
-        if coupled:  # the fit's own scaled A at X, restricted to the weights off their bounds
-            w = cur["w"][0]
-            movable = (w > self.lower) & (w < self.upper)
-            G, gap = cur["As"][0][:, movable], (w - self.lower)[movable]
+        if coupled:  # each case's own scaled A at X, restricted to its weights off their bounds
+            movable = [(w > self.lower) & (w < self.upper) for w in cur["w"]]
+            G = [As[:, m] for As, m in zip(cur["As"], movable)]
+            gap = [(w - self.lower)[m] for w, m in zip(cur["w"], movable)]
         active = np.zeros(0, dtype=np.int64)
         for _ in range(6):
             # the masonry hull as hard bounds, by an active set: vertices a step carries out of the
@@ -487,7 +496,7 @@ class _Run:
             # stalled at fit error 0.78; projection alone stalled there too)
             pinned = _hull_faces(self.hull, X, active) if active.size else None
             Xt = _position_step(self.top, X, cur["w"], cur["L"], self.step3_terms, alpha, beta, G=G, prox_dw=beta,
-                                gap=gap, damping=self.opt.coupled_damping, workspace=self.step3,
+                                gap=gap, damping=self.damping, workspace=self.step3,
                                 fixed_xy=self.fixed_xy, pinned=pinned, deadline=self.deadline)
             if self.hull is None:
                 return Xt
@@ -690,8 +699,8 @@ class _Run:
                         last_try = gap  # try again once the fit error has halved
                     fresh = False
                     released = released + [cur["max_rel_error"]] if alpha <= opt.alpha_min else []
-                    if (not coupled and self.C == 1 and not self.fixed_xy and opt.creep_window
-                            and self.mesh0.n_vertices <= COUPLE_MAX
+                    if (not coupled and not self.fixed_xy and opt.creep_window
+                            and self.mesh0.n_vertices * (1 + self.C) <= 2 * COUPLE_MAX
                             and len(released) > opt.creep_window
                             and released[-1] > 0.5 * released[-1 - opt.creep_window]):
                         # Step 3 creeps with the weights held (a point load: the cone under it needs
@@ -738,10 +747,20 @@ class _Run:
                     trial, accepted = self.judge(Xt, cur, rec)
                     if coupled and not accepted:
                         # the coupled model over-promised (weights it moved were clamped by the
-                        # refit): fall back to the plain position step before shrinking the region
+                        # refit): fall back to the plain position step before shrinking the region.
+                        # When the plain step is taken, the weights' moves were what failed: hold
+                        # them harder in the next coupled step (a concave disk with two load cases,
+                        # one a point load: every coupled step at the default hold was rejected, and
+                        # the plain steps crept until "stalled"). When both fail, the region is too
+                        # large, which β answers.
                         Xt = self.position_step(X, cur, alpha, beta)
                         trial, accepted = self.judge(Xt, cur, rec)
                         rec["fallback"] = True
+                        if accepted:
+                            self.damping = min(10.0 * self.damping, DAMPING_MAX)
+                    elif coupled:
+                        self.damping = max(0.5 * self.damping, opt.coupled_damping)
+                    rec["coupled_damping"] = self.damping if coupled else None
                     rec["cg_iterations"] = self.step3.get("cg_iterations", 0)  # of the step taken
                     rec["accepted"] = accepted
                     t_iteration = time.perf_counter() - t0
@@ -877,6 +896,8 @@ class _Run:
                     f"in equilibrium, but faces are not planar: max non-planarity {planarity['max_nonplanarity']:.2e} "
                     f"> {planarity['tol']:g} (diagonal distance over mean edge length); try a larger planarity "
                     "penalty, or a quad mesh along the relative principal directions (selfsupport pq)")
+        if status != "converged":
+            message = "; ".join(m for m in (message, free_edge_cases_note(self.problem)) if m)
         return SolveResult.build(
             net, cases=cases, status=status, method=self.method.name, backend=self.method.backend.name,
             iterations=it, wall_time=time.perf_counter() - self.t_start, history=tuple(history), message=message,
@@ -1009,8 +1030,8 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
 
 
 def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
-                   objective: Term | None, alpha: float, beta: float, G: sp.spmatrix | None = None,
-                   prox_dw: float = 0.0, gap: np.ndarray | None = None, damping: float = 0.0,
+                   objective: Term | None, alpha: float, beta: float, G: list[sp.spmatrix] | None = None,
+                   prox_dw: float = 0.0, gap: list[np.ndarray] | None = None, damping: float = 0.0,
                    workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None,
                    deadline: float | None = None) -> np.ndarray:
     """Step 3: the SPD least-squares update of the free positions (see the module docstring).
@@ -1037,7 +1058,7 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
     wsp["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
     free = top.free
     nf = top.n_free
-    H, rhs, cvals, Kt0, target0 = None, np.zeros((nf, 3)), [], None, None
+    H, rhs, cvals, Kts, targets = None, np.zeros((nf, 3)), [], [], []
     for w, Lc in zip(weights, L):
         Kff, Kfs = position_blocks(top, w)
         s = 1.0 / np.abs(Lc[free])
@@ -1049,8 +1070,8 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
         target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
         H = (Kt.T @ Kt).tocsr() if H is None else (H + Kt.T @ Kt).tocsr()
         rhs += Kt.T @ target
-        if Kt0 is None:
-            Kt0, target0 = Kt, target
+        Kts.append(Kt)
+        targets.append(target)
     c = float(np.mean(cvals))
     H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp, pinned)
     if H1 is not None:
@@ -1071,7 +1092,8 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
         wsp["factor_z"] = spd_factor(Mz, reuse=wsp.get("factor_z"))
         Xn[free, 2] = wsp["factor_z"].solve(rz)
         return Xn
-    if Gg is None and (G is None or G.shape[1] == 0):  # (with every weight at a bound the coupled step is the plain one)
+    coupled = G is not None and sum(g.shape[1] for g in G) > 0
+    if Gg is None and not coupled:  # (with every weight at a bound the coupled step is the plain one)
         sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline)
         if sol is not None:
             Xn[free] = sol
@@ -1080,21 +1102,28 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
     rhs_flat = rhs.ravel() + (rhsg if Gg is not None else 0.0)
     if Gg is not None:
         M = (M + Gg).tocsc()
-    if G is not None and G.shape[1] > 0:
+    if coupled:
         # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
-        # the reduced error min_w E(X, w) rather than on E(X, w_k)); dw is only used to shape
-        # the position step: the trial is refitted exactly
-        J = sp.kron(Kt0, sp.identity(3), format="csr")
-        GtG = (G.T @ G).tocsr()
-        pw = prox_dw * float(GtG.diagonal().mean()) if GtG.shape[0] else 0.0
-        # weights near their bound may hardly move (an interior-point-like scaling), since the
-        # refit will clamp them there
-        gap = np.asarray(gap, float)
-        pw = pw + damping * float(GtG.diagonal().mean()) * (np.median(gap) / gap) ** 2
-        N = sp.bmat([[M, J.T @ G], [G.T @ J, GtG + sp.diags(pw)]], format="csc")
-        # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
-        rhs_w = G.T @ target0.ravel()
-        sol = spd_factor(N).solve(np.r_[rhs_flat, rhs_w])
+        # the reduced error min_w E(X, w) rather than on E(X, w_k)), each load case its own;
+        # dw is only used to shape the position step: the trial is refitted exactly
+        off, diag, rhs_w = [], [], []
+        for Kt, target, Gc, gc in zip(Kts, targets, G, gap):
+            if Gc.shape[1] == 0:  # (every weight of this case at a bound)
+                continue
+            GtG = (Gc.T @ Gc).tocsr()
+            mean = float(GtG.diagonal().mean())
+            # weights near their bound may hardly move (an interior-point-like scaling), since
+            # the refit will clamp them there
+            gc = np.asarray(gc, float)
+            pw = prox_dw * mean + damping * mean * (np.median(gc) / gc) ** 2
+            off.append(sp.kron(Kt, sp.identity(3), format="csr").T @ Gc)
+            diag.append(GtG + sp.diags(pw))
+            # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
+            rhs_w.append(Gc.T @ target.ravel())
+        C = len(off)
+        N = sp.bmat([[M] + off] + [[off[c].T] + [diag[c] if d == c else None for d in range(C)] for c in range(C)],
+                    format="csc")
+        sol = spd_factor(N).solve(np.concatenate([rhs_flat, *rhs_w]))
         Xn[free] = sol[:M.shape[0]].reshape(-1, 3)
         return Xn
     wsp["factor"] = spd_factor(M, reuse=wsp.get("factor"))
