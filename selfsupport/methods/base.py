@@ -232,8 +232,8 @@ def free_edge_cases_note(problem: Problem) -> str | None:
     It applies when the cases' loads are not proportional at the reference (a point load or
     extra mass in one case, not a uniform surcharge, which scales the self-weight) and the mesh
     has boundary vertices that are not supports. One geometry must carry every case; their
-    difference, a load of no fixed sign, is carried by a difference of weights that no free edge
-    can anchor. Measured (2026-11-28, ``selfsupport solve --load-cases``, ~400 vertices):
+    difference, a load on that same geometry, must be carried by a difference of weights of
+    either sign, and free edges leave it little room. Measured (2026-11-28, ``selfsupport solve --load-cases``, ~400 vertices):
     generated domes and dented disks with a supported boundary converge under self-weight and
     self-weight plus a point load of up to a third of it; a pillar vault with free edges
     stalls under the same cases with both methods, as do lilium, a triangulated vault with free
