@@ -225,29 +225,35 @@ def cases_in_equilibrium(cases, tol: float) -> bool:
 PROPORTIONAL_RTOL = 1e-6
 
 
-def free_edge_cases_note(problem: Problem) -> str | None:
+def load_cases_note(problem: Problem) -> str | None:
     """Why several load cases may have no common network: a sentence for the message of a solve
     that did not converge, or None when it does not apply.
 
     It applies when the cases' loads are not proportional at the reference (a point load or
-    extra mass in one case, not a uniform surcharge, which scales the self-weight) and the mesh
-    has boundary vertices that are not supports. One geometry must carry every case; their
-    difference, a load on that same geometry, must be carried by a difference of weights of
-    either sign, and free edges leave it little room. Measured (2026-11-28, ``selfsupport solve --load-cases``, ~400 vertices):
-    generated domes and dented disks with a supported boundary converge under self-weight and
-    self-weight plus a point load of up to a third of it; a pillar vault with free edges
-    stalls under the same cases with both methods, as do lilium, a triangulated vault with free
-    edges and dome2 with an oculus (and the pillar vault under a surcharge on half of it).
+    extra mass in one case, not a uniform surcharge, which scales the self-weight). One geometry
+    must carry every case; their difference, a load on that same geometry, must be carried by a
+    difference of weights of either sign. Free edges leave that little room, and the sentence
+    names them when the mesh has boundary vertices that are not supports. Measured (2026-11-28,
+    ``selfsupport solve --load-cases``): generated domes and dented disks of ~400 vertices with a
+    supported boundary converge under self-weight and self-weight plus a point load of up to a
+    third of it; a pillar vault with free edges stalls under the same cases with both methods, as
+    do a triangulated vault with free edges, dome2 with an oculus, and the pillar vault under a
+    surcharge on half of it; lilium and lilium-pillar, their boundaries supported, stall too with
+    5% or 20% of the weight on one vertex (each converges with that load as its only case).
 
     >>> from selfsupport.shapes import make_shape
     >>> from selfsupport.loads import PointLoad, SelfWeight
     >>> from formulations import Problem
     >>> scene = make_shape("pillar_vault", n_vertices=100)
     >>> f = np.zeros(scene.mesh.n_vertices); f[45] = -1000.0
-    >>> cases = {"empty": SelfWeight(), "hoist": SelfWeight() + PointLoad(f)}
-    >>> free_edge_cases_note(Problem.build(scene, loads=cases)).startswith("the load cases are not proportional")
-    True
-    >>> free_edge_cases_note(Problem.build(scene, loads={"a": SelfWeight(), "b": SelfWeight(density=3000)})) is None
+    >>> note = load_cases_note(Problem.build(scene, loads={"empty": SelfWeight(), "hoist": SelfWeight() + PointLoad(f)}))
+    >>> note.startswith("the load cases are not proportional"), "boundary vertices are not supports" in note
+    (True, True)
+    >>> import dataclasses  # the same with every boundary vertex supported: no free edge named
+    >>> held = dataclasses.replace(scene, supports=scene.supports | scene.mesh.boundary_vertex_mask)
+    >>> load_cases_note(Problem.build(held, loads={"empty": SelfWeight(), "hoist": SelfWeight() + PointLoad(f)}))[:60]
+    'the load cases are not proportional: one geometry must carry'
+    >>> load_cases_note(Problem.build(scene, loads={"a": SelfWeight(), "b": SelfWeight(density=3000)})) is None
     True
     """
     if len(problem.loads) < 2:
@@ -257,11 +263,16 @@ def free_edge_cases_note(problem: Problem) -> str | None:
     ref = L[0]
     scale = (L @ ref) / max(float(ref @ ref), 1e-300)  # best factor of each case onto the first
     off = np.abs(L - scale[:, None] * ref[None]).max(axis=1) / np.abs(L).max(axis=1)
-    free_edge = np.flatnonzero(scene.mesh.boundary_vertex_mask & ~scene.supports)
-    if off.max() <= PROPORTIONAL_RTOL or free_edge.size == 0:
+    if off.max() <= PROPORTIONAL_RTOL:
         return None
-    shown = ", ".join(str(int(v)) for v in free_edge[:8]) + (", ..." if free_edge.size > 8 else "")
-    return (f"the load cases are not proportional and {free_edge.size} boundary vertices are not supports "
-            f"({shown}): one geometry must carry every case, and with free edges such a geometry may not "
-            "exist (domes with a supported boundary carry such cases; vaults with free edges stalled with "
-            "both methods); solve the cases one at a time, or support the free boundary")
+    free_edge = np.flatnonzero(scene.mesh.boundary_vertex_mask & ~scene.supports)
+    if free_edge.size:
+        shown = ", ".join(str(int(v)) for v in free_edge[:8]) + (", ..." if free_edge.size > 8 else "")
+        return (f"the load cases are not proportional and {free_edge.size} boundary vertices are not supports "
+                f"({shown}): one geometry must carry every case, and with free edges such a geometry may not "
+                "exist (vaults with free edges stalled with both methods, where domes with a supported boundary "
+                "converge); solve the cases one at a time, or support the free boundary")
+    return ("the load cases are not proportional: one geometry must carry every case, and such a geometry may not "
+            "exist near this reference (lilium, its boundary supported, stalled with 5% of its weight on one "
+            "vertex in one case, and converged with that case alone); solve the cases one at a time, or make "
+            "the loads of the cases more alike")

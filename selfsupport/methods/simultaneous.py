@@ -67,7 +67,7 @@ from ..result import Network, SolveResult
 from ..validate import require_top_view_balance
 from ..scene import Scene
 from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
-                   free_edge_cases_note, planarity_report, short_of_tol, term_values)
+                   load_cases_note, planarity_report, short_of_tol, term_values)
 from .deadline import out_of_time
 from .polish import HULL_ACTIVE_REL, case_load_jacobians, polish_joint
 from .polish import max_rel_error as _max_rel_error
@@ -500,7 +500,7 @@ class Simultaneous:
             status, message = "stalled", (f"{message}; but faces are not planar: max non-planarity "
                                           f"{planarity['max_nonplanarity']:.2e} > {planarity['tol']:g}")
         if status != "converged":
-            message = "; ".join(m for m in (message, free_edge_cases_note(problem)) if m)
+            message = "; ".join(m for m in (message, load_cases_note(problem)) if m)
         return SimultaneousRun(SolveResult.build(
             first, cases=cases, terms=term_values(problem, first, default=DEFAULT_OBJECTIVE),
             status=status, method=self.name, backend=self.backend, iterations=iterations,

@@ -113,9 +113,8 @@ from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_top_view_balance
-from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
-                   free_edge_cases_note, hull_report, loads_or_options, planarity_report, short_of_tol,
-                   term_values)
+from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, hull_report,
+                   load_cases_note, loads_or_options, planarity_report, short_of_tol, term_values)
 from .deadline import DeadlineReached, out_of_time
 from .polish import polish as _polish
 from .polish import case_load_jacobians
@@ -903,7 +902,7 @@ class _Run:
                     f"> {planarity['tol']:g} (diagonal distance over mean edge length); try a larger planarity "
                     "penalty, or a quad mesh along the relative principal directions (selfsupport pq)")
         if status != "converged":
-            message = "; ".join(m for m in (message, free_edge_cases_note(self.problem)) if m)
+            message = "; ".join(m for m in (message, load_cases_note(self.problem)) if m)
         return SolveResult.build(
             net, cases=cases, status=status, method=self.method.name, backend=self.method.backend.name,
             iterations=it, wall_time=time.perf_counter() - self.t_start, history=tuple(history), message=message,
