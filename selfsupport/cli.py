@@ -674,9 +674,25 @@ def build_parser(commands: dict[str, Command] | None = None) -> argparse.Argumen
     return parser
 
 
+def _axis_values_joined(argv: list[str]) -> list[str]:
+    """``--up -y`` as ``--up=-y``: argparse takes a value that starts with "-" for an option
+    (and the help and the errors name ``-y`` and ``-z`` as axes).
+
+    >>> _axis_values_joined(["solve", "m.obj", "--up", "-y", "--out", "n.json"])
+    ['solve', 'm.obj', '--up=-y', '--out', 'n.json']
+    """
+    out: list[str] = []
+    for tok in argv:
+        if out and out[-1] == "--up" and tok in ("-x", "-y", "-z"):
+            out[-1] = f"--up={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (the console script passes it to ``sys.exit``)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = _axis_values_joined(list(sys.argv[1:] if argv is None else argv))
     debug = "--debug" in argv
     try:
         args = build_parser().parse_args(argv)
