@@ -36,7 +36,7 @@ from .loads import G, LoadCase, SelfWeight, with_scene_extras
 from .mesh import PolyMesh
 from .result import Network, SolveResult
 from .scene import Scene
-from .validate import validate_scene
+from .validate import load_issues, validate_scene
 
 from formulations import Problem
 
@@ -338,7 +338,8 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     SolveResult
         Its ``parameters`` gain ``"loads"`` (the self-weight ρ, t), ``"load_model"`` (every load,
         so the file can be re-checked case by case) and ``"input_issues"``: the warnings of
-        :func:`~selfsupport.validate.validate_scene` as dicts.
+        :func:`~selfsupport.validate.validate_scene` and :func:`~selfsupport.validate.load_issues`
+        as dicts.
 
     Raises
     ------
@@ -359,6 +360,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
                      load_cases=load_cases)
     prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
                          constraints=constraints)
+    issues = [*issues, *load_issues(prob.loads, scene.supports)]
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
         if method not in ("staggered", "multilevel"):

@@ -39,6 +39,10 @@ class LoadCase:
         """Does the case put loads on single vertices (point loads, extra masses)?"""
         return False
 
+    def concentrated_at(self) -> np.ndarray:
+        """The vertices that carry a point load or an extra mass (sorted indices)."""
+        return np.zeros(0, dtype=np.int64)
+
     def __add__(self, other: "LoadCase") -> "CombinedLoad":
         return CombinedLoad((self, other))
 
@@ -60,6 +64,9 @@ class CombinedLoad(LoadCase):
     @property
     def concentrated(self) -> bool:
         return any(c.concentrated for c in self.cases)
+
+    def concentrated_at(self) -> np.ndarray:
+        return np.unique(np.concatenate([c.concentrated_at() for c in self.cases] + [np.zeros(0, np.int64)]))
 
     def __add__(self, other: LoadCase) -> "CombinedLoad":
         return CombinedLoad(self.cases + (other,))
@@ -99,6 +106,9 @@ class PointLoad(LoadCase):
     def concentrated(self) -> bool:
         return bool(np.any(np.asarray(self.forces, float) != 0))
 
+    def concentrated_at(self) -> np.ndarray:
+        return np.flatnonzero(np.asarray(self.forces, float) != 0)
+
 
 @dataclass(frozen=True, eq=False)
 class ExtraMass(LoadCase):
@@ -113,6 +123,9 @@ class ExtraMass(LoadCase):
     @property
     def concentrated(self) -> bool:
         return bool(np.any(np.asarray(self.mass, float) != 0))
+
+    def concentrated_at(self) -> np.ndarray:
+        return np.flatnonzero(np.asarray(self.mass, float) != 0)
 
 
 def with_scene_extras(loads: LoadCase, scene) -> LoadCase:

@@ -140,6 +140,26 @@ def _warning(code: str, message: str, **kw: Any) -> Issue:
     return Issue(code, "warning", message, **kw)
 
 
+def load_issues(loads: Any, supports: np.ndarray) -> list[Issue]:
+    """Warnings about the loads of a problem (``loads``: its
+    :class:`~formulations.loadcases.LoadCases`): a point load or extra mass on a support, which
+    goes straight into the ground and changes nothing of the network.
+
+    >>> from formulations.loadcases import LoadCases
+    >>> from selfsupport.loads import PointLoad, SelfWeight
+    >>> f = np.zeros(4); f[[0, 2]] = -500.0
+    >>> [i.vertices for i in load_issues(LoadCases.of(SelfWeight() + PointLoad(f)), np.array([1, 0, 0, 1], bool))]
+    [(0,)]
+    """
+    on = np.unique(np.concatenate([np.asarray(c.concentrated_at(), np.int64) for c in loads.models]))
+    on = on[np.asarray(supports, bool)[on]]
+    if not on.size:
+        return []
+    return [_warning("loads_on_supports", f"point loads or extra masses on supports ({_few(on)}) go straight into "
+                     "the ground and change nothing of the network; load free vertices to load the shell",
+                     vertices=tuple(int(v) for v in on))]
+
+
 def _few(idx: np.ndarray) -> str:
     idx = np.asarray(idx).ravel()
     head = ", ".join(str(int(i)) for i in idx[:LIST_MAX])

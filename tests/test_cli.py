@@ -549,3 +549,24 @@ def test_a_negative_vertical_axis_is_taken_after_a_space(barrel_obj, tmp_path, c
         outs.append((code, [ln for ln in c.out.splitlines() if ln.startswith("fitted weights")], c.err))
     assert outs[0] == outs[1] == outs[2]  # (and the same as the barrel itself, read z up)
     assert len(outs[0][1]) >= 4
+
+
+def test_a_point_load_on_a_support_is_warned_and_changes_nothing(tmp_path, capsys):
+    """A point load on a support goes straight into the ground: the solve says so in one warning
+    line naming the vertex, and the network is the one solved without that load."""
+    from selfsupport.shapes import make_shape as shape
+
+    scene = shape("pillar_vault", n_vertices=100)
+    s = int(np.flatnonzero(scene.supports)[0])
+    f = int(np.flatnonzero(~scene.supports)[0])
+    outs = {}
+    for name, extra in (("bare", []), ("on_support", ["--point-load", f"{s}:5000"])):
+        out = tmp_path / f"{name}.json"
+        assert cli.main(["solve", "shape:pillar_vault:100", "--out", str(out), "-q", *extra]) == 0
+        outs[name] = (json.loads(out.read_text()), capsys.readouterr().err)
+    assert f"on supports ({s})" in outs["on_support"][1] and "on supports" not in outs["bare"][1]
+    assert np.array_equal(outs["bare"][0]["vertices"], outs["on_support"][0]["vertices"])
+    # a load on a free vertex is no such case
+    assert cli.main(["solve", "shape:pillar_vault:100", "--out", str(tmp_path / "free.json"), "-q",
+                     "--point-load", f"{f}:5000"]) == 0
+    assert "on supports" not in capsys.readouterr().err

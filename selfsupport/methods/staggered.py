@@ -849,7 +849,9 @@ class _Run:
         if self.progress:
             self.progress(final)
         err = cases_max_error(cases)
-        steps = opt.refine or (opt.refine_concentrated if any(c.concentrated for c in self.loads.models) else 0)
+        # (a load on a support goes into the ground: it concentrates nothing on the network)
+        concentrated = any(self.free[c.concentrated_at()].any() for c in self.loads.models)
+        steps = opt.refine or (opt.refine_concentrated if concentrated else 0)
         if steps > 0 and status == "converged" and err <= opt.tol:
             net, cases, err = self.refine(net, cases, err, history, steps)
             if not history[-1].get("applied") and history[-1].get("tried"):
