@@ -651,7 +651,6 @@ class _Run:
         polish_tol = opt.joint_polish_tol if self.joint else opt.polish_tol
         coupled = bool(opt.coupled)  # (turned on when the fit creeps at α's minimum: creep_window)
         retry_errors: list[float] | None = None  # fit errors since a retry began
-        retried_at = np.inf  # max relative error of the last polish that a retry followed
         # duration of the last iteration (Step 3 and its fits): the next one is started only if it
         # can end before the deadline; before the first, the first fit stands in for it
         t_iteration = cur["t_loads"] + cur["t_weights"]
@@ -832,13 +831,9 @@ class _Run:
                 message += (f"; to reach equilibrium the final polish moved vertices by up to {polish_move:.2e} "
                             "of the bounding-box diagonal, so this network may be far from the design")
             if (status == "converged" and early is None and not cases_in_equilibrium(cases, opt.tol) and polish_tol > 1e-9
-                    and it < opt.max_iter and not out_of_time(self.deadline) and self.roundoff_limit(cases) is None
-                    and err <= 0.5 * retried_at):
+                    and it < opt.max_iter and not out_of_time(self.deadline) and self.roundoff_limit(cases) is None):
                 # the polish did not reach equilibrium (the load fixed point stalled, e.g. on a
-                # kink of the area model): iterate on to a much tighter fit and polish again —
-                # unless the last retry's polish did not even halve the error (twocirc-3 with
-                # three load cases: five joint polishes of 3-5 s each, 9.7e-3 down to 6.2e-3)
-                retried_at = err
+                # kink of the area model): iterate on to a much tighter fit and polish again
                 history.append({**final, "kept": False, "retry": True})
                 polish_tol *= 1e-2
                 retry_errors = []
