@@ -567,7 +567,7 @@ def test_the_coupled_step_moves_every_load_cases_weights():
     (one Gauss-Newton system over the positions and both cases' weights): in equilibrium in
     both cases, and nearer the reference than the plain step, whose weights stay frozen."""
     scene, cases = _two_cases("dome", 0.01)
-    plain = StaggeredLinearization().solve(scene, cases)
+    plain = StaggeredLinearization(coupled=False).solve(scene, cases)
     coupled = StaggeredLinearization(coupled=True).solve(scene, cases)
     assert plain.status == coupled.status == "converged"
     assert len(coupled.case_networks) == 2
@@ -584,10 +584,12 @@ def test_rejected_coupled_steps_hold_the_weights_harder(monkeypatch):
     import selfsupport.methods.staggered as stg
 
     scene, cases = _two_cases("concave_disk", 0.165)
-    plain = StaggeredLinearization(creep_window=0).solve(scene, cases)
-    adaptive = StaggeredLinearization().solve(scene, cases)
+    # (coupled=False: the plain step first, as before cases that are not proportional took the
+    # coupled step from the start; the creep switch turns it coupled)
+    plain = StaggeredLinearization(coupled=False, creep_window=0).solve(scene, cases)
+    adaptive = StaggeredLinearization(coupled=False).solve(scene, cases)
     monkeypatch.setattr(stg, "DAMPING_MAX", adaptive.parameters["coupled_damping"])  # (the hold never raised)
-    fixed = StaggeredLinearization().solve(scene, cases)
+    fixed = StaggeredLinearization(coupled=False).solve(scene, cases)
     assert plain.status == fixed.status == "stalled" and adaptive.status == "converged"
     _check_cases(scene, adaptive)
     steps = [h for h in adaptive.history if isinstance(h.get("iteration"), int) and h.get("coupled_damping")]
@@ -595,11 +597,13 @@ def test_rejected_coupled_steps_hold_the_weights_harder(monkeypatch):
     assert sum(not h.get("fallback") for h in steps) > 0  # (coupled steps were taken)
 
 
-def test_cases_that_differ_by_a_point_load_stall_on_free_edges_and_the_message_says_why():
+def test_a_stalled_solve_of_cases_that_are_not_proportional_says_why():
     """Self-weight, and self-weight with 10% of it on the middle vertex, on a 100-vertex pillar
-    vault: with its free edges the run stalls, and the message names the cause (the cases are not
-    proportional and boundary vertices are free); the same mesh and cases with the boundary
-    supported converge, in equilibrium in both cases, and the note is absent."""
+    vault. With the plain step (``coupled=False``) the run stalls, and the message names the
+    cause: the cases are not proportional and boundary vertices are free. The default, the
+    coupled step from the start for such cases, converges on the same problem, in equilibrium in
+    both cases; so does the plain step with the boundary supported; neither message has the
+    note. Proportional cases (a heavier material) on the free-edged vault converge too."""
     import dataclasses
 
     from selfsupport.loads import PointLoad
@@ -611,12 +615,31 @@ def test_cases_that_differ_by_a_point_load_stall_on_free_edges_and_the_message_s
     forces = np.zeros(scene.mesh.n_vertices)
     forces[v] = 0.1 * float(sw.nodal(scene.mesh, V).sum())
     cases = {"empty": sw, "hoist": sw + PointLoad(forces)}
-    free_edges = StaggeredLinearization().solve(scene, cases)
-    assert free_edges.status == "stalled" and "the load cases are not proportional" in free_edges.message
+    plain = StaggeredLinearization(coupled=False).solve(scene, cases)
+    assert plain.status == "stalled" and "the load cases are not proportional" in plain.message
+    assert "boundary vertices are not supports" in plain.message
+    default = StaggeredLinearization().solve(scene, cases)
+    assert default.status == "converged" and "not proportional" not in default.message
+    _check_cases(scene, default)
     supported = dataclasses.replace(scene, supports=scene.supports | scene.mesh.boundary_vertex_mask)
-    held = StaggeredLinearization().solve(supported, cases)
+    held = StaggeredLinearization(coupled=False).solve(supported, cases)
     assert held.status == "converged" and "not proportional" not in held.message
     _check_cases(supported, held)
-    # proportional cases (a heavier material) on the free-edged vault: no note, and converged
     heavier = StaggeredLinearization().solve(scene, {"a": sw, "b": SelfWeight(density=3000, thickness=0.1)})
     assert heavier.status == "converged"
+
+
+def test_load_cases_that_are_not_proportional_take_the_coupled_step_from_the_start():
+    """Two cases one geometry must carry, self-weight and self-weight with half of it on one
+    vertex of a dented disk: with the weights held, Step 3 trades one case's error against the
+    other's and the run stalls; the default for cases that are not proportional is the coupled
+    step from the start, which converges, in equilibrium in both cases. Proportional cases (a
+    heavier material) keep the plain step."""
+    scene, cases = _two_cases("concave_disk", 0.5)
+    plain = StaggeredLinearization(coupled=False).solve(scene, cases)
+    default = StaggeredLinearization().solve(scene, cases)
+    assert plain.status == "stalled" and default.status == "converged"
+    assert default.parameters["coupled"] is True and "other_run" not in default.parameters
+    _check_cases(scene, default)
+    heavier = StaggeredLinearization().solve(scene, {"a": SelfWeight(), "b": SelfWeight(density=3000)})
+    assert heavier.parameters["coupled"] is False

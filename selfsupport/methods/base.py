@@ -225,6 +225,30 @@ def cases_in_equilibrium(cases, tol: float) -> bool:
 PROPORTIONAL_RTOL = 1e-6
 
 
+def cases_proportional(problem: Problem) -> bool:
+    """Are the free vertices' loads of every case, at the reference, one case's times a factor
+    (within :data:`PROPORTIONAL_RTOL`)? A single case is; a uniform surcharge on the self-weight
+    is; a point load or extra mass in one case is not.
+
+    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.loads import PointLoad, SelfWeight
+    >>> from formulations import Problem
+    >>> scene = make_shape("dome", n_vertices=60)
+    >>> f = np.zeros(scene.mesh.n_vertices); f[int(np.flatnonzero(~scene.supports)[0])] = -100.0
+    >>> [cases_proportional(Problem.build(scene, loads=c)) for c in ({"a": SelfWeight(), "b": SelfWeight(density=3000)},
+    ...                                                               {"a": SelfWeight(), "b": SelfWeight() + PointLoad(f)})]
+    [True, False]
+    """
+    if len(problem.loads) < 2:
+        return True
+    scene = problem.scene
+    L = problem.loads.nodal(scene.mesh, scene.mesh.vertices)[:, ~scene.supports]
+    ref = L[0]
+    scale = (L @ ref) / max(float(ref @ ref), 1e-300)  # best factor of each case onto the first
+    off = np.abs(L - scale[:, None] * ref[None]).max(axis=1) / np.abs(L).max(axis=1)
+    return bool(off.max() <= PROPORTIONAL_RTOL)
+
+
 def load_cases_note(problem: Problem) -> str | None:
     """Why several load cases may have no common network: a sentence for the message of a solve
     that did not converge, or None when it does not apply.
@@ -239,9 +263,10 @@ def load_cases_note(problem: Problem) -> str | None:
     third of it; a pillar vault with free edges stalls under the same cases with both methods, as
     do a triangulated vault with free edges, dome2 with an oculus, and the pillar vault under a
     surcharge on half of it; lilium and lilium-pillar, their boundaries supported, stall too with
-    5% or 20% of the weight on one vertex (each converges with that load as its only case), but
-    lilium at 5% converges with the coupled step from the start (``coupled=true``, 38
-    iterations): there the network exists and the default iteration misses it.
+    5% or 20% of the weight on one vertex (each converges with that load as its only case) with
+    the plain step; lilium at 5% converges with the coupled step from the start (38 iterations),
+    which the staggered method now tries first for such cases
+    (:func:`selfsupport.methods.staggered._couples_first`).
 
     >>> from selfsupport.shapes import make_shape
     >>> from selfsupport.loads import PointLoad, SelfWeight
@@ -258,15 +283,9 @@ def load_cases_note(problem: Problem) -> str | None:
     >>> load_cases_note(Problem.build(scene, loads={"a": SelfWeight(), "b": SelfWeight(density=3000)})) is None
     True
     """
-    if len(problem.loads) < 2:
+    if cases_proportional(problem):
         return None
     scene = problem.scene
-    L = problem.loads.nodal(scene.mesh, scene.mesh.vertices)[:, ~scene.supports]
-    ref = L[0]
-    scale = (L @ ref) / max(float(ref @ ref), 1e-300)  # best factor of each case onto the first
-    off = np.abs(L - scale[:, None] * ref[None]).max(axis=1) / np.abs(L).max(axis=1)
-    if off.max() <= PROPORTIONAL_RTOL:
-        return None
     free_edge = np.flatnonzero(scene.mesh.boundary_vertex_mask & ~scene.supports)
     if free_edge.size:
         shown = ", ".join(str(int(v)) for v in free_edge[:8]) + (", ..." if free_edge.size > 8 else "")
@@ -275,6 +294,5 @@ def load_cases_note(problem: Problem) -> str | None:
                 "exist (vaults with free edges stalled with both methods, where domes with a supported boundary "
                 "converge); solve the cases one at a time, or support the free boundary")
     return ("the load cases are not proportional: one geometry must carry every case, and the iteration may miss "
-            "it or it may not exist near this reference; try the coupled step from the start (option "
-            "coupled=true: lilium with 5% of its weight on one vertex in one case converged so, where the default "
-            "stalled), solve the cases one at a time, or make the loads of the cases more alike")
+            "it or it may not exist near this reference; solve the cases one at a time, or make the loads of the "
+            "cases more alike")
