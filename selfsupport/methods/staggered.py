@@ -66,7 +66,8 @@ Coupled (option ``coupled``) Step 3 may also move the weights that are not at a 
         damping is raised tenfold for the next coupled step (halved after an accepted one, down
         to ``coupled_damping``, up to :data:`DAMPING_MAX`). Not the default: slower, and its
         weights are less reproducible under rotations and scalings of the input (up to ~1.5% of
-        the weight moves, against < 1% for the plain step).
+        the weight moves, against < 1% for the plain step) — except with planar faces or load
+        cases that are not proportional, where it is tried first (:func:`_couples_first`).
 Finish  once the fit's max relative error is below ``finish_try``, every accepted step tries the
         polish below with the current weights and keeps it when the polished network is in
         equilibrium and its mean distance to the reference exceeds the iterate's by at most
