@@ -291,8 +291,8 @@ def load_cases_note(problem: Problem) -> str | None:
         shown = ", ".join(str(int(v)) for v in free_edge[:8]) + (", ..." if free_edge.size > 8 else "")
         return (f"the load cases are not proportional and {free_edge.size} boundary vertices are not supports "
                 f"({shown}): one geometry must carry every case, and with free edges such a geometry may not "
-                "exist (vaults with free edges stalled with both methods, where domes with a supported boundary "
-                "converge); solve the cases one at a time, or support the free boundary")
+                "exist (vaults with free edges often stall with both methods, where domes with a supported "
+                "boundary converge); solve the cases one at a time, or support the free boundary")
     return ("the load cases are not proportional: one geometry must carry every case, and the iteration may miss "
             "it or it may not exist near this reference; solve the cases one at a time, or make the loads of the "
             "cases more alike")

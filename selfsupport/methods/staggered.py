@@ -311,7 +311,7 @@ class StaggeredLinearization:
         # Several load cases that are not proportional: one geometry must carry each, and with the
         # weights held Step 3 can only trade one case's error against the other's (lilium, empty and
         # with 5% of its weight on one vertex: stalled at 0.97 plain, converged coupled in 38
-        # iterations; generated domes 1.3-2.8x closer to the reference).
+        # iterations; generated domes 1.5-5x and dented disks 1.2-1.6x closer to the reference).
         # Planar faces required: with the weights held in Step 3, the planarity penalty and the fit
         # pull against each other and the fit error creeps (1-2 % per iteration; a 400-vertex dome
         # remeshed at 0.6-1 edge length stalled in 3 of 6 meshes). The coupled step converged on all
