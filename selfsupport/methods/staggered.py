@@ -241,7 +241,7 @@ def _couples_first(problem: Problem) -> str | None:
         return None
     if any(isinstance(c, Planar) for c in problem.constraints):
         return "planar faces" if C == 1 else None
-    if (C > 1 and problem.hull_thickness() is None and problem.scene.mesh.n_vertices * (1 + C) <= 2 * COUPLE_MAX
+    if (C > 1 and problem.hull_thickness() is None and _coupled_fits(problem.scene.mesh.n_vertices, C)
             and not cases_proportional(problem)):
         return "load cases that are not proportional"
     return None
@@ -252,6 +252,11 @@ def _couples_first(problem: Problem) -> str | None:
 #: the switch, 66 s without), beyond this the memory of that factor, not the iterations, would
 #: decide. With C load cases the system is 3n + C·m (m ≈ 3n): the limit is scaled by 2 / (1 + C).
 COUPLE_MAX = 24_000
+
+
+def _coupled_fits(n_vertices: int, n_cases: int) -> bool:
+    """Is the mesh small enough for the coupled step to be taken unasked (:data:`COUPLE_MAX`)?"""
+    return n_vertices * (1 + n_cases) <= 2 * COUPLE_MAX
 
 #: Strongest hold on the weights the coupled step's damping is raised to after rejected steps
 #: (relative to the mean diagonal of the weights' Gram block, at the median gap to the bound):
@@ -715,7 +720,7 @@ class _Run:
                     fresh = False
                     released = released + [cur["max_rel_error"]] if alpha <= opt.alpha_min else []
                     if (not coupled and not self.fixed_xy and opt.creep_window
-                            and self.mesh0.n_vertices * (1 + self.C) <= 2 * COUPLE_MAX
+                            and _coupled_fits(self.mesh0.n_vertices, self.C)
                             and len(released) > opt.creep_window
                             and released[-1] > 0.5 * released[-1 - opt.creep_window]):
                         # Step 3 creeps with the weights held (a point load: the cone under it needs
