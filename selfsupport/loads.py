@@ -37,7 +37,7 @@ class LoadCase:
     @property
     def concentrated(self) -> bool:
         """Does the case put loads on single vertices (point loads, extra masses)?"""
-        return False
+        return bool(self.concentrated_at().size)
 
     def concentrated_at(self) -> np.ndarray:
         """The vertices that carry a point load or an extra mass (sorted indices)."""
@@ -60,10 +60,6 @@ class CombinedLoad(LoadCase):
     @property
     def depends_on_geometry(self) -> bool:
         return any(c.depends_on_geometry for c in self.cases)
-
-    @property
-    def concentrated(self) -> bool:
-        return any(c.concentrated for c in self.cases)
 
     def concentrated_at(self) -> np.ndarray:
         return np.unique(np.concatenate([c.concentrated_at() for c in self.cases] + [np.zeros(0, np.int64)]))
@@ -102,10 +98,6 @@ class PointLoad(LoadCase):
     def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
         return np.asarray(self.forces, float)
 
-    @property
-    def concentrated(self) -> bool:
-        return bool(np.any(np.asarray(self.forces, float) != 0))
-
     def concentrated_at(self) -> np.ndarray:
         return np.flatnonzero(np.asarray(self.forces, float) != 0)
 
@@ -119,10 +111,6 @@ class ExtraMass(LoadCase):
 
     def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
         return -self.g * np.asarray(self.mass, float)
-
-    @property
-    def concentrated(self) -> bool:
-        return bool(np.any(np.asarray(self.mass, float) != 0))
 
     def concentrated_at(self) -> np.ndarray:
         return np.flatnonzero(np.asarray(self.mass, float) != 0)
