@@ -106,6 +106,12 @@ COLD_START_FACTOR = 0.01
 #: the change of the distance term is ~1e-6 relative.
 WEIGHT_REGULARIZATION = 1e-6
 
+#: IPOPT statuses of a load round after which the rounds go on, warm from its point, instead of
+#: ending the run: the round met IPOPT's acceptable tolerances but not its own. Only the last
+#: round has to be exact. (The remeshed barrel vault of ``tests/test_pq.py``, warm from its
+#: staggered network: with OpenBLAS's Haswell kernels IPOPT converged in every round; with its
+#: AVX-512 kernels the first round returned "acceptable" and the run ended "stalled" at 4.2e-2.)
+ACCEPTABLE_ROUND = frozenset({"Solved_To_Acceptable_Level"})
 #: IPOPT ``return_status`` -> our status (selfsupport.result.STATUSES); unknown ones are "failed".
 IPOPT_STATUS: dict[str, str] = {
     "Solve_Succeeded": "converged",
@@ -381,6 +387,12 @@ class Simultaneous:
             if progress is not None:
                 progress(rec)
             status = out["status"]
+            if out["raw"] in ACCEPTABLE_ROUND and rnd < MAX_LOAD_ROUNDS and np.all(np.isfinite(x)):
+                # a round that is not the last only has to bring the loads nearer: the next one, warm
+                # from here with the new loads, decides (the rounds' own evidence is what is judged)
+                rec["acceptable"] = True
+                L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
+                continue
             if status != "converged":
                 message = f"{self.backend} returned {out['raw']} in load round {rnd}"
                 if status == "infeasible" and hull is not None:
