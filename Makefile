@@ -30,14 +30,16 @@ venv: $(STAMP_RUN)
 demo: $(STAMP_RUN)
 	$(BIN)/selfsupport demo
 
+# (-n auto: one pytest-xdist worker per core; on a 2-core machine the fast suite took 4.2 min
+# instead of 9.0 serially, 2026-11-28)
 test: $(STAMP_TEST)
-	$(BIN)/pytest -q -m "not slow"
+	$(BIN)/pytest -q -m "not slow" -n auto
 
 test-slow: $(STAMP_TEST)
-	$(BIN)/pytest -q -m slow
+	$(BIN)/pytest -q -m slow -n auto
 
 test-all: $(STAMP_TEST)
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n auto
 
 fuzz: $(STAMP_TEST)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/pytest -q tests/test_fuzz.py --hypothesis-show-statistics
