@@ -140,10 +140,17 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     _wait(drv, f"return ssDesign.ui.handles.length === 1 && ssDesign.ui.handles[0] === {h}", what="the handle pick")
     drv.find_element(By.CSS_SELECTOR, "input[name=tool][value=drag]").click()
     pad = drv.find_element(By.ID, "dragpad")
-    chain = ActionChains(drv, duration=30).move_to_element(pad).click_and_hold()
+    ActionChains(drv, duration=30).move_to_element(pad).click_and_hold().perform()
     for _ in range(8):  # (slow enough that frames arrive while the drag goes on)
-        chain = chain.move_by_offset(0, -12).pause(0.3)
-    chain.release().perform()
+        ActionChains(drv, duration=30).move_by_offset(0, -12).pause(0.3).perform()
+    # ... and on a slow machine it goes on, wiggling, until one has been drawn during the drag (the
+    # server's first answers came after a 2.4 s drag on a machine 2.7x slower than the one where
+    # this test was written); the button stays down between these action sequences
+    wiggle, until = 4, time.monotonic() + 60
+    while drv.execute_script("return ssDesign.st.lightDraws") == 0 and time.monotonic() < until:
+        ActionChains(drv, duration=30).move_by_offset(0, wiggle).pause(0.3).perform()
+        wiggle = -wiggle
+    ActionChains(drv, duration=30).release().perform()
     # the drag's steps (one message every 50 ms at most) are answered by states; the last one counts
     last = -1
     while True:
