@@ -158,6 +158,56 @@ def test_worker_newest_request_wins_and_frames_are_in_equilibrium(dome):
         worker.close()
 
 
+def _stream(max_stale: float, seconds: float = 3.0) -> tuple[list[int], int]:
+    """A drag on a 400-vertex dome whose steps come every 5 ms, faster than any solve, for
+    ``seconds``: the seqs of the frames that came out while it went on, and the last seq."""
+    scene = make_shape("dome", n_vertices=400)
+    msgs: list[dict] = []
+    lock = threading.Lock()
+
+    def emit(m):
+        with lock:
+            msgs.append(m)
+
+    def frames():
+        with lock:
+            return [m["seq"] for m in msgs if m["type"] == "frame"]
+
+    log = EditLog(Design(scene))
+    worker = SolveWorker(emit, options=SOLVE_DEFAULTS, analysis=False, max_stale=max_stale)
+    try:
+        worker.submit(log.seq, log.design)
+        t0 = time.monotonic()
+        while not frames() and time.monotonic() - t0 < 60:
+            time.sleep(0.02)
+        assert frames() == [0]
+        h, k, t0 = _free(scene, 12), 0, time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            k += 1
+            seq = log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 1e-4 * k), mode="height"), drag="d")
+            worker.submit(seq, log.design)
+            time.sleep(0.005)
+        during = frames()[1:]
+        t0 = time.monotonic()
+        while log.seq not in frames() and time.monotonic() - t0 < 60:
+            time.sleep(0.02)
+        assert frames()[-1] == log.seq and frames() == sorted(frames())
+        return during, log.seq
+    finally:
+        worker.close()
+
+
+def test_a_drag_faster_than_the_solves_still_shows_frames_while_it_goes_on():
+    """Each drag step cancels the running solve, so steps that come faster than one solve would
+    show nothing until the drag ends (what a slower machine did to the design page's test). After
+    ``max_stale`` seconds without a frame the running solve finishes instead: frames come out
+    during the drag, older than its newest step, and the drag's last step still gets its own."""
+    during, last = _stream(max_stale=0.5)
+    assert len(during) >= 2 and all(s < last for s in during)
+    starved, _ = _stream(max_stale=float("inf"))  # (every solve cancelled: the old rule)
+    assert starved == []
+
+
 def test_an_analysis_waits_for_the_edits_to_pause_and_a_newer_edit_drops_it(dome):
     """A frame's Airy / reciprocal analysis is computed only when no newer edit came within
     ``analysis_delay`` (during a drag it would share the CPUs with the next step's solve); the last
