@@ -193,6 +193,40 @@ def test_a_flat_arch_is_held_above_tol_by_its_thrust_not_by_where_it_lies():
     assert roundoff_limit(vertices=V, tol=1e-12, **kw) is None
 
 
+def test_the_round_off_report_names_a_vertex_whose_squashed_faces_carry_little_load():
+    """A four-bar flat arch (thrust 1 N, rise ~1e-9 m) whose middle vertex carries 0.02 of its
+    neighbours' load (2e-11 N against 1e-9 N): one spacing of doubles in its x is within its
+    floor, and the report blames the small load alongside the forces. The two-bar arch above,
+    whose only free vertex carries the median load, is not called squashed."""
+    from selfsupport.evidence import DEGENERATE_LOAD, SQUASHED_LOAD, residuals, roundoff_limit
+
+    h = 1e-9
+    q = np.array([1.0, 0.02, 1.0]) * h  # the free vertices' loads (second differences of z)
+    K = 2 * np.eye(3) - np.eye(3, k=1) - np.eye(3, k=-1)
+    z = np.r_[0.0, np.linalg.solve(K, q), 0.0]
+    V = np.c_[np.arange(5.0), np.zeros(5), z]
+    E = np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
+    L = residuals(vertices=V, edges=E, weights=np.ones(4), loads=np.zeros(5))[:, 2]
+    kw = dict(edges=E, weights=np.ones(4), loads=L, supports=np.array([1, 0, 0, 0, 1], bool))
+    assert np.allclose(-L[1:4], q, rtol=1e-6)
+    assert roundoff_limit(vertices=V, tol=1e-12, **kw) is None
+    V[2, 0] = np.nextafter(2.0, 3.0)
+    limit = roundoff_limit(vertices=V, tol=1e-12, **kw)
+    assert limit is not None and DEGENERATE_LOAD < limit["load_ratio"] < SQUASHED_LOAD
+    assert limit["load_ratio"] == pytest.approx(0.02, rel=1e-6)
+    msg = roundoff_message(limit, 1e-12)
+    assert "edge forces there reach" in msg and "carry only 0.02 of the median vertex load" in msg
+    # the same network with the middle vertex carrying its share: no squashed faces named
+    q[1] = h
+    z = np.r_[0.0, np.linalg.solve(K, q), 0.0]
+    V = np.c_[np.arange(5.0), np.zeros(5), z]
+    kw["loads"] = residuals(vertices=V, edges=E, weights=np.ones(4), loads=np.zeros(5))[:, 2]
+    V[2, 0] = np.nextafter(2.0, 3.0)
+    limit = roundoff_limit(vertices=V, tol=1e-12, **kw)
+    assert limit is not None and limit["load_ratio"] == pytest.approx(1.0, rel=1e-6)
+    assert "squashed" not in roundoff_message(limit, 1e-12)
+
+
 def test_a_vertex_with_next_to_no_load_is_degenerate_not_held_by_rounding():
     """A four-bar chain 10⁹ m from the origin, horizontal thrust 1 N, whose middle vertex has
     a kink of 1e-6 (load 1e-6 N against 0.5 N and 2.5 N at its neighbours): moved by one spacing
