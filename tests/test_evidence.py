@@ -196,8 +196,8 @@ def test_a_flat_arch_is_held_above_tol_by_its_thrust_not_by_where_it_lies():
 def test_the_round_off_report_names_a_vertex_whose_squashed_faces_carry_little_load():
     """A four-bar flat arch (thrust 1 N, rise ~1e-9 m) whose middle vertex carries 0.02 of its
     neighbours' load (2e-11 N against 1e-9 N): one spacing of doubles in its x is within its
-    floor, and the report blames the small load alongside the forces. The two-bar arch above,
-    whose only free vertex carries the median load, is not called squashed."""
+    floor, and the report blames the small load alongside the forces. The same arch with equal
+    loads is not called squashed."""
     from selfsupport.evidence import DEGENERATE_LOAD, SQUASHED_LOAD, residuals, roundoff_limit
 
     h = 1e-9
