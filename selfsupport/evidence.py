@@ -167,7 +167,7 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
     ratio = at_vertex[free][over] / np.maximum(load[over], 1e-300)
     return {"max_relative_error": float(rel.max()), "n_vertices": int(over.sum()), "floor": float(floors[over].max()),
             "centred_floor": float(centred[over].max()), "offset": float(np.linalg.norm(centre)),
-            "force_ratio": float(ratio.max()), "load_ratio": float(load[over].min() / np.median(load))}
+            "force_ratio": float(ratio.max()), "load_ratio": float(load[over].min() / max(float(np.median(load)), 1e-300))}
 
 
 def roundoff_message(report: dict, tol: float) -> str:
