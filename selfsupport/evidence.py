@@ -167,7 +167,8 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
     ratio = at_vertex[free][over] / np.maximum(load[over], 1e-300)
     return {"max_relative_error": float(rel.max()), "n_vertices": int(over.sum()), "floor": float(floors[over].max()),
             "centred_floor": float(centred[over].max()), "offset": float(np.linalg.norm(centre)),
-            "force_ratio": float(ratio.max()), "load_ratio": float(load[over].min() / max(float(np.median(load)), 1e-300))}
+            "force_ratio": float(ratio.max()),
+            "load_ratio": float(load[over].min() / max(float(np.median(load)), 1e-300))}
 
 
 def roundoff_message(report: dict, tol: float) -> str:
@@ -181,7 +182,7 @@ def roundoff_message(report: dict, tol: float) -> str:
                 f"origin (its floor there: {report['centred_floor']:.1e})")
     squashed = (f", and some of those vertices carry only {report['load_ratio']:.2g} of the median vertex load "
                 "(the faces beside them are squashed in plan)"
-                if report.get("load_ratio", 1.0) < SQUASHED_LOAD else "")
+                if report["load_ratio"] < SQUASHED_LOAD else "")
     return (f"{head}; edge forces there reach {report['force_ratio']:.2g}× those vertices' loads (e.g. the "
             f"free-boundary arches of a fine mesh){squashed}: use a coarser mesh, support that boundary, or a tol "
             f"of at least {FLOOR_MARGIN * report['floor']:.1e}")

@@ -271,7 +271,8 @@ def test_a_round_solved_to_ipopts_acceptable_level_is_followed_by_the_next(scene
         if len(calls) > 1:
             return real(self, *args, **kw)
         out = real(self, *args, **{**kw, "tol": 1e-3})
-        return {**out, "raw": "Solved_To_Acceptable_Level", "status": simultaneous.IPOPT_STATUS["Solved_To_Acceptable_Level"]}
+        raw = "Solved_To_Acceptable_Level"
+        return {**out, "raw": raw, "status": simultaneous.IPOPT_STATUS[raw]}
 
     monkeypatch.setattr(simultaneous.Simultaneous, "_solve_round", first_acceptable)
     res = Simultaneous().solve(scene, LOADS)

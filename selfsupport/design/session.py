@@ -234,9 +234,10 @@ class SolveWorker:
     max_stale
         Seconds without a frame after which a newer request no longer cancels the running
         solve: it finishes, its (one edit old) frame goes out, then the newest request is
-        solved, warm from the last frame that came out in turn. On a machine 2.7x slower than the one the tool was written on, a drag step's
-        solve of a 300-vertex vault outlasted the drag's steps (0.3 s apart), every solve was
-        cancelled, and the page showed nothing until the drag ended.
+        solved, warm from the last frame that came out in turn. On a machine 2.7x slower than
+        the one the tool was written on, a drag step's solve of a 300-vertex vault outlasted the
+        drag's steps (0.3 s apart), every solve was cancelled, and the page showed nothing until
+        the drag ended.
     """
 
     def __init__(self, emit: Callable[[dict], None], *, options: Mapping[str, Any] | None = None,
