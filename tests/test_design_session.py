@@ -208,6 +208,42 @@ def test_a_drag_faster_than_the_solves_still_shows_frames_while_it_goes_on():
     assert starved == []
 
 
+def test_after_a_pause_a_newer_request_still_cancels_the_running_solve():
+    """The stale clock starts with the first solve after a pause, not with the last frame: a drag
+    that begins after the page sat idle for longer than ``max_stale`` cancels its first step's
+    solve like any other (a frame out of turn is for a drag that has shown nothing for that long,
+    and on a large design that first solve would hold the newest step back by a whole solve)."""
+    scene = make_shape("dome", n_vertices=400)
+    log = EditLog(Design(scene))
+    msgs: list[dict] = []
+    h = _free(scene, 12)
+    worker = None
+
+    def emit(m):
+        msgs.append(m)
+        if m["type"] == "solving" and m["seq"] == 1:  # the next drag step arrives during this solve
+            seq = log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 2e-3), mode="height"), drag="d")
+            worker.submit(seq, log.design)
+
+    worker = SolveWorker(emit, options=SOLVE_DEFAULTS, analysis=False, max_stale=0.5)
+    try:
+        worker.submit(log.seq, log.design)
+        t0 = time.monotonic()
+        while not any(m["type"] == "frame" for m in msgs) and time.monotonic() - t0 < 60:
+            time.sleep(0.02)
+        time.sleep(1.0)  # the page sits idle for twice max_stale
+        worker.submit(log.apply(Move(select=Select(vertices=(h,)), offset=(0, 0, 1e-3), mode="height"),
+                                drag="d"), log.design)
+        t0 = time.monotonic()
+        while not any(m["type"] == "frame" and m["seq"] == 2 for m in msgs) and time.monotonic() - t0 < 60:
+            time.sleep(0.02)
+        frames = [m["seq"] for m in msgs if m["type"] == "frame"]
+        cancelled = [m["seq"] for m in msgs if m["type"] == "cancelled"]
+        assert frames == [0, 2] and cancelled == [1]
+    finally:
+        worker.close()
+
+
 def test_an_analysis_waits_for_the_edits_to_pause_and_a_newer_edit_drops_it(dome):
     """A frame's Airy / reciprocal analysis is computed only when no newer edit came within
     ``analysis_delay`` (during a drag it would share the CPUs with the next step's solve); the last

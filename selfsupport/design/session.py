@@ -10,8 +10,8 @@ a web page); it has no web code and is usable on its own.
 * :class:`SolveWorker` — one background thread that solves the newest design it was given,
   warm-started from the last network it found (:mod:`selfsupport.methods.warm`). A newer
   request cancels an older solve at its next iteration (the solve's progress callback raises
-  :class:`Superseded`), unless no frame has gone out for ``max_stale`` seconds: then the
-  running solve finishes and its frame is sent (a drag whose steps come faster than one solve
+  :class:`Superseded`), unless solves have been cancelled for ``max_stale`` seconds without a
+  frame: then the running solve finishes and its frame is sent (a drag whose steps come faster than one solve
   would otherwise show nothing until it ends). Requests that arrive during a solve are
   coalesced to the newest one.
   The page never waits on it: results come back through a callback.
@@ -252,7 +252,10 @@ class SolveWorker:
         self.analysis = analysis
         self.analysis_delay = float(analysis_delay)
         self.max_stale = float(max_stale)
-        self._frame_at = time.perf_counter()  # when the last frame went out (or the worker started)
+        # when frames were last fresh: the last frame, or the start of a solve that no cancelled
+        # solve preceded (after a pause the stale clock starts with the drag, not the last frame)
+        self._frame_at = time.perf_counter()
+        self._after_cancel = False  # the last solve was cancelled (the clock runs on)
         self.last = None  # the last network found (the next warm start)
         self.last_seq = -1
         self._pending: _Job | None = None
@@ -303,7 +306,8 @@ class SolveWorker:
 
     def _cancel(self, seq: int) -> bool:
         """Stop the running solve of ``seq``: closed, or a newer request waits while frames are
-        still going out (within ``max_stale`` of the last one)."""
+        still going out (within ``max_stale`` of the last one, or of the start of the first solve
+        after a pause)."""
         return self._closed or (self._newer(seq) and time.perf_counter() - self._frame_at < self.max_stale)
 
     def _run(self) -> None:
@@ -317,18 +321,24 @@ class SolveWorker:
                     job, self._pending = self._pending, None
                 else:
                     job, self._probe = self._probe, None
+            cancelled = False
             try:
                 if job.kind == "solve":
+                    if not self._after_cancel:
+                        self._frame_at = time.perf_counter()
                     self._solve(job)
                 else:
                     self._run_probe(job)
             except Superseded:
+                cancelled = True
                 self.emit({"type": "cancelled", "seq": job.seq, "what": job.kind})
             except SelfSupportError as e:
                 self.emit({"type": "error", "seq": job.seq, "what": job.kind, "message": str(e)})
             except Exception as e:  # noqa: BLE001 - a failing solve must not kill the session
                 self.emit({"type": "error", "seq": job.seq, "what": job.kind,
                            "message": f"{type(e).__name__}: {e}"})
+            if job.kind == "solve":
+                self._after_cancel = cancelled
 
     def _solve(self, job: _Job) -> None:
         from ..methods.multilevel import solve_warm
