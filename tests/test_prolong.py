@@ -60,6 +60,26 @@ def test_a_constant_stress_is_carried_to_a_finer_mesh_and_converges():
     assert med[1] < 0.3 * med[0] and med[1] < 2e-3  # (measured 4.1e-3 -> 8.8e-4: second order)
 
 
+def test_a_boundary_arch_is_carried_once_as_a_force_not_smeared_into_the_interior():
+    """A coarse network whose free edge carries an arch (a line force on its boundary edges, far
+    above the areal stress): the fine interior edges get the stress of the areal field alone,
+    the same as without the arch, and the fine boundary edges carry the arch's force. Counted in
+    the boundary faces' stress as well, the arch was carried twice (the edges beside the boundary
+    took up to its whole weight)."""
+    c, f = make_shape("disk", n_vertices=400).mesh, make_shape("disk", n_vertices=1600).mesh
+    cxy, fxy = c.vertices[:, :2], f.vertices[:, :2]
+    wc, _ = lifting_weights(c, _quadratic(c))
+    cb, fb = (c.edge_faces < 0).any(axis=1), (f.edge_faces < 0).any(axis=1)
+    assert np.all(wc[cb] == 0.0)  # (a smooth Airy function's lifting: nothing on the boundary)
+    arch = np.where(cb, 1e3 * np.median(np.abs(wc[~cb])), wc)
+    smooth = stress_weights(c, cxy, wc, f, fxy)
+    carried = stress_weights(c, cxy, arch, f, fxy)
+    assert np.abs(carried - smooth).max() <= 1e-12 * np.abs(smooth).max()
+    force = boundary_weights(c, cxy, arch, f, fxy)[fb] * np.linalg.norm(fxy[f.edges[fb, 1]] - fxy[f.edges[fb, 0]], axis=1)
+    coarse_force = arch[cb] * np.linalg.norm(cxy[c.edges[cb, 1]] - cxy[c.edges[cb, 0]], axis=1)
+    assert force.min() >= coarse_force.min() * (1 - 1e-12) and force.max() <= coarse_force.max() * (1 + 1e-12)
+
+
 @pytest.fixture(scope="module")
 def two_levels():
     fine = make_shape("concave_disk", n_vertices=2400)

@@ -12,7 +12,13 @@ sample along the coarse edges. So:
 1. the coarse network's stress per face, ``σ_F = Σ_{e ∈ F} s_e w_e e eᵀ / A_F`` (top-view edge
    vectors ``e``, face area ``A_F``; ``s_e`` = ½ for an edge between two faces, 1 on the
    boundary), averaged to the vertices by area, is interpolated linearly to each fine edge's
-   midpoint;
+   midpoint. The boundary edges' weights are left out of it: the lifting of a smooth Airy
+   function gives them none, so what they carry is a line force (an arch along a free edge),
+   which step 2 carries as a force. Counted in the face stress as well, that force was carried
+   twice, smeared over the interior edges beside the boundary; there the polish pulled those
+   edges straight beside the arch and squashed the strip between them in plan (a 256k pillar
+   vault's 64k level: smallest vertex load 0.078 of the median, 0.165 without; see
+   docs/scale.md);
 2. each interior fine edge takes the weight of the Airy function ``φ_e = ½ (p − m_e)ᵀ H_e (p − m_e)``
    with ``H_e = cof σ(m_e)`` lifted over its two faces (the jump of the faces' gradients across
    it, as :func:`selfsupport.analysis.construction.lifting_weights`); a boundary edge the
@@ -221,8 +227,12 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
 def stress_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np.ndarray, fine: PolyMesh,
                    fine_xy: np.ndarray) -> np.ndarray:
     """Weights of the interior edges of ``fine`` carrying the coarse network's stress field
-    (steps 1–2 of the module docstring); boundary edges get 0."""
-    Sv = vertex_stress(coarse, coarse_xy, coarse_weights)
+    (steps 1–2 of the module docstring); boundary edges get 0. The coarse boundary edges are
+    left out of the stress: their weights are a line force (an arch along a free edge), which
+    :func:`boundary_weights` carries; in the face stress it would be carried twice, smeared over
+    the interior edges beside the boundary as well."""
+    boundary = (coarse.edge_faces < 0).any(axis=1)
+    Sv = vertex_stress(coarse, coarse_xy, np.where(boundary, 0.0, coarse_weights))
     e = fine.edges
     mid = 0.5 * (fine_xy[e[:, 0]] + fine_xy[e[:, 1]])
     s = interpolate_over_top_view(coarse, Sv.reshape(-1, 4)[:, [0, 1, 3]], mid, xy=coarse_xy, cubic=False)
