@@ -183,6 +183,49 @@ def test_a_level_that_ends_farther_from_equilibrium_than_its_prolonged_start_ret
     assert res.max_relative_error <= 1e-9 and independent_check(res).ok
 
 
+def test_a_returned_start_held_above_tol_by_rounding_is_balanced_by_its_weights(monkeypatch):
+    """The same path for the vault 10⁴ m from the origin (site coordinates): its prolonged start
+    is held above 1e-8 by the rounding of its positions alone (1.2e-8); returned, its weights are
+    refit to those positions (weight_refit.py), which puts it in equilibrium: "converged", with
+    the positions of the start. Without the refit it is returned as it is, out of equilibrium."""
+    import dataclasses
+
+    import selfsupport.methods.multilevel as multilevel_module
+    import selfsupport.methods.prolong as prolong_module
+    from selfsupport.result import SolveResult
+
+    scene = make_shape("pillar_vault", n_vertices=3000)
+    far = Scene(mesh=scene.mesh.with_vertices(scene.mesh.vertices + [1e4, 3e3, 0.0]), supports=scene.supports,
+                name="site")
+    monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
+    real = StaggeredLinearization.solve
+    starts = []
+
+    def stopped_early(self, problem, options=None, **kw):
+        res = real(self, problem, options, **kw)
+        if kw.get("warm_start") is None:
+            return res
+        starts.append(kw["warm_start"].network)
+        V = res.network.vertices.copy()
+        V[~res.network.supports, 2] += 1e-3 * np.ptp(V[:, 2])
+        moved = dataclasses.replace(res.network, mesh=res.network.mesh.with_vertices(V))
+        return SolveResult.build(moved, status="time_limit", method=res.method, backend=res.backend,
+                                 iterations=res.iterations, wall_time=res.wall_time, parameters=res.parameters)
+
+    monkeypatch.setattr(StaggeredLinearization, "solve", stopped_early)
+    res = Multilevel(direct_max=900).solve(far)
+    last = res.parameters["multilevel"]["levels"][-1]
+    start = starts[-1]
+    assert start.max_relative_error() > 1e-8 and not start.in_equilibrium(1e-9)
+    assert last["prolongation"]["returned"] and last["prolongation"]["refit"]
+    assert res.status == "converged" and res.network.in_equilibrium(1e-9) and res.max_relative_error < 1e-8
+    assert np.array_equal(res.network.vertices, start.vertices) and independent_check(res, tol=1e-8).ok
+    monkeypatch.setattr(multilevel_module, "refit_weights", lambda *a, **k: None)
+    starts.clear()
+    held = Multilevel(direct_max=900).solve(far)
+    assert held.status == "time_limit" and held.max_relative_error == starts[-1].max_relative_error() > 1e-8
+
+
 @pytest.mark.parametrize("shape, stands", [("barrel_vault", True), ("dome", False)])
 def test_a_prolonged_level_farther_than_the_one_below_is_walked_back(shape, stands):
     """Carried stress reproduces a surface already (nearly) in equilibrium only to the fine
