@@ -899,7 +899,7 @@ class _Run:
                     f"the fit stopped falling at α's minimum; its polish, refined in equilibrium, is as near the "
                     f"reference as the last iterate ({d / stalled_at:.2f}× its mean distance)")
         if (status == "converged" or at_floor) and not cases_in_equilibrium(cases, opt.tol) \
-                and self.roundoff_limit(cases) is not None:
+                and not out_of_time(self.deadline) and self.roundoff_limit(cases) is not None:
             # held above tol by rounding the positions alone: the weights, refit to the positions as
             # stored, absorb what the framework allows (weight_refit.py; a 256k pillar vault's free
             # arches: 2.1e-8 -> 8.4e-9, weights moved by 2e-7 of themselves)
@@ -910,11 +910,10 @@ class _Run:
             if refit is not None:
                 net, cases = refit[0][1], refit
                 err = history[-1]["max_rel_error"] = cases_max_error(cases)
-                if at_floor:
-                    status, at_floor = "converged", False
-                    message = "; ".join(m for m in (message, (
-                        "the polish was held above tol by rounding the positions; the weights refit to the stored "
-                        "positions put it in equilibrium")) if m)
+                status, at_floor = "converged", False
+                message = "; ".join(m for m in (message, (
+                    f"the polish was held at {history[-1]['max_rel_error_before']:.2e} by the rounding of its "
+                    "positions; its weights, refit to the positions as stored, put it in equilibrium")) if m)
         floor, balanced = None, cases_in_equilibrium(cases, opt.tol)
         if status == "converged" and err > opt.tol and balanced:
             # (forces many times the loads: no positions balance those vertices better in doubles)

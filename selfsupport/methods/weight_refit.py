@@ -15,7 +15,7 @@ solved through the vertex-sized normal equations ``B Bᵀ y = −r`` (``B = S A 
 ``S`` the rows over ``|A_i F_i|`` times the vertex's allowed error: ``tol``, or its floor
 tolerance where that is larger, so what cannot be absorbed is spread in proportion to what each
 vertex may keep). A zero weight stays zero and a weight at a bound stays there; the changes are
-of the size of the rounding (1e-7 relative on that vault), so signs are kept.
+of the size of the rounding (at most 2e-7 of a weight on that vault), so signs are kept.
 
 What no weights absorb is the residual's part along the framework's flexes (the left null space
 of ``A``): a vertex whose edges nearly lie in one plane cannot be balanced across it by weights.
