@@ -194,7 +194,7 @@ def _without_stress(monkeypatch) -> None:
     """Steps 1–4 unavailable (their weights not finite), so step 5 is tried alone."""
     import selfsupport.methods.prolong as prolong_module
 
-    monkeypatch.setattr(prolong_module, "stress_weights", lambda coarse, cxy, cw, fine, fxy: np.full(fine.n_edges, np.nan))
+    monkeypatch.setattr(prolong_module, "stress_weights", lambda coarse, cxy, cw, fine, fxy, **kw: np.full(fine.n_edges, np.nan))
 
 
 def test_a_subdivided_network_with_its_weights_carried_stands_on_the_finer_mesh(subdivided_quads, monkeypatch):
@@ -265,3 +265,33 @@ def test_the_subdivided_candidate_stands_on_the_designs_supports(monkeypatch):
     net = p.network if p.network is not None else p.nearest
     # (to the round-off of the scaling to the solver's units and back)
     assert np.abs(net.vertices[sup] - fine.mesh.vertices[sup]).max() <= 1e-12 * np.ptp(V, axis=0).max()
+
+
+def test_a_candidate_at_its_round_off_floor_gets_no_newton_steps(monkeypatch):
+    """A 3,000-vertex pillar vault 10⁴ m from the origin (site coordinates): its candidates'
+    Anderson rounds end at 1.2e-8 / 1.6e-8, above the prolongation's tolerance and held there by
+    the rounding of the positions alone (`Network.roundoff_limit`). Newton's steps cannot go
+    below that floor, so neither candidate gets any (at 256k vertices they cost 30 s each), and
+    the nearest network is handed on as before."""
+    import selfsupport.methods.prolong as prolong_module
+    from selfsupport.methods.multilevel import START_TOL
+
+    scene = make_shape("pillar_vault", n_vertices=3000)
+    far = dataclasses.replace(scene, mesh=scene.mesh.with_vertices(scene.mesh.vertices + [1e4, 3e3, 0.0]))
+    problem = as_problem(far)
+    coarse = coarsen(far, 750)
+    res = StaggeredLinearization().solve(coarse_problem(problem, coarse))
+    assert res.status == "converged"
+    calls = []
+    real = prolong_module.polish
+
+    def counted(*a, **k):
+        out = real(*a, **k)
+        calls.append(bool(k.get("newton")))
+        return out
+
+    monkeypatch.setattr(prolong_module, "polish", counted)
+    p = prolong(problem, res.network, coarse.mesh)
+    assert p.network is None and PROLONG_TOL < p.max_relative_error <= START_TOL
+    assert p.nearest.roundoff_limit(PROLONG_TOL) is not None
+    assert calls == [False, False]  # Anderson's rounds for "projected" and "as carried", no Newton

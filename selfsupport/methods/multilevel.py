@@ -39,9 +39,11 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    :data:`RECLAIM_STEPS` SQP steps in equilibrium (:mod:`.refine`). Where the polish comes
    within :data:`START_TOL` of equilibrium but not to the prolongation's own tolerance, the
    level iterates from that network (and returns it when it stops out of equilibrium farther
-   from it). A 256k pillar vault's free-boundary arches hold that network at its round-off
-   floor; the staggered method then stops at its first polish (3 s, not 640 s of iterating) and
-   says so (``parameters["roundoff_limit"]``). Where
+   from it, with its weights refit to its positions as stored where that balances it:
+   :mod:`.weight_refit`). A 256k pillar vault's free-boundary arches hold that network at its
+   round-off floor (2.07e-8); the staggered method then stops at its first polish (3 s, not
+   640 s of iterating), and the start, refit, is in equilibrium (8.42e-9). Where the refit does
+   not balance it, the result says why (``parameters["roundoff_limit"]``). Where
    that prolongation fails (its polish does not reach equilibrium; several load cases or a
    constraint), or with ``prolongation="interpolation"``, the level starts from the one below's
    offsets from its reference interpolated C¹ over the top view with weights from the nearest
@@ -88,7 +90,7 @@ from ..design.subdivision import subdivide_like, subdivision_parents
 from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
 from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
-from .prolong import prolong
+from .prolong import START_TOL, prolong
 from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 from .weight_refit import edge_bounds, refit_weights
 from .weightfit import WeightFitBackend
@@ -105,10 +107,6 @@ FACTOR = 4.0
 #: mean distance to the reference; cold 16k: 25 it.): α₀ = 1 → 23 it. (the schedule from the
 #: top), 1e-2 → 18, 1e-4 → 7–10 it. at the cold solve's distance (±5%), 1e-6 → 8 it.
 WARM_ALPHA0 = 1e-4
-#: A coarser level's network starts the next one when its max relative error is at most this (a
-#: start needs to be near equilibrium, not at round-off: a 64k level of a 256k pillar vault that
-#: stalled and was polished to 2.8e-9 is a network near the reference all the same).
-START_TOL = 1e-6
 #: How a level's network starts the next: "stress" (its stress field carried to the finer mesh
 #: and the network put in equilibrium there, :mod:`.prolong`; the interpolation where that fails)
 #: or "interpolation" (its offsets interpolated and iterated from, :mod:`.warm`).
