@@ -295,3 +295,32 @@ def test_a_candidate_at_its_round_off_floor_gets_no_newton_steps(monkeypatch):
     assert p.network is None and PROLONG_TOL < p.max_relative_error <= START_TOL
     assert p.nearest.roundoff_limit(PROLONG_TOL) is not None
     assert calls == [False, False]  # Anderson's rounds for "projected" and "as carried", no Newton
+
+
+def test_the_stress_with_its_boundary_is_the_fallback_where_the_others_do_not_come_near(two_levels, monkeypatch):
+    """When neither candidate of the boundary-free stress comes within START_TOL (here its
+    weights are spoiled: every interior edge's scaled by 10^u, u uniform in [−3, 3]), the stress
+    with the boundary edges counted
+    is tried, and carries the network into equilibrium. When a candidate has come near, the
+    fallback is not made at all."""
+    import selfsupport.methods.prolong as prolong_module
+
+    problem, coarse, res = two_levels
+    real = prolong_module.stress_weights
+    made = []
+
+    def spoiled(*a, with_boundary=False, **k):
+        made.append(with_boundary)
+        w = real(*a, with_boundary=with_boundary, **k)
+        return w if with_boundary else w * 10.0 ** np.random.default_rng(0).uniform(-3, 3, len(w))
+
+    monkeypatch.setattr(prolong_module, "stress_weights", spoiled)
+    p = prolong(problem, res.network, coarse.mesh)
+    assert p.network is not None and p.info["weights"] == "as carried, boundary in the stress"
+    assert p.max_relative_error <= PROLONG_TOL and independent_check(p.network, tol=1e-8).ok
+    assert made == [False, True]
+    made.clear()
+    monkeypatch.setattr(prolong_module, "stress_weights", lambda *a, **k: (made.append(k.get("with_boundary")),
+                                                                           real(*a, **k))[1])
+    p = prolong(problem, res.network, coarse.mesh)
+    assert p.network is not None and p.info["weights"] != "as carried, boundary in the stress" and made == [False]

@@ -77,6 +77,7 @@ True
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -363,8 +364,9 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
         # in equilibrium with them
         projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
                                                    metric=np.maximum(w, sp_.lower) ** 2)
+        # (the fallback's weights made only when it is tried: a stress carry is seconds at 256k)
         candidates += [("projected", X, projected), ("as carried", X, w),
-                       ("as carried, boundary in the stress", X, carried(True))]
+                       ("as carried, boundary in the stress", X, functools.cache(lambda: carried(True)))]
     else:
         tried.append("the stress weights are not finite")
     if subdivision is not None and subdivision.mesh.n_vertices == scene.mesh.n_vertices \
@@ -407,7 +409,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
             continue  # (a fallback: a candidate before it came near equilibrium)
         if newton and name in floored:
             continue  # (no positions balance it better: 30 s of Newton's steps at 256k, for nothing)
-        wc = np.clip(cand, sp_.lower, sp_.upper)
+        wc = np.clip(cand() if callable(cand) else cand, sp_.lower, sp_.upper)
         err, V, weights, L_phys, rounds = balanced(Xs, wc, newton)
         ended[name] = min(err, ended.get(name, np.inf))
         near = not newton and PROLONG_TOL < err <= START_TOL
