@@ -300,9 +300,8 @@ def test_a_candidate_at_its_round_off_floor_gets_no_newton_steps(monkeypatch):
 def test_the_stress_with_its_boundary_is_the_fallback_where_the_others_do_not_come_near(two_levels, monkeypatch):
     """When neither candidate of the boundary-free stress comes within START_TOL (here its
     weights are spoiled: every interior edge's scaled by 10^u, u uniform in [−3, 3]), the stress
-    with the boundary edges counted
-    is tried, and carries the network into equilibrium. When a candidate has come near, the
-    fallback is not made at all."""
+    with the boundary edges counted is tried, and carries the network into equilibrium. When a
+    candidate has come near, the fallback is not made at all."""
     import selfsupport.methods.prolong as prolong_module
 
     problem, coarse, res = two_levels
