@@ -553,9 +553,10 @@ class Multilevel:
                 # its weights refit to its positions where that balances it (held above tol by
                 # rounding: 2.07e-8 -> 8.4e-9, where the iterate's own refit did not reach 1e-8)
                 tol = float(res.parameters.get("tol", self.staggered.options.tol))
-                lo, up = edge_bounds(prob)
-                refit = None if pro.nearest.in_equilibrium(tol) or out_of_time(deadline) else \
-                    refit_weights(pro.nearest, tol, lower=lo, upper=up)
+                refit = None
+                if not (pro.nearest.in_equilibrium(tol) or out_of_time(deadline)):
+                    lo, up = edge_bounds(prob)  # (the scaled problem: built only when refitting)
+                    refit = refit_weights(pro.nearest, tol, lower=lo, upper=up)
                 start = pro.nearest if refit is None else refit
                 res = _with_network(res, prob, start, (
                     f"the level's start, its prolonged network (max relative error {pro.max_relative_error:.2e}"

@@ -108,6 +108,9 @@ PROLONG_TOL = 1e-8
 #: stalled and was polished to 2.8e-9 is a network near the reference all the same). Below it a
 #: candidate's polish has come near; above it, the next candidate is tried (:func:`prolong`).
 START_TOL = 1e-6
+#: The candidate tried only when none before it came within START_TOL: the stress with the
+#: coarse boundary edges counted (module docstring, step 4).
+FALLBACK = "as carried, boundary in the stress"
 
 
 def cofactor(S: np.ndarray) -> np.ndarray:
@@ -366,7 +369,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
                                                    metric=np.maximum(w, sp_.lower) ** 2)
         # (the fallback's weights made only when it is tried: a stress carry is seconds at 256k)
         candidates += [("projected", X, projected), ("as carried", X, w),
-                       ("as carried, boundary in the stress", X, functools.cache(lambda: carried(True)))]
+                       (FALLBACK, X, functools.cache(lambda: carried(True)))]
     else:
         tried.append("the stress weights are not finite")
     if subdivision is not None and subdivision.mesh.n_vertices == scene.mesh.n_vertices \
@@ -405,7 +408,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
     for (name, Xs, cand), newton in order:
         if out_of_time(deadline):
             break
-        if name == "as carried, boundary in the stress" and best[0] <= START_TOL:
+        if name == FALLBACK and best[0] <= START_TOL:
             continue  # (a fallback: a candidate before it came near equilibrium)
         if newton and name in floored:
             continue  # (no positions balance it better: 30 s of Newton's steps at 256k, for nothing)
