@@ -3,13 +3,15 @@ the prolongation is exact where it must be, and the levels end in the same equil
 single-level solve with fewer fine iterations."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from selfsupport import api
 from selfsupport.evidence import distance_stats
 from selfsupport.mesh import PolyMesh
-from selfsupport.methods.multilevel import RECLAIM, RECLAIM_STEPS, Multilevel, coarsen
+from selfsupport.methods.multilevel import RECLAIM, RECLAIM_STEPS, START_TOL, Multilevel, coarsen
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.warm import interpolate_offsets
 from selfsupport.scene import Scene
@@ -400,17 +402,23 @@ def test_the_delaunay_coarsening_is_as_fine_at_any_scale(scale):
     assert np.all(b.mesh.vertices >= lo - 1e-9 * scale) and np.all(b.mesh.vertices <= hi + 1e-9 * scale)
 
 
-def test_a_fine_level_that_does_not_converge_from_interpolated_heights_is_solved_cold(monkeypatch):
+@pytest.mark.parametrize("cold_max", [None, 100])
+def test_a_fine_level_that_does_not_converge_from_interpolated_heights_is_solved_cold(monkeypatch, cold_max):
     """Where the stress below did not carry, the fine level iterates from interpolated heights;
     when that does not converge and the level has at most COLD_MAX vertices it is solved cold,
     as on one level (the Fig. 16 vault subdivided twice, turned or mirrored, stalled at 8e-5 /
-    5e-5 that way; README). Here the prolongation is made to fail and the warm run gets one
-    iteration: the answer is then the single-level network itself, checked independently."""
+    5e-5 that way; README). So is a larger one (``cold_max`` = 100, below the fine level's 452
+    vertices) that ended far from equilibrium (cyl2 subdivided twice, by clusters: stalled at
+    2.05). Here the prolongation is made to fail and the warm run gets one iteration: the
+    answer is then the single-level network itself, checked independently."""
     from selfsupport.design.subdivision import subdivide_scene
     from selfsupport.methods import multilevel as multilevel_module
     from selfsupport.methods.prolong import Prolongation
 
     scene = subdivide_scene(make_shape("pillar_vault", n_vertices=120), 1)
+    if cold_max is not None:
+        assert scene.mesh.n_vertices > cold_max
+        monkeypatch.setattr(multilevel_module, "COLD_MAX", cold_max)
     monkeypatch.setattr(multilevel_module, "prolong",
                         lambda *a, **k: Prolongation(None, float("inf"), 0.0, {"why": "made to fail"}))
     ml = Multilevel(direct_max=200)
@@ -425,8 +433,39 @@ def test_a_fine_level_that_does_not_converge_from_interpolated_heights_is_solved
     res = ml.solve(scene)
     levels = res.parameters["multilevel"]["levels"]
     assert levels[1]["prolongation"]["by"] == "interpolation" and levels[1]["status"] != "converged"
+    assert levels[1]["max_relative_error"] > START_TOL
     assert levels[2]["cold_after"] == levels[1]["status"] and levels[2]["n_vertices"] == scene.mesh.n_vertices
     single = StaggeredLinearization().solve(scene)
     assert res.status == single.status == "converged" and res.iterations == single.iterations
     np.testing.assert_allclose(res.network.vertices, single.network.vertices, rtol=0, atol=1e-12)
     assert independent_check(res).ok
+
+
+def test_a_large_fine_level_stopped_near_equilibrium_is_not_solved_again_cold(monkeypatch):
+    """A fine level of more than COLD_MAX vertices that stopped short of tol but within
+    START_TOL of equilibrium (a round-off floor: cyl2 subdivided twice by its own levels stalls
+    at 5e-8) is the answer: a cold solve on one level would spend the remaining time for nothing.
+    The warm run here is the real one, reported as stalled at 5e-8."""
+    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.methods import multilevel as multilevel_module
+    from selfsupport.methods.prolong import Prolongation
+
+    scene = subdivide_scene(make_shape("pillar_vault", n_vertices=120), 1)
+    monkeypatch.setattr(multilevel_module, "COLD_MAX", 100)
+    monkeypatch.setattr(multilevel_module, "prolong",
+                        lambda *a, **k: Prolongation(None, float("inf"), 0.0, {"why": "made to fail"}))
+    ml = Multilevel(direct_max=200)
+    solve, cold = ml.staggered.solve, []
+
+    def near_but_stalled(problem, options=None, **kw):
+        res = solve(problem, options, **kw)
+        if kw.get("warm_start") is None:
+            cold.append(problem)
+            return res
+        return dataclasses.replace(res, status="stalled", max_relative_error=5e-8)
+
+    monkeypatch.setattr(ml.staggered, "solve", near_but_stalled)
+    res = ml.solve(scene)
+    levels = res.parameters["multilevel"]["levels"]
+    assert len(levels) == 2 and "cold_after" not in levels[-1] and len(cold) == 1  # (the coarse level only)
+    assert res.status == "stalled" and res.max_relative_error == 5e-8

@@ -50,7 +50,8 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    edge (:mod:`.warm`), and iterates from there (``warm_iterate``) with the pull starting at
    :data:`WARM_ALPHA0` instead of 1: 10–21 iterations at 16k–64k vertices. A fine level of at
    most :data:`COLD_MAX` vertices that does not converge from there is solved cold, as on one
-   level, and the nearer to equilibrium of the two is the answer.
+   level, and so is a fine level of any size that ends farther than :data:`START_TOL` from
+   equilibrium, whatever its start; the nearer to equilibrium of the two is the answer.
 
 Only the finest level is the answer; its result carries the usual evidence and, under
 ``parameters["multilevel"]``, every level's size, status, iterations and time. A problem whose
@@ -128,7 +129,8 @@ RECLAIM_STEPS = 10
 #: level, 4.3e-3 of the diagonal from the reference, put 21% of the next level's carried weights
 #: below zero; the polished 16k network lay 1.8e-2 away and ten refinement steps stalled there),
 #: and a cold solve at this size takes 10–25 s (16k dome, pillar vault). Larger levels are refined.
-#: A fine level this small that iterated from interpolated heights without converging is solved cold.
+#: A fine level this small that iterated from interpolated heights without converging is solved cold
+#: (a larger one only when it ended farther than START_TOL from equilibrium).
 COLD_MAX = 4 * DIRECT_MAX
 #: A boundary corner turning more than this [degrees] is kept on every level.
 CORNER_ANGLE = 30.0
@@ -566,17 +568,24 @@ class Multilevel:
                 carried["returned"] = True
                 carried["refit"] = refit is not None
             levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
-            if (scene is problem.scene and carried is not None and carried["by"] == "interpolation"
-                    and res.status != "converged" and scene.mesh.n_vertices <= COLD_MAX
+            far = res.max_relative_error > START_TOL
+            if (scene is problem.scene and carried is not None and res.status != "converged"
+                    and (far or (carried["by"] == "interpolation" and scene.mesh.n_vertices <= COLD_MAX))
                     and not out_of_time(deadline)):
                 # iterating from interpolated heights did not converge; a fine level this small is
                 # solved cold, as on one level (the Fig. 16 vault subdivided twice, turned or
                 # mirrored: 49 iterations stalled at 8e-5 / 5e-5 where the design as read converged
-                # in 19; cold: 43 iterations, 3.7 s, converged). The nearer to equilibrium is kept.
+                # in 19; cold: 43 iterations, 3.7 s, converged). So is a fine level of any size that
+                # ended far from equilibrium, whatever its start: that network balances nothing,
+                # and the remaining time is better spent on one level (cyl2 subdivided twice,
+                # coarsened by clusters: stalled at 2.05 after 140 s; on one level it converges).
+                # The nearer to equilibrium is kept.
                 cold = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
                 levels.append({**self._level(cold, scene), "cold_after": res.status})
                 if cold.status == "converged" or cold.max_relative_error < res.max_relative_error:
-                    why = f"the fine level iterated from interpolated heights ended {res.status}: it was solved cold"
+                    start = "from interpolated heights" if carried["by"] == "interpolation" else \
+                        f"from its prolongation ({carried['by']})"
+                    why = f"the fine level iterated {start} ended {res.status}: it was solved cold"
                     res = cold
             prev_scene = scene
             in_equilibrium = res.max_relative_error <= START_TOL
