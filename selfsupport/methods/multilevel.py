@@ -141,17 +141,15 @@ def _with_network(res: SolveResult, problem: Problem, network: Any, note: str,
                   status: str | None = None) -> SolveResult:
     """``res`` with ``network`` as its answer: the evidence and the objective's terms recomputed
     from that network, the run's status (or ``status``), iterations, time and settings kept. A
-    run that stopped held above tol by rounding alone says so of the network returned (its own
-    report)."""
+    network returned out of equilibrium that rounding alone holds there says so
+    (``parameters["roundoff_limit"]``, its own report, whatever the run's was)."""
     # (a status of its own: the run's message described the run's network, not this one)
     params, message = dict(res.parameters), f"{note} ({res.message})" if res.message and not status else note
-    if "roundoff_limit" in params:
-        tol = float(params.get("tol", 1e-9))
-        limit = network.roundoff_limit(tol)
-        if limit is None:
-            del params["roundoff_limit"]
-        else:
-            params["roundoff_limit"], message = limit, f"{roundoff_message(limit, tol)}; {note}"
+    params.pop("roundoff_limit", None)
+    tol = float(params.get("tol", 1e-9))
+    limit = None if network.in_equilibrium(tol) else network.roundoff_limit(tol)
+    if limit is not None:
+        params["roundoff_limit"], message = limit, f"{roundoff_message(limit, tol)}; {note}"
     return SolveResult.build(network, status=status or res.status, method=res.method, backend=res.backend,
                              iterations=res.iterations, wall_time=res.wall_time, history=res.history,
                              message=message, parameters=params,
@@ -572,7 +570,7 @@ class Multilevel:
             # out of equilibrium, and not held there by the rounding of its positions alone (which
             # no solve would mend: the 256k pillar vault's arches)
             unbalanced = res.max_relative_error > tol and "roundoff_limit" not in res.parameters
-            if (scene is problem.scene and carried is not None and res.status != "converged"
+            if (scene is problem.scene and carried is not None and res.status not in ("converged", "time_limit")
                     and (unbalanced or (carried["by"] == "interpolation" and scene.mesh.n_vertices <= COLD_MAX))
                     and not out_of_time(deadline)):
                 # iterating from interpolated heights did not converge; a fine level this small is
