@@ -215,7 +215,7 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     >>> from selfsupport.shapes import make_shape
     >>> m = make_shape("dome", n_vertices=200).mesh
     >>> xy = m.vertices[:, :2]
-    >>> b = (m.edge_faces < 0).any(axis=1)
+    >>> b = m.boundary_edge_mask
     >>> w = np.where(b, 3.0 / np.linalg.norm(xy[m.edges[:, 1]] - xy[m.edges[:, 0]], axis=1), 7.0)
     >>> bool(np.allclose(boundary_weights(m, xy, w, m, xy)[b], w[b]))  # the same mesh: the same weights
     True
@@ -225,10 +225,10 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     def mids(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
         return 0.5 * (xy[mesh.edges[:, 0]] + xy[mesh.edges[:, 1]])
 
-    at = (fine.edge_faces < 0).any(axis=1) if at is None else np.asarray(at, bool)
+    at = fine.boundary_edge_mask if at is None else np.asarray(at, bool)
     w = np.zeros(fine.n_edges)
     cw = np.asarray(coarse_weights, float)
-    src = np.flatnonzero((coarse.edge_faces < 0).any(axis=1) & (cw > 0))
+    src = np.flatnonzero(coarse.boundary_edge_mask & (cw > 0))
     if not src.size:
         w[at] = np.nan
         return w
@@ -246,8 +246,8 @@ def stress_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np.n
     :func:`boundary_weights` carries; in the face stress it would be carried twice, smeared over
     the interior edges beside the boundary as well. ``with_boundary``: counted all the same (the
     fallback candidate of :func:`prolong`)."""
-    boundary = (coarse.edge_faces < 0).any(axis=1)
-    Sv = vertex_stress(coarse, coarse_xy, coarse_weights if with_boundary else np.where(boundary, 0.0, coarse_weights))
+    Sv = vertex_stress(coarse, coarse_xy,
+                       coarse_weights if with_boundary else np.where(coarse.boundary_edge_mask, 0.0, coarse_weights))
     e = fine.edges
     mid = 0.5 * (fine_xy[e[:, 0]] + fine_xy[e[:, 1]])
     s = interpolate_over_top_view(coarse, Sv.reshape(-1, 4)[:, [0, 1, 3]], mid, xy=coarse_xy, cubic=False)
@@ -346,7 +346,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
     X = sc.pos(V)
     Xc = sc.pos(network.vertices)[:, :2]
     wc_ = sc.weight(np.asarray(network.weights, float))
-    boundary = (scene.mesh.edge_faces < 0).any(axis=1)
+    boundary = scene.mesh.boundary_edge_mask
     wb = boundary_weights(network.mesh, Xc, wc_, scene.mesh, X[:, :2], at=boundary)[boundary]
 
     def carried(with_boundary: bool) -> np.ndarray:
