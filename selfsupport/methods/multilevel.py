@@ -137,16 +137,15 @@ COLD_MAX = 4 * DIRECT_MAX
 CORNER_ANGLE = 30.0
 
 
-def _with_network(res: SolveResult, problem: Problem, network: Any, note: str,
+def _with_network(res: SolveResult, problem: Problem, network: Any, note: str, tol: float,
                   status: str | None = None) -> SolveResult:
     """``res`` with ``network`` as its answer: the evidence and the objective's terms recomputed
     from that network, the run's status (or ``status``), iterations, time and settings kept. A
-    network returned out of equilibrium that rounding alone holds there says so
+    network returned out of equilibrium at ``tol`` that rounding alone holds there says so
     (``parameters["roundoff_limit"]``, its own report, whatever the run's was)."""
     # (a status of its own: the run's message described the run's network, not this one)
     params, message = dict(res.parameters), f"{note} ({res.message})" if res.message and not status else note
     params.pop("roundoff_limit", None)
-    tol = float(params.get("tol", 1e-9))
     limit = None if network.in_equilibrium(tol) else network.roundoff_limit(tol)
     if limit is not None:
         params["roundoff_limit"], message = limit, f"{roundoff_message(limit, tol)}; {note}"
@@ -563,7 +562,7 @@ class Multilevel:
                     f"the level's start, its prolonged network (max relative error {pro.max_relative_error:.2e}"
                     + ("" if refit is None else f"; {start.max_relative_error():.2e} with its weights refit to its "
                        "positions as stored") + f"), is returned: iterating from it ended at "
-                    f"{res.max_relative_error:.2e}, {res.status}"), status=None if refit is None else "converged")
+                    f"{res.max_relative_error:.2e}, {res.status}"), tol, status=None if refit is None else "converged")
                 carried["returned"] = True
                 carried["refit"] = refit is not None
             levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
@@ -584,9 +583,9 @@ class Multilevel:
                 cold = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
                 levels.append({**self._level(cold, scene), "cold_after": res.status})
                 if cold.status == "converged" or cold.max_relative_error < res.max_relative_error:
-                    start = "from interpolated heights" if carried["by"] == "interpolation" else \
+                    began = "from interpolated heights" if carried["by"] == "interpolation" else \
                         f"from its prolongation ({carried['by']})"
-                    why = f"the fine level iterated {start} ended {res.status}: it was solved cold"
+                    why = f"the fine level iterated {began} ended {res.status}: it was solved cold"
                     res = cold
             prev_scene = scene
             in_equilibrium = res.max_relative_error <= START_TOL
