@@ -11,6 +11,7 @@ from selfsupport.io import write_network
 from selfsupport.loads import SelfWeight
 from formulations.equilibrium import load_vector, weight_matrix
 from selfsupport.methods.polish import load_colouring
+from selfsupport.methods import refine as refine_module
 from selfsupport.methods.refine import _linearize, _sqp_step
 from formulations import Fairness, Problem, ReferenceDistance
 from selfsupport.methods.staggered import StaggeredLinearization
@@ -65,11 +66,16 @@ def test_the_constraint_linearization_is_first_order_exact(setup):
     assert rem[0] < 1e-2 * 1e-4 * np.abs(lin).max()  # and small against the first-order term
 
 
-def test_the_step_solves_the_kkt_system_of_its_qp(setup):
+@pytest.mark.parametrize("release_cg", [True, False], ids=["released-by-cg", "released-refactored"])
+def test_the_step_solves_the_kkt_system_of_its_qp(setup, monkeypatch, release_cg):
     """Against a dense KKT solve, with W and g built here from the normals: min ½ΔxᵀWΔx + gᵀΔx
     + ½ρΣ(Δw/w)² over the weights that move, s.t. C_x Δx + C_w Δw = −r, W = n nᵀ + τ(I − n nᵀ)
     per free vertex, g = W (x − p). The step satisfies the linearized constraint; a weight at a
-    bound moves only inward (released), and then as a free variable of the same QP."""
+    bound moves only inward (released), and then as a free variable of the same QP — solved
+    again by CG preconditioned with the first factor, or (no CG iterations allowed) by a new
+    factorization: the same step either way."""
+    if not release_cg:
+        monkeypatch.setattr(refine_module, "RELEASE_CG_MAX", 0)
     Cx, A, r, g_code, _, Winv = setup["lin"]
     top, X, w, lower, upper = setup["top"], setup["X"], setup["w"], setup["lower"], setup["upper"]
     free = top.free
@@ -89,6 +95,7 @@ def test_the_step_solves_the_kkt_system_of_its_qp(setup):
     assert np.abs(lin + r).max() <= 1e-8 * max(np.abs(r).max(), np.abs(lin).max())
     inner = (w > lower) & (w < upper)
     moved = ~inner & (dw != 0)
+    assert moved.any()  # (the release path is exercised)
     assert np.all(dw[moved] > 0) and np.all(w[moved] <= lower[moved])  # released weights move inward
     F = inner | moved
     Cw = A[:, F].toarray()
