@@ -118,6 +118,20 @@ def document_errors(d: dict) -> np.ndarray:
     return relative_residuals(*document_arrays(d))
 
 
+def document_floors(d: dict) -> np.ndarray:
+    """Per non-support vertex of a JSON network document, the relative error that rounding its
+    coordinates to doubles can leave, ``eps ‖Σ_j |w_ij| (|v_i| + |v_j|)‖ / |L_i|`` (per
+    coordinate; :func:`selfsupport.evidence.roundoff_floors`, recomputed here edge by edge)."""
+    V, E, w, L, sup = document_arrays(d)
+    S = np.zeros_like(V)
+    for (i, j), wij in zip(E, np.abs(w)):
+        a = wij * (np.abs(V[i]) + np.abs(V[j]))
+        S[i] += a
+        S[j] += a
+    with np.errstate(divide="ignore"):
+        return np.finfo(float).eps * np.linalg.norm(S[~sup], axis=1) / np.abs(L[~sup])
+
+
 def face_area(V: Any, faces: list[list[int]]) -> float:
     """Total area with every face triangulated as a fan around its centroid (as the shared checker
     does: non-planar quads have no other canonical area)."""
