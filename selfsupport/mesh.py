@@ -65,7 +65,7 @@ class PolyMesh:
     def with_vertices(self, vertices: np.ndarray) -> "PolyMesh":
         """Same connectivity, new positions; the cached topology is shared, not recomputed."""
         new = PolyMesh(vertices, self.face_vertices, self.face_offsets)
-        for name in ("edges", "halfedge_data", "boundary_loops", "corner_data"):
+        for name in ("edges", "halfedge_data", "boundary_loops", "corner_data", "triangle_corners"):
             if name in self.__dict__:
                 new.__dict__[name] = self.__dict__[name]
         return new
@@ -111,6 +111,14 @@ class PolyMesh:
         nxt = fo[face_of] + (pos + 1) % sizes[face_of]
         prv = fo[face_of] + (pos - 1) % sizes[face_of]
         return face_of, self.face_vertices[nxt], self.face_vertices[prv]
+
+    @cached_property
+    def triangle_corners(self) -> np.ndarray:
+        """``(t, 3)``: the three corners of each triangular face, in face order (the self-weight's
+        mixed areas gather them at every load evaluation)."""
+        start = self.face_offsets[:-1][np.diff(self.face_offsets) == 3]
+        return np.stack([self.face_vertices[start], self.face_vertices[start + 1], self.face_vertices[start + 2]],
+                        axis=1)
 
     @cached_property
     def halfedge_data(self) -> dict[str, np.ndarray]:
