@@ -121,6 +121,7 @@ def refine(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         small = small + 1 if gain < min_gain else 0
         if small >= 2:  # (one small gain alone is no sign: a step of 0.1% preceded one of 41% on cas)
             break
+    ws.pop("schur", None)  # (the Schur factor serves this run's steps only: free its memory)
     return Refinement(X=X, w=w, L=L, steps=steps, tried=len(history), history=tuple(history))
 
 
