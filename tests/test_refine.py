@@ -136,12 +136,25 @@ def test_the_kkt_path_gives_the_schur_path_step_and_takes_general_objectives(set
 def solved():
     scene = make_shape("concave_disk", n_vertices=400)
     plain = StaggeredLinearization().solve(scene, SelfWeight())
-    refined = StaggeredLinearization(refine=10).solve(scene, SelfWeight())
-    return scene, plain, refined
+    records: list[dict] = []
+    refined = StaggeredLinearization(refine=10).solve(scene, SelfWeight(), progress=records.append)
+    return scene, plain, refined, records
+
+
+def test_each_refinement_step_is_reported_as_it_is_tried(solved):
+    """A refinement step takes seconds on a large mesh: progress hears of each one, in order,
+    with the error and objective the history keeps for it."""
+    _, _, refined, records = solved
+    rec = next(h for h in refined.history if h["iteration"] == "refine")
+    steps = [r for r in records if str(r.get("iteration", "")).startswith("refine ")]
+    assert [r["iteration"] for r in steps] == [f"refine {k}" for k in range(1, rec["tried"] + 1)]
+    assert sum(r["accepted"] for r in steps) == rec["steps"]
+    assert [r["objective"] for r in steps if r["accepted"]] == rec["objective"]
+    assert all(r["max_rel_error"] <= 0.5e-9 for r in steps if r["accepted"])
 
 
 def test_refinement_moves_the_network_closer_and_keeps_it_in_equilibrium(solved):
-    scene, plain, refined = solved
+    scene, plain, refined, _ = solved
     assert plain.status == refined.status == "converged"
     rec = next(h for h in refined.history if h["iteration"] == "refine")
     assert rec["steps"] >= 1
@@ -162,14 +175,14 @@ def test_refinement_moves_the_network_closer_and_keeps_it_in_equilibrium(solved)
 
 
 def test_refinement_is_off_by_default_and_the_plain_network_unchanged(solved):
-    _, plain, _ = solved
+    _, plain, _, _ = solved
     assert plain.parameters["refine"] == 0
     assert not any(h["iteration"] == "refine" for h in plain.history)
 
 
 @requires_checker
 def test_the_independent_checker_accepts_a_refined_network(solved, tmp_path):
-    _, _, refined = solved
+    _, _, refined, _ = solved
     out = tmp_path / "refined.json"
     write_network(out, refined)
     p = independent_check(out)

@@ -971,7 +971,7 @@ class _Run:
         ref = _refine(self.top, Xn, wn, self.loads.primary, self.mesh0, sc, self.objective, self.lower, self.upper,
                       max_steps=steps, tol=opt.tol, min_gain=opt.refine_gain,
                       deadline=self.deadline,
-                      workspace=self.polish_ws)
+                      workspace=self.polish_ws, progress=self.progress)
         applied = False
         if ref.steps:
             refined, rcases = self.networks(ref.X, [ref.w])
