@@ -44,10 +44,11 @@ def _plain(x: Any) -> str:
 
 
 #: Columns in display order. Staggered records carry ``iteration``, ``max_rel_error``, ``E``,
-#: ``alpha``, ``beta``; IPOPT records ``round``, ``stage``, ``max_relative_error``,
+#: ``alpha``, ``beta`` (and ``level`` under the multilevel method); IPOPT records ``round``, ``stage``, ``max_relative_error``,
 #: ``objective``, ``load_change``. A column is shown when the first record has one of its keys.
 COLUMNS: tuple[Column, ...] = (
-    Column("iter", ("iteration", "round"), _plain, 7),
+    Column("level", ("level",), _plain, 5),
+    Column("iter", ("iteration", "round"), _plain, 9),
     Column("stage", ("stage",), _plain, 7),
     Column("max rel err", ("max_rel_error", "max_relative_error"), _sci, 11),
     Column("E", ("E",), _sci),

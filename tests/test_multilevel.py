@@ -93,13 +93,28 @@ def test_offsets_interpolate_linear_fields_exactly_and_smooth_ones_to_second_ord
 @pytest.fixture(scope="module")
 def vault_runs():
     scene = make_shape("pillar_vault", n_vertices=3000)
-    ml = Multilevel(direct_max=900).solve(scene)
+    records: list[dict] = []
+    ml = Multilevel(direct_max=900).solve(scene, progress=records.append)
     cold = api.solve(scene)
-    return scene, ml, cold
+    return scene, ml, cold, records
+
+
+def test_progress_hears_each_level_and_how_its_start_was_carried(vault_runs):
+    """Each record names its level; every level above the first opens with how the level below
+    was carried to it (its max relative error there), before that level's own iterations."""
+    _, ml, _, records = vault_runs
+    levels = ml.parameters["multilevel"]["levels"]
+    assert [r["level"] for r in records] == sorted(r["level"] for r in records)
+    assert {r["level"] for r in records} == set(range(len(levels)))
+    for k, lv in enumerate(levels[1:], start=1):
+        first = next(r for r in records if r["level"] == k)
+        assert first["iteration"] == "carried" and first["by"] == lv["prolongation"]["by"]
+        assert first["max_rel_error"] == lv["prolongation"]["max_relative_error"]
+    assert sum(r["iteration"] == "carried" for r in records) == len(levels) - 1
 
 
 def test_multilevel_ends_in_equilibrium_with_fewer_fine_iterations(vault_runs):
-    scene, ml, cold = vault_runs
+    scene, ml, cold, _ = vault_runs
     levels = ml.parameters["multilevel"]["levels"]
     assert [lv["n_vertices"] for lv in levels][-1] == scene.mesh.n_vertices and len(levels) >= 2
     assert all(a["n_vertices"] < b["n_vertices"] for a, b in zip(levels, levels[1:]))
@@ -118,7 +133,7 @@ def test_multilevel_ends_in_equilibrium_with_fewer_fine_iterations(vault_runs):
 def test_the_interpolating_prolongation_iterates_to_equilibrium_too(vault_runs):
     """``prolongation="interpolation"``: the offsets interpolated and iterated from (the
     prolongation the stress one falls back to) reach the same equilibrium, about as close."""
-    scene, ml, cold = vault_runs
+    scene, ml, cold, _ = vault_runs
     res = Multilevel(direct_max=900, prolongation="interpolation").solve(scene)
     levels = res.parameters["multilevel"]["levels"]
     assert all(lv["prolongation"]["by"] == "interpolation" for lv in levels[1:])
@@ -136,7 +151,7 @@ def test_a_prolongation_that_comes_near_equilibrium_starts_the_level(vault_runs,
     import selfsupport.methods.prolong as prolong_module
     from selfsupport.methods.multilevel import START_TOL
 
-    scene, ml, cold = vault_runs
+    scene, ml, cold, _ = vault_runs
     monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
     res = Multilevel(direct_max=900).solve(scene)
     levels = res.parameters["multilevel"]["levels"]
@@ -161,7 +176,7 @@ def test_a_level_that_ends_farther_from_equilibrium_than_its_prolonged_start_ret
     from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.result import SolveResult
 
-    scene, _, _ = vault_runs
+    scene, _, _, _ = vault_runs
     monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
     real = StaggeredLinearization.solve
 

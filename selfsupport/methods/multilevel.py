@@ -137,6 +137,13 @@ COLD_MAX = 4 * DIRECT_MAX
 CORNER_ANGLE = 30.0
 
 
+def _carried_record(carried: dict[str, Any]) -> dict[str, Any]:
+    """The progress record of a level's start carried from the level below (a 256k prolongation
+    takes a minute; progress shows it between the levels' iterations)."""
+    return {"iteration": "carried", "by": carried["by"],
+            **({"max_rel_error": carried["max_relative_error"]} if "max_relative_error" in carried else {})}
+
+
 def _with_network(res: SolveResult, problem: Problem, network: Any, note: str, tol: float,
                   status: str | None = None) -> SolveResult:
     """``res`` with ``network`` as its answer: the evidence and the objective's terms recomputed
@@ -499,6 +506,7 @@ class Multilevel:
             prob = problem if scene is problem.scene else coarse_problem(problem, scene)
             step = None if progress is None else (lambda rec, k=k: progress({**rec, "level": k}))
             warm, extra, carried, probed = (warm_start if k == 0 else None), {}, None, None
+            announced = False  # (progress told how the level below was carried)
             if res is not None:
                 # the level below carried over by its stress field, in equilibrium here (prolong.py);
                 # failing that, its offsets interpolated, iterated from (warm.py)
@@ -513,6 +521,9 @@ class Multilevel:
                     carried = {"by": "subdivision" if pro.info.get("weights") == "subdivided" else "stress",
                                "seconds": pro.seconds, "max_relative_error": pro.max_relative_error,
                                "distance": d_pro, "distance_below": d_below, **pro.info}
+                    if step is not None:  # (before the probe below)
+                        step(_carried_record(carried))
+                    announced = True
                     if d_pro > RECLAIM * d_below and scene is not problem.scene \
                             and scene.mesh.n_vertices <= COLD_MAX:
                         # the stress below did not carry: an intermediate level this small is solved
@@ -544,6 +555,8 @@ class Multilevel:
                     carried = {"by": "interpolation"}
                     if pro is not None:
                         carried["why"] = pro.info.get("why")
+            if step is not None and carried is not None and not announced:
+                step(_carried_record(carried))
             res = probed or self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline,
                                                  warm_start=warm)
             tol = float(res.parameters.get("tol", self.staggered.options.tol))
@@ -580,7 +593,7 @@ class Multilevel:
                 # there: the time left is spent on one level (cyl2 subdivided twice: by clusters
                 # stalled at 2.05, by its own levels turned 37° at 1.7e-7; on one level both
                 # converge, 61 s / 72 s). The nearer to equilibrium is kept.
-                cold = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
+                cold = self.staggered.solve(problem, opts, progress=step, deadline=deadline)
                 levels.append({**self._level(cold, scene), "cold_after": res.status})
                 if cold.status == "converged" or cold.max_relative_error < res.max_relative_error:
                     began = "from interpolated heights" if carried["by"] == "interpolation" else \
@@ -597,7 +610,8 @@ class Multilevel:
                        if in_equilibrium else
                        f"level {k} ({scene.mesh.n_vertices} vertices) ended {res.status} out of equilibrium: "
                        "the fine level started cold")
-                res = self.staggered.solve(problem, opts, progress=progress, deadline=deadline)
+                fine = None if progress is None else (lambda rec: progress({**rec, "level": len(scenes) - 1}))
+                res = self.staggered.solve(problem, opts, progress=fine, deadline=deadline)
                 levels.append(self._level(res, problem.scene))
                 break
         assert res is not None
