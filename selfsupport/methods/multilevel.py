@@ -153,7 +153,7 @@ def _with_network(res: SolveResult, problem: Problem, network: Any, note: str, t
     # (a status of its own: the run's message described the run's network, not this one)
     params, message = dict(res.parameters), f"{note} ({res.message})" if res.message and not status else note
     params.pop("roundoff_limit", None)
-    limit = None if network.in_equilibrium(tol) else network.roundoff_limit(tol)
+    limit = network.roundoff_limit(tol)  # (None for a network in equilibrium at tol)
     if limit is not None:
         params["roundoff_limit"], message = limit, f"{roundoff_message(limit, tol)}; {note}"
     return SolveResult.build(network, status=status or res.status, method=res.method, backend=res.backend,
