@@ -121,13 +121,13 @@ def document_errors(d: dict) -> np.ndarray:
 def document_floors(d: dict) -> np.ndarray:
     """Per non-support vertex of a JSON network document, the relative error that rounding its
     coordinates to doubles can leave, ``eps ‖Σ_j |w_ij| (|v_i| + |v_j|)‖ / |L_i|`` (per
-    coordinate; :func:`selfsupport.evidence.roundoff_floors`, recomputed here edge by edge)."""
+    coordinate; :func:`selfsupport.evidence.roundoff_floors`, recomputed here as
+    :func:`relative_residuals` sums the forces)."""
     V, E, w, L, sup = document_arrays(d)
+    a = np.abs(w)[:, None] * (np.abs(V[E[:, 0]]) + np.abs(V[E[:, 1]]))
     S = np.zeros_like(V)
-    for (i, j), wij in zip(E, np.abs(w)):
-        a = wij * (np.abs(V[i]) + np.abs(V[j]))
-        S[i] += a
-        S[j] += a
+    np.add.at(S, E[:, 0], a)
+    np.add.at(S, E[:, 1], a)
     with np.errstate(divide="ignore"):
         return np.finfo(float).eps * np.linalg.norm(S[~sup], axis=1) / np.abs(L[~sup])
 
