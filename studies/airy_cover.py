@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from studies.common import PAPER_TABLE1, Column, read_study_scene, write_markdown
+from studies.common import Column, read_study_scene, study_scenes, write_markdown
 
 
 def averaged_residuals(net, res) -> dict[str, float]:
@@ -84,10 +84,12 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     p = argparse.ArgumentParser(prog="python -m studies.airy_cover", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", required=True, type=Path, help="folder with the paper's scenes")
     p.add_argument("--out", required=True, type=Path, help="output folder")
-    p.add_argument("--only", nargs="*", default=None, help="scene names (default: all of Table 1)")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="scene names (default: the Table 1 scenes in --scenes, or, with none there, "
+                        "every scene file in it)")
     a = p.parse_args(argv)
     rows = []
-    for name in a.only or list(PAPER_TABLE1):
+    for name in study_scenes(a.scenes, a.only):
         r = measure(a.scenes.resolve(), name)
         r["avg_balance"], r["avg_bad"] = r["averaged"]["balance"], r["averaged"]["n_above_1e-9"]
         rows.append(r)

@@ -83,10 +83,43 @@ PAPER_TABLE1: dict[str, PaperScene] = {s.name: s for s in (
 PUBLISHED_UP = "-y"
 
 
+#: Suffixes of the scene files a study finds in a folder by itself (a JSON file there may be a
+#: network written by a run, so JSON scenes are named with ``--only``).
+SCENE_SUFFIXES = (".sss", ".obj", ".ply", ".off")
+
+
+def study_scenes(scenes_dir: Path, only: Sequence[str] | None = None) -> list[str]:
+    """The scenes a study runs, by name (file stem): ``only`` when given; else the Table 1
+    scenes found in ``scenes_dir``, in the paper's order; else every scene file there (sorted),
+    so that a folder of other scenes of the same kind runs as it is, without ``--only``.
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> for f in ("b.obj", "b.supports", "a.sss", "notes.txt"):
+    ...     _ = (d / f).write_text("")
+    >>> study_scenes(d), study_scenes(d, ["b"])
+    (['a', 'b'], ['b'])
+    >>> _ = (d / "cas.sss").write_text("")
+    >>> study_scenes(d)
+    ['cas']
+    """
+    if only:
+        return list(only)
+    table1 = [s for s in PAPER_TABLE1 if (Path(scenes_dir) / PAPER_TABLE1[s].file).is_file()]
+    if table1:
+        return table1
+    return sorted({p.stem for p in Path(scenes_dir).iterdir() if p.is_file() and p.suffix.lower() in SCENE_SUFFIXES})
+
+
+def no_scene_files(scenes_dir: Path) -> str:
+    """What a study says when :func:`study_scenes` finds nothing in ``scenes_dir``."""
+    return f"no scene file in {scenes_dir} (looked for {', '.join('*' + x for x in SCENE_SUFFIXES)})"
+
+
 def scene_file(scenes_dir: Path, name: str) -> Path:
-    """The scene file of ``name``: the registry's file, else ``NAME.sss`` / ``NAME.obj``."""
+    """The scene file of ``name``: the registry's file, else ``NAME.sss`` / ``NAME.obj`` / ...."""
     spec = PAPER_TABLE1.get(name)
-    candidates = [spec.file] if spec else [f"{name}{ext}" for ext in (".sss", ".obj", ".ply", ".off", ".json")]
+    candidates = [spec.file] if spec else [f"{name}{ext}" for ext in (*SCENE_SUFFIXES, ".json")]
     for c in candidates:
         p = Path(scenes_dir) / c
         if p.is_file():
@@ -95,12 +128,16 @@ def scene_file(scenes_dir: Path, name: str) -> Path:
 
 
 def read_study_scene(scenes_dir: str | Path, name: str):
-    """Read scene ``name`` with the axis and supports the registry gives (imports the project)."""
+    """Read scene ``name`` with the axis and supports the registry gives (imports the project);
+    a scene not in the registry takes ``NAME.supports`` beside it when there is one (the
+    convention of the paper's ``structural.obj``)."""
     from selfsupport.io import read_scene
 
     spec = PAPER_TABLE1.get(name)
     path = scene_file(Path(scenes_dir), name)
-    supports = str(Path(scenes_dir) / spec.supports) if spec and spec.supports else None
+    beside = Path(scenes_dir) / f"{name}.supports"
+    supports = (str(Path(scenes_dir) / spec.supports) if spec and spec.supports
+                else str(beside) if spec is None and beside.is_file() else None)
     return read_scene(path, up=spec.up if spec else None, supports=supports, name=name)
 
 

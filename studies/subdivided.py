@@ -5,8 +5,10 @@ fabrication, solved on one level and by levels.
         [--only lilium,cyl2] [--levels 1,2] [--methods staggered,multilevel,multilevel/clusters]
         [--time-limit S] [--checker PATH] [--variants none,turned,flat,tall,bumpy,mirrored]
 
-Each scene of Table 1 (:data:`studies.common.PAPER_TABLE1`) is subdivided ``--levels`` times
-(:func:`selfsupport.design.subdivision.subdivide_scene`: quads, supports kept along creases).
+Each scene of Table 1 found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`; in a folder
+without any, every scene file there: :func:`studies.common.study_scenes`) is subdivided
+``--levels`` times (:func:`selfsupport.design.subdivision.subdivide_scene`: quads, supports kept
+along creases).
 That is how a designer takes a 1k-vertex design to 7k, 28k or 110k vertices. The multilevel
 method solves the scenes it was refined from as its levels (the designer's own hierarchy);
 ``multilevel/clusters`` coarsens the subdivided top view instead, as for any other mesh. Then one
@@ -38,9 +40,9 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from .common import (PAPER_TABLE1, Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error,
-                     load_average, peak_rss_mib, read_study_scene, run_checker, run_isolated, write_csv,
-                     write_markdown)
+from .common import (Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
+                     no_scene_files, peak_rss_mib, read_study_scene, run_checker, run_isolated, study_scenes,
+                     write_csv, write_markdown)
 from .variants import VARIANTS, variant_scene
 
 #: method names; ``multilevel`` solves the designer's coarser scenes first (the subdivision's own
@@ -138,7 +140,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenes", required=True, type=Path, help="folder with the paper's scene files")
     p.add_argument("--out", required=True, type=Path, help="output folder (created)")
-    p.add_argument("--only", default="", help="comma-separated scene names (default: the Table 1 scenes)")
+    p.add_argument("--only", default="", help="comma-separated scene names (default: the Table 1 scenes in "
+                                              "--scenes, or, with none there, every scene file in it)")
     p.add_argument("--levels", default="2", help="comma-separated numbers of Catmull–Clark steps (default 2)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, from {', '.join(METHODS)}")
     p.add_argument("--time-limit", type=float, default=900.0, help="per-row time limit [s] (default 900)")
@@ -148,7 +151,6 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     p.add_argument("--variants", default="none",
                    help=f"comma-separated variants of each scene, from {', '.join(VARIANTS)} (default none)")
     a = p.parse_args(argv)
-    names = [s for s in a.only.split(",") if s] or list(PAPER_TABLE1)
     methods = [m for m in a.methods.split(",") if m]
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -164,6 +166,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         raise SystemExit(f"--levels takes integers >= 0, got {a.levels!r}")
     if not a.scenes.is_dir():
         raise SystemExit(f"no scenes folder {a.scenes}")
+    names = study_scenes(a.scenes, [s for s in a.only.split(",") if s])
+    if not names:
+        raise SystemExit(no_scene_files(a.scenes))
     checker = a.checker if a.checker is not None else a.scenes.resolve().parent.parent / "tools" / "check_network.py"
     exit_on_sigterm()
     rows = run(scenes=a.scenes, out=a.out, names=names, levels=levels, methods=methods, time_limit=a.time_limit,

@@ -5,7 +5,8 @@
         [--time-limit S] [--only lilium,cas] [--checker PATH] [--no-warmup] [--repeat N]
         [--objective NAME=W ...]
 
-For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`) and every
+For every Table 1 scene found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`; a folder
+without any, e.g. held-out scenes of the same kind, runs every scene file in it) and every
 variant in ``--methods`` (:data:`VARIANTS`: the staggered method with each Step-2 backend, its
 coupled variant and its refinement phase, the simultaneous IPOPT solve cold and warm-started
 from the staggered network, nlopt where it applies) one row: wall time, outer iterations, max
@@ -49,8 +50,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .common import (PAPER_TABLE1, PUBLISHED_UP, Column, Stopwatch, current_rss_mib, equilibrium_errors,
-                     exit_on_sigterm, json_network_arrays, load_average, peak_rss_mib, read_study_scene, run_checker,
-                     run_isolated, safe_ratio, scene_file, write_csv, write_markdown)
+                     exit_on_sigterm, json_network_arrays, load_average, no_scene_files, peak_rss_mib,
+                     read_study_scene, run_checker, run_isolated, safe_ratio, scene_file, study_scenes, write_csv,
+                     write_markdown)
 
 
 # ------------------------------------------------------------------------------ variants
@@ -425,7 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=float, default=None,
                    help="time limit per row [s] (default: 600 for staggered/active-set, 120 for the others)")
     p.add_argument("--only", default=None, help="comma-separated scene names (file stems); default: every "
-                                                "Table 1 scene found in --scenes")
+                                                "Table 1 scene found in --scenes, or, with none there, every "
+                                                "scene file in it")
     p.add_argument("--checker", type=Path, default=None,
                    help="independent checker script (default: SCENES/../../tools/check_network.py if present)")
     p.add_argument("--no-warmup", action="store_true", help="skip the untimed warm-up solve in each row process")
@@ -446,10 +449,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     unknown = [m for m in variants if m not in VARIANTS]
     if unknown:
         raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(VARIANTS)}")
-    if a.only:
-        scenes = [s for s in a.only.split(",") if s]
-    else:
-        scenes = [s for s in PAPER_TABLE1 if (a.scenes / PAPER_TABLE1[s].file).is_file()]
+    if not a.scenes.is_dir():
+        raise SystemExit(f"no scenes folder {a.scenes}")
+    scenes = study_scenes(a.scenes, [s for s in (a.only or "").split(",") if s])
     missing = []
     for s in scenes:
         try:
@@ -457,7 +459,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         except FileNotFoundError as e:
             missing.append(str(e))
     if missing or not scenes:
-        raise SystemExit("; ".join(missing) or f"no Table 1 scene in {a.scenes}")
+        raise SystemExit("; ".join(missing) or no_scene_files(a.scenes))
     # run the reference variant first in each scene: warm starts and ratios refer to it
     variants.sort(key=lambda m: m != REFERENCE)
     published = a.published if a.published is not None else a.scenes.resolve().parent / "published"

@@ -341,6 +341,40 @@ def test_subdivided_study_variants_are_the_designs_mapped_and_solve_to_the_mappe
     assert np.abs(flat.vertices[:, 2] - base.vertices[:, 2]).max() > 1e-2 * diag
 
 
+def test_a_folder_of_other_scenes_runs_as_it_is(tmp_path):
+    """Held-out scenes of the same kind, under other names: without ``--only``, Table 1 and the
+    subdivided study run every scene file of the folder (an ``.sss`` with its own pins; an OBJ
+    with ``NAME.supports`` beside it), each row converged by the recomputed error and the shared
+    checker; a folder with no scene file says so in one line."""
+    from selfsupport.io.sss import write_scene_sss
+    from studies import subdivided
+
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    dome, vault = make_shape("dome", n_vertices=80), make_shape("pillar_vault", n_vertices=80)
+    write_scene_sss(scenes / "held-a.sss", dome)
+    write_mesh(scenes / "held-b.obj", vault.mesh)
+    (scenes / "held-b.supports").write_text(" ".join(map(str, np.flatnonzero(vault.supports))))
+    (scenes / "notes.txt").write_text("not a scene")
+    assert common.study_scenes(scenes) == ["held-a", "held-b"]
+    rows = table1.main(["--scenes", str(scenes), "--out", str(tmp_path / "t1"), "--methods", "staggered/active-set",
+                        "--checker", str(CHECKER), "--no-warmup"])
+    rows += subdivided.main(["--scenes", str(scenes), "--out", str(tmp_path / "sub"), "--levels", "1",
+                             "--methods", "staggered", "--checker", str(CHECKER), "--no-warmup"])
+    assert [(r.get("scene"), r.get("vertices")) for r in rows[:2]] == [
+        ("held-a", dome.mesh.n_vertices), ("held-b", vault.mesh.n_vertices)]
+    assert [r.get("scene") for r in rows[2:]] == ["held-a", "held-b"]
+    for r in rows:
+        assert r["status"] == "converged" and r["max_rel_error"] <= 1e-9
+        if CHECKER.is_file():
+            assert r["checker_error"] <= 1e-8
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for study in (table1, subdivided):
+        with pytest.raises(SystemExit, match=r"no scene file in .*empty \(looked for \*\.sss, \*\.obj"):
+            study.main(["--scenes", str(empty), "--out", str(tmp_path / "x")])
+
+
 def test_variants_docstring_examples():
     """studies/ is not collected for doctests (scripts); the variants' examples run here."""
     import doctest
@@ -349,6 +383,14 @@ def test_variants_docstring_examples():
 
     result = doctest.testmod(variants, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 5 and result.failed == 0
+
+
+def test_common_docstring_examples():
+    """The shared helpers' examples (scene selection, ratios, ...) run here, as the variants' do."""
+    import doctest
+
+    result = doctest.testmod(common, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 6 and result.failed == 0
 
 
 def test_newton_systems_are_the_fits_gram_plus_a_positive_diagonal():
