@@ -108,7 +108,7 @@ def study_scenes(scenes_dir: Path, only: Sequence[str] | None = None) -> list[st
     table1 = [s for s in PAPER_TABLE1 if (Path(scenes_dir) / PAPER_TABLE1[s].file).is_file()]
     if table1:
         return table1
-    return sorted({p.stem for p in Path(scenes_dir).iterdir() if p.is_file() and p.suffix.lower() in SCENE_SUFFIXES})
+    return sorted({p.stem for p in Path(scenes_dir).iterdir() if p.is_file() and p.suffix in SCENE_SUFFIXES})
 
 
 def no_scene_files(scenes_dir: Path) -> str:
