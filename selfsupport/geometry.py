@@ -164,7 +164,7 @@ def vertex_areas(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarr
     if tri.any():
         corners = mesh.triangle_corners  # (t, 3)
         a = _triangle_mixed_areas(np.take(np.ascontiguousarray(v.T), corners.T, axis=1))
-        out += np.bincount(corners.ravel(), weights=a.ravel(), minlength=n)
+        out += _scatter_add(corners, a.ravel(), n)
     if (~tri).any():
         face_of, vec, nxt = _fan(mesh, v)
         fan = np.linalg.norm(vec, axis=1)

@@ -44,8 +44,9 @@ def _plain(x: Any) -> str:
 
 
 #: Columns in display order. Staggered records carry ``iteration``, ``max_rel_error``, ``E``,
-#: ``alpha``, ``beta`` (and ``level`` under the multilevel method); IPOPT records ``round``, ``stage``, ``max_relative_error``,
-#: ``objective``, ``load_change``. A column is shown when the first record has one of its keys.
+#: ``alpha``, ``beta`` (and ``level`` under the multilevel method); IPOPT records ``round``,
+#: ``stage``, ``max_relative_error``, ``objective``, ``load_change``. A column is shown when the
+#: first record has one of its keys.
 COLUMNS: tuple[Column, ...] = (
     Column("level", ("level",), _plain, 5),
     Column("iter", ("iteration", "round"), _plain, 9),

@@ -39,7 +39,7 @@ from selfsupport.mesh import PolyMesh
 from selfsupport.result import STATUSES
 from selfsupport.scene import Scene
 from selfsupport.shapes import disk
-from selfsupport.evidence import FLOOR_CAP, FLOOR_MARGIN
+from selfsupport.evidence import floor_tolerance
 from tests.conftest import document_errors, document_floors
 
 G = 9.81
@@ -194,7 +194,7 @@ def check_solve(scene: Scene, density: float, thickness: float, w_max: float | N
         rel = document_errors(d)
         over = rel > TOL
         if over.any():
-            assert np.all(rel[over] <= np.minimum(FLOOR_MARGIN * document_floors(d)[over], FLOOR_CAP))
+            assert np.all(rel[over] <= floor_tolerance(document_floors(d)[over]))
             assert "round-off floor" in res.message
     return res.status
 
