@@ -39,6 +39,10 @@ For staggered rows the worker also measures, at the final weights:
   multilevel rows the iterations are the finest level's (1 when it starts in equilibrium), so
   this is the whole solve's cost; ``solve_over_factor`` — solve time / ``factor_K_s`` — is that
   cost for every method alike (a 25-iteration staggered solve at ratio 10 would be 250);
+* ``step2_ratio`` / ``step3_ratio`` — the limit ratio's share of each step (its time per outer
+  iteration over ``factor_K_s``), and ``one_factor_ratio`` — (``factor_step2_s`` +
+  ``factor_step3_pre_s``) / ``factor_K_s``: the floor of a staggered iteration that factors each
+  of its two systems once and does nothing else (no second interior-point iteration, no CG);
 * from the solve's own history: ``step2_s`` and ``step3_s`` (time in the weight fits and in the
   position steps), ``cg_mean`` (mean CG iterations per position step), ``fit_its_mean`` (mean
   Step-2 iterations per fit — each one factorization of that matrix);
@@ -204,13 +208,26 @@ def iteration_ratios(row: dict[str, Any]) -> dict[str, float]:
     the plain stress Laplacian (``limit_ratio``, the limit: ~1–3 for a method that factors it
     once per step). NaN where a number is missing.
 
-    >>> iteration_ratios({"time_s": 6.0, "iterations": 3, "factor_step3_s": 0.5, "factor_K_s": 0.1})
-    {'time_per_iter_s': 2.0, 'per_iter_over_factor': 4.0, 'limit_ratio': 20.0, 'solve_over_factor': 60.0}
+    The limit ratio is split by step (``step2_ratio``, ``step3_ratio``: each step's time per
+    iteration in the same unit; the rest is judging, polishing and bookkeeping), and
+    ``one_factor_ratio`` is the floor of an iteration that factors each of its two systems once
+    (Step 2's m×m matrix and Step 3's preconditioner ``H + cI``) and does nothing else.
+
+    >>> r = iteration_ratios({"time_s": 6.0, "iterations": 3, "factor_step3_s": 0.5, "factor_K_s": 0.1,
+    ...                       "step2_s": 3.0, "step3_s": 1.5, "factor_step2_s": 0.3, "factor_step3_pre_s": 0.2})
+    >>> {k: round(v, 12) for k, v in r.items()}  # doctest: +NORMALIZE_WHITESPACE
+    {'time_per_iter_s': 2.0, 'per_iter_over_factor': 4.0, 'limit_ratio': 20.0, 'solve_over_factor': 60.0,
+     'step2_ratio': 10.0, 'step3_ratio': 5.0, 'one_factor_ratio': 5.0}
     """
     per = safe_ratio(row.get("time_s"), row.get("iterations"))
+    K = row.get("factor_K_s")
+    one = safe_ratio(row.get("factor_step2_s"), K) + safe_ratio(row.get("factor_step3_pre_s"), K)
     return {"time_per_iter_s": per, "per_iter_over_factor": safe_ratio(per, row.get("factor_step3_s")),
-            "limit_ratio": safe_ratio(per, row.get("factor_K_s")),
-            "solve_over_factor": safe_ratio(row.get("time_s"), row.get("factor_K_s"))}
+            "limit_ratio": safe_ratio(per, K),
+            "solve_over_factor": safe_ratio(row.get("time_s"), K),
+            "step2_ratio": safe_ratio(safe_ratio(row.get("step2_s"), row.get("iterations")), K),
+            "step3_ratio": safe_ratio(safe_ratio(row.get("step3_s"), row.get("iterations")), K),
+            "one_factor_ratio": one}
 
 
 def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, out_json: str,
@@ -274,6 +291,9 @@ COLUMNS: tuple[Column, ...] = (
     Column("per_iter_over_factor", "iteration / Step-3 factorization", "{:.1f}"),
     Column("limit_ratio", "time / (its × factor −K_ff)", "{:.1f}"),
     Column("solve_over_factor", "time / factor −K_ff", "{:.0f}"),
+    Column("step2_ratio", "Step 2 / (its × factor −K_ff)", "{:.1f}"),
+    Column("step3_ratio", "Step 3 / (its × factor −K_ff)", "{:.1f}"),
+    Column("one_factor_ratio", "(factor Step 2 + factor H + cI) / factor −K_ff", "{:.1f}"),
     Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
 )
@@ -281,7 +301,8 @@ _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "levels", "status", "time_s", "iterations", "max_rel_error",
               "dist_ref_mean", "peak_rss_mib", "rss_before_mib", "time_per_iter_s", "step2_s", "step3_s", "cg_mean",
               "fit_its_mean", "factor_step2_s", "factor_K_s", "factor_step3_s", "factor_step3_pre_s",
-              "per_iter_over_factor", "limit_ratio", "solve_over_factor", "n_factorizations", "factor_share")
+              "per_iter_over_factor", "limit_ratio", "step2_ratio", "step3_ratio", "one_factor_ratio",
+              "solve_over_factor", "n_factorizations", "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
                Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
@@ -419,7 +440,10 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> str:
         "system (what a direct Step 3 costs); *factor H + cI (n)* = one factorization of the n_free×n_free "
         "matrix the solver's Step 3 factors (its CG preconditioner); *iteration / Step-3 factorization* = "
         "(time / iterations) / the 3n factorization; *time / (its × factor −K_ff)* = (time / iterations) / the "
-        "plain stress Laplacian's factorization (the limit: ~1–3 for a method that factors it once per step). "
+        "plain stress Laplacian's factorization (the limit: ~1–3 for a method that factors it once per step), "
+        "split into *Step 2 / (…)* and *Step 3 / (…)* (each step's time per iteration in that unit); "
+        "*(factor Step 2 + factor H + cI) / factor −K_ff* = the floor of an iteration that factors each of "
+        "its two systems once and does nothing else. "
         "*Step 2*, *Step 3*: time in the weight fits and the "
         "position steps (from the solve's history); *factorizations*, *share*: every numeric factorization "
         "of the solve (new and refactored) and its share of the solve time.",

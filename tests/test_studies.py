@@ -199,6 +199,14 @@ def test_scaling_row_measures_the_factorization_floor(tmp_path):
     ratios = scaling.iteration_ratios(r)
     assert ratios["limit_ratio"] == pytest.approx(r["time_s"] / (r["iterations"] * r["factor_K_s"]), rel=1e-12)
     assert ratios["limit_ratio"] > 1
+    # its split by step: the two steps are parts of the iteration's time (the rest is judging,
+    # polishing, bookkeeping), and the one-factorization floor is built from the named matrices
+    unit = r["iterations"] * r["factor_K_s"]
+    assert ratios["step2_ratio"] == pytest.approx(r["step2_s"] / unit, rel=1e-12)
+    assert ratios["step3_ratio"] == pytest.approx(r["step3_s"] / unit, rel=1e-12)
+    assert 0 < ratios["step2_ratio"] + ratios["step3_ratio"] < ratios["limit_ratio"]
+    assert ratios["one_factor_ratio"] == pytest.approx(
+        (r["factor_step2_s"] + r["factor_step3_pre_s"]) / r["factor_K_s"], rel=1e-12)
 
 
 def test_scaling_methods_name_a_step2_backend():
