@@ -116,7 +116,7 @@ class PolyMesh:
     def triangle_corners(self) -> np.ndarray:
         """``(t, 3)``: the three corners of each triangular face, in face order (the self-weight's
         mixed areas gather them at every load evaluation)."""
-        start = self.face_offsets[:-1][np.diff(self.face_offsets) == 3]
+        start = self.face_offsets[:-1][self.face_sizes == 3]
         return np.stack([self.face_vertices[start], self.face_vertices[start + 1], self.face_vertices[start + 2]],
                         axis=1)
 

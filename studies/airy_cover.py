@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from studies.common import Column, read_study_scene, study_scenes, write_markdown
+from studies.common import Column, read_study_scene, study_scenes_or_exit, write_markdown
 
 
 def averaged_residuals(net, res) -> dict[str, float]:
@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                         "every scene file in it)")
     a = p.parse_args(argv)
     rows = []
-    for name in study_scenes(a.scenes, a.only):
+    for name in study_scenes_or_exit(a.scenes, a.only):
         r = measure(a.scenes.resolve(), name)
         r["avg_balance"], r["avg_bad"] = r["averaged"]["balance"], r["averaged"]["n_above_1e-9"]
         rows.append(r)

@@ -111,9 +111,15 @@ def study_scenes(scenes_dir: Path, only: Sequence[str] | None = None) -> list[st
     return sorted({p.stem for p in Path(scenes_dir).iterdir() if p.is_file() and p.suffix in SCENE_SUFFIXES})
 
 
-def no_scene_files(scenes_dir: Path) -> str:
-    """What a study says when :func:`study_scenes` finds nothing in ``scenes_dir``."""
-    return f"no scene file in {scenes_dir} (looked for {', '.join('*' + x for x in SCENE_SUFFIXES)})"
+def study_scenes_or_exit(scenes_dir: Path, only: Sequence[str] | None = None) -> list[str]:
+    """:func:`study_scenes` for a study's command line: a missing folder, or one with no scene
+    file, ends the study with one line (``SystemExit``) instead of a traceback or an empty table."""
+    if not Path(scenes_dir).is_dir():
+        raise SystemExit(f"no scenes folder {scenes_dir}")
+    names = study_scenes(scenes_dir, only)
+    if not names:
+        raise SystemExit(f"no scene file in {scenes_dir} (looked for {', '.join('*' + x for x in SCENE_SUFFIXES)})")
+    return names
 
 
 def scene_file(scenes_dir: Path, name: str) -> Path:

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from .common import (Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
-                     no_scene_files, peak_rss_mib, read_study_scene, run_checker, run_isolated, study_scenes,
+                     peak_rss_mib, read_study_scene, run_checker, run_isolated, study_scenes_or_exit,
                      write_csv, write_markdown)
 from .variants import VARIANTS, variant_scene
 
@@ -164,11 +164,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         raise SystemExit(f"--variants takes names from {', '.join(VARIANTS)}, got {a.variants!r}")
     if not levels or min(levels) < 0:
         raise SystemExit(f"--levels takes integers >= 0, got {a.levels!r}")
-    if not a.scenes.is_dir():
-        raise SystemExit(f"no scenes folder {a.scenes}")
-    names = study_scenes(a.scenes, [s for s in a.only.split(",") if s])
-    if not names:
-        raise SystemExit(no_scene_files(a.scenes))
+    names = study_scenes_or_exit(a.scenes, [s for s in a.only.split(",") if s])
     checker = a.checker if a.checker is not None else a.scenes.resolve().parent.parent / "tools" / "check_network.py"
     exit_on_sigterm()
     rows = run(scenes=a.scenes, out=a.out, names=names, levels=levels, methods=methods, time_limit=a.time_limit,

@@ -50,8 +50,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .common import (PAPER_TABLE1, PUBLISHED_UP, Column, Stopwatch, current_rss_mib, equilibrium_errors,
-                     exit_on_sigterm, json_network_arrays, load_average, no_scene_files, peak_rss_mib,
-                     read_study_scene, run_checker, run_isolated, safe_ratio, scene_file, study_scenes, write_csv,
+                     exit_on_sigterm, json_network_arrays, load_average, peak_rss_mib,
+                     read_study_scene, run_checker, run_isolated, safe_ratio, scene_file, study_scenes_or_exit, write_csv,
                      write_markdown)
 
 
@@ -449,17 +449,15 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     unknown = [m for m in variants if m not in VARIANTS]
     if unknown:
         raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(VARIANTS)}")
-    if not a.scenes.is_dir():
-        raise SystemExit(f"no scenes folder {a.scenes}")
-    scenes = study_scenes(a.scenes, [s for s in (a.only or "").split(",") if s])
+    scenes = study_scenes_or_exit(a.scenes, [s for s in (a.only or "").split(",") if s])
     missing = []
     for s in scenes:
         try:
             scene_file(a.scenes, s)
         except FileNotFoundError as e:
             missing.append(str(e))
-    if missing or not scenes:
-        raise SystemExit("; ".join(missing) or no_scene_files(a.scenes))
+    if missing:
+        raise SystemExit("; ".join(missing))
     # run the reference variant first in each scene: warm starts and ratios refer to it
     variants.sort(key=lambda m: m != REFERENCE)
     published = a.published if a.published is not None else a.scenes.resolve().parent / "published"

@@ -355,7 +355,7 @@ def test_a_folder_of_other_scenes_runs_as_it_is(tmp_path):
     with ``NAME.supports`` beside it), each row converged by the recomputed error and the shared
     checker; a folder with no scene file says so in one line."""
     from selfsupport.io.sss import write_scene_sss
-    from studies import subdivided
+    from studies import airy_cover, subdivided
 
     scenes = tmp_path / "scenes"
     scenes.mkdir()
@@ -378,9 +378,11 @@ def test_a_folder_of_other_scenes_runs_as_it_is(tmp_path):
             assert r["checker_error"] <= 1e-8
     empty = tmp_path / "empty"
     empty.mkdir()
-    for study in (table1, subdivided):
+    for study in (table1, subdivided, airy_cover):
         with pytest.raises(SystemExit, match=r"no scene file in .*empty \(looked for \*\.sss, \*\.obj"):
             study.main(["--scenes", str(empty), "--out", str(tmp_path / "x")])
+        with pytest.raises(SystemExit, match=r"no scenes folder .*absent$"):
+            study.main(["--scenes", str(tmp_path / "absent"), "--out", str(tmp_path / "x")])
 
 
 def test_variants_docstring_examples():
