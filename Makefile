@@ -1,28 +1,39 @@
 # selfsupport — build, demo and tests. Needs only python3 (>= 3.11) and pip.
-#   make demo        create .venv, install the project, solve the built-in demo -> demo-out/
-#   make test        create .venv, install with the test extra, run the fast test suite
+#   make demo        create .venv, install the project from the lock, solve the built-in demo -> demo-out/
+#   make test        create .venv, install the project and its test extra from the lock, run the fast suite
 #   make test-slow   run the tests marked slow
 #   make fuzz        property-based fuzzing with the large hypothesis profile
-#   make clean       remove .venv, stamps and demo output
-# Installs are stamp-file based: they rerun only when pyproject.toml changes.
+#   make lock        re-resolve requirements/*.lock from pyproject.toml's ranges (newest releases)
+#   make test-latest run the fast suite against the newest releases (.venv-latest) and list what moved
+#   make clean       remove the virtual environments, stamps and demo output
+# Installs are stamp-file based: they rerun when pyproject.toml or a lock file changes.
 
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
+LATEST := .venv-latest
 STAMP_RUN  := $(VENV)/.installed-run
 STAMP_TEST := $(VENV)/.installed-test
+UV_VERSION := 0.13.9
+# Every pin, transitive ones and the build backend included, for Python 3.11+ on any platform.
+LOCK_FLAGS := --universal --python-version 3.11 --quiet --no-header --annotation-style line
+PYTEST_FAST := -q -m "not slow and not browser" -n auto
 
-.PHONY: demo test test-slow test-all fuzz clean venv
+.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(STAMP_RUN): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e .
+# The project itself goes in without its dependencies and without build isolation, so nothing
+# but the lock's pins is ever installed.
+$(STAMP_RUN): pyproject.toml requirements/run.lock | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -r requirements/run.lock
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $@
 
-$(STAMP_TEST): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+$(STAMP_TEST): pyproject.toml requirements/test.lock | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -r requirements/test.lock
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $@ $(STAMP_RUN)
 
 venv: $(STAMP_RUN)
@@ -30,11 +41,10 @@ venv: $(STAMP_RUN)
 demo: $(STAMP_RUN)
 	$(BIN)/selfsupport demo
 
-# -n auto: one pytest-xdist worker per core (on a 2-core machine the fast suite took 4.2 min
-# instead of 9.0 serially, 2026-11-28). The browser tests run afterwards, alone: they time a
-# drag against the design server's answers, which a busy second worker delayed past the drag.
+# -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
+# drag against the design server's answers, which a busy second worker would delay.
 test: $(STAMP_TEST)
-	$(BIN)/pytest -q -m "not slow and not browser" -n auto
+	$(BIN)/pytest $(PYTEST_FAST)
 	$(BIN)/pytest -q -m "browser and not slow"
 
 test-slow: $(STAMP_TEST)
@@ -46,5 +56,20 @@ test-all: $(STAMP_TEST)
 fuzz: $(STAMP_TEST)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/pytest -q tests/test_fuzz.py --hypothesis-show-statistics
 
+lock: | $(BIN)/python
+	$(BIN)/python -m pip install --quiet uv==$(UV_VERSION)
+	$(BIN)/uv pip compile $(LOCK_FLAGS) pyproject.toml requirements/build.in -o requirements/run.lock
+	$(BIN)/uv pip compile $(LOCK_FLAGS) --extra test pyproject.toml requirements/build.in -o requirements/test.lock
+
+# The suite against the newest release of every dependency pyproject.toml admits: the packages
+# that moved past the lock are listed first, then the suite's failures are what broke.
+test-latest:
+	rm -rf $(LATEST)
+	$(PYTHON) -m venv $(LATEST)
+	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
+	$(LATEST)/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[test]"
+	$(LATEST)/bin/python requirements/drift.py requirements/test.lock
+	$(LATEST)/bin/pytest $(PYTEST_FAST) -p no:cacheprovider
+
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache
+	rm -rf $(VENV) $(LATEST) demo-out .pytest_cache

@@ -11,13 +11,16 @@ that uses them checks the physics, not the project's own bookkeeping:
   repository: ``<repo>/../shared``, in a developer's tree and in CI's fresh clone alike) on a
   file, document or network and returns its parsed report; the test is skipped, with a reason,
   where the checker is absent. Decorate with :data:`requires_checker` to skip before expensive
-  fixtures are built.
+  fixtures are built;
+* :func:`time_limit_bound` — how long a run with a time limit may take, with the margin for one
+  uninterruptible step stretched by the machine's load (the suite runs on loaded 2-core machines).
 
 Test modules import them: ``from tests.conftest import independent_check, document_errors``.
 """
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -34,6 +37,21 @@ CHECKER = SHARED / "tools" / "check_network.py"
 CHECKER_MISSING = f"the shared independent checker is not beside the repository (no {CHECKER})"
 #: skip marker for tests that need the shared checker
 requires_checker = pytest.mark.skipif(not CHECKER.is_file(), reason=CHECKER_MISSING)
+
+
+# ------------------------------------------------------------------ wall-clock bounds under load
+def load_factor() -> float:
+    """How many times longer a CPU-bound step takes now than on an idle machine, at least 1: the
+    one-minute load average per core (6 on 2 cores gives 3)."""
+    return max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+
+
+def time_limit_bound(limit: float, overshoot: float = 1.0) -> float:
+    """The longest a run with time limit ``limit`` [s] may take: the limit (the deadline is wall
+    time, so the load does not move it), plus 10% of it and ``overshoot`` seconds for the step
+    running when it passes — the product's promise on an idle machine, stretched by
+    :func:`load_factor` for that step, which the load slows."""
+    return limit + (0.1 * limit + overshoot) * load_factor()
 
 
 # ------------------------------------------------------------------ the equilibrium error, plain numpy

@@ -88,7 +88,6 @@ def test_a_method_that_is_not_installed_is_reported_not_crashed(monkeypatch):
 def test_simultaneous_methods_through_the_api_agree_with_staggered_on_a_dome(method):
     """A spherical dome on its rim stands as it is (``check`` says so), so every method must
     return a network in equilibrium that is the reference itself, up to solver tolerance."""
-    pytest.importorskip("casadi")
     scene = make_shape("dome", n_vertices=100)
     assert api.check(scene).self_supporting
     r_s = api.solve(scene, method="staggered")

@@ -24,7 +24,6 @@ pytestmark = [
     pytest.mark.skipif(not Path(DRIVER).exists(), reason="chromedriver is not installed (Debian package "
                        "'chromium-driver'; .ci/run installs it)"),
 ]
-selenium = pytest.importorskip("selenium")
 
 
 @pytest.fixture()

@@ -16,9 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("starlette")
-pytest.importorskip("httpx")
-
 import warnings  # noqa: E402
 
 with warnings.catch_warnings():  # starlette 1.x prefers "httpx2" for its test client; httpx works

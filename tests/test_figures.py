@@ -10,7 +10,6 @@ import json
 import numpy as np
 import pytest
 
-pytest.importorskip("matplotlib")
 import matplotlib.image as mpimg  # noqa: E402
 
 from selfsupport.errors import InputError  # noqa: E402

@@ -20,7 +20,7 @@ from selfsupport.io.axes import UP_AXES, to_file, to_ours
 from selfsupport.mesh import PolyMesh
 from selfsupport.result import Network, SolveResult
 from selfsupport.scene import Scene
-from tests.conftest import SHARED, independent_check, requires_checker
+from tests.conftest import SHARED, independent_check, load_factor, requires_checker
 
 SCENES = SHARED / "paper-scenes" / "scenes"
 
@@ -637,7 +637,7 @@ def test_paper_structural_obj_with_supports_file():
 @pytest.mark.skipif(not (SCENES / "cyl2.sss").exists(), reason="shared paper scenes absent")
 def test_reading_is_fast():
     best = min(_timed(read_scene, SCENES / "cyl2.sss") for _ in range(3))
-    assert best < 0.2
+    assert best < 0.2 * load_factor()  # a guard against a parser gone quadratic, not a benchmark
 
 
 def _timed(f, *a) -> float:

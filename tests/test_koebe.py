@@ -23,8 +23,9 @@ from selfsupport.io import write_mesh, write_network
 from selfsupport.mesh import PolyMesh
 from selfsupport.result import Network
 
-CHECKER = Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_network.py"
-needs_checker = pytest.mark.skipif(not CHECKER.is_file(), reason="the shared checker is not there")
+from .conftest import CHECKER, requires_checker
+
+needs_checker = requires_checker
 TOL = 1e-12
 
 

@@ -20,9 +20,11 @@ from selfsupport.methods import weightfit
 from selfsupport.methods.deadline import DeadlineReached, finish_reserve, out_of_time
 from selfsupport.shapes import make_shape
 
-#: The bound the issue sets on a run with a time limit T: it ends within 10% + 1 s of T.
+from .conftest import load_factor, time_limit_bound
+
 def _bound(limit: float) -> float:
-    return 1.1 * limit + 1.0
+    """A run with time limit T ends within 10% + 1 s of T (stretched by the machine's load)."""
+    return time_limit_bound(limit)
 
 
 @pytest.fixture
@@ -148,7 +150,7 @@ def test_ipopt_fit_stops_inside_its_iterations():
 def test_absurd_built_in_shapes_are_refused_up_front(capsys):
     t0 = time.perf_counter()
     code = cli.main(["solve", "shape:dome:1000000000", "--out", "/nonexistent-dir/x.json"])
-    assert time.perf_counter() - t0 < 5.0  # nothing of that size was allocated (it was killed at 21 GB)
+    assert time.perf_counter() - t0 < 5.0 * load_factor()  # nothing of that size was allocated (it was killed at 21 GB)
     err = capsys.readouterr().err.strip().splitlines()
     assert code == cli.EXIT_CODES["input"] and len(err) == 1
     assert "needs about" in err[0] and "GiB" in err[0] and "--max-memory or a coarser mesh" in err[0]
@@ -186,7 +188,7 @@ def test_a_subdivision_beyond_the_memory_is_refused_before_it_is_built(monkeypat
     t0 = time.perf_counter()
     code = cli.main(["solve", "shape:dome:200", "--subdivide", "10", "--out", str(out), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert time.perf_counter() - t0 < 5.0
+    assert time.perf_counter() - t0 < 5.0 * load_factor()
     assert code == cli.EXIT_CODES["input"] and len(err) == 1 and not out.exists()
     n = subdivision.subdivided_vertex_count(make_shape("dome", n_vertices=200).mesh, 10)
     assert f"a multilevel solve of {n:,} vertices" in err[0] and "--max-memory or a coarser mesh" in err[0]

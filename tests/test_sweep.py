@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from selfsupport.errors import InputError
@@ -25,8 +26,6 @@ from selfsupport.sweep.runner import STORE_NAME, plan_runs
 from selfsupport.sweep.store import COLUMN_NAMES, ResultStore
 from tests.conftest import SHARED
 
-pd = pytest.importorskip("pandas")
-pytest.importorskip("distributed")
 
 # Two shapes that the staggered method solves to round-off in well under a second each.
 SHAPES = ['"shape:dome?n_vertices=200"', '"shape:cross_vault?n_vertices=200"']
@@ -295,7 +294,7 @@ def _rows(db: Path) -> int:
 
 
 def test_sigkill_mid_sweep_then_resume_loses_and_repeats_nothing(tmp_path):
-    psutil = pytest.importorskip("psutil")
+    import psutil
     sweep = tmp_path / "sweep.toml"
     # 3 shapes x 4 densities = 12 runs of ~0.2-1 s on 2 workers
     sweep.write_text(sweep_text(scenes=SHAPES + ['"shape:barrel_vault?n_vertices=200"'],

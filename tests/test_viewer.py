@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("plotly")
 
 from selfsupport.errors import InputError  # noqa: E402
 from selfsupport.evidence import residuals  # noqa: E402

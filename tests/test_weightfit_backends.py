@@ -116,7 +116,7 @@ def _nlopt_exceptions():
     the SWIG classes of nlopt ≥ 2.8 (``nlopt.runtime_error`` — NLOPT_FAILURE, what L-BFGS raised on
     the structural scene's Step 2 — derives from ``nlopt.exception``, *not* ``RuntimeError``), its
     RoundoffLimited / ForcedStop, and the builtins of older wrappers."""
-    nlopt = pytest.importorskip("nlopt")
+    import nlopt
     out = {"RuntimeError": lambda: RuntimeError("nlopt failure"), "ValueError": lambda: ValueError("nlopt invalid argument"),
            "MemoryError": lambda: MemoryError(), "RoundoffLimited": lambda: nlopt.RoundoffLimited(),
            "ForcedStop": lambda: nlopt.ForcedStop()}
@@ -189,7 +189,7 @@ def test_nlopt_fit_that_raises_returns_its_best_point_labelled(exc, monkeypatch)
 def test_nlopt_fit_that_raises_at_the_optimum_is_optimal(monkeypatch):
     """A failure raised once the optimum is reached (L-BFGS's line search giving up on a flat
     objective) leaves a point that passes the first-order conditions: that is "optimal"."""
-    nlopt = pytest.importorskip("nlopt")
+    import nlopt
     P = box_ls(*PROBLEMS["tall-prox"])
     exc = getattr(nlopt, "runtime_error", RuntimeError)
     failing_optimize(monkeypatch, lambda: exc("nlopt failure"), evaluations=20000)
@@ -200,7 +200,7 @@ def test_nlopt_fit_that_raises_at_the_optimum_is_optimal(monkeypatch):
 def test_staggered_solve_survives_nlopt_failures_in_step_2(monkeypatch, tmp_path, capsys):
     """End to end through the CLI on a generated dome: the first three Step-2 fits raise nlopt's
     runtime_error after a few evaluations; the solve carries on to a network in equilibrium."""
-    nlopt = pytest.importorskip("nlopt")
+    import nlopt
     from selfsupport import cli
     from selfsupport.io import write_mesh
     from selfsupport.shapes import make_shape
