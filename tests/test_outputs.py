@@ -190,3 +190,91 @@ def test_the_cli_restores_the_sigterm_handler_it_installed(tmp_path, monkeypatch
     cli.main(["solve", "shape:dome:100", "--out", str(tmp_path / "n.json")])
     assert seen and seen[0] not in (signal.SIG_DFL, before)
     assert signal.getsignal(signal.SIGTERM) == before
+
+
+# ---------------------------------------------------------------------------------- edit --out DIR
+EDIT_START = """
+[start]
+scene = "shape:barrel_vault:150"
+"""
+RAISE = """
+[[edit]]
+op = "raise"
+select = {{ nearest = [{x}, 0.5], relative = true }}
+by = 0.02
+"""
+
+
+def _script(tmp_path: Path, name: str, n_edits: int) -> Path:
+    p = tmp_path / name
+    p.write_text(EDIT_START + "".join(RAISE.format(x=0.3 + 0.1 * k) for k in range(n_edits)))
+    return p
+
+
+def _manifest(folder: Path) -> dict:
+    return json.loads((folder / "manifest.json").read_text())
+
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def test_edit_writes_a_manifest_naming_the_run_and_its_stages(tmp_path):
+    script = _script(tmp_path, "three.toml", 2)
+    out = tmp_path / "run"
+    assert cli.main(["edit", str(script), "--out", str(out), "--no-figures"]) == 0
+    m = _manifest(out)
+    assert m["script"] == str(script) and m["script_sha256"] == _sha(script)
+    assert [s["index"] for s in m["stages"]] == [0, 1, 2] and m["complete"] is True
+    assert [s["edits"] for s in m["stages"]] == [[], ["raise"], ["raise"]]
+    written = {n for s in m["stages"] for n in s["files"]}
+    assert written == {"stage-00.json", "stage-01.json", "stage-02.json"}
+    assert sorted(os.listdir(out)) == sorted(written | {"manifest.json"})
+    for s in m["stages"]:
+        for name, digest in s["files"].items():
+            assert _sha(out / name) == digest
+            assert json.loads((out / name).read_text())["stage"]["index"] == s["index"]
+
+
+def test_edit_refuses_a_folder_that_is_not_empty_without_force(tmp_path, capsys, monkeypatch):
+    import selfsupport.design.script as script_mod
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    monkeypatch.setattr(script_mod, "replay", lambda *a, **k: pytest.fail("replayed into a used folder"))
+    rc = cli.main(["edit", str(_script(tmp_path, "s.toml", 1)), "--out", str(out), "--no-figures"])
+    assert_one_line_error(capsys.readouterr().err, rc, 2, needle="--force")
+    assert os.listdir(out) == ["notes.txt"] and (out / "notes.txt").read_text() == "mine"
+
+
+def test_edit_force_replaces_only_the_files_the_earlier_run_wrote(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["edit", str(_script(tmp_path, "long.toml", 3)), "--out", str(out), "--no-figures"]) == 0
+    (out / "notes.txt").write_text("mine")
+    edited = out / "stage-03.json"  # a stage file changed by the user after the run: no longer the program's
+    edited.write_text(edited.read_text().replace('"stage"', '"stage" ', 1))
+    capsys.readouterr()
+    short = _script(tmp_path, "short.toml", 1)
+    assert cli.main(["edit", str(short), "--out", str(out), "--no-figures", "--force"]) == 0
+    err = capsys.readouterr().err
+    # the earlier run's untouched stage files are gone, the user's files stay (and are pointed out)
+    assert sorted(os.listdir(out)) == ["manifest.json", "notes.txt", "stage-00.json", "stage-01.json",
+                                       "stage-03.json"]
+    assert (out / "notes.txt").read_text() == "mine" and '"stage" ' in edited.read_text()
+    assert "stage-03.json" in err and "notes.txt" in err
+    m = _manifest(out)
+    assert m["script_sha256"] == _sha(short)
+    assert [n for s in m["stages"] for n in s["files"]] == ["stage-00.json", "stage-01.json"]
+
+
+def test_edit_force_never_writes_over_a_file_it_did_not_write(tmp_path, capsys, monkeypatch):
+    import selfsupport.design.script as script_mod
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "stage-00.json").write_text("the user's own")
+    monkeypatch.setattr(script_mod, "replay", lambda *a, **k: pytest.fail("replayed over a foreign file"))
+    rc = cli.main(["edit", str(_script(tmp_path, "s.toml", 1)), "--out", str(out), "--no-figures", "--force"])
+    assert_one_line_error(capsys.readouterr().err, rc, 2, needle="stage-00.json")
+    assert os.listdir(out) == ["stage-00.json"] and (out / "stage-00.json").read_text() == "the user's own"
