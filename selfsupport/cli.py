@@ -12,7 +12,8 @@ written ``shape:NAME`` or ``shape:NAME:VERTICES`` (e.g. ``shape:pillar_vault:500
 Exit codes (:data:`EXIT_CODES`): 0 success (converged / self-supporting); 1 ``check`` found the
 surface is not self-supporting, or an unexpected internal error; 2 bad input or usage;
 3 solver backend unavailable; 4 no network in equilibrium (stalled, infeasible, failed);
-5 iteration or time limit reached; 130 interrupted (Ctrl-C). Every error is one line on
+5 iteration or time limit reached; 130 interrupted (Ctrl-C or SIGTERM, which stops a run as
+Ctrl-C does: files being written are cleaned up). Every error is one line on
 stderr, ``selfsupport: error: ...``; ``--debug`` shows the traceback instead.
 
 Adding a subcommand
@@ -30,22 +31,25 @@ Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import math
 import pkgutil
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from . import __version__
 from .errors import InputError, SelfSupportError
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
            "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
-           "positive_float", "positive_int", "summary_rows"]
+           "positive_float", "positive_int", "summary_rows", "sigterm_interrupts"]
 
 PROG = "selfsupport"
 
@@ -690,8 +694,36 @@ def _axis_values_joined(argv: list[str]) -> list[str]:
     return out
 
 
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """While inside, SIGTERM raises :class:`KeyboardInterrupt`, as Ctrl-C does.
+
+    SIGTERM's default action ends the process at once, so no ``finally`` runs and an atomic
+    write in progress leaves its temporary file behind; raised as an interrupt, the write's
+    cleanup runs and a solve stops with its best network, as on Ctrl-C. The previous handler is
+    restored on exit. Outside the main thread (where no handler can be set) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (the console script passes it to ``sys.exit``)."""
+    with sigterm_interrupts():
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = _axis_values_joined(list(sys.argv[1:] if argv is None else argv))
     debug = "--debug" in argv
     try:

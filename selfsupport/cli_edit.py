@@ -3,12 +3,17 @@
 ::
 
     selfsupport edit SCRIPT.toml [--scene FILE|shape:NAME[:N]] [--up AXIS] [--supports FILE]
-                     --out DIR [--cold] [--no-figures]
+                     --out DIR [--force] [--cold] [--no-figures]
 
 Replays an edit script (:mod:`selfsupport.design.script`): solves the starting scene, then
 applies the edits in order with a warm re-solve after each stage, and writes
 ``DIR/stage-NN.json`` (the network format, with ``stage``: its index, edits and timings) and
-``DIR/stage-NN.png`` (the network figure) per stage. Prints one line per stage.
+``DIR/stage-NN.png`` (the network figure) per stage, and ``DIR/manifest.json`` naming the run:
+the script, its SHA-256 and the stages in order with their files
+(:class:`~selfsupport.io.runfolder.RunFolder`). Prints one line per stage.
+
+DIR must be new or empty; ``--force`` replaces the files an earlier run wrote there (those its
+manifest names, unchanged since) and keeps every other file.
 
 Exit codes: 0 when every stage converged, 4 when some stage did not (its network is written
 anyway), 2 bad input.
@@ -16,10 +21,11 @@ anyway), 2 bad input.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
-from .cli import EXIT_CODES, Command, print_table
+from .cli import EXIT_CODES, Command, _err, print_table
 from .errors import InputError
 
 __all__ = ["COMMANDS", "add_edit_arguments", "run_edit"]
@@ -32,7 +38,11 @@ def add_edit_arguments(p: argparse.ArgumentParser) -> None:
                    help="starting scene file or shape:NAME[:N] (replaces the script's [start] scene)")
     p.add_argument("--up", default=None, metavar="AXIS", help="the scene file's vertical axis (default: the format's)")
     p.add_argument("--supports", default=None, metavar="boundary|FILE", help="supports for files without pins")
-    p.add_argument("--out", "-o", required=True, metavar="DIR", help="folder for stage-NN.json and stage-NN.png")
+    p.add_argument("--out", "-o", required=True, metavar="DIR",
+                   help="new or empty folder for stage-NN.json, stage-NN.png and manifest.json")
+    p.add_argument("--force", action="store_true",
+                   help="write into a folder that is not empty: the files an earlier run wrote there (named by its "
+                        "manifest.json) are replaced; any other file is kept")
     p.add_argument("--cold", action="store_true", help="solve every stage from scratch (no warm start)")
     p.add_argument("--no-figures", action="store_true", help="write the networks only")
 
@@ -41,7 +51,7 @@ def run_edit(args: argparse.Namespace) -> int:
     """Replay the script and write every stage (see the module docstring)."""
     from .design.script import EditScript, replay
     from .io import write_network
-    from .io.safety import check_output_dir
+    from .io.runfolder import MANIFEST, RunFolder, file_sha256
 
     script = EditScript.read(args.script)
     scene = None
@@ -54,11 +64,17 @@ def run_edit(args: argparse.Namespace) -> int:
         scene = load_scene(spec, supports=args.supports, up=args.up)
     out = Path(args.out)
     n_stages = 1 + sum(script.solve_after) + (1 if script.solve_after and not script.solve_after[-1] else 0)
-    names = [f"stage-{k:02d}.{ext}" for k in range(n_stages) for ext in ("json", "png")]
+    exts = ("json",) if args.no_figures else ("json", "png")
+    names = [f"stage-{k:02d}.{ext}" for k in range(n_stages) for ext in exts]
     ins = [("script", args.script)] + ([("scene", args.scene)] if args.scene and not args.scene.startswith("shape:")
                                        else [])
-    check_output_dir(out, files=names, inputs=ins)
-    out.mkdir(parents=True, exist_ok=True)
+    folder = RunFolder.prepare(out, names, force=args.force, inputs=ins,
+                               info={"command": "edit", "script": os.path.abspath(args.script),
+                                     "script_sha256": file_sha256(args.script)})
+    if folder.leftovers:
+        shown = ", ".join(folder.leftovers[:5]) + (", ..." if len(folder.leftovers) > 5 else "")
+        _err(f"warning: {out} also holds files this run did not write ({shown}); they were kept and are not "
+             f"part of it (see {MANIFEST})")
     rows: list[tuple[str, str]] = []
     worst = "converged"
 
@@ -70,6 +86,7 @@ def run_edit(args: argparse.Namespace) -> int:
                 "edit_seconds": stage.edit_seconds, "density": stage.design.density,
                 "thickness": stage.design.thickness, "w_max": stage.design.w_max}
         write_network(base.with_suffix(".json"), res, stage=info)
+        written = [base.with_suffix(".json").name]
         if not args.no_figures:
             from .figures.render import FigureInput, render
 
@@ -77,6 +94,8 @@ def run_edit(args: argparse.Namespace) -> int:
             render("network", FigureInput(res.network, title=f"stage {stage.index:02d}: {ops} "
                                                               f"({res.status}, {res.max_relative_error:.1e})"),
                    base.with_suffix(".png"))
+            written.append(base.with_suffix(".png").name)
+        folder.record({"index": stage.index, "edits": [e.op for e in stage.edits], "status": res.status}, written)
         if res.status != "converged":
             worst = res.status
         ops = "+".join(e.op for e in stage.edits) or "start"
@@ -87,6 +106,7 @@ def run_edit(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     replay(script, scene, on_stage=write, warm=False if args.cold else None)
+    folder.finish()
     rows.append(("total", f"{time.perf_counter() - t0:.2f} s"))
     print_table(f"edit {args.script} -> {out}", rows)
     return EXIT_CODES["ok"] if worst == "converged" else EXIT_CODES["not_converged"]

@@ -3,12 +3,15 @@
 The data goes to a temporary file in the target's directory (same file system, so the final
 ``os.replace`` is an atomic rename), is flushed and fsync'ed, then renamed over the target.
 If anything fails on the way — including an exception raised by a chunk generator while the
-content is still being produced — the temporary file is removed and an existing target is
-left untouched.
+content is still being produced, and a ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM through the
+CLI's handler) — the temporary file is removed and an existing target is left untouched. The
+temporary name, ``.NAME.HEX.tmp``, shortens ``NAME`` as needed to stay within the file system's
+``NAME_MAX``, so any name the file system takes can be written.
 
-What may be written is decided by :func:`selfsupport.io.safety.write_target`: a regular file or
-a new path; a symlink is written through to its target (the link stays a link); a directory,
-device, FIFO or socket is refused with an :class:`~selfsupport.errors.InputError`.
+What may be written is decided by :func:`selfsupport.io.safety.write_target`: a regular file the
+user may write or a new path; a symlink is written through to its target (the link stays a
+link); a directory, device, FIFO, socket or read-only file is refused with an
+:class:`~selfsupport.errors.InputError`.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from pathlib import Path
 from typing import Iterable
 
 from ..errors import InputError
+from .safety import fit_name, name_max, write_target
 
 __all__ = ["atomic_write_text", "atomic_write_bytes"]
 
@@ -51,8 +55,6 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes | Iterable[bytes]) -
 
 
 def _atomic_write(path: Path, chunks: Iterable[bytes]) -> None:
-    from .safety import write_target
-
     path = write_target(path)
     parent = path.parent
     try:
@@ -86,15 +88,16 @@ def _atomic_write(path: Path, chunks: Iterable[bytes]) -> None:
 
 
 def _create_temp(parent: Path, name: str, mode: int) -> tuple[int, Path]:
+    limit = name_max(parent)
     for _ in range(100):
-        tmp = parent / f".{name}.{secrets.token_hex(6)}.tmp"
+        tmp = parent / fit_name(f".{name}", f".{secrets.token_hex(6)}.tmp", limit)
         try:
             return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), mode), tmp
         except FileExistsError:
             continue
         except OSError as e:
             raise InputError(f"cannot write into {parent}: {e.strerror or e}; check the path and permissions") from e
-    raise InputError(f"cannot create a temporary file in {parent}; remove stale .{name}.*.tmp files")
+    raise InputError(f"cannot create a temporary file in {parent}; remove stale .{name[:20]}*.tmp files")
 
 
 def _fsync_dir(directory: Path) -> None:
