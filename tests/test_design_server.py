@@ -612,6 +612,11 @@ def test_a_long_edit_blocks_no_other_page_and_is_dropped_at_its_limit(served, mo
             err = _until(ws1, lambda m: m["type"] == "error" and m["what"] == "edit")
             assert "not done within 0.5 s" in err["message"] and "nothing changed" in err["message"], err
             assert not release.is_set()  # the answer came at the limit, not when the edit ended
+            # dropped edits still running count against the threads the server runs at once
+            srv.max_threads = 1
+            ws2.send_json({"type": "state"})
+            busy = _until(ws2, lambda m: m["type"] == "error")
+            assert "busy" in busy["message"], busy
             release.set()
             deadline = time.time() + 10
             while srv._threads and time.time() < deadline:
@@ -702,3 +707,13 @@ def test_a_restart_on_the_same_port_binds_at_once(tmp_path):
             if p.poll() is None:
                 p.kill()
                 p.wait()
+
+
+def test_a_frame_that_cannot_be_sent_is_not_kept(tmp_path):
+    """A worker message with a NaN is replaced by an error; it is not kept as the frame every new
+    page gets first."""
+    srv = DesignServer(log=open_session("shape:dome:60"), root=tmp_path, analysis=False)
+    srv._emit({"type": "frame", "seq": 3, "vertices": [float("nan")]})
+    assert srv.last_frame is None
+    srv._emit({"type": "frame", "seq": 4, "vertices": [1.0]})
+    assert srv.last_frame["seq"] == 4

@@ -516,25 +516,26 @@ def check_values(value: Any, what: str) -> None:
     what
         Names ``value`` in the message (e.g. ``"edit 'move'"``).
     """
-    stack: list[tuple[Any, str, int]] = [(value, what, 0)]
+    stack: list[tuple[Any, str, int]] = [(value, "", 0)]
     while stack:
-        v, where, depth = stack.pop()
+        v, path, depth = stack.pop()
+        where = f"{what}: {path}" if path else what
         if hasattr(v, "tolist") and not isinstance(v, (str, bytes)):
             v = v.tolist()  # numpy arrays and scalars: their Python values
         if v is None or isinstance(v, (bool, str)):
             continue
         if isinstance(v, numbers.Integral):
             if not -2**63 <= int(v) < 2**63:
-                raise InputError(f"{where}: {v} is out of range; give an index or count that fits 64 bits")
+                raise InputError(f"{where} = {v} is out of range; give an index or count that fits 64 bits")
         elif isinstance(v, numbers.Real):
             if not math.isfinite(float(v)):
-                raise InputError(f"{where}: {v} is not a finite number; give a finite value")
+                raise InputError(f"{where} = {v} is not a finite number; give a finite value")
         elif isinstance(v, (Mapping, list, tuple)):
             if depth >= MAX_DEPTH:
                 raise InputError(f"{what}: values nested deeper than {MAX_DEPTH} levels; an edit is a flat table")
             items = v.items() if isinstance(v, Mapping) else enumerate(v)
             for k, x in items:
-                sub = f"{where}.{k}" if isinstance(v, Mapping) else f"{where}[{k}]"
+                sub = (f"{path}.{k}" if path else str(k)) if isinstance(v, Mapping) else f"{path}[{k}]"
                 stack.append((x, sub, depth + 1))
         else:
             raise InputError(f"{where}: a {type(v).__name__} is not a value an edit can hold")
