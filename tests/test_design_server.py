@@ -681,6 +681,7 @@ def test_sigterm_stops_the_server_during_a_long_edit(tmp_path):
         p.terminate()
         p.wait(timeout=15)
         assert time.monotonic() - t0 < 8
+        assert "Traceback" not in p.stderr.read()
     finally:
         if p.poll() is None:
             p.kill()

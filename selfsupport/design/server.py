@@ -307,8 +307,8 @@ class DesignServer:
                 exists.append(str(p.relative_to(root_r)))
         if not set(exists) <= set(overwrite):
             return {"type": "error", "what": "save", "seq": self.log.seq, "exists": exists,
-                    "message": f"save: {', '.join(exists)} already exists and was not written by this design "
-                               "session; confirm to replace it, or give another name"}
+                    "message": f"save: {', '.join(exists)} already exists (not written by this design session, "
+                               "or changed since); confirm to replace it, or give another name"}
         path.parent.mkdir(parents=True, exist_ok=True)
         if not path.parent.resolve().is_relative_to(self.root.resolve()):  # pragma: no cover - raced symlink
             raise InputError("refusing: the folder leads outside the working folder")
@@ -473,6 +473,8 @@ def create_app(server: DesignServer, token: str, *, port: int | None = None) -> 
                 for text in await server.answer(event.get("text", event.get("bytes"))):
                     q.put_nowait(text)
         except WebSocketDisconnect:
+            pass
+        except asyncio.CancelledError:  # the server stops (SIGTERM, Ctrl+C) while a message is answered
             pass
         finally:
             server.clients.discard(q)
