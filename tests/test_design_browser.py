@@ -115,6 +115,7 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     drv.get(url)
     f0 = _wait(drv, FRAME.format(seq=0), what="the first frame")
     assert f0["status"] == "converged"
+    assert "token" not in drv.current_url  # the cookie carries the session; the address bar shows no token
     _wait(drv, "return ssDesign.st.analysis && ssDesign.st.analysis.airy && !!document.getElementById('recip')._fullData",
           what="the Airy and reciprocal panels")
     shots = [_shot(drv, "1-start", tmp_path)]
@@ -179,8 +180,28 @@ def test_pin_drag_undo_save_reload(server, browser, tmp_path):
     assert np.allclose(R3, np.reshape(f0["reference"]["vertices"], (-1, 3))) and v in f3["supports"]
     shots.append(_shot(drv, "3-undone", tmp_path))
 
-    # save the edit script (name field, button)
+    # saving over a file the session did not write asks first: cancelled, the file stays; accepted, it is replaced
+    from selenium.webdriver.support import expected_conditions as EC
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    (root / "mine.toml").write_text("# the user's own\n")
     name = drv.find_element(By.ID, "save-name")
+    name.clear()
+    name.send_keys("mine")
+    for accept in (False, True):
+        drv.find_element(By.CSS_SELECTOR, "[data-save=script]").click()
+        alert = WebDriverWait(drv, 20).until(EC.alert_is_present())
+        assert "mine.toml" in alert.text
+        alert.accept() if accept else alert.dismiss()
+        if not accept:
+            _wait(drv, "return document.getElementById('error').textContent.startsWith('not saved')", what="not saved")
+            assert (root / "mine.toml").read_text() == "# the user's own\n"
+    _wait(drv, "return ssDesign.st.saved.length > 0", what="the confirmed save")
+    assert 'op = "pin"' in (root / "mine.toml").read_text()
+    assert all(e.startswith(("save:", "not saved")) for e in drv.execute_script("return ssDesign.st.errors"))
+    drv.execute_script("ssDesign.st.errors.length = 0; ssDesign.st.saved.length = 0")
+
+    # save the edit script (name field, button)
     name.clear()
     name.send_keys("session")
     drv.find_element(By.CSS_SELECTOR, "[data-save=script]").click()

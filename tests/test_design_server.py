@@ -469,3 +469,249 @@ def test_save_never_writes_over_the_file_the_session_was_opened_from(served):
         m = _until(ws, lambda m: m["type"] in ("saved", "error"))
     assert m["type"] == "error" and "opened from" in m["message"], m
     assert src.read_bytes() == before
+
+
+# ------------------------------------------------------------------------ robustness
+BAD_FRAMES = [  # (frame, what the error says)
+    ("{bad", "not valid JSON"),
+    ('{"type": "probe", "vertex": 1e400}', "not a finite number"),
+    (b"\x00\x01binary", "not binary frames"),
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ('{"type": "edit", "edit": ' + '{"a": ' * 200 + "1" + "}" * 200 + "}", "nested deeper"),
+    ('{"type": "edit", "edit": {"op": "move", "select": {"vertices": [60]}, "offset": [NaN, 0, 0]}}',
+     "not a finite number"),
+    ('{"type": "edit", "edit": {"op": "move", "select": {"vertices": [60]}, "offset": [0, 0, Infinity]}}',
+     "not a finite number"),
+    ('{"type": "edit", "edit": {"op": "pin", "select": {"vertices": [100000000000000000000000000000]}}}',
+     "out of range"),
+    ('{"type": "edit", "edit": {"op": "subdivide", "levels": 1e400}}', "not a finite number"),
+    ('{"type": "edit", "edit": [1, 2]}', "must be an object"),
+    ('{"type": "edit", "edit": {"op": "pin", "select": {"vertices": [3]}}, "drag": [1]}', "drag"),
+    ('{"type": "probe", "vertex": "3"}', "must be an integer"),
+    ('{"type": "save", "what": "script", "path": "x", "overwrite": "x.toml"}', "overwrite"),
+]
+
+
+@pytest.mark.parametrize("frame, needle", BAD_FRAMES, ids=[str(k) for k in range(len(BAD_FRAMES))])
+def test_a_bad_message_gets_an_error_and_the_connection_stays(served, frame, needle):
+    """Any frame (even the first one) is answered; the log is unchanged and the same connection
+    goes on (the next message gets its state)."""
+    client, token, srv, _ = served
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        (ws.send_bytes if isinstance(frame, bytes) else ws.send_text)(frame)
+        err = _until(ws, lambda m: m["type"] in ("error", "state") and m.get("seq") is not None and m["type"] == "error")
+        assert needle in err["message"] and "\n" not in err["message"], err
+        ws.send_json({"type": "state"})
+        st = _until(ws, lambda m: m["type"] == "state")
+    assert st["seq"] == 0 and st["n_edits"] == 0 and srv.log.seq == 0 and not srv.log.edits
+
+
+def test_a_nan_edit_never_reaches_the_log_and_later_connections_work(served):
+    """The edit is refused with one message; the log stays sendable, so a new page (a reload)
+    gets its state and frame."""
+    client, token, srv, _ = served
+    nan_edit = '{"type": "edit", "edit": {"op": "move", "select": {"vertices": [60]}, "offset": [NaN, 0, 0]}}'
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        _until(ws, lambda m: m["type"] == "frame")
+        ws.send_text(nan_edit)
+        err = _until(ws, lambda m: m["type"] == "error")
+        assert err["what"] == "edit" and "offset" in err["message"] and "finite" in err["message"], err
+    assert not srv.log.edits and srv.log.seq == 0
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        st, f = _until_all(ws, lambda m: m["type"] == "state", lambda m: m["type"] == "frame")
+        assert st["n_edits"] == 0 and f["seq"] == 0
+
+
+def test_a_script_with_a_nan_edit_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
+    """A saved session (edit script) holding a non-finite value does not open (TOML writes them as nan/inf)."""
+    from selfsupport import cli
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "bad.toml").write_text('[start]\nscene = "shape:dome:60"\n\n[[edit]]\nop = "move"\n'
+                                       'select = { vertices = [10] }\noffset = [nan, 0.0, 0.0]\n')
+    rc = cli.main(["design", "bad.toml", "--no-browser"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "offset[0]" in err[0] and "not a finite number" in err[0], err
+
+
+# ------------------------------------------------------------------------------ saving
+def _save(ws, what, path, **kw):
+    ws.send_json({"type": "save", "what": what, "path": path, **kw})
+    return _until(ws, lambda m: m["type"] in ("saved", "error") and (m["type"] == "saved" or m["what"] == "save"))
+
+
+def test_save_never_replaces_a_file_the_session_did_not_write(served):
+    client, token, srv, root = served
+    mine = {"mynet.json": b'{"user": "data"}', "pyproject.toml": b"[project]\nname = 'x'\n",
+            "fig-airy.png": b"not the session's"}
+    for name, data in mine.items():
+        (root / name).write_bytes(data)
+    with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:
+        _until(ws, lambda m: m["type"] == "frame")
+        m = _save(ws, "network", "mynet.json")
+        assert m["type"] == "error" and m["exists"] == ["mynet.json"] and "mynet.json" in m["message"], m
+        # a name without its suffix does not pick the existing file silently either
+        m = _save(ws, "script", "pyproject")
+        assert m["type"] == "error" and m["exists"] == ["pyproject.toml"], m
+        # the figures: one of the three exists, so none is written
+        m = _save(ws, "figures", "fig")
+        assert m["type"] == "error" and m["exists"] == ["fig-airy.png"], m
+        assert not (root / "fig-network.png").exists()
+        # an overwrite that names another file does not count
+        m = _save(ws, "network", "mynet", overwrite=["other.json"])
+        assert m["type"] == "error", m
+        for name, data in mine.items():
+            assert (root / name).read_bytes() == data, name
+        # the session's own file: written again without asking, unless someone changed it since
+        assert _save(ws, "script", "s")["type"] == "saved"
+        ws.send_json({"type": "edit", "edit": {"op": "material", "density": 2500.0}})
+        _until_all(ws, lambda m: m["type"] == "state" and m["seq"] == 1, lambda m: m["type"] == "frame" and m["seq"] == 1)
+        assert _save(ws, "script", "s")["type"] == "saved"
+        assert "2500.0" in (root / "s.toml").read_text()
+        (root / "s.toml").write_text("# edited by the user\n")
+        m = _save(ws, "script", "s")
+        assert m["type"] == "error" and m["exists"] == ["s.toml"], m
+        assert (root / "s.toml").read_text() == "# edited by the user\n"
+        # the page asked and the user agreed: the overwrite names the file
+        m = _save(ws, "network", "mynet", overwrite=["mynet.json"])
+        assert m == {"type": "saved", "what": "network", "paths": ["mynet.json"]}, m
+    assert json.loads((root / "mynet.json").read_text())["vertices"]
+
+
+# ------------------------------------------------------------------ long edits, stopping
+def test_a_long_edit_blocks_no_other_page_and_is_dropped_at_its_limit(served, monkeypatch):
+    """One page's edit runs past the server's edit time limit: another page's edit is answered
+    meanwhile, the long one gets an error at the limit, and it never enters the log."""
+    from selfsupport.design import edits as edits_mod
+
+    client, token, srv, _ = served
+    srv.edit_time_limit = 0.5
+    started, release = threading.Event(), threading.Event()
+
+    def slow_apply(self, design):
+        started.set()
+        release.wait(20)
+        return design
+
+    monkeypatch.setattr(edits_mod.Subdivide, "apply", slow_apply)
+    try:
+        with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws1, \
+                client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws2:
+            f0 = _until(ws1, lambda m: m["type"] == "frame")
+            _until(ws2, lambda m: m["type"] == "frame")
+            ws1.send_json({"type": "edit", "edit": {"op": "subdivide", "levels": 1}})
+            assert started.wait(10)
+            t0 = time.perf_counter()
+            v = int(np.setdiff1d(np.arange(f0["n_vertices"]), f0["supports"])[2])
+            ws2.send_json({"type": "edit", "edit": {"op": "pin", "select": {"vertices": [v]}}})
+            st = _until(ws2, lambda m: m["type"] == "state")
+            assert st["n_edits"] == 1 and time.perf_counter() - t0 < 5 and not release.is_set()
+            err = _until(ws1, lambda m: m["type"] == "error" and m["what"] == "edit")
+            assert "not done within 0.5 s" in err["message"] and "nothing changed" in err["message"], err
+            assert not release.is_set()  # the answer came at the limit, not when the edit ended
+            # dropped edits still running count against the threads the server runs at once
+            srv.max_threads = 1
+            ws2.send_json({"type": "state"})
+            busy = _until(ws2, lambda m: m["type"] == "error")
+            assert "busy" in busy["message"], busy
+            release.set()
+            deadline = time.time() + 10
+            while srv._threads and time.time() < deadline:
+                time.sleep(0.05)
+            ws1.send_json({"type": "state"})
+            st = _until(ws1, lambda m: m["type"] == "state")
+        assert st["n_edits"] == 1 and [e.op for e in srv.log.edits] == ["pin"]
+    finally:
+        release.set()
+
+
+_SLOW_LAUNCHER = """
+import dataclasses, sys, time
+from typing import ClassVar
+from selfsupport.design import edits
+
+@dataclasses.dataclass(frozen=True)
+class Slow(edits.Edit):
+    '''An edit that keeps a CPU busy (in Python, holding the GIL by turns) for a minute.'''
+    op: ClassVar[str] = "slow"
+
+    def apply(self, design):
+        end = time.perf_counter() + 60
+        while time.perf_counter() < end:
+            pass
+        return design
+
+edits.EDITS["slow"] = Slow
+from selfsupport.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _start_design(cwd: Path, *args: str, launcher: Path | None = None) -> tuple[subprocess.Popen, str]:
+    """``selfsupport design shape:dome:60 --no-browser ARGS`` in a subprocess, and the URL it prints."""
+    head = [str(launcher)] if launcher else ["-m", "selfsupport"]
+    p = subprocess.Popen([sys.executable, *head, "design", "shape:dome:60", "--no-browser", *args], cwd=cwd,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return p, p.stdout.readline().strip()
+
+
+def test_sigterm_stops_the_server_during_a_long_edit(tmp_path):
+    import websockets
+
+    launcher = tmp_path / "launch.py"
+    launcher.write_text(_SLOW_LAUNCHER)
+    p, url = _start_design(tmp_path, launcher=launcher)
+    try:
+        m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/\?token=(\S+)", url)
+        assert m, (url, p.stderr.read() if p.poll() is not None else "")
+        port, token = m.groups()
+
+        async def send_slow_edit() -> None:
+            async with websockets.connect(f"ws://127.0.0.1:{port}/ws?token={token}",
+                                          origin=f"http://127.0.0.1:{port}", max_size=2**26) as ws:
+                await ws.send(json.dumps({"type": "edit", "edit": {"op": "slow"}}))
+                await asyncio.sleep(0.5)
+
+        asyncio.run(send_slow_edit())
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        p.terminate()
+        p.wait(timeout=15)
+        assert time.monotonic() - t0 < 8
+        assert "Traceback" not in p.stderr.read()
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
+def test_a_restart_on_the_same_port_binds_at_once(tmp_path):
+    """Stopped while a connection was open (the server's side lingers in TIME_WAIT), the server
+    starts again on the same --port at once."""
+    import httpx
+
+    free = bind_loopback(0)
+    port = free.getsockname()[1]
+    free.close()
+    for run in range(2):
+        p, url = _start_design(tmp_path, "--port", str(port))
+        try:
+            assert url.startswith(f"http://127.0.0.1:{port}/"), (run, url, p.stderr.read() if p.poll() is not None else "")
+            with httpx.Client(timeout=10) as c:  # a kept-alive connection the server closes when it stops
+                assert c.get(url).status_code == 200
+                p.terminate()
+                p.wait(timeout=15)
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def test_a_frame_that_cannot_be_sent_is_not_kept(tmp_path):
+    """A worker message with a NaN is replaced by an error; it is not kept as the frame every new
+    page gets first."""
+    srv = DesignServer(log=open_session("shape:dome:60"), root=tmp_path, analysis=False)
+    srv._emit({"type": "frame", "seq": 3, "vertices": [float("nan")]})
+    assert srv.last_frame is None
+    srv._emit({"type": "frame", "seq": 4, "vertices": [1.0]})
+    assert srv.last_frame["seq"] == 4

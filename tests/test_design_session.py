@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from selfsupport.design.edits import Design, Material, Move, Objective, Pin, Select, Unpin
+from selfsupport.design.edits import Design, Load, Material, Move, Objective, Pin, Select, Unpin
 from selfsupport.design.script import EditScript
 from selfsupport.design.session import SOLVE_DEFAULTS, EditLog, SolveWorker
 from selfsupport.errors import InputError
@@ -283,3 +283,62 @@ def test_an_analysis_waits_for_the_edits_to_pause_and_a_newer_edit_drops_it(dome
         assert len(an["airy"]["phi"]) == dome.mesh.n_vertices
     finally:
         worker.close()
+
+
+@pytest.mark.parametrize("edit", [
+    Move(select=Select(vertices=(5,)), offset=(float("nan"), 0.0, 0.0)),
+    Load(select=Select(vertices=(5,)), extra_mass=float("inf")),
+    Move(select=Select(vertices=(5,), relative=True), offset=(0.0, 0.0, 1e308)),  # finite, times the diagonal: inf
+], ids=["nan-offset", "inf-mass", "overflowing-offset"])
+def test_a_non_finite_edit_never_enters_the_log(dome, edit):
+    log = EditLog(Design(dome))
+    with pytest.raises(InputError, match="finite|infinite"):
+        log.apply(edit)
+    assert log.seq == 0 and not log.edits
+    # an edit script holding it does not open either (the log of a saved session)
+    script = EditScript(edits=(edit,), solve_after=(True,))
+    with pytest.raises(InputError):
+        EditLog.from_script(script, Design(dome))
+
+
+def test_an_edit_past_its_deadline_changes_nothing(dome):
+    log = EditLog(Design(dome))
+    with pytest.raises(InputError, match="time limit"):
+        log.apply(Pin(select=Select(vertices=(_free(dome),))), deadline=time.perf_counter() - 1.0)
+    assert log.seq == 0 and not log.edits
+
+
+def test_a_long_edit_does_not_hold_up_other_edits(dome, monkeypatch):
+    """While one edit is computed, another goes through; the long one, made on the design before,
+    is refused when it ends and changes nothing."""
+    from selfsupport.design import edits as edits_mod
+
+    started, release = threading.Event(), threading.Event()
+
+    def slow_apply(self, design):
+        started.set()
+        release.wait(20)
+        return design
+
+    monkeypatch.setattr(edits_mod.Subdivide, "apply", slow_apply)
+    log = EditLog(Design(dome))
+    out: dict = {}
+
+    def run():
+        try:
+            out["seq"] = log.apply(edits_mod.Subdivide(levels=1))
+        except InputError as e:
+            out["error"] = str(e)
+
+    th = threading.Thread(target=run)
+    th.start()
+    try:
+        assert started.wait(10)
+        t0 = time.perf_counter()
+        log.apply(Pin(select=Select(vertices=(_free(dome),))))
+        assert time.perf_counter() - t0 < 5 and not release.is_set()  # it did not wait for the long edit
+    finally:
+        release.set()
+        th.join(20)
+    assert "changed while it was computed" in out.get("error", ""), out
+    assert [e.op for e in log.edits] == ["pin"] and log.seq == 1

@@ -37,6 +37,8 @@ Example
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Mapping
 
@@ -49,7 +51,8 @@ from ..scene import Scene
 from .laplacian import MODES, LaplacianEditor, ring_region
 
 __all__ = ["Design", "Select", "Edit", "EDITS", "Move", "Raise", "Lower", "Pillar", "Pin", "Unpin", "Delete",
-           "Cut", "Material", "Objective", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict"]
+           "Cut", "Material", "Objective", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict",
+           "check_values"]
 
 
 # ------------------------------------------------------------------------------ state
@@ -483,11 +486,59 @@ EDITS: dict[str, type[Edit]] = {c.op: c for c in (Move, Raise, Lower, Pillar, Pi
 
 
 def edit_from_dict(d: Mapping[str, Any]) -> Edit:
-    """An edit from its script table (``op`` names the class in :data:`EDITS`)."""
+    """An edit from its script table (``op`` names the class in :data:`EDITS`); its values are
+    checked by :func:`check_values` first."""
     op = d.get("op")
-    if op not in EDITS:
+    if not isinstance(op, str) or op not in EDITS:
         raise InputError(f"unknown edit op {op!r}; choose one of {', '.join(EDITS)}")
+    check_values(d, f"edit {op!r}")
     return EDITS[op].from_dict(d)
+
+
+#: Deepest nesting :func:`check_values` accepts (a design message's selection box is 5 deep).
+MAX_DEPTH = 12
+
+
+def check_values(value: Any, what: str) -> None:
+    """Raise :class:`InputError` unless ``value`` is plain data an edit may hold: finite numbers,
+    integers within 64 bits, strings, booleans, null, lists and tables nested at most
+    :data:`MAX_DEPTH` deep.
+
+    The one check of an edit's values, for edit scripts and the design page's messages alike
+    (:func:`edit_from_dict`) and again before an edit enters the session's log
+    (:meth:`selfsupport.design.session.EditLog.apply`): a NaN or an infinite offset would make the
+    design's vertices NaN, and the log's JSON form (strict JSON has no NaN) unsendable.
+
+    Parameters
+    ----------
+    value
+        The data to check (an edit's table, a whole message).
+    what
+        Names ``value`` in the message (e.g. ``"edit 'move'"``).
+    """
+    stack: list[tuple[Any, str, int]] = [(value, "", 0)]
+    while stack:
+        v, path, depth = stack.pop()
+        where = f"{what}: {path}" if path else what
+        if hasattr(v, "tolist") and not isinstance(v, (str, bytes)):
+            v = v.tolist()  # numpy arrays and scalars: their Python values
+        if v is None or isinstance(v, (bool, str)):
+            continue
+        if isinstance(v, numbers.Integral):
+            if not -2**63 <= int(v) < 2**63:
+                raise InputError(f"{where} = {v} is out of range; give an index or count that fits 64 bits")
+        elif isinstance(v, numbers.Real):
+            if not math.isfinite(float(v)):
+                raise InputError(f"{where} = {v} is not a finite number; give a finite value")
+        elif isinstance(v, (Mapping, list, tuple)):
+            if depth >= MAX_DEPTH:
+                raise InputError(f"{what}: values nested deeper than {MAX_DEPTH} levels; an edit is a flat table")
+            items = v.items() if isinstance(v, Mapping) else enumerate(v)
+            for k, x in items:
+                sub = (f"{path}.{k}" if path else str(k)) if isinstance(v, Mapping) else f"{path}[{k}]"
+                stack.append((x, sub, depth + 1))
+        else:
+            raise InputError(f"{where}: a {type(v).__name__} is not a value an edit can hold")
 
 
 # --------------------------------------------------------------------- topology helpers

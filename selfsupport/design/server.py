@@ -24,21 +24,35 @@ Messages from the page (JSON objects with a ``type``)::
     drag_end  {}                                       the drag is over
     undo / redo / state
     probe     {"vertex": i}                            max load at a vertex (stability)
-    save      {"what": "script"|"scene"|"network"|"figures", "path": "relative/name"}
+    save      {"what": "script"|"scene"|"network"|"figures", "path": "relative/name",
+               "overwrite": ["name", ...]}             (optional) existing files the user agreed to replace
+
+Every message is checked before it acts (:meth:`DesignServer.answer`): a message that is not
+a JSON object, a binary frame, a NaN or infinite number, an out-of-range index or a bad edit
+is answered with ``{"type": "error", ...}`` and changes nothing; the connection stays. Edits run
+in threads of their own, off the event loop, and one that runs past
+:attr:`DesignServer.edit_time_limit` is answered with an error and dropped (the other pages go
+on meanwhile).
+
+Save writes a new file, or one this session wrote itself and nobody changed since; any other
+existing file is replaced only when the message's ``overwrite`` names it (the page asks first:
+the error reply lists the files in ``exists``).
 """
 from __future__ import annotations
 
 import asyncio
 import hmac
 import json
+import os
 import secrets
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 from ..errors import InputError, SelfSupportError
-from .edits import edit_from_dict
+from .edits import check_values, edit_from_dict
 from .session import EditLog, SolveWorker
 
 __all__ = ["DesignServer", "create_app", "bind_loopback", "serve", "new_token", "safe_path", "STATIC_FILES", "COOKIE"]
@@ -86,6 +100,46 @@ def safe_path(root: Path, name: str, suffix: str) -> Path:
     return full
 
 
+def parse_message(data: str | bytes | None) -> dict:
+    """A page's message (the text of a WebSocket frame) as a dict; :class:`InputError` for a
+    binary frame, text that is not JSON, JSON nested too deeply or not an object."""
+    if not isinstance(data, str):
+        raise InputError("the server takes text frames holding JSON objects, not binary frames")
+    try:
+        msg = json.loads(data)
+    except json.JSONDecodeError as e:
+        raise InputError(f"the message is not valid JSON ({e.msg}, column {e.colno}); send a JSON object "
+                         "with a 'type'") from None
+    except RecursionError:
+        raise InputError("the message is nested too deeply; send a flat JSON object with a 'type'") from None
+    if not isinstance(msg, dict):
+        raise InputError("a message is a JSON object with a 'type'")
+    return msg
+
+
+def _integer(msg: Mapping[str, Any], key: str, what: str) -> int:
+    v = msg.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v):
+        raise InputError(f"{what}: '{key}' must be an integer, got {v!r}")
+    return int(v)
+
+
+def _number(msg: Mapping[str, Any], key: str, what: str, default: float) -> float:
+    v = msg.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"{what}: '{key}' must be a number, got {v!r}")
+    return float(v)
+
+
+def _stamp(path: Path) -> tuple | None:
+    """What identifies a file's content as the one written: device, inode, mtime, size."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size)
+
+
 @dataclass
 class DesignServer:
     """The session state shared by the app's connections: the log, the worker, the pages."""
@@ -99,7 +153,11 @@ class DesignServer:
     last_analysis: dict | None = None
     worker: SolveWorker | None = None
     inputs: tuple = ()  # files the session was opened from: never written over
+    edit_time_limit: float = 30.0  # seconds an edit may take before it is dropped
+    max_threads: int = 8  # messages being answered at once (edits past their limit still count)
+    written: dict = field(default_factory=dict)  # resolved path -> _stamp of the files save wrote
     _t_received: float = 0.0
+    _threads: set = field(default_factory=set)  # the threads answering messages now
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
@@ -107,21 +165,29 @@ class DesignServer:
             self.worker = SolveWorker(self._emit, options=self.log.solve, analysis=self.analysis)
             self.worker.submit(self.log.seq, self.log.design)
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 30.0) -> None:
+        """Stop the solver (waiting at most ``timeout`` s for each of its threads)."""
         if self.worker is not None:
-            self.worker.close()
+            self.worker.close(timeout)
             self.worker = None
 
     # -- from the worker thread ------------------------------------------------------------
     def _emit(self, msg: dict) -> None:
+        try:
+            text = json.dumps(msg, allow_nan=False)
+        except (TypeError, ValueError) as e:  # never keep (and resend to every page) an unsendable frame
+            msg = {"type": "error", "seq": msg.get("seq"), "what": msg.get("type"), "message": f"cannot send: {e}"}
+            text = json.dumps(msg)
         if msg["type"] == "frame":
             self.last_frame = msg
         elif msg["type"] == "analysis":
             self.last_analysis = msg
         loop = self.loop
         if loop is not None and not loop.is_closed():
-            text = json.dumps(msg, allow_nan=False)
-            loop.call_soon_threadsafe(self._broadcast_text, text)
+            try:
+                loop.call_soon_threadsafe(self._broadcast_text, text)
+            except RuntimeError:  # the loop closed meanwhile (shutting down)
+                pass
 
     def _broadcast_text(self, text: str) -> None:
         for q in list(self.clients):
@@ -134,15 +200,54 @@ class DesignServer:
                 "can_redo": log.can_redo, "edits": [e.to_dict() for e in log.edits[-50:]],
                 "solved_seq": self.worker.last_seq if self.worker else -1}
 
-    def handle(self, msg: Mapping[str, Any]) -> list[dict]:
-        """Act on one message from a page; the replies to send to that page."""
+    def error(self, msg: Any, e: BaseException) -> dict:
+        """The error reply to ``msg`` (a message, or ``None`` when it could not be read)."""
+        kind = msg.get("type") if isinstance(msg, Mapping) else None
+        text = str(e) if isinstance(e, SelfSupportError) else f"{type(e).__name__}: {e}"
+        return {"type": "error", "what": kind if isinstance(kind, str) else "message", "message": text,
+                "seq": self.log.seq}
+
+    async def answer(self, data: str | bytes | None) -> list[str]:
+        """The replies (JSON texts) to one WebSocket frame's ``data``. Whatever the frame holds,
+        this returns: a message that cannot be read or acted on gets an error reply. The message
+        is handled in a daemon thread of its own (:meth:`handle`), an edit within
+        :attr:`edit_time_limit`."""
+        msg = None
+        try:
+            msg = parse_message(data)
+            if len(self._threads) >= self.max_threads:
+                raise InputError("the server is busy with earlier messages that ran too long; wait, or restart "
+                                 "`selfsupport design`")
+            limit = float(self.edit_time_limit)
+            deadline = time.perf_counter() + limit
+            try:  # (a little longer than the deadline: an edit that ended in time has its answer sent)
+                replies = await _in_thread(self, self.handle, msg, deadline, timeout=limit + 1.0)
+            except TimeoutError:
+                kind = msg.get("type")
+                raise InputError(f"{kind}: not done within {limit:g} s; " + (
+                    "dropped, nothing changed (an edit of a smaller region is quicker)" if kind == "edit"
+                    else "its answer is not sent")) from None
+            return [json.dumps(r, allow_nan=False) for r in replies]
+        except Exception as e:  # noqa: BLE001 - one bad message never ends the connection
+            return [json.dumps(self.error(msg, e))]
+
+    def handle(self, msg: Mapping[str, Any], deadline: float | None = None) -> list[dict]:
+        """Act on one message from a page; the replies to send to that page. Raises
+        :class:`InputError` (nothing changed) when the message is not valid; an edit that ends
+        after ``deadline`` (``time.perf_counter()``) is dropped."""
+        check_values(msg, "message")  # finite numbers, 64-bit integers, bounded nesting
         kind = msg.get("type")
         log = self.log
         self._t_received = time.perf_counter()
         if kind == "edit":
-            edit = edit_from_dict(dict(msg.get("edit") or {}))
+            e = msg.get("edit")
+            if not isinstance(e, Mapping):
+                raise InputError("edit: 'edit' must be an object like {\"op\": \"pin\", \"select\": {...}}")
+            edit = edit_from_dict(dict(e))
             drag = msg.get("drag")
-            log.apply(edit, drag=None if drag is None else str(drag))
+            if not (drag is None or isinstance(drag, str)):
+                raise InputError(f"edit: 'drag' is null or a drag id (a string), got {drag!r}")
+            log.apply(edit, drag=drag, deadline=deadline)
             self._resolve()
             return [self.state()]
         if kind == "drag_end":
@@ -157,33 +262,53 @@ class DesignServer:
             out += [m for m in (self.last_frame, self.last_analysis) if m is not None]
             return out
         if kind == "probe":
-            v = int(msg.get("vertex", -1))
+            v = _integer(msg, "vertex", "probe")
             d = log.design
             if not 0 <= v < d.scene.mesh.n_vertices:
                 raise InputError(f"probe: vertex {v} is outside 0..{d.scene.mesh.n_vertices - 1}")
             # each hull solve of the bisection within 1-120 s (the probe's own limit, not the page's)
-            limit = min(max(float(msg.get("time_limit", 20.0)), 1.0), 120.0)
+            limit = min(max(_number(msg, "time_limit", "probe", 20.0), 1.0), 120.0)
             self.worker.probe(log.seq, d, v, time_limit=limit)
             return []
         if kind == "save":
-            return [self.save(str(msg.get("what", "")), msg.get("path"))]
-        raise InputError(f"unknown message type {kind!r}")
+            over = msg.get("overwrite") or []
+            if not (isinstance(over, list) and all(isinstance(x, str) for x in over)):
+                raise InputError("save: 'overwrite' is a list of the file names to replace")
+            return [self.save(str(msg.get("what", "")), msg.get("path"), overwrite=over)]
+        raise InputError(f"unknown message type {kind!r}; send one of edit, drag_end, undo, redo, state, probe, save")
 
     def _resolve(self) -> None:
         self.worker.submit(self.log.seq, self.log.design, t0=self._t_received)
 
-    def save(self, what: str, name: Any) -> dict:
-        """Write the edit script, the scene, the network or the figures below :attr:`root`."""
+    def save(self, what: str, name: Any, *, overwrite: Any = ()) -> dict:
+        """Write the edit script, the scene, the network or the figures below :attr:`root`.
+
+        An existing file is replaced only when this session wrote it (and it is unchanged since)
+        or ``overwrite`` names it (relative to :attr:`root`); otherwise the reply is an error
+        listing the files in ``exists`` and nothing is written. The files the session was opened
+        from are never replaced."""
         from ..io.atomic import atomic_write_text
         from ..io.safety import same_file, write_target
 
         if what not in SAVE_KINDS:
             raise InputError(f"save: 'what' is one of {', '.join(SAVE_KINDS)}")
         path = safe_path(self.root, name, SAVE_KINDS[what])
-        write_target(path, what=what)  # refuses directories, devices, FIFOs
-        for src in self.inputs:
-            if same_file(path, src):
-                raise InputError(f"refusing to write over {name!r}: the session was opened from it; give another name")
+        root_r = self.root.resolve()
+        targets = [path] if what != "figures" else [path.with_name(f"{path.stem}-{k}.png") for k in _FIGURES]
+        exists = []
+        for p in targets:
+            write_target(p, what=what)  # refuses directories, devices, FIFOs
+            for src in self.inputs:
+                if same_file(p, src):
+                    raise InputError(f"refusing to write over {p.relative_to(root_r)}: the session was opened "
+                                     "from it; give another name")
+            stamp = _stamp(p)
+            if stamp is not None and self.written.get(str(p)) != stamp:
+                exists.append(str(p.relative_to(root_r)))
+        if not set(exists) <= set(overwrite):
+            return {"type": "error", "what": "save", "seq": self.log.seq, "exists": exists,
+                    "message": f"save: {', '.join(exists)} already exists (not written by this design session, "
+                               "or changed since); confirm to replace it, or give another name"}
         path.parent.mkdir(parents=True, exist_ok=True)
         if not path.parent.resolve().is_relative_to(self.root.resolve()):  # pragma: no cover - raced symlink
             raise InputError("refusing: the folder leads outside the working folder")
@@ -206,8 +331,7 @@ class DesignServer:
                 from ..figures.render import FigureInput, render
 
                 written = []
-                for kind in ("network", "airy", "reciprocal"):
-                    p = path.with_name(f"{path.stem}-{kind}.png")
+                for kind, p in zip(_FIGURES, targets):
                     try:
                         render(kind, FigureInput(res.network, title=f"design: {kind}"), p)
                         written.append(p)
@@ -215,8 +339,43 @@ class DesignServer:
                         if kind == "network":
                             raise
                         _ = e  # the analysis figures need a network the Airy analysis accepts
-        rel = [str(p.relative_to(self.root.resolve())) for p in written]
+        for p in written:
+            self.written[str(p)] = _stamp(p)
+        rel = [str(p.relative_to(root_r)) for p in written]
         return {"type": "saved", "what": what, "paths": rel}
+
+
+#: The figures ``save`` writes, as NAME-KIND.png.
+_FIGURES = ("network", "airy", "reciprocal")
+
+
+async def _in_thread(server: DesignServer, fn: Any, *args: Any, timeout: float) -> Any:
+    """``fn(*args)`` in a daemon thread of its own, awaited for at most ``timeout`` s
+    (:class:`TimeoutError` after). A daemon thread, not the loop's executor: a long edit keeps
+    neither the event loop nor the process's exit (SIGTERM) waiting."""
+    loop = asyncio.get_running_loop()
+    fut = loop.create_future()
+
+    def settle(ok: bool, value: Any) -> None:
+        if not fut.done():
+            fut.set_result(value) if ok else fut.set_exception(value)
+
+    def run() -> None:
+        try:
+            out = (True, fn(*args))
+        except BaseException as e:  # noqa: BLE001 - handed to the awaiting coroutine
+            out = (False, e)
+        finally:
+            server._threads.discard(threading.current_thread())
+        try:
+            loop.call_soon_threadsafe(settle, *out)
+        except RuntimeError:  # the loop closed meanwhile (shutting down)
+            pass
+
+    th = threading.Thread(target=run, name="selfsupport-design-message", daemon=True)
+    server._threads.add(th)
+    th.start()
+    return await asyncio.wait_for(fut, timeout)
 
 
 # ------------------------------------------------------------------------------- the app
@@ -305,22 +464,17 @@ def create_app(server: DesignServer, token: str, *, port: int | None = None) -> 
 
         sender = asyncio.create_task(pump())
         try:
-            for m in server.handle({"type": "state"}):
-                q.put_nowait(json.dumps(m, allow_nan=False))
+            for text in await server.answer('{"type": "state"}'):
+                q.put_nowait(text)
             while True:
-                text = await websocket.receive_text()
-                try:
-                    msg = json.loads(text)
-                    if not isinstance(msg, dict):
-                        raise InputError("a message is a JSON object with a 'type'")
-                    # edits are quick (a Laplacian solve, a few ms); run them off the event loop anyway
-                    replies = await asyncio.to_thread(server.handle, msg)
-                except (SelfSupportError, ValueError, TypeError, KeyError) as e:
-                    replies = [{"type": "error", "what": str(msg.get("type") if isinstance(msg, dict) else "message"),
-                                "message": str(e), "seq": server.log.seq}]
-                for r in replies:
-                    q.put_nowait(json.dumps(r, allow_nan=False))
+                event = await websocket.receive()
+                if event["type"] == "websocket.disconnect":
+                    break
+                for text in await server.answer(event.get("text", event.get("bytes"))):
+                    q.put_nowait(text)
         except WebSocketDisconnect:
+            pass
+        except asyncio.CancelledError:  # the server stops (SIGTERM, Ctrl+C) while a message is answered
             pass
         finally:
             server.clients.discard(q)
@@ -332,7 +486,7 @@ def create_app(server: DesignServer, token: str, *, port: int | None = None) -> 
         try:
             yield
         finally:
-            server.stop()
+            server.stop(timeout=_STOP_WAIT)
 
     app = Starlette(routes=[Route("/", index), Route("/static/{name}", static), WebSocketRoute("/ws", ws)],
                     lifespan=lifespan)
@@ -346,13 +500,20 @@ _CSP = ("default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-inline'
         "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
 
 
+#: Seconds a stopping server waits for open connections' messages and for the solver's threads
+#: (both daemons: the process ends without them).
+_STOP_WAIT = 1.0
+
+
 def bind_loopback(port: int = 0) -> Any:
     """A listening TCP socket on 127.0.0.1:``port`` (0: a free port) — the loopback address
-    only, never all interfaces."""
+    only, never all interfaces. SO_REUSEADDR: a restart on the same port binds while the last
+    run's connections linger in TIME_WAIT (on Linux it never lets two servers listen on a port)."""
     import socket
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(("127.0.0.1", int(port)))
         sock.listen(128)  # the printed URL works at once (connections wait for the server)
     except OSError as e:
@@ -365,5 +526,7 @@ def serve(app: Any, sock: Any) -> None:
     """Run ``app`` with uvicorn on the bound socket ``sock`` until interrupted."""
     import uvicorn
 
-    config = uvicorn.Config(app, log_level="warning", ws="websockets-sansio", lifespan="on", ws_max_size=4 * 2**20)
+    # SIGTERM / Ctrl+C: messages still being answered are cancelled after _STOP_WAIT s
+    config = uvicorn.Config(app, log_level="warning", ws="websockets-sansio", lifespan="on", ws_max_size=4 * 2**20,
+                            timeout_graceful_shutdown=_STOP_WAIT)
     uvicorn.Server(config).run(sockets=[sock])

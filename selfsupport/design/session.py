@@ -45,9 +45,10 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..errors import SelfSupportError
+from ..errors import InputError, SelfSupportError
 from ..io.network_json import finite_or_none as _finite
-from .edits import Design, Edit
+from ..methods.deadline import out_of_time
+from .edits import Design, Edit, check_values
 from .script import EditScript
 
 __all__ = ["EditLog", "SolveWorker", "Superseded", "frame_payload", "analysis_payload", "SOLVE_DEFAULTS"]
@@ -118,14 +119,31 @@ class EditLog:
         return bool(self.redo_stack)
 
     # -- changes --------------------------------------------------------------------------
-    def apply(self, edit: Edit, *, drag: str | None = None) -> int:
+    def apply(self, edit: Edit, *, drag: str | None = None, deadline: float | None = None) -> int:
         """Apply ``edit`` (raises :class:`~selfsupport.errors.InputError` and changes nothing when
         it does not apply). ``drag``: an id shared by the steps of one drag; a step with the id of
-        the last edit replaces it. Returns the new :attr:`seq`."""
-        with self._lock:
+        the last edit replaces it. ``deadline``: a ``time.perf_counter()`` value; an edit that
+        ends after it is dropped (InputError, nothing changed). Returns the new :attr:`seq`.
+
+        The edit is computed outside the log's lock, so a long edit does not hold up undo / redo
+        or other pages' edits; when the log changed meanwhile, the edit is refused (it was made
+        on a design that is no longer the current one)."""
+        check_values(edit.to_dict(), f"edit {edit.op!r}")  # nothing unsendable enters the log
+
+        def target() -> tuple[bool, int]:
             replacing = drag is not None and drag == self._drag and bool(self.edits)
-            k = len(self.edits) - (1 if replacing else 0)
-            d = self._apply(edit, self.design_at(k))  # raises before anything changes
+            return replacing, len(self.edits) - (1 if replacing else 0)
+
+        with self._lock:
+            (replacing, k), seq0 = target(), self.seq
+            base = self.design_at(k)
+        d = self._apply(edit, base)  # raises before anything changes
+        with self._lock:
+            if out_of_time(deadline):
+                raise InputError(f"edit {edit.op!r} did not finish within its time limit; nothing changed")
+            if self.seq != seq0 or target() != (replacing, k):
+                raise InputError(f"edit {edit.op!r}: the design changed while it was computed (an edit from "
+                                 "another page); nothing changed, make it again")
             if replacing:
                 self.edits[-1] = edit
                 self._forget_from(k + 1)
@@ -184,7 +202,14 @@ class EditLog:
     @staticmethod
     def _apply(edit: Edit, design: Design) -> Design:
         # each design is a stage of its own: origins refer to the design before the edit
-        return edit.apply(replace(design, origin=None))
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below, in one message
+            d = edit.apply(replace(design, origin=None))
+        sc = d.scene
+        for name, a in (("vertex positions", sc.mesh.vertices), ("extra masses", sc.extra_mass),
+                        ("point loads", sc.point_loads)):
+            if a is not None and not np.isfinite(a).all():  # e.g. an offset of 1e308 times the diagonal
+                raise InputError(f"edit {edit.op!r} would make the {name} infinite or NaN; give smaller values")
+        return d
 
     def _remember(self, k: int, d: Design) -> None:
         self._designs[k] = d

@@ -12,8 +12,10 @@ let ws = null, plotted = false;
 
 // ------------------------------------------------------------------------- connection
 function connect() {
-  const token = new URLSearchParams(location.search).get('token') || '';
-  ws = new WebSocket(`ws://${location.host}/ws?token=${encodeURIComponent(token)}`);
+  // the token leaves the address bar (history, screen shares, bookmarks); the page's cookie
+  // carries the session from here on, for the WebSocket and for a reload
+  if (new URLSearchParams(location.search).has('token')) history.replaceState(null, '', location.pathname);
+  ws = new WebSocket(`ws://${location.host}/ws`);
   ws.onopen = () => { $('conn').textContent = 'connected'; };
   ws.onclose = () => { $('conn').textContent = 'disconnected (reload the page)'; };
   ws.onmessage = (ev) => receive(JSON.parse(ev.data));
@@ -48,6 +50,7 @@ function receive(m) {
     case 'error':
       showError(`${m.what || ''}: ${m.message}`); st.errorSeq = m.seq;
       if (m.what === 'solve') setSolve(`#${m.seq} failed`, false);
+      if (m.what === 'save' && m.exists && st.lastSave) confirmOverwrite(st.lastSave, m.exists);
       break;
     case 'probing': $('probe').textContent = `probing vertex ${m.vertex}…`; break;
     case 'probe_step': $('probe').textContent = `probe v${m.vertex}: ${Math.round(m.kg)} kg ${m.found ? 'stands' : 'no network'}`; break;
@@ -79,6 +82,21 @@ function onFrame(m) {
   if (st.latency.length) $('latency').textContent = `edit→frame ${st.latency[st.latency.length - 1].toFixed(0)} ms`;
   syncSliders(m.design);
   scheduleDraw('net');
+}
+
+// save: the server replaces only the files this session wrote; for any other existing file it
+// answers with the names in `exists`, and the save is sent again naming them once the user agrees
+function save(what) {
+  st.lastSave = { type: 'save', what, path: $('save-name').value };
+  send(st.lastSave);
+}
+function confirmOverwrite(msg, exists) {
+  st.lastSave = null;
+  if (window.confirm(`${exists.join(', ')} already exists in the working folder and was not written by this design session.\n\nReplace it?`)) {
+    send({ ...msg, overwrite: exists });
+  } else {
+    showError(`not saved: ${exists.join(', ')} exists; give another name`);
+  }
 }
 
 function setSolve(text, busy) { const s = $('solve'); s.textContent = text; s.classList.toggle('busy', !!busy); }
@@ -292,8 +310,7 @@ function wire() {
     el.addEventListener('input', () => { el.nextElementSibling.textContent = s.fmt(Number(el.value)); });
     el.addEventListener('change', () => sendEdit(s.edit(Number(el.value))));
   }
-  document.querySelectorAll('[data-save]').forEach((b) => b.addEventListener('click',
-    () => send({ type: 'save', what: b.dataset.save, path: $('save-name').value })));
+  document.querySelectorAll('[data-save]').forEach((b) => b.addEventListener('click', () => save(b.dataset.save)));
   const pad = $('dragpad');
   pad.addEventListener('pointerdown', dragStart);
   pad.addEventListener('pointermove', (ev) => dragMove(ev));
@@ -306,6 +323,6 @@ function wire() {
   });
 }
 
-window.ssDesign = { ui, st, pick, setTool, send, sendEdit, dragOffset, screenOf, nearestVertex };
+window.ssDesign = { ui, st, pick, setTool, send, sendEdit, save, dragOffset, screenOf, nearestVertex };
 wire();
 connect();
