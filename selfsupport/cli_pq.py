@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, _not_converged_line, add_load_arguments, positive_float,
-                  print_table, summary_rows)
+from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, _not_converged_line, add_load_arguments, number_in,
+                  positive_float, print_table, summary_rows, tolerance)
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
@@ -41,8 +41,8 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--remesher", choices=tuple(METHODS), default="streamlines",
                    help="how the lines are drawn: evenly spaced streamlines (T-junctions where a line ends), or the "
                         "integer iso-lines of a global parametrization along the field (default streamlines)")
-    p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="the grid's angle to the x axis (--field grid)")
-    p.add_argument("--tol", type=positive_float, default=1e-3, metavar="TOL",
+    p.add_argument("--angle", type=number_in("[-360, 360]"), default=0.0, metavar="DEG", help="the grid's angle to the x axis (--field grid)")
+    p.add_argument("--tol", type=tolerance, default=1e-3, metavar="TOL",
                    help="largest quad non-planarity accepted (default 1e-3)")
     p.add_argument("--method", choices=("staggered", "ipopt"), default="staggered", help="solver (default staggered)")
     p.add_argument("--no-finish", dest="finish", action="store_false",
