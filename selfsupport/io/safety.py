@@ -70,8 +70,10 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
 
 
-def _writable_parent(p: Path, what: str) -> None:
-    parent = p.parent
+def _writable_parent(p: Path, what: str, *, folder: bool = False) -> None:
+    """The nearest existing folder above ``p`` (``folder``: from ``p`` itself on, which is to be a
+    folder) must be a writable folder."""
+    parent = p if folder else p.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
@@ -104,7 +106,7 @@ def check_output_dir(path: str | os.PathLike, *, what: str = "--out", files: Ite
         if f.exists() or f.is_symlink():
             write_target(f, what=f"{what} file")
             _refuse_inputs(f, f"{what} file", inputs)
-    _writable_parent(p / "x", what)
+    _writable_parent(p, what, folder=True)
     return p
 
 
