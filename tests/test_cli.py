@@ -607,3 +607,12 @@ def test_a_negative_number_in_e_notation_is_taken_as_the_option_value(tmp_path, 
     out = tmp_path / "net.json"
     assert cli.main(["construct", "--disk", "3", "--load", "-1e3", "--out", str(out)]) == 0
     assert json.loads(out.read_text())["construction"]["load"] == -1000.0
+
+
+@pytest.mark.parametrize("option", ["--extra-mass=3:-1e9", "--point-load=3:-1e9"])
+def test_an_upward_extra_load_is_named_as_such_not_as_a_zero_area(tmp_path, capsys, option):
+    out = tmp_path / "net.json"
+    code = cli.main(["solve", "shape:dome:80", "--out", str(out), option])
+    err = capsys.readouterr().err
+    assert_one_line_error(err, code, 2, needle="vertex 3 carries a net upward load")
+    assert "zero area" not in err and not out.exists()
