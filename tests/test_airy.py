@@ -547,3 +547,22 @@ def test_cli_choice_lists_match_the_registries():
 
     assert sorted(PHI_NAMES) == sorted(PHI_FUNCTIONS)
     assert sorted(INTEGRATION_NAMES) == sorted(INTEGRATIONS)
+
+
+def test_relative_principal_directions_do_not_depend_on_the_scale_of_the_hessians():
+    """H_phi⁻¹ H_s at any scale (a network 1e150 m high, an Airy surface of 1e-150): the same
+    directions, eigenvalues scaled by the ratio, and no numpy overflow warning on the way."""
+    import warnings
+
+    rng = np.random.default_rng(3)
+    B = rng.standard_normal((50, 2, 2))
+    Hp = B @ B.transpose(0, 2, 1) + 0.5 * np.eye(2)  # convex Φ: positive definite
+    C = rng.standard_normal((50, 2, 2))
+    Hs = C + C.transpose(0, 2, 1)
+    lam, vec = relative_principal(Hp, Hs)
+    assert np.isfinite(lam).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lam2, vec2 = relative_principal(Hp * 1e-150, Hs * 1e150)
+    np.testing.assert_allclose(lam2, lam * 1e300, rtol=1e-9)
+    np.testing.assert_allclose(np.abs((vec2 * vec).sum(axis=-2)), 1.0, atol=1e-9)  # same directions up to sign
