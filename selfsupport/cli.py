@@ -335,6 +335,16 @@ def _not_converged_line(result) -> str:
             f"{result.max_relative_error:.2e} > {tol:g}; {hint}")
 
 
+def write_network_out(out: str | Path, result_or_network, **extra: Any) -> None:
+    """Write ``--out`` in the format its suffix names (:func:`selfsupport.io.write_network_as`); a
+    mesh suffix keeps the geometry only, which one stderr line says."""
+    from .io import write_network_as
+
+    if write_network_as(out, result_or_network, **extra) != ".json":
+        _err(f"note: {out} holds the network's geometry only; its weights, loads and status are written "
+             "with --out NAME.json")
+
+
 def built_status(network, tol: float) -> str:
     """The ``status`` written with a network that is built rather than solved (``koebe``,
     ``construct``): ``"converged"`` when it is in equilibrium to ``tol``
@@ -359,7 +369,7 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "(reference_vertices), starting from the stored network and its weights (staggered, ipopt; "
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
+    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
     p.add_argument("--method", choices=list(METHODS), default=None,
                    help="solution method (default staggered; with --subdivide, multilevel)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
@@ -445,9 +455,9 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 def _run_solve(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # --time-limit counts from here: reading the input is part of the run
     from . import api
-    from .io import write_network
     from .progress import ProgressDisplay
 
+    from .io import network_suffix
     from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
     from .memory import check_scene_spec
@@ -455,6 +465,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     out = Path(args.out)
     inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
     check_outputs([("--out", out)], inputs)
+    network_suffix(out)
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
@@ -491,7 +502,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
         check_outputs([("--out", out)], inputs)
-    write_network(out, result, scene=_scene_info(scene, args))
+    write_network_out(out, result, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
     if args.report:
         _write_figures(result, Path(args.report), scene.name)

@@ -616,3 +616,32 @@ def test_an_upward_extra_load_is_named_as_such_not_as_a_zero_area(tmp_path, caps
     err = capsys.readouterr().err
     assert_one_line_error(err, code, 2, needle="vertex 3 carries a net upward load")
     assert "zero area" not in err and not out.exists()
+
+
+@pytest.mark.parametrize("name", ["result.txt", "result"])
+@pytest.mark.parametrize("command", [["solve", "shape:dome:80"], ["koebe"], ["construct", "--disk", "2"]])
+def test_out_with_a_suffix_no_writer_has_is_refused_before_any_work(tmp_path, capsys, monkeypatch, command, name):
+    from selfsupport import api
+
+    monkeypatch.setattr(api, "solve", lambda *a, **k: pytest.fail("solved although --out cannot be written"))
+    out = tmp_path / name
+    code = cli.main([*command, "--out", str(out)])
+    assert_one_line_error(capsys.readouterr().err, code, 2, needle=".json")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off"])
+def test_out_with_a_mesh_suffix_holds_that_mesh_format(tmp_path, capsys, suffix):
+    """``--out NET.obj`` writes the network's geometry as OBJ (readable as a mesh of the same
+    vertices), not JSON under a mesh suffix; one stderr line says the weights are not in it."""
+    from selfsupport.io import read_mesh, read_network
+
+    out, ref = tmp_path / f"net{suffix}", tmp_path / "net.json"
+    assert cli.main(["construct", "--disk", "2", "--out", str(ref)]) == 0
+    assert cli.main(["construct", "--disk", "2", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "geometry only" in err
+    assert not out.read_bytes().lstrip().startswith(b"{")
+    mesh, net = read_mesh(out), read_network(ref)
+    np.testing.assert_allclose(mesh.vertices, net.vertices, rtol=0, atol=1e-12 * np.abs(net.vertices).max())
+    assert mesh.n_faces == net.mesh.n_faces
