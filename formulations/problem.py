@@ -260,6 +260,10 @@ class Problem:
             if np.any(Lc[free] >= 0):
                 k = int(np.flatnonzero(free & (Lc >= 0))[0])
                 where = f" in load case {name!r}" if len(L) > 1 else ""
+                if Lc[k] > 0:  # (not a degenerate face: extra loads that outweigh the self-weight)
+                    raise InputError(f"vertex {k} carries a net upward load of {Lc[k]:.3g} N{where}: a negative extra "
+                                     "mass or an upward point load there outweighs its self-weight, and a thrust "
+                                     "network carries downward loads only; make the extra loads there smaller")
                 raise InputError(f"vertex {k} carries no downward load{where} (zero area?); remove degenerate faces "
                                  "or add a load there")
         sc = Scaling.of(mesh.vertices, L[0], free)

@@ -26,7 +26,8 @@ libraries inside ``run``), return an exit code from ``run``, raise
 :class:`~selfsupport.errors.SelfSupportError` subclasses for errors the user can fix.
 Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func:`load_scene`,
 :func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, and the argparse types
-:func:`positive_float`, :func:`positive_int`.
+:func:`number_in` (a finite number in an interval), :func:`positive_float`, :func:`positive_int`,
+:data:`tolerance`.
 """
 from __future__ import annotations
 
@@ -49,7 +50,7 @@ from .errors import InputError, SelfSupportError
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
            "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
-           "positive_float", "positive_int", "summary_rows", "sigterm_interrupts"]
+           "number_in", "positive_float", "positive_int", "tolerance", "summary_rows", "sigterm_interrupts"]
 
 PROG = "selfsupport"
 
@@ -119,26 +120,46 @@ class _Parser(argparse.ArgumentParser):
 
 
 # ---------------------------------------------------------------------- shared helpers
-def positive_float(text: str) -> float:
-    """argparse ``type=``: a positive finite float."""
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (x > 0 and x < float("inf")):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
-    return x
+def number_in(interval: str, *, integer: bool = False, what: str | None = None) -> Callable[[str], Any]:
+    """argparse ``type=``: a finite number (an integer with ``integer``) inside ``interval``.
+
+    ``interval`` is written as in :mod:`selfsupport.options` (``"(0, 1]"``, ``"[1, inf)"``); NaN and
+    infinities are refused, and the message states the interval (``what`` names the kind of value).
+
+    >>> number_in("(0, 1]")("0.5")
+    0.5
+    >>> number_in("(0, 1]")("100")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: '100' is out of range; give a finite number in (0, 1]
+    """
+    from .options import in_interval
+
+    kind = "an integer" if integer else "a finite number"
+
+    def parse(text: str) -> Any:
+        try:
+            x = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if integer else 'a number'}; "
+                                             f"give {kind} in {interval}") from None
+        # (an int compares with the interval's float ends exactly; only a float can be NaN or infinite)
+        if not ((integer or math.isfinite(x)) and in_interval(x, interval)):
+            head = f"must be {what}" if what else "is out of range"
+            raise argparse.ArgumentTypeError(f"{text!r} {head}; give {kind} in {interval}")
+        return x
+
+    parse.__name__ = "integer" if integer else "number"  # (argparse names the type in some messages)
+    return parse
 
 
-def positive_int(text: str) -> int:
-    """argparse ``type=``: an integer >= 1."""
-    try:
-        k = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if k < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
-    return k
+positive_float = number_in("(0, inf)", what="a positive finite number")
+positive_float.__doc__ = "argparse ``type=``: a positive finite float."
+positive_int = number_in("[1, inf)", integer=True, what="at least 1")
+positive_int.__doc__ = "argparse ``type=``: an integer >= 1."
+#: argparse ``type=`` of a relative tolerance (a relative error of 1 is already the size of the
+#: quantity itself, so a larger one would accept anything)
+tolerance = number_in("(0, 1]", what="a relative tolerance of at most 1")
 
 
 # the underscore names were used by the first plugin modules; keep them working
@@ -318,6 +339,30 @@ def _not_converged_line(result) -> str:
             f"{result.max_relative_error:.2e} > {tol:g}; {hint}")
 
 
+def write_network_out(out: str | Path, result_or_network, **extra: Any) -> None:
+    """Write ``--out`` in the format its suffix names (:func:`selfsupport.io.write_network_as`); a
+    mesh suffix keeps the geometry only, which one stderr line says."""
+    from .io import write_network_as
+
+    if write_network_as(out, result_or_network, **extra) != ".json":
+        _err(f"note: {out} holds the network's geometry only; its weights, loads and status are written "
+             "with --out NAME.json")
+
+
+def built_status(network, tol: float) -> str:
+    """The ``status`` written with a network that is built rather than solved (``koebe``,
+    ``construct``): ``"converged"`` when it is in equilibrium to ``tol``
+    (:meth:`~selfsupport.result.Network.in_equilibrium`), else ``"failed"``; exit codes as
+    :data:`STATUS_EXIT`."""
+    return "converged" if network.in_equilibrium(tol) else "failed"
+
+
+def not_in_equilibrium_line(network, tol: float, path: str, hint: str) -> str:
+    """The stderr line of a built network that is not in equilibrium (see :func:`built_status`)."""
+    return (f"the network written to {path} is NOT in equilibrium: max relative error "
+            f"{network.max_relative_error():.2e} > tol {tol:g} (its status is 'failed'); {hint}")
+
+
 # ----------------------------------------------------------------------------- solve
 def _solve_args(p: argparse.ArgumentParser) -> None:
     from .api import METHODS
@@ -328,7 +373,7 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "(reference_vertices), starting from the stored network and its weights (staggered, ipopt; "
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
+    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
     p.add_argument("--method", choices=list(METHODS), default=None,
                    help="solution method (default staggered; with --subdivide, multilevel)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
@@ -342,8 +387,8 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
     p.add_argument("--eps", type=positive_float, default=None, metavar="E",
                    help="lower weight bound [N/m] (default: scale-free, 1e-4 of the natural weight scale)")
-    p.add_argument("--tol", type=positive_float, default=None,
-                   help="required max relative error (default: the method's, 1e-9)")
+    p.add_argument("--tol", type=tolerance, default=None,
+                   help="required max relative error, in (0, 1] (default: the method's, 1e-9)")
     p.add_argument("--max-iter", type=positive_int, default=None, metavar="N",
                    help="iteration limit (staggered: outer iterations, default 200; ipopt: per load round)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
@@ -384,7 +429,7 @@ def add_problem_arguments(p: argparse.ArgumentParser) -> None:
                    help="keep every free vertex within +-thickness/2 of the reference (the masonry hull)")
     p.add_argument("--fixed-top-view", action="store_true",
                    help="keep x and y of the free vertices: only the heights move (thrust network analysis)")
-    p.add_argument("--planar", nargs="?", const=1e-3, default=None, type=float, metavar="TOL",
+    p.add_argument("--planar", nargs="?", const=1e-3, default=None, type=tolerance, metavar="TOL",
                    help="planar faces (glass or steel panels): every quad's diagonals at most TOL x its mean edge "
                         "length apart (default 1e-3), held exactly by the final polish")
 
@@ -404,9 +449,7 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
     constraints: list[Any] = [name for name, on in (("hull", args.hull), ("fixed_top_view", args.fixed_top_view)) if on]
     planar = getattr(args, "planar", None)
-    if planar is not None:
-        if not (math.isfinite(planar) and planar > 0):
-            raise InputError(f"--planar takes a positive tolerance, got {planar!r}")
+    if planar is not None:  # (its range is checked by its argparse type)
         constraints.append(Planar(tol=planar))
     return {"objective": list(args.objective) or None, "point_loads": vertex_map(args.point_load, "--point-load"),
             "extra_mass": vertex_map(args.extra_mass, "--extra-mass"), "load_cases": args.load_cases,
@@ -416,9 +459,9 @@ def problem_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 def _run_solve(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # --time-limit counts from here: reading the input is part of the run
     from . import api
-    from .io import write_network
     from .progress import ProgressDisplay
 
+    from .io import network_suffix
     from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
     from .memory import check_scene_spec
@@ -426,6 +469,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     out = Path(args.out)
     inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
     check_outputs([("--out", out)], inputs)
+    network_suffix(out)
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
@@ -462,7 +506,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     if result.status == "interrupted" and not args.keep_partial:
         out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
         check_outputs([("--out", out)], inputs)
-    write_network(out, result, scene=_scene_info(scene, args))
+    write_network_out(out, result, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
     if args.report:
         _write_figures(result, Path(args.report), scene.name)
@@ -487,8 +531,8 @@ def _check_args(p: argparse.ArgumentParser) -> None:
 
     add_scene_arguments(p, metavar="MESH_OR_NET")
     add_load_arguments(p, default=False)
-    p.add_argument("--tol", type=positive_float, default=DEFAULT_CHECK_TOL,
-                   help=f"max relative error that counts as self-supporting (default {DEFAULT_CHECK_TOL:g})")
+    p.add_argument("--tol", type=tolerance, default=DEFAULT_CHECK_TOL,
+                   help=f"max relative error that counts as self-supporting, in (0, 1] (default {DEFAULT_CHECK_TOL:g})")
     p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
 
 
@@ -679,16 +723,22 @@ def build_parser(commands: dict[str, Command] | None = None) -> argparse.Argumen
 
 
 def _axis_values_joined(argv: list[str]) -> list[str]:
-    """``--up -y`` as ``--up=-y``: argparse takes a value that starts with "-" for an option
-    (and the help and the errors name ``-y`` and ``-z`` as axes).
+    """``--up -y`` as ``--up=-y`` and ``--load -1e3`` as ``--load=-1e3``: argparse takes a value that
+    starts with "-" for an option unless it is a plain negative number like ``-5`` (and the help and
+    the errors name ``-y`` and ``-z`` as axes).
 
     >>> _axis_values_joined(["solve", "m.obj", "--up", "-y", "--out", "n.json"])
     ['solve', 'm.obj', '--up=-y', '--out', 'n.json']
+    >>> _axis_values_joined(["construct", "--load", "-1e3", "--alpha", "-.5"])
+    ['construct', '--load=-1e3', '--alpha=-.5']
     """
     out: list[str] = []
     for tok in argv:
-        if out and out[-1] == "--up" and tok in ("-x", "-y", "-z"):
+        prev = out[-1] if out else ""
+        if prev == "--up" and tok in ("-x", "-y", "-z"):
             out[-1] = f"--up={tok}"
+        elif prev.startswith("--") and "=" not in prev and _is_number(tok) and tok.startswith("-"):
+            out[-1] = f"{prev}={tok}"
         else:
             out.append(tok)
     return out
@@ -715,6 +765,14 @@ def sigterm_interrupts() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -3,10 +3,10 @@
 ::
 
     selfsupport airy NET.json --out AIRY.json [--stress PHI.obj] [--reciprocal RECIP.obj]
-                     [--polar POLAR.obj] [--vector-fields VF.txt] [--up AXIS] [--areas RULE]
+                     [--polar POLAR.obj] [--vector-fields VF.txt] [--up AXIS] [--areas RULE] [--tol T]
     selfsupport construct --out NET.json (--disk RINGS | --random N | --points FILE)
                      [--radius R] [--seed S] [--phi NAME | --phi-values FILE]
-                     [--load F | --self-weight [--density RHO] [--thickness T]] [--boundary-height H]
+                     [--load F | --self-weight [--density RHO] [--thickness T]] [--boundary-height H] [--tol T]
 
 ``airy`` analyses a network file (paper §2): the Airy stress surface Φ, the reciprocal force
 diagram, H_rel, K_Φ and the balance (6); ``AIRY.json`` holds ``phi`` (per vertex),
@@ -14,11 +14,15 @@ diagram, H_rel, K_Φ and the balance (6); ``AIRY.json`` holds ``phi`` (per verte
 ``balance_residual`` (per vertex; ``null`` where undefined), ``closure_residual`` (the worst
 relative horizontal imbalance), ``convex``, and more (periods around holes and interior supports,
 cut edges, ``corner_phi`` and ``phi_copies`` — Φ on the cover, cut open along cuts with a period —,
-crease weights, principal directions). ``construct`` builds a self-supporting
-network from a convex Airy function (§2.5) and writes it in the network format.
+crease weights, principal directions), and whether the network is in equilibrium to ``--tol``
+(``in_equilibrium``, ``max_relative_error``, ``tol``). ``construct`` builds a self-supporting
+network from a convex Airy function (§2.5) and writes it in the network format, with its
+``status``: ``converged`` when it is in equilibrium to ``--tol``, else ``failed`` (exit 4).
 
 Exit codes: 0 on success; for ``airy`` also 0 when Φ is not convex (that is a finding, printed);
-2 bad input. Nothing heavy is imported until a command runs.
+4 when the network is not in equilibrium (``airy``: Φ and the reciprocal diagram exist only for a
+network in equilibrium, so the analysis is written but describes residuals; ``construct``: its
+round-off); 2 bad input. Nothing heavy is imported until a command runs.
 """
 from __future__ import annotations
 
@@ -27,7 +31,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .cli import EXIT_CODES, Command, positive_float, positive_int, print_table
+from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
+                  positive_float, positive_int, print_table, tolerance, write_network_out)
 from .errors import InputError
 
 __all__ = ["COMMANDS", "PHI_NAMES", "INTEGRATION_NAMES", "add_airy_arguments", "run_airy", "add_construct_arguments", "run_construct", "airy_document"]
@@ -63,6 +68,8 @@ def add_airy_arguments(p: argparse.ArgumentParser) -> None:
                         "(least squares unless the input is integrable to round-off)")
     p.add_argument("--no-directions", action="store_true",
                    help="skip the Hessian fits and relative principal directions")
+    p.add_argument("--tol", type=tolerance, default=None, metavar="T",
+                   help="max relative error of a network in equilibrium (default 1e-6, as 'check'); exit 4 above it")
 
 
 def _nan_list(a: np.ndarray | None) -> Any:
@@ -129,6 +136,7 @@ def run_airy(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .analysis import airy, curvatures, reciprocal, write_vector_fields
+    from .api import DEFAULT_CHECK_TOL
     from .io import read_network, write_mesh
     from .io.atomic import atomic_write_text
     from .io.axes import rotation
@@ -151,6 +159,11 @@ def run_airy(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     doc = airy_document(net, res, rd, cv)
     doc["summary"]["seconds"] = seconds
+    # Φ is the Airy surface of a network in equilibrium only; of any other its creases are not the
+    # network's weights, so its convexity says nothing about tension
+    tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
+    balanced = net.in_equilibrium(tol)
+    doc.update(in_equilibrium=balanced, max_relative_error=net.max_relative_error(), tol=tol)
     import json
 
     atomic_write_text(args.out, json.dumps(to_jsonable(doc), allow_nan=False, separators=(",", ":")))
@@ -169,7 +182,10 @@ def run_airy(args: argparse.Namespace) -> int:
         written.append(args.vector_fields)
     s = doc["summary"]
     rows = [("vertices / faces", f"{net.mesh.n_vertices} / {net.mesh.n_faces}"),
-            ("Φ convex (all creases >= 0)", "yes" if res.convex else "NO (some weights are tensile)"),
+            ("in equilibrium (max rel. error)", f"{'yes' if balanced else 'NO'} ({net.max_relative_error():.2e}, "
+                                                f"tol {tol:g})"),
+            ("Φ convex (all creases >= 0)", ("yes" if res.convex else "NO (some weights are tensile)") if balanced
+             else "unknown (no equilibrium)"),
             ("closure residual (horizontal equilibrium)", f"{res.max_closure_residual:.2e}"),
             ("jump condition residual (rel.)", f"{res.max_edge_residual:.2e} ({res.integration})"),
             ("balance 2 K_Φ H_rel = F (eq. 6), max rel.", f"{cv.max_balance_residual:.2e}"),
@@ -180,13 +196,19 @@ def run_airy(args: argparse.Namespace) -> int:
             ("time", f"{seconds:.3f} s"),
             ("written", ", ".join(written))]
     print_table(f"selfsupport airy {args.network}", rows)
+    if not balanced:
+        _err(f"{args.network} is NOT in equilibrium (max relative error {net.max_relative_error():.2e} > tol {tol:g}): "
+             f"it has no Airy stress surface, so {args.out} "
+             "describes residuals only; solve it to equilibrium first (selfsupport solve NET.json) or give a "
+             "larger --tol")
+        return EXIT_CODES["not_converged"]
     return EXIT_CODES["ok"]
 
 
 # ------------------------------------------------------------------------------ construct
 def add_construct_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport construct``."""
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
+    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--disk", type=positive_int, metavar="RINGS",
                      help="top view: the ring points of a disk (1 + 3 RINGS (RINGS+1) points)")
@@ -195,22 +217,24 @@ def add_construct_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--points", metavar="FILE",
                      help="top view: a text file with x y per line ('#' comments) or a .npy array")
     p.add_argument("--radius", type=positive_float, default=5.0, help="disk radius for --disk/--random [m] (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="random seed for --random (default 0)")
+    p.add_argument("--seed", type=number_in("[0, inf)", integer=True), default=0, help="random seed for --random (default 0)")
     phi = p.add_mutually_exclusive_group()
     phi.add_argument("--phi", choices=PHI_NAMES, default="paraboloid",
                      help="convex Airy function φ(x, y) (default paraboloid: φ = (x²+y²)/2)")
     phi.add_argument("--phi-values", metavar="FILE", help="φ sampled at the points, one value per line")
     ld = p.add_mutually_exclusive_group()
-    ld.add_argument("--load", type=float, default=None, metavar="F",
-                    help="load per unit top-view area [N/m², negative = down] (default -1000)")
+    ld.add_argument("--load", type=number_in("(-inf, 0)", what="negative (downward)"), default=None, metavar="F",
+                    help="load per unit top-view area [N/m², negative = down; write --load=-500] (default -1000)")
     ld.add_argument("--self-weight", action="store_true",
                     help="self-weight rho·t·g per unit surface area, iterated with the geometry")
     p.add_argument("--density", type=positive_float, default=2000.0, help="rho for --self-weight [kg/m³]")
     p.add_argument("--thickness", type=positive_float, default=0.1, help="t for --self-weight [m]")
-    p.add_argument("--boundary-height", type=float, default=0.0, metavar="H", help="height of the supports [m]")
+    p.add_argument("--boundary-height", type=number_in("(-inf, inf)"), default=0.0, metavar="H", help="height of the supports [m]")
     p.add_argument("--rise", type=positive_float, default=None, metavar="H",
                    help="scale φ so that the crown stands H above the supports (default: a fifth of the plan's "
                         "bounding-box diagonal); weights scale with φ, heights inversely")
+    p.add_argument("--tol", type=tolerance, default=None, metavar="T",
+                   help="max relative error that counts as in equilibrium (default 1e-6, as 'check')")
 
 
 def _read_points(path: str) -> np.ndarray:
@@ -245,12 +269,14 @@ def run_construct(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .analysis import construct_detailed
-    from .io import write_network
+    from .api import DEFAULT_CHECK_TOL
+    from .io import network_suffix
     from .loads import SelfWeight
     from .io.safety import check_outputs
     from .shapes import disk_points
 
     check_outputs([("--out", args.out)], [("--points", args.points), ("--phi-values", args.phi_values)])
+    network_suffix(args.out)
     if args.disk is not None:
         pts = disk_points(args.disk, radius=args.radius)
     elif args.random is not None:
@@ -272,7 +298,9 @@ def run_construct(args: argparse.Namespace) -> int:
     c = construct_detailed(pts, phi, load=load, boundary_heights=args.boundary_height, rise=rise)
     seconds = time.perf_counter() - t0
     net = c.network
-    write_network(args.out, net, construction={
+    tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
+    status = built_status(net, tol)
+    write_network_out(args.out, net, status=status, tol=tol, construction={
         "phi": phi_name, "load": "self_weight" if args.self_weight else load,
         "density": args.density if args.self_weight else None,
         "thickness": args.thickness if args.self_weight else None,
@@ -290,7 +318,12 @@ def run_construct(args: argparse.Namespace) -> int:
             ("time", f"{seconds:.3f} s"),
             ("written", args.out)]
     print_table("selfsupport construct", rows)
-    return EXIT_CODES["ok"]
+    if status != "converged":
+        z = net.vertices[:, 2]
+        _err(not_in_equilibrium_line(net, tol, args.out, (
+            f"its heights are {z.min():.4g} .. {z.max():.4g} m for a rise of {rise:.4g} m, so round-off may be what "
+            "is left; try --boundary-height nearer 0, a larger --rise or a larger --tol")))
+    return STATUS_EXIT[status]
 
 
 COMMANDS: dict[str, Command] = {

@@ -19,7 +19,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from .cli import EXIT_CODES, Command
+from .cli import EXIT_CODES, Command, number_in, positive_float
 from .errors import InputError
 
 __all__ = ["COMMANDS", "add_design_arguments", "run_design", "open_session"]
@@ -28,12 +28,12 @@ __all__ = ["COMMANDS", "add_design_arguments", "run_design", "open_session"]
 def add_design_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport design``."""
     p.add_argument("scene", metavar="SCENE", help="scene/mesh file, shape:NAME[:N], or an edit script (.toml)")
-    p.add_argument("--port", type=int, default=0, metavar="P", help="port on 127.0.0.1 (default: a free one)")
+    p.add_argument("--port", type=number_in("[0, 65535]", integer=True), default=0, metavar="P", help="port on 127.0.0.1 (default: a free one)")
     p.add_argument("--no-browser", action="store_true", help="print the URL only; do not open a browser")
     p.add_argument("--up", default=None, metavar="AXIS", help="the scene file's vertical axis (default: the format's)")
     p.add_argument("--supports", default=None, metavar="boundary|FILE", help="supports for files without pins")
-    p.add_argument("--density", type=float, default=None, metavar="RHO", help="density [kg/m³] (default 2000)")
-    p.add_argument("--thickness", type=float, default=None, metavar="T", help="thickness [m] (default 0.1)")
+    p.add_argument("--density", type=positive_float, default=None, metavar="RHO", help="density [kg/m³] (default 2000)")
+    p.add_argument("--thickness", type=positive_float, default=None, metavar="T", help="thickness [m] (default 0.1)")
 
 
 def open_session(spec: str, *, up: str | None = None, supports: str | None = None, density: float | None = None,
@@ -74,10 +74,6 @@ def run_design(args: argparse.Namespace) -> int:
     """Start the server and serve until interrupted (see the module docstring)."""
     from .design.server import DesignServer, bind_loopback, create_app, new_token, serve
 
-    for k in ("density", "thickness"):
-        v = getattr(args, k)
-        if v is not None and not v > 0:
-            raise InputError(f"--{k} must be positive, got {v}")
     log = open_session(args.scene, up=args.up, supports=args.supports, density=args.density,
                        thickness=args.thickness)
     sock = bind_loopback(args.port)

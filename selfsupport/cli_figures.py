@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .cli import Command, _positive_float, _positive_int
+from .cli import Command, _positive_float, _positive_int, number_in
 from .errors import InputError
 
 __all__ = ["COMMANDS", "add_render_arguments", "run_render", "add_view_arguments", "run_view", "load_document"]
@@ -86,8 +86,10 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
                    help="masonry thickness [m] for --what deviation: show whether the network lies within "
                         "± T/2 of the reference (default: the thickness the solve used, if stored)")
     p.add_argument("--dpi", type=_positive_int, default=150, help="resolution (the figure is 8 x 6 inches)")
-    p.add_argument("--elev", type=float, default=30.0, help="camera elevation of 3D views [degrees] (default 30)")
-    p.add_argument("--azim", type=float, default=-60.0, help="camera azimuth of 3D views [degrees] (default -60)")
+    p.add_argument("--elev", type=number_in("[-90, 90]"), default=30.0,
+                   help="camera elevation of 3D views [degrees, -90 .. 90] (default 30)")
+    p.add_argument("--azim", type=number_in("[-360, 360]"), default=-60.0,
+                   help="camera azimuth of 3D views [degrees, -360 .. 360] (default -60)")
 
 
 def run_render(args: argparse.Namespace) -> int:

@@ -4,24 +4,27 @@
 
     selfsupport koebe --out NET.json [--example NAME | --mesh FILE [--up AXIS]] [--alpha A]
                       [--kind tangent|inscribed] [--n N] [--hole H] [--spacing S] [--mobius NAME]
-                      [--load-density Q] [--loads reciprocal|top-view]
+                      [--load-density Q] [--loads reciprocal|top-view] [--tol T]
                       [--phi-out PHI.obj] [--partner-out R.obj] [--network-out S.obj]
 
 The paper's §5 family (Fig. 15): from a Koebe mesh Φ (a built-in example or a quad mesh file)
 its minimal partner R (the polar of the Christoffel dual of Φ's polar mesh) and the thrust
 network ``−(Φ + αR)`` (z up) in equilibrium for unit load, written in the network format with
 a ``koebe`` key (α, φ and r per vertex, K_Φ per vertex, the Koenigs defect and the other
-evidence). Exit 0 on success, 2 on bad input (including a mesh whose polar mesh is not Koenigs).
+evidence) and its ``status``: ``converged`` when it is in equilibrium to ``--tol``, else ``failed``.
+Exit 0 when it is in equilibrium, 4 when not (the file is written anyway: rounded coordinates, or
+top-view loads on a mesh with K_Φ ≠ 1), 2 on bad input (including a mesh whose polar mesh is not
+Koenigs).
 Nothing heavy is imported until the command runs.
 """
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
-from .cli import EXIT_CODES, Command, positive_float, positive_int, print_table
+from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
+                  positive_float, positive_int, print_table, tolerance, write_network_out)
 
 __all__ = ["COMMANDS", "EXAMPLE_NAMES", "KIND_NAMES", "MOBIUS_NAMES", "LOAD_RULE_NAMES", "add_koebe_arguments",
            "run_koebe"]
@@ -32,11 +35,15 @@ EXAMPLE_NAMES = ("enneper", "grid")
 KIND_NAMES = ("tangent", "inscribed")
 MOBIUS_NAMES = ("identity", "inversion")
 LOAD_RULE_NAMES = ("reciprocal", "top-view")
+#: ``--alpha`` range: beyond it αR is more than a million times Φ's height range, and the round-off
+#: of the heights (which grows with α: 1.2e-12 × α on enneper) swamps the equilibrium, up to
+#: overflow near 1e200
+ALPHA_RANGE = "[-1e6, 1e6]"
 
 
 def add_koebe_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport koebe``."""
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write (JSON)")
+    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--example", choices=EXAMPLE_NAMES, default=None,
                      help="built-in Koebe mesh (default enneper: the layout of the paper's Fig. 15)")
@@ -45,12 +52,12 @@ def add_koebe_arguments(p: argparse.ArgumentParser) -> None:
                           "network and reflected into Φ (the paper's files: --up=-y)")
     p.add_argument("--up", default=None, metavar="AXIS",
                    help="vertical axis of --mesh and of the written meshes (default z)")
-    p.add_argument("--alpha", type=float, default=1.0, help="family parameter α (default 1; R is scaled to Φ's "
-                                                            "height range)")
+    p.add_argument("--alpha", type=number_in(ALPHA_RANGE), default=1.0,
+                   help=f"family parameter α in {ALPHA_RANGE} (default 1; R is scaled to Φ's height range)")
     p.add_argument("--kind", choices=KIND_NAMES, default="tangent",
                    help="example meshes: edges tangent to z = (x²+y²)/2 (a Koebe mesh, default) or vertices on it")
     p.add_argument("--n", type=positive_int, default=None, help="example grid: vertices per side")
-    p.add_argument("--hole", type=int, default=None, help="example grid: central vertices per side left out")
+    p.add_argument("--hole", type=number_in("[0, inf)", integer=True), default=None, help="example grid: central vertices per side left out")
     p.add_argument("--spacing", type=positive_float, default=None, help="example grid: spacing of the circles")
     p.add_argument("--mobius", choices=MOBIUS_NAMES, default=None, help="example grid: Möbius map of the top view")
     p.add_argument("--koenigs-tol", type=positive_float, default=1e-8, metavar="T",
@@ -61,6 +68,8 @@ def add_koebe_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loads", choices=LOAD_RULE_NAMES, default="reciprocal",
                    help="nodal loads: reciprocal-cell areas (exact for every α, default) or top-view areas "
                         "(exact only where K_Φ = 1, i.e. inscribed meshes)")
+    p.add_argument("--tol", type=tolerance, default=None, metavar="T",
+                   help="max relative error that counts as in equilibrium (default 1e-6, as 'check')")
     p.add_argument("--phi-out", metavar="PHI.obj", default=None, help="also write the Airy surface Φ (convex)")
     p.add_argument("--partner-out", metavar="R.obj", default=None, help="also write the minimal partner R (x, y, r)")
     p.add_argument("--network-out", metavar="S.obj", default=None, help="also write the network as a mesh")
@@ -70,10 +79,10 @@ def run_koebe(args: argparse.Namespace) -> int:
     """Build the family member and write it."""
     import numpy as np
 
-    from .api import koebe
+    from .api import DEFAULT_CHECK_TOL, koebe
     from .errors import InputError
     from .evidence import face_nonplanarity
-    from .io import write_mesh, write_network
+    from .io import network_suffix, write_mesh
     from .io.axes import rotation
     from .io.safety import check_outputs
 
@@ -82,6 +91,7 @@ def run_koebe(args: argparse.Namespace) -> int:
     outputs = [("--out", args.out), ("--phi-out", args.phi_out), ("--partner-out", args.partner_out),
                ("--network-out", args.network_out)]
     check_outputs(outputs, [("--mesh", args.mesh)])
+    network_suffix(args.out)
     named = [(w, os.path.realpath(p)) for w, p in outputs if p is not None]
     for k, (w, p) in enumerate(named):
         for w2, p2 in named[:k]:
@@ -114,8 +124,10 @@ def run_koebe(args: argparse.Namespace) -> int:
                        "supports = boundary vertices, their loads = -q * top-view area; "
                        "K_phi = reciprocal cell area / top-view area",
     }
-    write_network(args.out, net, koebe=evidence, max_relative_error=net.max_relative_error(),
-                  min_weight=net.min_weight())
+    tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
+    status = built_status(net, tol)
+    write_network_out(args.out, net, up=up, koebe=evidence, status=status, tol=tol,
+                      max_relative_error=net.max_relative_error(), min_weight=net.min_weight())
     written = [args.out]
     for path, mesh in ((args.phi_out, mesh_phi), (args.partner_out, mesh_r), (args.network_out, net.mesh)):
         if path:
@@ -135,13 +147,20 @@ def run_koebe(args: argparse.Namespace) -> int:
             ("time", f"{seconds:.3f} s"),
             ("written", ", ".join(written))]
     print_table("selfsupport koebe", rows)
-    err = net.max_relative_error()
-    if err > 1e-6:
-        # a finding about the input, not a failure: rounded coordinates leave Φ's faces only nearly
-        # planar and its reciprocal cells only nearly closed
-        print(f"selfsupport: warning: the network is in equilibrium only to a relative error of {err:.1e}; Φ's faces are "
-              f"planar to {evidence['max_nonplanarity']['phi']:.1e} and its polar mesh has a Koenigs defect of "
-              f"{R.dual.koenigs_defect:.1e} (rounded coordinates?)", file=sys.stderr)
+    if status != "converged":
+        # (rounded coordinates leave Φ's faces only nearly planar and its reciprocal cells only nearly
+        # closed; top-view loads are exact only where K_Φ = 1; the heights' round-off grows with |α|)
+        flat, defect = evidence["max_nonplanarity"]["phi"], R.dual.koenigs_defect
+        why = []
+        if max(flat, defect) > 1e-10:
+            why.append(f"Φ's faces are planar to {flat:.1e} and its polar mesh has a Koenigs defect of {defect:.1e} "
+                       "(rounded coordinates?)")
+        if fam.loads == "top-view":
+            why.append("top-view loads are exact only where K_Φ = 1 (use --kind inscribed or --loads reciprocal)")
+        if not why or abs(fam.alpha) > 1:
+            why.append(f"the heights' round-off grows with |α| (α = {fam.alpha:g}; try a smaller |--alpha|)")
+        _err(not_in_equilibrium_line(net, tol, args.out, "; ".join(why) + "; or give a larger --tol"))
+        return STATUS_EXIT[status]
     return EXIT_CODES["ok"]
 
 

@@ -21,7 +21,8 @@ import json
 from pathlib import Path
 
 
-from .cli import EXIT_CODES, Command, add_scene_arguments, load_scene, positive_float, print_table
+from .cli import (EXIT_CODES, Command, add_scene_arguments, load_scene, number_in, positive_float, positive_int,
+                  print_table)
 from .errors import InputError
 
 __all__ = ["COMMANDS", "parse_vertices", "parse_loads"]
@@ -74,7 +75,7 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
                    help="added masses [kg] (default 0,5000,10000,20000)")
     p.add_argument("--max-load", action="store_true",
                    help="instead, bisect for the largest added mass with a network inside the hull")
-    p.add_argument("--load-tol", type=positive_float, default=0.05, metavar="R",
+    p.add_argument("--load-tol", type=number_in("(0, 1)"), default=0.05, metavar="R",
                    help="--max-load stops when the bracket is within R of its upper end (default 0.05)")
     p.add_argument("--method", choices=["staggered", "ipopt"], default="staggered",
                    help="staggered (no hull, then the hull as an active set) or ipopt (hard hull rows; warm-started from the "
@@ -144,12 +145,13 @@ def _destroy_args(p: argparse.ArgumentParser) -> None:
     from .api import DEFAULT_DENSITY
 
     add_scene_arguments(p)
-    p.add_argument("--remove", action="append", type=int, required=True, metavar="VERTEX",
+    p.add_argument("--remove", action="append", type=number_in("[0, inf)", integer=True, what="a vertex index"),
+                   required=True, metavar="VERTEX",
                    help="a vertex whose 1-ring of faces is removed; repeatable")
     p.add_argument("--thickness", type=positive_float, required=True, metavar="T", help="shell thickness [m]")
     p.add_argument("--density", type=positive_float, default=DEFAULT_DENSITY, metavar="RHO",
                    help=f"material density [kg/m^3] (default {DEFAULT_DENSITY:g})")
-    p.add_argument("--max-stages", type=int, default=20, metavar="N", help="stop after N stages (default 20)")
+    p.add_argument("--max-stages", type=positive_int, default=20, metavar="N", help="stop after N stages (default 20)")
     p.add_argument("--no-figure", action="store_true", help="skip stages.png")
     p.add_argument("--out", "-o", required=True, metavar="DIR", help="output folder")
 

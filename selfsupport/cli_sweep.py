@@ -1,4 +1,4 @@
-"""``selfsupport sweep SWEEP.toml --out DIR [--scheduler ADDRESS] [--workers N]``.
+"""``selfsupport sweep SWEEP.toml --out DIR [--scheduler ADDRESS] [--workers N] [--yes]``.
 
 Runs a parameter sweep (:mod:`selfsupport.sweep`) on dask.distributed — a LocalCluster with
 one worker process per core by default, or the cluster behind ``--scheduler`` — and writes
@@ -7,7 +7,8 @@ into ``DIR``: ``results.sqlite`` (the store, one row per finished run, resumable
 Running the same command again executes only the runs missing from the store; ``--retry
 failed timeout`` also re-runs those.
 
-Exit codes: 0 when every run of the sweep is in the store (whatever the runs' statuses:
+A sweep of more than :data:`CONFIRM_RUNS` runs starts only with ``--yes`` (a grid grows as the
+product of its lists). Exit codes: 0 when every run of the sweep is in the store (whatever the runs' statuses:
 a failed run is a result), 2 bad sweep file or arguments, 130 interrupted (finished runs are
 kept). Registered through :data:`COMMANDS` (discovered by :mod:`selfsupport.cli`).
 """
@@ -20,7 +21,10 @@ from typing import Sequence
 
 from .cli import EXIT_CODES, Command, _positive_int, print_table
 
-__all__ = ["COMMANDS", "add_arguments", "run", "main"]
+__all__ = ["COMMANDS", "CONFIRM_RUNS", "add_arguments", "run", "main"]
+
+#: Above this many runs a sweep starts only with ``--yes``.
+CONFIRM_RUNS = 1000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--retry", nargs="+", default=(), metavar="STATUS",
                    help="also re-run stored runs with these statuses (e.g. failed timeout crashed stalled)")
     p.add_argument("--no-report", action="store_true", help="skip the exports, report.md and plots")
+    p.add_argument("--yes", action="store_true",
+                   help=f"start a sweep of more than {CONFIRM_RUNS:,} runs (without it, such a sweep is refused)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
 
 
@@ -55,6 +61,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(out, files=["results.sqlite", "results.csv", "results.parquet", "report.md"],
                      inputs=[("SWEEP.toml", args.sweep)])
     spec = load_spec(args.sweep, scene_dir=args.scenes)
+    n_runs = len(spec.expand())
+    if n_runs > CONFIRM_RUNS and not args.yes:
+        raise InputError(f"{args.sweep} expands to {n_runs:,} runs (more than {CONFIRM_RUNS:,}); rerun with --yes to "
+                         "start them all, or make its lists shorter")
     outcome = run_sweep(spec, out, scheduler=args.scheduler, workers=args.workers, retry=args.retry,
                         progress=not args.quiet)
     rows = [("sweep", f"{spec.name} ({spec.source})"), ("runs", str(outcome.n_runs)),

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 from .errors import InputError
 
-__all__ = ["parse_interval", "check_range", "check_options"]
+__all__ = ["parse_interval", "in_interval", "check_range", "check_options"]
 
 
 def parse_interval(spec: str) -> tuple[float, float, bool, bool]:
@@ -30,6 +30,16 @@ def parse_interval(spec: str) -> tuple[float, float, bool, bool]:
     return lo, hi, s[0] == "[", s[-1] == "]"
 
 
+def in_interval(value: float, spec: str) -> bool:
+    """Whether ``value`` lies in the interval ``spec`` (NaN lies in none).
+
+    >>> in_interval(1.0, "(0, 1]"), in_interval(0.0, "(0, 1]"), in_interval(float("nan"), "(-inf, inf)")
+    (True, False, False)
+    """
+    lo, hi, lo_c, hi_c = parse_interval(spec)
+    return (value >= lo if lo_c else value > lo) and (value <= hi if hi_c else value < hi)
+
+
 def check_range(name: str, value: Any, spec: str | None) -> None:
     """Raise :class:`InputError` when ``value`` is not finite or lies outside the interval ``spec``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -38,9 +48,7 @@ def check_range(name: str, value: Any, spec: str | None) -> None:
         raise InputError(f"option {name}={value!r} is not a finite number; give a finite value")
     if spec is None:
         return  # (an infinity passes only an interval closed at inf, e.g. "[0, inf]")
-    lo, hi, lo_c, hi_c = parse_interval(spec)
-    inside = (value >= lo if lo_c else value > lo) and (value <= hi if hi_c else value < hi)
-    if not inside:
+    if not in_interval(value, spec):
         raise InputError(f"option {name}={value:g} is out of range: it must lie in {spec}")
 
 

@@ -493,6 +493,7 @@ def test_cli_airy_writes_the_documented_file(tmp_path):
                  "--reciprocal", str(tmp_path / "recip.obj"), "--vector-fields", str(tmp_path / "vf.txt")])
     assert code == 0
     doc = json.loads(out.read_text())
+    assert doc["in_equilibrium"] is True and doc["max_relative_error"] <= doc["tol"]
     for key in ("phi", "reciprocal_vertices", "H_rel", "K_phi", "balance_residual", "closure_residual", "convex"):
         assert key in doc
     assert len(doc["phi"]) == net.mesh.n_vertices
@@ -506,6 +507,30 @@ def test_cli_airy_writes_the_documented_file(tmp_path):
     phi_mesh = read_mesh(tmp_path / "phi.obj")
     np.testing.assert_allclose(phi_mesh.vertices[:, 2], doc["phi"], rtol=1e-12, atol=1e-12)
     assert (tmp_path / "recip.obj").read_text().count("\nf ") == int((~net.mesh.boundary_vertex_mask).sum())
+
+
+def test_cli_airy_of_a_network_not_in_equilibrium_says_so_and_exits_nonzero(tmp_path, capsys):
+    """Free vertices moved sideways: every weight is still compressive, but the network has no Airy
+    surface; the verdict is that it is not in equilibrium (exit 4), not that some weight is tensile."""
+    from dataclasses import replace
+
+    from selfsupport.cli import main
+    from selfsupport.io import write_network
+
+    net = cheese_network()
+    V = net.vertices.copy()
+    free = ~net.supports
+    V[free, :2] += 0.05 * np.random.default_rng(0).standard_normal((int(free.sum()), 2))
+    moved = replace(net, mesh=net.mesh.with_vertices(V))
+    assert moved.min_weight() > 0 and moved.max_relative_error() > 1e-3
+    src, out = tmp_path / "net.json", tmp_path / "airy.json"
+    write_network(src, moved)
+    code = main(["airy", str(src), "--out", str(out)])
+    cap = capsys.readouterr()
+    assert code == 4 and cap.err.count("\n") == 1 and "NOT in equilibrium" in cap.err
+    assert "tensile" not in cap.out + cap.err
+    doc = json.loads(out.read_text())
+    assert doc["in_equilibrium"] is False and doc["max_relative_error"] > doc["tol"]
 
 
 def test_cli_airy_rejects_a_missing_file(tmp_path, capsys):
@@ -522,3 +547,22 @@ def test_cli_choice_lists_match_the_registries():
 
     assert sorted(PHI_NAMES) == sorted(PHI_FUNCTIONS)
     assert sorted(INTEGRATION_NAMES) == sorted(INTEGRATIONS)
+
+
+def test_relative_principal_directions_do_not_depend_on_the_scale_of_the_hessians():
+    """H_phi⁻¹ H_s at any scale (a network 1e150 m high, an Airy surface of 1e-150): the same
+    directions, eigenvalues scaled by the ratio, and no numpy overflow warning on the way."""
+    import warnings
+
+    rng = np.random.default_rng(3)
+    B = rng.standard_normal((50, 2, 2))
+    Hp = B @ B.transpose(0, 2, 1) + 0.5 * np.eye(2)  # convex Φ: positive definite
+    C = rng.standard_normal((50, 2, 2))
+    Hs = C + C.transpose(0, 2, 1)
+    lam, vec = relative_principal(Hp, Hs)
+    assert np.isfinite(lam).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lam2, vec2 = relative_principal(Hp * 1e-150, Hs * 1e150)
+    np.testing.assert_allclose(lam2, lam * 1e300, rtol=1e-9)
+    np.testing.assert_allclose(np.abs((vec2 * vec).sum(axis=-2)), 1.0, atol=1e-9)  # same directions up to sign

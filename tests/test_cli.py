@@ -570,3 +570,78 @@ def test_a_point_load_on_a_support_is_warned_and_changes_nothing(tmp_path, capsy
     assert cli.main(["solve", "shape:pillar_vault:100", "--out", str(tmp_path / "free.json"), "-q",
                      "--point-load", f"{f}:5000"]) == 0
     assert "on supports" not in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ numeric option ranges
+@pytest.mark.parametrize("argv, interval", [
+    (["check", "N.json", "--tol", "100"], "(0, 1]"),
+    (["solve", "shape:dome", "--out", "OUT", "--tol", "2"], "(0, 1]"),
+    (["solve", "shape:dome", "--out", "OUT", "--planar", "nan"], "(0, 1]"),
+    (["solve", "shape:dome", "--out", "OUT", "--time-limit", "inf"], "(0, inf)"),
+    (["render", "N.json", "--out", "OUT", "--elev", "nan"], "[-90, 90]"),
+    (["render", "N.json", "--out", "OUT", "--azim", "inf"], "[-360, 360]"),
+    (["pq", "N.json", "--out", "OUT", "--angle", "nan"], "[-360, 360]"),
+    (["pq", "N.json", "--out", "OUT", "--tol", "5"], "(0, 1]"),
+    (["construct", "--disk", "3", "--out", "OUT", "--load", "5"], "(-inf, 0)"),
+    (["construct", "--disk", "3", "--out", "OUT", "--boundary-height", "nan"], "(-inf, inf)"),
+    (["construct", "--random", "9", "--out", "OUT", "--seed", "-1"], "[0, inf)"),
+    (["stability", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--load-tol", "2"], "(0, 1)"),
+    (["destroy", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--remove", "-3"], "[0, inf)"),
+    (["destroy", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--remove", "3", "--max-stages", "0"],
+     "[1, inf)"),
+    (["design", "shape:dome", "--port", "70000"], "[0, 65535]"),
+    (["design", "shape:dome", "--density", "nan"], "(0, inf)"),
+])
+def test_numeric_options_out_of_range_are_refused_with_the_range(tmp_path, capsys, argv, interval):
+    """NaN, infinities and values outside an option's range: exit 2 before any work, one line that
+    names the option and its range, nothing written."""
+    out = tmp_path / "out"
+    code = cli.main([str(out) if a == "OUT" else str(tmp_path / a) if a == "N.json" else a for a in argv])
+    err = capsys.readouterr().err
+    option = next(a for a in reversed(argv) if a.startswith("--"))
+    assert_one_line_error(err, code, 2, needle=f"argument {option}")
+    assert interval in err and not out.exists()
+
+
+def test_a_negative_number_in_e_notation_is_taken_as_the_option_value(tmp_path, capsys):
+    out = tmp_path / "net.json"
+    assert cli.main(["construct", "--disk", "3", "--load", "-1e3", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["construction"]["load"] == -1000.0
+
+
+@pytest.mark.parametrize("option", ["--extra-mass=3:-1e9", "--point-load=3:-1e9"])
+def test_an_upward_extra_load_is_named_as_such_not_as_a_zero_area(tmp_path, capsys, option):
+    out = tmp_path / "net.json"
+    code = cli.main(["solve", "shape:dome:80", "--out", str(out), option])
+    err = capsys.readouterr().err
+    assert_one_line_error(err, code, 2, needle="vertex 3 carries a net upward load")
+    assert "zero area" not in err and not out.exists()
+
+
+@pytest.mark.parametrize("name", ["result.txt", "result"])
+@pytest.mark.parametrize("command", [["solve", "shape:dome:80"], ["koebe"], ["construct", "--disk", "2"]])
+def test_out_with_a_suffix_no_writer_has_is_refused_before_any_work(tmp_path, capsys, monkeypatch, command, name):
+    from selfsupport import api
+
+    monkeypatch.setattr(api, "solve", lambda *a, **k: pytest.fail("solved although --out cannot be written"))
+    out = tmp_path / name
+    code = cli.main([*command, "--out", str(out)])
+    assert_one_line_error(capsys.readouterr().err, code, 2, needle=".json")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off"])
+def test_out_with_a_mesh_suffix_holds_that_mesh_format(tmp_path, capsys, suffix):
+    """``--out NET.obj`` writes the network's geometry as OBJ (readable as a mesh of the same
+    vertices), not JSON under a mesh suffix; one stderr line says the weights are not in it."""
+    from selfsupport.io import read_mesh, read_network
+
+    out, ref = tmp_path / f"net{suffix}", tmp_path / "net.json"
+    assert cli.main(["construct", "--disk", "2", "--out", str(ref)]) == 0
+    assert cli.main(["construct", "--disk", "2", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "geometry only" in err
+    assert not out.read_bytes().lstrip().startswith(b"{")
+    mesh, net = read_mesh(out), read_network(ref)
+    np.testing.assert_allclose(mesh.vertices, net.vertices, rtol=0, atol=1e-12 * np.abs(net.vertices).max())
+    assert mesh.n_faces == net.mesh.n_faces

@@ -233,9 +233,23 @@ def test_cli_construct_writes_a_network_the_solver_format_reads(tmp_path):
     assert net.vertices[:, 2].max() == pytest.approx(1.5, rel=1e-9)
     assert net.max_relative_error() < 1e-12
     doc = json.loads(out.read_text())
-    assert doc["construction"]["phi"] == "paraboloid"
+    assert doc["construction"]["phi"] == "paraboloid" and doc["status"] == "converged"
     assert main(["construct", "--random", "80", "--self-weight", "--phi", "quartic", "--out", str(out)]) == 0
     assert read_network(out).max_relative_error() < 1e-11
+
+
+def test_cli_construct_exits_nonzero_when_round_off_leaves_it_out_of_equilibrium(tmp_path, capsys):
+    """Supports 1e10 m up and a rise of 3 m: the heights keep only the rise's first digits, and the
+    network misses the tolerance; it is written with status 'failed' and the exit code says so."""
+    from selfsupport.cli import main
+    from selfsupport.io import read_network
+
+    out = tmp_path / "c.json"
+    code = main(["construct", "--disk", "4", "--boundary-height", "1e10", "--out", str(out)])
+    err = capsys.readouterr().err
+    doc = json.loads(out.read_text())
+    assert read_network(out).max_relative_error() > doc["tol"]
+    assert code == 4 and err.count("\n") == 1 and "NOT in equilibrium" in err and doc["status"] == "failed"
 
 
 def test_a_free_cluster_cut_off_from_the_supports_by_zero_weights_is_found():

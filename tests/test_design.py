@@ -269,6 +269,53 @@ relative_dummy_removed = 0
 """
 
 
+@pytest.mark.parametrize("table, needle", [
+    ('select = { nearest = [nan, nan] }', "nearest[0] must be a finite number"),
+    ('select = { nearest = [0.5] }', "nearest must be a list of 2 entries"),
+    ('select = { nearest = ["x", 0.5] }', "nearest[0] must be a finite number, got 'x'"),
+    ('select = { nearest = [0.5, 0.5], relative = "yes" }', "relative must be true or false"),
+    ('select = { nearest = [0.5, 0.5] }\nroi_rings = -1', "roi_rings=-1 is out of range: it must lie in [0, inf)"),
+    ('select = { nearest = [0.5, 0.5] }\nroi_rings = 2.5', "roi_rings must be an integer, got 2.5"),
+    ('select = { nearest = [0.5, 0.5] }\nroi_radius = -0.1', "roi_radius=-0.1 is out of range"),
+    ('select = { nearest = [0.5, 0.5] }\nsolve = "false"', "solve must be true or false (no quotes), got 'false'"),
+    ('select = { nearest = [0.5, 0.5] }\nby = inf', "by must be a finite number"),
+])
+def test_edit_script_fields_are_checked_strictly_when_the_script_is_read(table, needle) -> None:
+    """A string is not a bool ("false" is true in Python), NaN is no point, a negative ring count
+    is no region: each is refused when the script is parsed, naming the edit and the field."""
+    from selfsupport.errors import InputError
+
+    text = '[start]\nscene = "shape:dome:80"\n[[edit]]\nop = "raise"\n' + table + "\n"
+    with pytest.raises(InputError) as e:
+        EditScript.loads(text)
+    assert needle in str(e.value) and "[[edit]] number 1" in str(e.value)
+
+
+@pytest.mark.parametrize("start, needle", [
+    ('density = "x"', "density must be a finite number, got 'x'"),
+    ("thickness = -0.1", "thickness must be positive"),
+    ("w_max = nan", "w_max must be a finite number"),
+])
+def test_edit_script_start_values_are_checked_when_the_script_is_read(start, needle) -> None:
+    from selfsupport.errors import InputError
+
+    with pytest.raises(InputError, match="edit script \\[start\\]") as e:
+        EditScript.loads('[start]\nscene = "shape:dome:80"\n' + start + "\n")
+    assert needle in str(e.value)
+
+
+def test_cli_edit_refuses_a_bad_script_in_one_line_before_any_work(tmp_path, capsys) -> None:
+    from selfsupport.cli import main
+
+    script = tmp_path / "e.toml"
+    script.write_text('[start]\nscene = "shape:dome:80"\n[[edit]]\nop = "pin"\nselect = { vertices = [3] }\n'
+                      'solve = "false"\n')
+    out = tmp_path / "out"
+    assert main(["edit", str(script), "--out", str(out), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "solve must be true or false" in err and not out.exists()
+
+
 def test_edit_script_round_trips_and_replays_deterministically() -> None:
     text = SCRIPT.replace("relative_dummy_removed = 0\n", "roi_rings = 3\n") + """
 [[edit]]

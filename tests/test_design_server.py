@@ -338,7 +338,7 @@ def test_200_edits_none_lost_last_frame_matches_a_fresh_solve(tmp_path):
 
 @pytest.mark.parametrize("argv, needle", [
     (["design", "no-such-file.obj", "--no-browser"], "no such file"),
-    (["design", "shape:dome:60", "--no-browser", "--density", "-1"], "--density must be positive"),
+    (["design", "shape:dome:60", "--no-browser", "--density", "-1"], "--density: '-1' must be a positive finite number"),
     (["design", "missing.toml", "--no-browser"], "cannot read the edit script"),
 ])
 def test_design_bad_input_is_one_line(argv, needle, capsys, tmp_path, monkeypatch):

@@ -591,6 +591,18 @@ def test_unwritable_target_is_an_input_error(tmp_path):
         atomic_write_text(tmp_path / "dir", "x")
 
 
+def test_an_output_folder_below_a_file_is_refused_naming_the_folder_given(tmp_path, capsys):
+    """The message names the folder the user gave, not a path made up below it."""
+    from selfsupport.cli import main
+
+    (tmp_path / "file").write_text("kept")
+    rep = tmp_path / "file" / "rep"
+    assert main(["demo", "--out", str(rep)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"cannot write --out {rep}:" in err and "is a file, not a folder" in err
+    assert str(rep / "x") not in err and (tmp_path / "file").read_text() == "kept"
+
+
 # ---------------------------------------------------------------------------------- paper scenes
 SSS_COUNTS = {  # ../shared/paper-scenes/README.md; pins from DESIGN.md and the files
     "lilium": (1201, 3504, 96), "lilium-pillar": (1200, 3500, None), "cas": (1535, 2976, None),

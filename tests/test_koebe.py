@@ -309,7 +309,10 @@ def test_cli_koebe_reads_a_dome_file_and_rebuilds_the_same_network(tmp_path, cap
 
 @pytest.mark.parametrize("argv, message", [
     (["--mesh", "M", "--n", "4"], "describe a built-in example"),
-    (["--alpha", "nan"], "alpha must be finite"),
+    (["--alpha", "nan"], "give a finite number in [-1e6, 1e6]"),
+    (["--alpha", "1e300"], "give a finite number in [-1e6, 1e6]"),
+    (["--hole", "-1"], "give an integer in [0, inf)"),
+    (["--tol", "2"], "give a finite number in (0, 1]"),
     (["--up", "w"], "unknown vertical axis"),
     (["--mesh", "NOTKOENIGS"], "not a Koenigs net"),
     (["--phi-out", "OUT"], "name the same file"),
@@ -324,6 +327,37 @@ def test_cli_koebe_refuses_bad_input_in_one_line(tmp_path, capsys, argv, message
     code = main(["koebe", "--out", str(tmp_path / "o.json")] + [subst.get(a, a) for a in argv])
     err = capsys.readouterr().err
     assert code == 2 and message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("argv, cause", [
+    (["--loads", "top-view"], "top-view loads are exact only where K_Φ = 1"),  # tangent: K_Φ = 0.91 .. 0.99
+    (["--alpha", "1e6", "--tol", "1e-9"], "round-off grows with |α|"),
+])
+def test_cli_koebe_exits_nonzero_when_its_network_is_not_in_equilibrium(tmp_path, capsys, argv, cause):
+    """The network is written (status 'failed'), the checker refuses it at the same tolerance, and
+    the exit code and the one stderr line say that it is not in equilibrium, and why."""
+    from selfsupport.cli import main
+
+    out = tmp_path / "net.json"
+    code = main(["koebe", "--example", "enneper", "--n", "10", "--hole", "2", "--out", str(out)] + argv)
+    err = capsys.readouterr().err
+    assert code == 4 and err.count("\n") == 1 and "NOT in equilibrium" in err and cause in err
+    doc = json.loads(out.read_text())
+    assert doc["status"] == "failed" and doc["max_relative_error"] > doc["tol"]
+    if CHECKER.is_file():
+        p = subprocess.run([sys.executable, str(CHECKER), str(out), "--tol", str(doc["tol"])], capture_output=True,
+                           text=True, timeout=60)
+        assert p.returncode != 0, p.stdout
+
+
+def test_cli_koebe_writes_the_status_of_a_network_in_equilibrium(tmp_path):
+    from selfsupport.cli import main
+
+    out = tmp_path / "net.json"
+    assert main(["koebe", "--example", "enneper", "--n", "10", "--hole", "2", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["status"] == "converged" and doc["max_relative_error"] <= doc["tol"]
 
 
 def test_koebe_study_recovers_the_alpha_of_a_summed_mesh(tmp_path):

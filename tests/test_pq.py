@@ -111,6 +111,23 @@ def test_remesh_refuses_a_bad_spacing(dome):
             remesh(net, spacing=bad)
 
 
+@pytest.mark.parametrize("spacing", [0.5, 1.0, 100.0])
+def test_a_spacing_too_coarse_for_the_top_view_is_refused_in_one_line(tmp_path, capsys, dome, spacing):
+    """A spacing near or above the top view's size (here a fraction of its diagonal) draws a line or
+    two, or none: one line naming --spacing and the default to try, exit 2, nothing written."""
+    from selfsupport.cli import main
+    from selfsupport.io import write_network
+
+    scene, net = dome
+    src, out = tmp_path / "dome.json", tmp_path / "pq.json"
+    write_network(src, net)
+    diag = float(np.linalg.norm(np.ptp(net.vertices[:, :2], axis=0)))
+    assert main(["pq", str(src), "--out", str(out), "--spacing", str(spacing * diag)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--spacing" in err and "choose a smaller --spacing" in err
+    assert "Traceback" not in err and not out.exists()
+
+
 @requires_checker
 def test_remesh_carries_pillars_and_the_remeshed_design_stands():
     """A vault on four interior pillars: each pillar is a supported vertex of the remesh where it

@@ -394,3 +394,34 @@ def test_shipped_sweep_files_parse_and_expand(path):
             assert {k for k, _ in r.options} <= set(StaggeredOptions.__dataclass_fields__)
     if path.name == "sweep_schedule.toml":  # 6 scenes × 4 shrink × 2 refine (the README's 48 runs)
         assert len(runs) == 48 and {dict(r.options)["shrink"] for r in runs} == {0.5, 0.35, 0.25, 0.15}
+
+
+def test_a_sweep_above_the_confirmation_count_needs_yes(tmp_path, capsys):
+    """40 densities × 30 thicknesses = 1,200 runs: refused in one line that gives the count and
+    --yes, before any scene is loaded or anything is written."""
+    from selfsupport.cli import main
+
+    grid = (f"density = [{', '.join(str(1000.0 + k) for k in range(40))}]\n"
+            f"thickness = [{', '.join(str(0.1 + k / 100) for k in range(30))}]")
+    path = tmp_path / "big.toml"
+    path.write_text(sweep_text(scenes=['"shape:dome?n_vertices=200"'], grid=grid))
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "1,200 runs" in err and "--yes" in err and not out.exists()
+
+
+def test_the_stderr_count_agrees_with_the_summary(tmp_path, capsys):
+    """Runs whose scene cannot be loaded are recorded without a cluster; the line on stderr and
+    the table on stdout give the same number of runs, stored and to do."""
+    from selfsupport.cli import main
+
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    path = tmp_path / "s.toml"
+    path.write_text(sweep_text(scenes=['"broken.obj"'], grid="density = [1000.0, 2000.0, 3000.0]"))
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--no-report"]) == 0
+    cap = capsys.readouterr()
+    assert "sweep: 3 runs, 0 already stored, 3 to do now" in cap.err
+    rows = dict(line.split(None, 1) for line in cap.out.splitlines()[1:] if line.startswith(("runs", "executed")))
+    assert rows["runs"].strip() == "3" and rows["executed"].split()[-1] == "3"

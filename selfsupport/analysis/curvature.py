@@ -148,6 +148,13 @@ def relative_principal(H_phi: np.ndarray, H_s: np.ndarray) -> tuple[np.ndarray, 
     """Eigenvalues ``(…, 2)`` (ascending) and unit eigenvectors ``(…, 2, 2)`` (``[…, k]`` is
     the k-th direction) of ``H_phi⁻¹ H_s``; ``NaN`` where ``H_phi`` is singular or the
     eigenvalues are complex (Φ not convex there)."""
+    # each matrix divided by its largest entry first (the directions do not change, the eigenvalues
+    # scale by the ratio): products of entries of a network's size (heights of 1e200) then stay finite
+    a = np.abs(H_phi).max(axis=(-1, -2))
+    c = np.abs(H_s).max(axis=(-1, -2))
+    a, c = np.where(a > 0, a, 1.0), np.where(c > 0, c, 1.0)
+    ratio = c / a
+    H_phi, H_s = H_phi / a[..., None, None], H_s / c[..., None, None]
     det = H_phi[..., 0, 0] * H_phi[..., 1, 1] - H_phi[..., 0, 1] * H_phi[..., 1, 0]
     scale = np.abs(H_phi).max(axis=(-1, -2)) ** 2
     ok = np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)
@@ -176,6 +183,7 @@ def relative_principal(H_phi: np.ndarray, H_s: np.ndarray) -> tuple[np.ndarray, 
         v = np.where((nv > 1e-12 * np.maximum(np.abs(Mx).max(axis=(-1, -2)), 1e-300))[..., None],
                      v / np.where(nv > 0, nv, 1.0)[..., None], axis)
         vecs[..., :, k] = v
+    lam *= ratio[..., None]
     lam[~ok] = np.nan
     vecs[~ok] = np.nan
     return lam, vecs

@@ -36,10 +36,13 @@ Example
 """
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import math
 import numbers
-from dataclasses import dataclass, replace
+import typing
+from dataclasses import dataclass, field, replace
+from types import NoneType, UnionType
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
@@ -85,19 +88,20 @@ class Select:
     """A vertex selection (see the module docstring)."""
 
     vertices: tuple[int, ...] | None = None
-    nearest: tuple[float, ...] | None = None
-    near: tuple[float, ...] | None = None
-    radius: float | None = None
+    nearest: tuple[float, float] | None = None
+    near: tuple[float, float] | None = None
+    radius: float | None = field(default=None, metadata={"range": "(0, inf)"})
     box: tuple[tuple[float, float], tuple[float, float]] | None = None
     relative: bool = False
 
     @classmethod
-    def of(cls, value: Any) -> "Select":
+    def of(cls, value: Any, what: str = "select") -> "Select":
+        """A selection from its table (``what`` names it in messages)."""
         if isinstance(value, Select):
             return value
         if not isinstance(value, Mapping):
             raise InputError(f"a selection is a table like {{nearest = [x, y]}}, got {value!r}")
-        d = _known(cls, value, "select")
+        d = _known(cls, value, what)
         for k in ("vertices", "nearest", "near"):
             if d.get(k) is not None:
                 d[k] = tuple(int(x) if k == "vertices" else float(x) for x in d[k])
@@ -198,7 +202,7 @@ class Edit:
     def from_dict(cls, d: Mapping[str, Any]) -> "Edit":
         kw = _known(cls, {k: v for k, v in d.items() if k != "op"}, f"edit {cls.op!r}")
         if "select" in kw:
-            kw["select"] = Select.of(kw["select"])
+            kw["select"] = Select.of(kw["select"], f"edit {cls.op!r}: select")
         for k in ("offset", "chain"):
             if kw.get(k) is not None:
                 kw[k] = tuple(float(x) if k == "offset" else int(x) for x in kw[k])
@@ -236,8 +240,8 @@ class Move(Edit):
     select: Select
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mode: str = "full"
-    roi_rings: int = 8
-    roi_radius: float | None = None
+    roi_rings: int = field(default=8, metadata={"range": "[0, inf)"})
+    roi_radius: float | None = field(default=None, metadata={"range": "(0, inf)"})
     op: ClassVar[str] = "move"
 
     def apply(self, design: Design) -> Design:
@@ -258,8 +262,8 @@ class Raise(Edit):
 
     select: Select
     by: float = 0.0
-    roi_rings: int = 8
-    roi_radius: float | None = None
+    roi_rings: int = field(default=8, metadata={"range": "[0, inf)"})
+    roi_radius: float | None = field(default=None, metadata={"range": "(0, inf)"})
     op: ClassVar[str] = "raise"
     sign: ClassVar[float] = 1.0
 
@@ -285,8 +289,8 @@ class Pillar(Edit):
     select: Select
     ground: float | None = None
     hole: bool = False
-    roi_rings: int = 8
-    roi_radius: float | None = None
+    roi_rings: int = field(default=8, metadata={"range": "[0, inf)"})
+    roi_radius: float | None = field(default=None, metadata={"range": "(0, inf)"})
     op: ClassVar[str] = "pillar"
 
     def apply(self, design: Design) -> Design:
@@ -468,7 +472,7 @@ class Load(Edit):
 class Subdivide(Edit):
     """Catmull–Clark ``levels`` times (supports and creases carried; :mod:`.subdivision`)."""
 
-    levels: int = 1
+    levels: int = field(default=1, metadata={"range": "[1, inf)"})
     op: ClassVar[str] = "subdivide"
 
     def apply(self, design: Design) -> Design:
@@ -701,8 +705,63 @@ def _diagonal(mesh: PolyMesh) -> float:
 
 
 def _known(cls: type, d: Mapping[str, Any], what: str) -> dict[str, Any]:
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(d) - names
+    """``d`` as keywords of ``cls``: every key one of its fields, every value of the field's type
+    (:func:`_check_value`) and inside its ``metadata["range"]`` (:func:`selfsupport.options.check_range`)."""
+    from ..options import check_range
+
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(d) - set(fields)
     if unknown:
-        raise InputError(f"{what}: unknown key(s) {sorted(unknown)}; known: {sorted(names)}")
+        raise InputError(f"{what}: unknown key(s) {sorted(unknown)}; known: {sorted(fields)}")
+    hints = typing.get_type_hints(cls)
+    for k, v in d.items():
+        _check_value(v, hints[k], f"{what}: {k}")
+        if fields[k].metadata.get("range") is not None and v is not None:
+            try:
+                check_range(k, v, fields[k].metadata["range"])
+            except InputError as e:
+                raise InputError(f"{what}: {e}") from None
     return dict(d)
+
+
+def _check_value(value: Any, hint: Any, where: str) -> None:
+    """Raise :class:`InputError` unless ``value`` (as read from TOML or JSON) has the type ``hint``
+    of an edit's field: a bool for ``bool`` (not the string "false"), an integer for ``int``, a
+    finite number for ``float``, a list of them for a ``tuple`` (of the tuple's length)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, UnionType):
+        if value is None and NoneType in args:
+            return
+        (hint,) = [a for a in args if a is not NoneType]  # (every field is X or X | None)
+        origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Select:
+        if not isinstance(value, (Select, Mapping)):
+            raise InputError(f"{where} must be a table like {{nearest = [x, y]}}, got {value!r}")
+        return
+    if hint is bool:
+        ok, kind = isinstance(value, bool), "true or false (no quotes)"
+    elif hint is int:
+        ok, kind = isinstance(value, int) and not isinstance(value, bool), "an integer"
+    elif hint is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        kind = "a finite number"
+    elif hint is str:
+        ok, kind = isinstance(value, str), "a string"
+    elif origin is tuple:
+        fixed = not (len(args) == 2 and args[1] is Ellipsis)
+        if not isinstance(value, (list, tuple)) or (fixed and len(value) != len(args)):
+            raise InputError(f"{where} must be a list of {len(args) if fixed else 'any number of'} "
+                             f"entries, got {value!r}")
+        for k, x in enumerate(value):
+            _check_value(x, args[k] if fixed else args[0], f"{where}[{k}]")
+        return
+    elif origin in (collections.abc.Mapping, dict):
+        if not isinstance(value, Mapping):
+            raise InputError(f"{where} must be a table, got {value!r}")
+        for k, x in value.items():
+            _check_value(x, args[1], f"{where}.{k}")
+        return
+    else:  # pragma: no cover - a field type this check does not know yet
+        raise TypeError(f"{where}: no check for the field type {hint!r}")
+    if not ok:
+        raise InputError(f"{where} must be {kind}, got {value!r}")

@@ -572,9 +572,10 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     pillars = np.flatnonzero(sup & ~mesh.boundary_vertex_mask)
     xy = mesh.vertices[:, :2]
     diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
+    e = mesh.edges
+    mean_edge = float(np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1).mean())
     if spacing is None:
-        e = mesh.edges
-        spacing = float(np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1).mean())
+        spacing = mean_edge
     elif relative:
         spacing = float(spacing) * diag
     if not (np.isfinite(spacing) and spacing > 0):
@@ -597,8 +598,16 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     domain = _domain(mesh)
     lines, info = METHODS[method](_Setting(mesh=mesh, tri=tri, doubled=(doubled[0], doubled[1]), spacing=spacing,
                                            domain=domain, max_lines=max_lines))
+    # (a spacing near the top view's size draws a line or two, whose faces merge away: no mesh)
+    too_coarse = InputError(f"--spacing {spacing:g} m draws too few lines for a mesh of this top view "
+                            f"({np.ptp(xy[:, 0]):.3g} x {np.ptp(xy[:, 1]):.3g} m); choose a smaller --spacing (the "
+                            f"default, the network's mean top-view edge length, is {mean_edge:.3g} m)")
+    if not (lines[0] and lines[1]):
+        raise too_coarse
     V2, faces = _arrangement(lines[0] + lines[1], domain, _corners(mesh), spacing)
     V2, faces, pillar_ids = _insert_points(V2, faces, xy[pillars], MERGE * spacing)
+    if not faces:
+        raise too_coarse
     used = np.unique(np.concatenate([np.asarray(f) for f in faces]))
     remap = -np.ones(len(V2), np.int64)
     remap[used] = np.arange(len(used))

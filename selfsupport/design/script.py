@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from ..errors import InputError
-from .edits import Design, Edit, edit_from_dict
+from .edits import Design, Edit, _check_value, edit_from_dict
 
 __all__ = ["EditScript", "Stage", "replay", "dumps_toml"]
 
@@ -71,14 +71,26 @@ class EditScript:
         bad = set(start) - {"scene", "density", "thickness", "w_max"}
         if bad:
             raise InputError(f"edit script [start]: unknown key(s) {sorted(bad)}")
+        if "scene" in start:
+            _check_value(start["scene"], str, "edit script [start]: scene")
+        for key in ("density", "thickness", "w_max"):  # (positive finite numbers: kg/m³, m, N/m)
+            if key in start:
+                _check_value(start[key], float, f"edit script [start]: {key}")
+                if not start[key] > 0:
+                    raise InputError(f"edit script [start]: {key} must be positive, got {start[key]!r}")
         edits, after = [], []
         for k, e in enumerate(d.get("edit", [])):
             e = dict(e)
-            after.append(bool(e.pop("solve", True)))
+            where = f"edit script, [[edit]] number {k + 1}"
+            solve = e.pop("solve", True)
+            _check_value(solve, bool, f"{where}: solve")
+            after.append(solve)
             try:
                 edits.append(edit_from_dict(e))
             except TypeError as err:
-                raise InputError(f"edit {k + 1} ({e.get('op')}): {err}") from None
+                raise InputError(f"{where} ({e.get('op')}): {err}") from None
+            except InputError as err:
+                raise InputError(f"{where}: {err}") from None
         return cls(edits=tuple(edits), solve_after=tuple(after), scene=start.get("scene"),
                    density=float(start.get("density", 2000.0)), thickness=float(start.get("thickness", 0.1)),
                    w_max=None if start.get("w_max") is None else float(start["w_max"]),

@@ -29,7 +29,7 @@ from .sss import read_sss, write_scene_sss
 from .supports import resolve_supports
 
 __all__ = ["read_scene", "read_mesh", "write_mesh", "write_scene_sss", "network_to_dict", "write_network",
-           "read_network"]
+           "read_network", "NETWORK_SUFFIXES", "network_suffix", "write_network_as"]
 
 #: suffix -> reader ``(path, up) -> LoadedMesh``
 READERS: dict[str, Callable[..., LoadedMesh]] = {".sss": read_sss, **MESH_READERS, ".json": read_json_scene}
@@ -106,3 +106,31 @@ def write_mesh(path: str | Path, mesh: PolyMesh, *, up: str = "z") -> None:
                          f"writable types are {', '.join(MESH_WRITERS)} (scenes: write_scene_sss, "
                          "networks: write_network)") from None
     writer(path, mesh, up=up)
+
+
+#: Suffixes a network can be written as: the network format, or its geometry alone as a mesh.
+NETWORK_SUFFIXES: tuple[str, ...] = (".json", *MESH_WRITERS)
+
+
+def network_suffix(path: str | Path, what: str = "--out") -> str:
+    """The (lower-case) suffix of a network output, checked before any work: ``.json`` (the
+    network format) or a mesh suffix of :data:`MESH_WRITERS` (the geometry only); anything else
+    raises :class:`InputError` with the list."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in NETWORK_SUFFIXES:
+        raise InputError(f"{what} {path}: cannot write a network as {suffix or '(no suffix)'!r}; give a .json file "
+                         f"(the network: weights, loads, supports) or {', '.join(MESH_WRITERS)} (its geometry only)")
+    return suffix
+
+
+def write_network_as(path: str | Path, result_or_network, *, up: str = "z", **extra) -> str:
+    """Write a network in the format its suffix names (:func:`network_suffix`): JSON with
+    :func:`write_network` (``extra`` keys included), or the network's mesh with :func:`write_mesh`
+    (``up`` its vertical axis; weights, loads, supports and ``extra`` are not in a mesh file).
+    Returns the suffix written."""
+    suffix = network_suffix(path)
+    if suffix == ".json":
+        write_network(path, result_or_network, **extra)
+    else:
+        write_mesh(path, getattr(result_or_network, "network", result_or_network).mesh, up=up)
+    return suffix

@@ -132,8 +132,10 @@ def check_name_lengths(path: str | os.PathLike, *, what: str = "--out") -> None:
                              f"system takes at most {limit}); choose a shorter name")
 
 
-def _writable_parent(p: Path, what: str) -> None:
-    parent = p.parent
+def _writable_parent(p: Path, what: str, *, folder: bool = False) -> None:
+    """The nearest existing folder above ``p`` (``folder``: from ``p`` itself on, which is to be a
+    folder) must be a writable folder."""
+    parent = p if folder else p.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
@@ -172,7 +174,7 @@ def check_output_dir(path: str | os.PathLike, *, what: str = "--out", files: Ite
             _refuse_inputs(f, f"{what} file", inputs)
         else:
             check_name_lengths(f, what=f"{what} file")
-    _writable_parent(p / "x", what)
+    _writable_parent(p, what, folder=True)
     return p
 
 

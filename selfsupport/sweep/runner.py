@@ -239,10 +239,10 @@ class _Progress:
     """done / failed / running / remaining / ETA on stderr (rich bar on a terminal, plain
     lines every ``interval`` seconds otherwise, nothing when disabled)."""
 
-    def __init__(self, total: int, skipped: int, enabled: bool, interval: float = 5.0) -> None:
+    def __init__(self, total: int, enabled: bool, interval: float = 5.0) -> None:
         from rich.console import Console
 
-        self.total, self.skipped, self.enabled, self.interval = total, skipped, enabled, interval
+        self.total, self.enabled, self.interval = total, enabled, interval
         self.console = Console(stderr=True)
         self.t0 = time.perf_counter()
         self.last_line = 0.0
@@ -255,8 +255,6 @@ class _Progress:
                                 TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=self.console)
             self.task = self.bar.add_task("runs", total=total, info="")
             self.bar.start()
-        elif enabled:
-            self.console.print(f"sweep: {total} runs to do, {skipped} already in the store", highlight=False)
 
     def eta(self) -> float | None:
         if self.done == 0:
@@ -414,6 +412,14 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, scheduler: str | None = N
         session = store.begin_session(sweep=spec.name, spec_sha256=spec.digest, spec=spec.text,
                                       n_runs=len(plan.runs), n_todo=len(todo) + len(unloadable),
                                       cluster=cluster.description if cluster else "")
+        n_skipped = len(plan.runs) - len(todo) - len(unloadable)
+        if progress:  # (the counts of the summary table: runs, already stored, executed now)
+            from rich.console import Console
+
+            bad = f" ({len(unloadable)} of them of a scene that cannot be loaded: recorded as failed)" if unloadable else ""
+            Console(stderr=True, soft_wrap=True).print(
+                f"sweep: {len(plan.runs)} runs, {n_skipped} already stored, {len(todo) + len(unloadable)} to do now{bad}",
+                highlight=False)
         now = time.time()
         for pr in unloadable:
             record(pr, {"status": "failed", "message": plan.scene_errors[pr.scene_index],
@@ -422,14 +428,13 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, scheduler: str | None = N
         lost = 0
         if cluster is not None:
             try:
-                lost = _execute(cluster, spec, plan, todo, store, session, record, progress, poll,
-                         n_skipped=len(plan.runs) - len(todo) - len(unloadable))
+                lost = _execute(cluster, spec, plan, todo, store, session, record, progress, poll)
             except KeyboardInterrupt:
                 interrupted = True
             finally:
                 cluster.close()
         return SweepOutcome(session=session, store_path=store.path, keys=plan.keys, n_runs=len(plan.runs),
-                            n_skipped=len(plan.runs) - len(todo) - len(unloadable), n_executed=executed,
+                            n_skipped=n_skipped, n_executed=executed,
                             n_duplicates=plan.duplicates, by_status=by_status,
                             wall_time=time.perf_counter() - t_start,
                             cluster=cluster.description if cluster else "", interrupted=interrupted,
@@ -444,8 +449,7 @@ def _method_statuses() -> set[str]:
 
 
 def _execute(cluster: _Cluster, spec: SweepSpec, plan: Plan, todo: list[PlannedRun], store: ResultStore,
-             session: str, record: Callable[[PlannedRun, dict], str], show: bool, poll: float,
-             n_skipped: int) -> int:
+             session: str, record: Callable[[PlannedRun, dict], str], show: bool, poll: float) -> int:
     """Submit ``todo``, record results as they come, enforce the hard limit; returns the
     number of runs lost to cancellations we did not ask for (left to do)."""
     from distributed import as_completed
@@ -460,7 +464,7 @@ def _execute(cluster: _Cluster, spec: SweepSpec, plan: Plan, todo: list[PlannedR
             started[msg["key"]] = (time.time(), msg["worker"])
 
     client.subscribe_topic(START_TOPIC, on_start)
-    progress = _Progress(total=len(todo), skipped=n_skipped, enabled=show)
+    progress = _Progress(total=len(todo), enabled=show)
     futures: dict[Any, PlannedRun] = {}
     try:
         scene_futs = {}
