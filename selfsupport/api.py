@@ -337,9 +337,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     -------
     SolveResult
         Its ``parameters`` gain ``"loads"`` (the self-weight ρ, t), ``"load_model"`` (every load,
-        so the file can be re-checked case by case) and ``"input_issues"``: the warnings of
+        so the file can be re-checked case by case), ``"input_issues"``: the warnings of
         :func:`~selfsupport.validate.validate_scene` and :func:`~selfsupport.validate.load_issues`
-        as dicts.
+        as dicts, and ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
+        the staggered history records' ``cpu_s``) and spent in it (``solve``).
 
     Raises
     ------
@@ -350,6 +351,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     """
     # the time limit covers the validation too (1 s at 200k vertices)
     t_entry = time.perf_counter() if started is None else float(started)
+    cpu_entry = time.process_time()  # (the origin of the history records' "cpu_s" stamps)
     scene, stored = design_of(as_scene(scene_or_path, supports=supports, up=up))
     start = warm_start if warm_start is not None else stored
     from .memory import check_memory
@@ -394,8 +396,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **start_kw, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     extra = {"design": design} if design else {}
+    cpu = {"at_entry": cpu_entry, "solve": time.process_time() - cpu_entry}  # process CPU seconds
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
-                                       "input_issues": [i.as_dict() for i in issues], **extra})
+                                       "input_issues": [i.as_dict() for i in issues], "cpu": cpu, **extra})
 
 
 def _start_keywords(method: str, start: Any, *, hull: bool, name: str) -> tuple[dict[str, Any], str]:

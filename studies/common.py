@@ -15,17 +15,22 @@ import json
 import math
 import multiprocessing as mp
 import os
+import platform
 import resource
 import subprocess
 import sys
 import time
 import traceback
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+#: the project's checkout, and the independent checker beside it (``../shared/tools``)
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_CHECKER = REPO.parent / "shared" / "tools" / "check_network.py"
 
 # ------------------------------------------------------------------------------ the paper
 @dataclass(frozen=True)
@@ -133,18 +138,24 @@ def scene_file(scenes_dir: Path, name: str) -> Path:
     raise FileNotFoundError(f"no scene file for {name!r} in {scenes_dir} (looked for {', '.join(candidates)})")
 
 
-def read_study_scene(scenes_dir: str | Path, name: str):
-    """Read scene ``name`` with the axis and supports the registry gives (imports the project);
+def scene_read_args(scenes_dir: str | Path, name: str) -> tuple[Path, str | None, str | None]:
+    """``(file, up, supports)`` of scene ``name``: the axis and supports file the registry gives;
     a scene not in the registry takes ``NAME.supports`` beside it when there is one (the
-    convention of the paper's ``structural.obj``)."""
-    from selfsupport.io import read_scene
-
+    convention of the paper's ``structural.obj``). ``None``: the file's own."""
     spec = PAPER_TABLE1.get(name)
     path = scene_file(Path(scenes_dir), name)
     beside = Path(scenes_dir) / f"{name}.supports"
     supports = (str(Path(scenes_dir) / spec.supports) if spec and spec.supports
                 else str(beside) if spec is None and beside.is_file() else None)
-    return read_scene(path, up=spec.up if spec else None, supports=supports, name=name)
+    return path, spec.up if spec else None, supports
+
+
+def read_study_scene(scenes_dir: str | Path, name: str):
+    """Read scene ``name`` as :func:`scene_read_args` says (imports the project)."""
+    from selfsupport.io import read_scene
+
+    path, up, supports = scene_read_args(scenes_dir, name)
+    return read_scene(path, up=up, supports=supports, name=name)
 
 
 # ------------------------------------------------------------------------- measurements
@@ -206,6 +217,39 @@ def load_average() -> str:
         return " / ".join(f"{x:.1f}" for x in os.getloadavg())
     except OSError:  # pragma: no cover - not on every platform
         return "n/a"
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; else what :mod:`platform` knows)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def git_commit(repo: str | Path = REPO) -> str:
+    """The short commit of ``repo``'s checkout, ``+dirty`` when it has uncommitted changes
+    (``unknown`` outside git)."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True,
+                              timeout=30, check=True).stdout.strip()
+    try:
+        commit = git("rev-parse", "--short", "HEAD")
+        return commit + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def run_stamp() -> dict[str, Any]:
+    """What every row of a timing table carries, taken once at the start of a run: ``commit``,
+    ``date`` (UTC, ISO 8601), ``cpu_model``, ``cores`` and ``load_start`` (the 1/5/15-minute
+    load averages: the machine is shared)."""
+    return {"commit": git_commit(), "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "cpu_model": cpu_model(), "cores": os.cpu_count() or 1, "load_start": load_average()}
 
 
 # --------------------------------------------------------------------- isolated runs

@@ -32,10 +32,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from studies.common import Column, run_checker, write_markdown
+from studies.common import DEFAULT_CHECKER, Column, run_checker, write_markdown
 
 ALPHAS = (0.0, 0.5, 1.0, 2.0)
-DEFAULT_CHECKER = Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_network.py"
 
 
 def _published_dir(scenes: Path) -> Path:

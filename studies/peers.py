@@ -21,26 +21,38 @@ densities; :func:`network_metrics` then recomputes for all of them, in one way:
 The peers are installed by the study into their own virtual environment (``--peers-env``,
 default ``OUT/.venv-peers``), never into the project's. The runs are interleaved — per
 problem, each tool in turn, ``--repeat`` rounds — and the table shows median times.
+
+The paper's own C++ code (``--tools original``, built by ``../shared/original-tool/build.sh
+OUT``; ``--original-driver OUT``) is compared differently, on the scenes themselves
+(:func:`run_original_study`): each tool solves each scene of ``--scenes`` its own way, with its
+own loads, alternating with ``selfsupport solve`` round by round, and the table gives CPU
+seconds (median of ``--repeat``): the original's to its end and to a max relative error of
+1e-3 and 1e-4 (its trace, with the loads of the current geometry), its final error recomputed
+from its network file; selfsupport's to 1e-3, 1e-4 and 1e-9 (its history records), of the
+whole solve and of the whole process; and the ratios. Without a driver its rows say why.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import json
+import math
 import os
+import resource
 import statistics
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .common import Column, equilibrium_errors, load_average, write_markdown
+from .common import (DEFAULT_CHECKER, REPO, Column, equilibrium_errors, json_network_arrays, load_average,
+                     run_checker, run_stamp, safe_ratio, scene_read_args, study_scenes, write_csv, write_markdown)
 
 RUNNERS = Path(__file__).resolve().parent / "peers_runners"
-REPO = Path(__file__).resolve().parent.parent
 
 #: the peers' versions this study was written against (PyPI)
 PEER_PACKAGES = ("jax-fdm==0.14.1", "compas-tna==0.9.0", "compas-tno==0.4.0")
@@ -332,6 +344,366 @@ def write_outputs(out: Path, rows: list[dict[str, Any]], *, repeat: int, time_li
     return write_markdown(out / "peers.md", "Peers side by side", notes, [("", rows, COLUMNS)])
 
 
+# ------------------------------------------------------------------------------ the paper's own code
+#: the tool name of the paper's C++ code in ``--tools``
+ORIGINAL = "original"
+#: the original's stopping rule (the tool's README): its displayed error below 1e-4, or 50 iterations
+ORIGINAL_STOP = ("--tol", "1e-4", "--maxit", "50")
+#: where ``../shared/original-tool/build.sh OUT`` is looked for when no --original-driver is given
+DEFAULT_ORIGINAL_BUILD = REPO.parent / "build" / "original"
+#: the errors whose first CPU time is reported for both tools, and selfsupport's convergence
+THRESHOLDS = (1e-3, 1e-4)
+CONVERGED = 1e-9
+
+
+def find_original_driver(path: str | Path | None) -> tuple[Path | None, str]:
+    """The original tool's driver binary.
+
+    Parameters
+    ----------
+    path
+        The binary itself, or a build folder: ``build.sh``'s ``OUT`` (the driver is in
+        ``OUT/build``) or ``OUT/build``. ``None``: :data:`DEFAULT_ORIGINAL_BUILD`.
+
+    Returns
+    -------
+    tuple
+        ``(driver, "")``, or ``(None, reason)`` with the reason in one line.
+    """
+    where = Path(path) if path is not None else DEFAULT_ORIGINAL_BUILD
+    for candidate in (where, where / "driver", where / "build" / "driver"):
+        if candidate.is_file() and os.access(candidate, os.X_OK):
+            return candidate, ""
+    given = "" if path is not None else " (the default build folder)"
+    return None, (f"no driver of the original tool at {where}{given}; build it with "
+                  "../shared/original-tool/build.sh OUT and pass --original-driver OUT")
+
+
+def _number(text: str) -> Any:
+    """``text`` as an int, else a float, else itself."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_original_result(output: str) -> dict[str, Any]:
+    """The ``key=value`` fields of the driver's ``RESULT`` line, numbers as numbers.
+
+    Raises
+    ------
+    ValueError
+        No ``RESULT`` line in ``output``, or one without ``iters``, ``cpu_s`` or
+        ``maxrel_consistent`` as numbers.
+    """
+    line = next((ln for ln in output.splitlines() if ln.startswith("RESULT ")), None)
+    if line is None:
+        raise ValueError("the driver printed no RESULT line")
+    fields = {}
+    for token in line.split()[1:]:
+        key, eq, value = token.partition("=")
+        if eq:
+            fields[key] = _number(value)
+    bad = [k for k in ("iters", "cpu_s", "maxrel_consistent") if not isinstance(fields.get(k), (int, float))]
+    if bad:
+        raise ValueError(f"the RESULT line has no number for {', '.join(bad)}: {line.strip()}")
+    return fields
+
+
+#: the columns of the driver's trace CSV that the study reads
+TRACE_COLUMNS = ("iter", "cpu_s", "maxrel_consistent")
+
+
+def read_original_trace(path: str | Path) -> list[dict[str, float]]:
+    """The driver's per-iteration trace (``OUTPREFIX.trace.csv``): one dict of floats per row.
+    ``cpu_s`` is cumulative; ``maxrel_consistent`` is the error with the loads of the current
+    geometry. A row that is not all numbers (the half-written last line of a run cut short) is
+    left out.
+
+    Raises
+    ------
+    ValueError
+        The file lacks one of :data:`TRACE_COLUMNS`.
+    """
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in TRACE_COLUMNS if c not in (reader.fieldnames or ())]
+        if missing:
+            raise ValueError(f"{path}: no column {', '.join(missing)} in the trace")
+        rows = []
+        for row in reader:
+            try:
+                rows.append({k: float(row[k]) for k in reader.fieldnames})
+            except (TypeError, ValueError):
+                continue
+    return rows
+
+
+def cpu_to_reach(points: Iterable[tuple[float, float]], threshold: float) -> float:
+    """The first CPU time at which the error fell below ``threshold``.
+
+    Parameters
+    ----------
+    points
+        ``(cpu_seconds, error)`` in the order they happened.
+    threshold
+        The error to get below (strictly).
+
+    Returns
+    -------
+    float
+        That CPU time, NaN when no point is below it.
+    """
+    for t, err in points:
+        if err < threshold:
+            return float(t)
+    return float("nan")
+
+
+def selfsupport_cpu_points(doc: Mapping[str, Any]) -> list[tuple[float, float]]:
+    """``(CPU seconds since the solve began, max relative error)`` of a selfsupport network
+    file's history records: those with a CPU stamp (``cpu_s``, the fits and the polish of the
+    staggered method), measured from ``parameters.cpu.at_entry``. A polish that was not kept
+    (its network was discarded) is left out. Empty when the file has no stamps."""
+    origin = (doc.get("parameters") or {}).get("cpu", {}).get("at_entry")
+    if not isinstance(origin, (int, float)):
+        return []
+    return [(float(h["cpu_s"]) - origin, float(h["max_rel_error"])) for h in doc.get("history", ())
+            if isinstance(h, dict) and isinstance(h.get("cpu_s"), (int, float))
+            and isinstance(h.get("max_rel_error"), (int, float)) and h.get("kept", True)]
+
+
+def _children_cpu() -> float:
+    """User + system CPU seconds of this process's finished children."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _network_errors(path: Path, checker: Path | None) -> dict[str, float]:
+    """Max relative error of a network file with its own loads: by the project's evidence, and
+    by the independent checker (NaN without one)."""
+    from selfsupport.evidence import max_relative_error
+
+    return {"error": float(max_relative_error(**json_network_arrays(path))),
+            "error_checker": run_checker(checker, path)}
+
+
+def original_input(scenes_dir: Path, name: str, work: Path) -> list[str]:
+    """The driver's arguments for scene ``name``: a ``.sss`` file as it is, a mesh with the
+    paper's vertical axis (−y) with its supports file; any other scene is read as the project
+    reads it and written for the original as an OBJ with y down plus a supports file."""
+    path, up, supports = scene_read_args(scenes_dir, name)
+    if path.suffix.lower() == ".sss":
+        return [str(path)]
+    if path.suffix.lower() == ".obj" and up == "-y" and supports:
+        return [str(path), "--supports", str(supports)]
+    from selfsupport.io import write_mesh
+
+    from .common import read_study_scene
+
+    scene = read_study_scene(scenes_dir, name)
+    mesh_path, sup_path = work / f"{name}.input.obj", work / f"{name}.input.supports"
+    write_mesh(mesh_path, scene.mesh, up="-y")
+    sup_path.write_text("\n".join(str(i) for i in np.flatnonzero(scene.supports)) + "\n", encoding="utf-8")
+    return [str(mesh_path), "--supports", str(sup_path)]
+
+
+def run_original(driver: Path, inputs: Sequence[str], prefix: Path, *, time_limit: float,
+                 checker: Path | None) -> dict[str, Any]:
+    """One run of the original tool (:data:`ORIGINAL_STOP`) on a scene.
+
+    Returns
+    -------
+    dict
+        ``status`` ("displayed tol": the error it displays, with the loads of the geometry before
+        its last step, fell below its tolerance; "iteration_limit"; "killed"; "crashed"),
+        ``iterations``, ``cpu_s`` (its iterations, to its end), the CPU seconds to each of
+        :data:`THRESHOLDS` (``cpu_to_1e-03`` …; from its trace), ``error`` and ``error_checker``
+        (recomputed from its network file, loads of the final geometry), ``error_driver`` (its
+        own RESULT line) and ``process_cpu_s``.
+    """
+    for suffix in (".json", ".trace.csv"):
+        Path(f"{prefix}{suffix}").unlink(missing_ok=True)
+    cmd = [str(driver), inputs[0], str(prefix), *ORIGINAL_STOP, "--quiet", *inputs[1:]]
+    c0 = _children_cpu()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
+    except subprocess.TimeoutExpired:
+        return {"status": "killed", "message": f"the original: no result within {time_limit + 120:g} s"}
+    cpu = _children_cpu() - c0
+    try:
+        res = parse_original_result(p.stdout + p.stderr)
+        points = [(r["cpu_s"], r["maxrel_consistent"]) for r in read_original_trace(f"{prefix}.trace.csv")]
+    except (OSError, ValueError) as exc:
+        last = (p.stderr.strip().splitlines() or [str(exc)])[-1]
+        return {"status": "crashed", "message": f"the original: exit {p.returncode}: {last}"}
+    out = {"status": "displayed tol" if res.get("converged") == 1 else "iteration_limit", "iterations": res["iters"],
+           "cpu_s": float(res["cpu_s"]), "error_driver": float(res["maxrel_consistent"]), "process_cpu_s": cpu,
+           **{f"cpu_to_{t:.0e}": cpu_to_reach(points, t) for t in THRESHOLDS}}
+    return {**out, **_network_errors(Path(f"{prefix}.json"), checker)}
+
+
+def selfsupport_command() -> list[str]:
+    """``selfsupport`` of this interpreter's environment (its console script, else ``-m``)."""
+    script = Path(sys.executable).parent / "selfsupport"
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "selfsupport"]
+
+
+def run_selfsupport(scenes_dir: Path, name: str, net: Path, *, time_limit: float,
+                    checker: Path | None) -> dict[str, Any]:
+    """One ``selfsupport solve`` of a scene in its own process, with the default method.
+
+    Returns
+    -------
+    dict
+        ``status``, ``method``, ``iterations``, the CPU seconds from the solve's start to each of
+        :data:`THRESHOLDS` and to :data:`CONVERGED` (``cpu_to_1e-03`` …; from the history
+        records), ``solve_cpu_s`` (the whole solve), ``process_cpu_s`` (the whole process:
+        start-up, reading, solving, writing), ``error`` and ``error_checker`` (recomputed from
+        the network file).
+    """
+    path, up, supports = scene_read_args(scenes_dir, name)
+    net.unlink(missing_ok=True)
+    cmd = [*selfsupport_command(), "solve", str(path), *([f"--up={up}"] if up else []),
+           *(["--supports", str(supports)] if supports else []), "--out", str(net), "--time-limit", f"{time_limit:g}"]
+    c0 = _children_cpu()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
+    except subprocess.TimeoutExpired:
+        return {"status": "killed", "message": f"selfsupport: no result within {time_limit + 120:g} s"}
+    cpu = _children_cpu() - c0
+    if not net.is_file():
+        last = (p.stderr.strip().splitlines() or ["(no output)"])[-1]
+        return {"status": "crashed", "message": f"selfsupport: exit {p.returncode}: {last}"}
+    doc = json.loads(net.read_text(encoding="utf-8"))
+    points = selfsupport_cpu_points(doc)
+    solve_cpu = (doc.get("parameters") or {}).get("cpu", {}).get("solve", float("nan"))
+    return {"status": doc.get("status"), "method": doc.get("method"), "iterations": doc.get("iterations"),
+            "solve_cpu_s": float(solve_cpu), "process_cpu_s": cpu,
+            **{f"cpu_to_{t:.0e}": cpu_to_reach(points, t) for t in (*THRESHOLDS, CONVERGED)},
+            **_network_errors(net, checker)}
+
+
+def _median(runs: Sequence[Mapping[str, Any]], key: str) -> float:
+    """Median of ``key`` over the runs that have it as a number (NaN: none); a run that never
+    reached a threshold (NaN) makes the median NaN only when most runs never reached it."""
+    xs = [float(r[key]) for r in runs if isinstance(r.get(key), (int, float))]
+    reached = [x for x in xs if not math.isnan(x)]
+    return statistics.median(reached) if xs and 2 * len(reached) > len(xs) else float("nan")
+
+
+def original_row(name: str, orig: Sequence[Mapping[str, Any]], ours: Sequence[Mapping[str, Any]],
+                 stamp: Mapping[str, Any]) -> dict[str, Any]:
+    """One table row from a scene's runs: medians of the CPU times, the last run's status,
+    iterations and errors (both tools are deterministic), the ratios original / selfsupport."""
+    row: dict[str, Any] = {"scene": name, "rounds": max(len(orig), len(ours))}
+    messages = []
+    for tag, runs in (("orig", orig), ("ss", ours)):
+        done = [r for r in runs if r.get("status") not in ("killed", "crashed")]
+        last = (done or list(runs) or [{}])[-1]
+        messages += [r["message"] for r in runs if r.get("message")][-1:]
+        row[f"{tag}_status"] = last.get("status", "")
+        for key in ("method", "iterations", "error", "error_checker", "error_driver"):
+            if key in last:
+                row[f"{tag}_{key}"] = last[key]
+        for key in {k for r in done for k in r if k.endswith("cpu_s") or k.startswith("cpu_to_")}:
+            row[f"{tag}_{key}"] = _median(done, key)
+    for t in THRESHOLDS:
+        row[f"ratio_{t:.0e}"] = safe_ratio(row.get(f"orig_cpu_to_{t:.0e}"), row.get(f"ss_cpu_to_{t:.0e}"))
+    converged = row.get("ss_status") == "converged" and row.get("ss_error", 1.0) <= CONVERGED
+    row["ratio_solve"] = safe_ratio(row.get("orig_cpu_s"), row.get("ss_solve_cpu_s")) if converged else float("nan")
+    row["ratio_process"] = safe_ratio(row.get("orig_cpu_s"), row.get("ss_process_cpu_s"))
+    row["message"] = "; ".join(messages)
+    return {**row, **stamp}
+
+
+def run_original_study(scenes_dir: Path, names: Sequence[str], out: Path, *, driver: Path | None, reason: str,
+                       repeat: int, time_limit: float, checker: Path | None, log=print) -> list[dict[str, Any]]:
+    """The original tool and ``selfsupport solve`` on each scene, alternating (the original
+    first in odd rounds, selfsupport first in even ones), ``repeat`` rounds; one row per scene
+    (:func:`original_row`), stamped (:func:`studies.common.run_stamp`) at the start. Without a
+    driver every row is "skipped" with ``reason`` and nothing runs."""
+    stamp = run_stamp()
+    if driver is None:
+        return [{"scene": name, "orig_status": "skipped", "ss_status": "", "message": reason, **stamp}
+                for name in names]
+    work = out / "original-runs"
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in names:
+        inputs = original_input(scenes_dir, name, work)
+        orig: list[dict[str, Any]] = []
+        ours: list[dict[str, Any]] = []
+        for r in range(repeat):
+            for tool in ("original", "selfsupport") if r % 2 == 0 else ("selfsupport", "original"):
+                if tool == "original":
+                    res = run_original(driver, inputs, work / f"{name}.original", time_limit=time_limit,
+                                       checker=checker)
+                    orig.append(res)
+                else:
+                    res = run_selfsupport(scenes_dir, name, work / f"{name}.selfsupport.json",
+                                          time_limit=time_limit, checker=checker)
+                    ours.append(res)
+                log(f"peers: {name} round {r + 1}/{repeat} {tool}: {res.get('status')} "
+                    f"{res.get('cpu_s', res.get('solve_cpu_s', float('nan'))):.3g} CPU s, load {load_average()}")
+        row = original_row(name, orig, ours, stamp)
+        net = work / f"{name}.selfsupport.json"
+        if net.is_file():  # the mesh's size, as the project reads it
+            d = json.loads(net.read_text(encoding="utf-8"))
+            row.update(vertices=len(d["vertices"]), edges=len(d["edges"]))
+        rows.append(row)
+    return rows
+
+
+STAMP_COLUMNS = (Column("commit", "commit"), Column("date", "date"), Column("cpu_model", "CPU"),
+                 Column("cores", "cores"), Column("load_start", "load at start (1/5/15 min)"))
+ORIGINAL_COLUMNS = (
+    Column("scene", "scene"), Column("vertices", "V"),
+    Column("orig_status", "original: status"), Column("orig_iterations", "it"),
+    Column("orig_cpu_s", "CPU s to its end", "{:.3g}"),
+    Column("orig_cpu_to_1e-03", "to 1e-3", "{:.3g}"), Column("orig_cpu_to_1e-04", "to 1e-4", "{:.3g}"),
+    Column("orig_error", "final error", "{:.1e}"),
+    Column("ss_method", "selfsupport: method"), Column("ss_status", "status"), Column("ss_iterations", "it"),
+    Column("ss_cpu_to_1e-03", "to 1e-3", "{:.3g}"), Column("ss_cpu_to_1e-04", "to 1e-4", "{:.3g}"),
+    Column("ss_cpu_to_1e-09", "to 1e-9", "{:.3g}"), Column("ss_solve_cpu_s", "solve", "{:.3g}"),
+    Column("ss_process_cpu_s", "process", "{:.3g}"), Column("ss_error", "error", "{:.1e}"),
+    Column("ratio_1e-03", "× to 1e-3", "{:.3g}"), Column("ratio_1e-04", "× to 1e-4", "{:.3g}"),
+    Column("ratio_solve", "× solve (original's end / ours to converge)", "{:.3g}"),
+    Column("ratio_process", "× process (original's end / our process)", "{:.3g}"),
+    *STAMP_COLUMNS,
+)
+#: the CSV's columns: the table's, then what it leaves out
+ORIGINAL_CSV_COLUMNS = (*ORIGINAL_COLUMNS, Column("edges", "E"), Column("rounds", "rounds"),
+                        Column("orig_error_checker", ""), Column("orig_error_driver", ""),
+                        Column("orig_process_cpu_s", ""), Column("ss_error_checker", ""), Column("message", ""))
+
+
+def write_original_outputs(out: Path, rows: list[dict[str, Any]], *, repeat: int, time_limit: float) -> str:
+    """``original.csv`` (every column, full precision) and ``original.md`` (the table)."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "original.csv", rows, ORIGINAL_CSV_COLUMNS)
+    notes = [f"the paper's C++ code (../shared/original-tool, stopping at its displayed error < 1e-4 or 50 "
+             f"iterations) and `selfsupport solve` (default method, time limit {time_limit:g} s), alternating "
+             f"scene by scene, {repeat} round(s); CPU seconds, medians",
+             "original: CPU of its iterations to its end and to a max relative error of 1e-3 / 1e-4 with the loads "
+             "of the current geometry (its trace); final error recomputed from its network file (loads of the "
+             "final geometry)",
+             "selfsupport: CPU from the solve's start to 1e-3 / 1e-4 / 1e-9 (its history records), of the whole "
+             "solve, and of the whole process (start-up, reading, writing); error recomputed from its network file",
+             "original status \"displayed tol\": the error it displays (loads of the geometry before its last "
+             "step) fell below 1e-4; the final error, with the loads of the final geometry, can be larger",
+             "× columns: original / selfsupport; an empty time: that error was never reached"]
+    by_message: dict[str, list[str]] = {}
+    for r in rows:
+        if r.get("message"):
+            by_message.setdefault(r["message"], []).append(r["scene"])
+    notes += [f"{', '.join(scenes)}: {message}" for message, scenes in by_message.items()]
+    return write_markdown(out / "original.md", "The paper's original code side by side", notes,
+                          [("", rows, ORIGINAL_COLUMNS)])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m studies.peers", description=__doc__.splitlines()[0])
     p.add_argument("--scenes", required=True, help="the paper's scenes folder (../shared/paper-scenes/scenes)")
@@ -340,7 +712,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--time-limit", type=float, default=300.0, help="per solve [s]")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=list(PROBLEMS))
-    p.add_argument("--tools", nargs="+", default=list(TOOLS), choices=list(TOOLS))
+    p.add_argument("--tools", nargs="+", default=[*TOOLS, ORIGINAL], choices=[*TOOLS, ORIGINAL])
+    p.add_argument("--original-driver", default=None,
+                   help="the original tool's driver, or the folder build.sh built it in "
+                        f"(default {DEFAULT_ORIGINAL_BUILD}); without one its rows say so")
+    p.add_argument("--only", nargs="+", default=None,
+                   help="scenes (file stems) for the original tool (default: the Table 1 scenes in --scenes, "
+                        "else every scene file there)")
+    p.add_argument("--checker", default=str(DEFAULT_CHECKER),
+                   help="the independent check_network.py (its error is in original.csv)")
     a = p.parse_args(argv)
     scenes = Path(a.scenes)
     if not scenes.is_dir():
@@ -349,11 +729,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.repeat < 1 or a.time_limit <= 0:
         print("peers: error: --repeat must be at least 1 and --time-limit positive", file=sys.stderr)
         return 2
+    names = study_scenes(scenes, a.only) if ORIGINAL in a.tools else []
+    if ORIGINAL in a.tools and not names:
+        print(f"peers: error: no scene file in {scenes} for the original tool; give a folder of .sss/.obj scenes",
+              file=sys.stderr)
+        return 2
     out = Path(a.out)
-    env = Path(a.peers_env) if a.peers_env else out / ".venv-peers"
-    rows = run_study(scenes, out, peers_env=env.absolute(), problems=a.problems, tools=a.tools, repeat=a.repeat,
-                     time_limit=a.time_limit, log=lambda s: print(s, file=sys.stderr, flush=True))
-    print(write_outputs(out, rows, repeat=a.repeat, time_limit=a.time_limit))
+    log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
+    tools = [t for t in a.tools if t != ORIGINAL]
+    if tools:
+        env = Path(a.peers_env) if a.peers_env else out / ".venv-peers"
+        rows = run_study(scenes, out, peers_env=env.absolute(), problems=a.problems, tools=tools, repeat=a.repeat,
+                         time_limit=a.time_limit, log=log)
+        print(write_outputs(out, rows, repeat=a.repeat, time_limit=a.time_limit))
+    if names:
+        driver, reason = find_original_driver(a.original_driver)
+        checker = Path(a.checker) if a.checker else None
+        rows = run_original_study(scenes, names, out, driver=driver, reason=reason, repeat=a.repeat,
+                                  time_limit=a.time_limit, checker=checker, log=log)
+        print(write_original_outputs(out, rows, repeat=a.repeat, time_limit=a.time_limit))
     return 0
 
 

@@ -456,7 +456,8 @@ class _Run:
                 "worst_vertices": [int(v) for v in self.free_idx[worst]],
                 "fit_iterations": int(sum(f.iterations for f in fits)), "fit_status": status,
                 "n_at_lower": int(sum(f.n_lower for f in fits)), "n_at_upper": int(sum(f.n_upper for f in fits)),
-                "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1}
+                "t_loads": t1 - t0, "t_weights": time.perf_counter() - t1,
+                "cpu_s": time.process_time()}  # (process CPU when this error was known: studies.peers)
 
     def judge(self, Xt: np.ndarray, cur: dict, rec: dict) -> tuple[dict | None, bool]:
         """Steps 1-2 at the trial positions and whether they lower the recorded fit error.
@@ -849,7 +850,7 @@ class _Run:
             net, cases = self.networks(Xp, ws) if np.isfinite(polish_move) else (None, ())
             err = max(n.max_relative_error() for _, n in cases) if net is not None else np.inf
             final = {"iteration": "polish", "t_polish": time.perf_counter() - t0, "load_rounds": load_rounds,
-                     "polish_max_move": polish_move, "max_rel_error": err, "kept": True}
+                     "polish_max_move": polish_move, "max_rel_error": err, "kept": True, "cpu_s": time.process_time()}
             if status != "converged" and not (np.isfinite(err) and err <= min(cur["max_rel_error"], 1.0)):
                 # from a poor fit the exact solve can land anywhere (even collapse): keep the last
                 # iterate, labelled by its status, rather than a "polished" network that is worse
