@@ -45,7 +45,7 @@ demo: $(STAMP_RUN)
 
 # --strict: a broken link, a missing page or an unresolved API reference fails the build.
 docs: $(STAMP_TEST)
-	$(BIN)/mkdocs build --strict --quiet
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 # The documentation is built first (docs). -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
 # drag against the design server's answers, which a busy second worker would delay.

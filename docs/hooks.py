@@ -1,8 +1,9 @@
-"""MkDocs hook: the command-line reference, generated from the argparse parsers at build time.
+"""MkDocs hook: reference text generated from the code at build time, so it cannot drift.
 
-A page holding the line ``<!-- cli-reference -->`` gets, in its place, one section per
-subcommand of ``selfsupport`` (its one-line help and its ``--help`` text), taken from
-:func:`selfsupport.cli.build_parser`, so the reference cannot drift from the parsers.
+* ``<!-- cli-reference -->`` becomes one section per subcommand of ``selfsupport`` (its one-line
+  help and its ``--help`` text), from :func:`selfsupport.cli.build_parser`;
+* ``<!-- network-schema -->`` becomes the network format's JSON Schema, as packaged
+  (``selfsupport/io/network.schema.json``).
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import argparse
 import os
 
 MARKER = "<!-- cli-reference -->"
+SCHEMA_MARKER = "<!-- network-schema -->"
 #: The width argparse wraps the help to (it reads COLUMNS), fixed so the page does not depend on
 #: the terminal the site was built in.
 WIDTH = "100"
@@ -37,8 +39,18 @@ def cli_reference() -> str:
     return "\n".join(parts)
 
 
+def network_schema() -> str:
+    """The packaged JSON Schema of the network format, as a fenced block."""
+    from importlib.resources import files
+
+    text = files("selfsupport.io").joinpath("network.schema.json").read_text(encoding="utf-8")
+    return f"```json\n{text.rstrip()}\n```"
+
+
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (mkdocs hook signature)
-    """Replace the marker with the generated reference."""
+    """Replace the markers with the generated text."""
     if MARKER in markdown:
         markdown = markdown.replace(MARKER, cli_reference())
+    if SCHEMA_MARKER in markdown:
+        markdown = markdown.replace(SCHEMA_MARKER, network_schema())
     return markdown
