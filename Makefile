@@ -1,6 +1,8 @@
 # selfsupport — build, demo and tests. Needs only python3 (>= 3.11) and pip.
 #   make demo        create .venv, install the project from the lock, solve the built-in demo -> demo-out/
-#   make test        create .venv, install the project and its test extra from the lock, run the fast suite
+#   make test        create .venv, install the project and its test and docs extras from the lock, build the
+#                    documentation, run the fast suite
+#   make docs        build the documentation site (MkDocs, --strict) into site/
 #   make test-slow   run the tests marked slow
 #   make fuzz        property-based fuzzing with the large hypothesis profile
 #   make lock        re-resolve requirements/*.lock from pyproject.toml's ranges (newest releases)
@@ -19,7 +21,7 @@ UV_VERSION := 0.13.9
 LOCK_FLAGS := --universal --python-version 3.11 --quiet --no-header --annotation-style line
 PYTEST_FAST := -q -m "not slow and not browser" -n auto
 
-.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv
+.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -41,9 +43,13 @@ venv: $(STAMP_RUN)
 demo: $(STAMP_RUN)
 	$(BIN)/selfsupport demo
 
-# -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
+# --strict: a broken link, a missing page or an unresolved API reference fails the build.
+docs: $(STAMP_TEST)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
+# The documentation is built first (docs). -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
 # drag against the design server's answers, which a busy second worker would delay.
-test: $(STAMP_TEST)
+test: docs
 	$(BIN)/pytest $(PYTEST_FAST)
 	$(BIN)/pytest -q -m "browser and not slow"
 
@@ -59,7 +65,7 @@ fuzz: $(STAMP_TEST)
 lock: | $(BIN)/python
 	$(BIN)/python -m pip install --quiet uv==$(UV_VERSION)
 	$(BIN)/uv pip compile $(LOCK_FLAGS) pyproject.toml requirements/build.in -o requirements/run.lock
-	$(BIN)/uv pip compile $(LOCK_FLAGS) --extra test pyproject.toml requirements/build.in -o requirements/test.lock
+	$(BIN)/uv pip compile $(LOCK_FLAGS) --extra test --extra docs pyproject.toml requirements/build.in -o requirements/test.lock
 
 # The suite against the newest release of every dependency pyproject.toml admits: the packages
 # that moved past the lock are listed first, then the suite's failures are what broke.
@@ -72,4 +78,4 @@ test-latest:
 	$(LATEST)/bin/pytest $(PYTEST_FAST) -p no:cacheprovider
 
 clean:
-	rm -rf $(VENV) $(LATEST) demo-out .pytest_cache
+	rm -rf $(VENV) $(LATEST) demo-out site .pytest_cache

@@ -656,3 +656,61 @@ def _timed(f, *a) -> float:
     t = time.perf_counter()
     f(*a)
     return time.perf_counter() - t
+
+
+# ------------------------------------------------------------------ the network JSON Schema
+def network_schema() -> dict:
+    """The JSON Schema of the network format, read as package data (as an installed copy has it)."""
+    from importlib.resources import files
+
+    return json.loads(files("selfsupport.io").joinpath("network.schema.json").read_text(encoding="utf-8"))
+
+
+def test_network_schema_states_the_writer_and_reader_contract():
+    """The schema is a valid draft 2020-12 schema whose required keys are the reader's and whose
+    statuses are the results' (one list each, the schema follows them)."""
+    import jsonschema
+
+    from selfsupport.io.network_json import NETWORK_KEYS
+    from selfsupport.result import STATUSES
+
+    schema = network_schema()
+    jsonschema.Draft202012Validator.check_schema(schema)
+    assert tuple(schema["required"]) == NETWORK_KEYS
+    assert tuple(schema["properties"]["status"]["enum"]) == STATUSES
+
+
+def test_solved_networks_validate_against_the_schema(tmp_path):
+    """A solved network with two load cases, written by write_network, validates; the same file
+    with a defect the reader refuses does not (the schema is not vacuous)."""
+    import jsonschema
+
+    from selfsupport import api
+    from selfsupport.shapes import make_shape
+
+    cases = write(tmp_path, "cases.toml", '[cases.empty]\n\n[cases.apex]\npoint_loads = { "0" = 2000.0 }\n')
+    res = api.solve(make_shape("dome", n_vertices=100), load_cases=cases)
+    assert res.status == "converged"
+    p = tmp_path / "dome.json"
+    write_network(p, res)
+    doc = json.loads(p.read_text())
+    validator = jsonschema.Draft202012Validator(network_schema())
+    assert list(validator.iter_errors(doc)) == []
+    assert [c["name"] for c in doc["load_cases"]] == ["empty", "apex"]
+    for key, bad in [("edges", [[0, 1, 2]]), ("supports", [-1]), ("status", "done"), ("vertices", [[0.0, 1.0]]),
+                     ("weights", [None])]:
+        broken = {**doc, key: bad}
+        assert not validator.is_valid(broken), key
+    assert not validator.is_valid({k: v for k, v in doc.items() if k != "loads"})
+
+
+@pytest.mark.parametrize("argv", [["construct", "--disk", "4"], ["koebe", "--example", "grid", "--n", "6"]])
+def test_other_commands_write_networks_that_validate(tmp_path, argv):
+    """The commands that write a network without a solve (construct, koebe) write the same format."""
+    import jsonschema
+
+    from selfsupport.cli import main
+
+    out = tmp_path / "net.json"
+    assert main([*argv, "--out", str(out)]) == 0
+    jsonschema.validate(json.loads(out.read_text()), network_schema(), cls=jsonschema.Draft202012Validator)

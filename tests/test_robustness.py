@@ -940,8 +940,8 @@ def test_keep_partial_is_documented():
 
     sub = build_parser()._subparsers._group_actions[0].choices["solve"]
     assert "interrupted.json" in " ".join(sub.format_help().split())
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    assert "NAME.interrupted.json" in readme and "--keep-partial" in readme
+    guide = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "commands" / "solve.md").read_text()
+    assert "NAME.interrupted.json" in guide and "--keep-partial" in guide
 
 
 @pytest.mark.parametrize("exc, code", [(KeyboardInterrupt, 130), (RuntimeError, 1), (OSError, 2)])
