@@ -356,10 +356,14 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     start = warm_start if warm_start is not None else stored
     from .memory import check_memory
 
-    check_memory(scene.mesh.n_vertices, method, max_memory)  # before the solve allocates its matrices
-    issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
+    from .memory import dense_row_bytes
+
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
                      load_cases=load_cases)
+    # before the solve allocates its matrices
+    check_memory(scene.mesh.n_vertices, method, max_memory, n_cases=max(len(spec.case_specs), 1),
+                 extra_bytes=dense_row_bytes(scene.mesh.edges, scene.mesh.n_vertices))
+    issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
     prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
                          constraints=constraints)
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
@@ -378,7 +382,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     from .methods.deadline import finish_reserve
 
     until = {} if time_limit is None else {
-        "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices)}
+        "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices, len(spec.case_specs))}
     design = dict(scene.meta.get("design", {}))
     start_kw, started = _start_keywords(method, start, hull=prob.hull_thickness() is not None,
                                         name="stored network" if start is stored else "warm_start network")
@@ -477,7 +481,7 @@ def _stored_document(path: Path) -> dict[str, Any]:
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
         return d if isinstance(d, dict) else {}
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return {}
 
 

@@ -487,7 +487,7 @@ def _run_solve(args: argparse.Namespace) -> int:
         design = api.design_of(scene)[0]
         # (the refined mesh's size, refused before it is built: each step quadruples it)
         check_memory(subdivided_vertex_count(design.mesh, args.subdivide), method, args.max_memory)
-        scene = subdivide_scene(design, args.subdivide)
+        scene = subdivide_scene(design, args.subdivide, max_memory=args.max_memory)
         if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
             info = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
             scene = replace(scene, meta={**scene.meta, "design": info})

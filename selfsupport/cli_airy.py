@@ -277,6 +277,11 @@ def run_construct(args: argparse.Namespace) -> int:
 
     check_outputs([("--out", args.out)], [("--points", args.points), ("--phi-values", args.phi_values)])
     network_suffix(args.out)
+    from .memory import check_memory
+
+    if args.disk is not None or args.random is not None:  # (the size guard of a solve, before the points are made)
+        n = 1 + 3 * args.disk * (args.disk + 1) if args.disk is not None else args.random
+        check_memory(n, "staggered", what=f"the construction ({'--disk' if args.disk is not None else '--random'})")
     if args.disk is not None:
         pts = disk_points(args.disk, radius=args.radius)
     elif args.random is not None:

@@ -32,7 +32,8 @@ try:  # cvxopt bundles CHOLMOD; without it the QDLDL path below still works
 except ImportError:  # pragma: no cover - cvxopt is a dependency
     _cholmod = None
 
-__all__ = ["GramPattern", "SPDFactor", "spd_factor", "structural_gram"]
+__all__ = ["DENSE_ROW_MIN", "GramPattern", "LowRankUpdatedFactor", "SPDFactor", "SplitGram", "spd_factor",
+           "structural_gram"]
 
 
 def _lower_csc(M: sp.spmatrix) -> sp.csc_matrix:
@@ -175,11 +176,24 @@ def structural_gram(A: sp.spmatrix, shift: float = 0.0) -> sp.csc_matrix:
     return GramPattern(A).gram(A, shift)
 
 
+#: A row of ``A`` with more stored entries than this is a *dense row*: :class:`GramPattern` leaves
+#: it out of ``AᵀA`` and the solvers add it back as a low-rank term (:class:`SplitGram`,
+#: :class:`LowRankUpdatedFactor`). A row is a free vertex's coordinate and its entries are the
+#: vertex's edges, so a vertex of valence ``k`` puts a dense ``k × k`` block into ``AᵀA``: a fan of
+#: 8,000 supported rim vertices around one free apex took 4 GB and over 100 s. Ordinary meshes have
+#: no row near this length (valence 3-12).
+DENSE_ROW_MIN = 256
+
+
 class GramPattern:
     """The structural pattern of ``AᵀA + I`` for one sparsity structure of ``A`` (see
     :func:`structural_gram`), computed once: each fit of a staggered solve has a new ``A`` on
     the same structure (2 ms of its 2.5 ms at 3,500 edges went into the pattern). ``gram``
     gives the matrix on it, ``lower`` its lower triangle's data (sorted CSC, diagonal stored).
+
+    Rows with more than :data:`DENSE_ROW_MIN` entries (``dense``, their indices) are left out of
+    the pattern and of ``gram``: ``AᵀA = gram(A) + UᵀU`` with ``U = dense_part(A)``, which
+    :class:`SplitGram` and :class:`LowRankUpdatedFactor` use without forming ``UᵀU``.
 
     >>> A = sp.csc_matrix(np.array([[1.0, 2.0, 0.0], [0.0, 1.0, 3.0]]))
     >>> g = GramPattern(A)
@@ -195,6 +209,11 @@ class GramPattern:
         n = A.shape[1]
         self.shape = A.shape
         self.structure = (A.indptr.copy(), A.indices.copy())
+        is_dense = np.bincount(A.indices, minlength=A.shape[0]) > DENSE_ROW_MIN
+        self.dense = np.flatnonzero(is_dense)
+        # the stored entries of the other rows, and their column pointers
+        self.sparse_entries = ~is_dense[A.indices] if self.dense.size else None
+        A = self._sparse_rows(A)
         S = sp.csc_matrix((np.ones(A.nnz), A.indices, A.indptr), shape=A.shape)
         # (products of ones plus I: nothing cancels; the pattern is structural, the diagonal stored)
         P = (S.T @ S + sp.identity(n, format="csc")).tocsc()
@@ -217,9 +236,23 @@ class GramPattern:
         return (A.shape == self.shape and np.array_equal(A.indptr, self.structure[0])
                 and np.array_equal(A.indices, self.structure[1]))
 
+    def _sparse_rows(self, A: sp.csc_matrix) -> sp.csc_matrix:
+        """``A`` without the entries of its dense rows (``A`` itself when it has none)."""
+        if self.sparse_entries is None:
+            return A
+        keep = self.sparse_entries
+        cols = np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))
+        indptr = np.r_[0, np.cumsum(np.bincount(cols[keep], minlength=A.shape[1]))]
+        return sp.csc_matrix((A.data[keep], A.indices[keep], indptr), shape=A.shape)
+
+    def dense_part(self, A: sp.csc_matrix) -> sp.csr_matrix | None:
+        """The dense rows of ``A`` (``k × n``, CSR), or None when it has none."""
+        return sp.csr_matrix(A)[self.dense] if self.dense.size else None
+
     def gram(self, A: sp.csc_matrix, shift: float = 0.0) -> sp.csc_matrix:
-        """``AᵀA + shift·I`` on the pattern (``A`` must match it)."""
+        """``AᵀA + shift·I`` on the pattern (``A`` must match it), without the dense rows."""
         n = self.shape[1]
+        A = self._sparse_rows(A)
         Q = (A.T @ A).tocsc()
         Q.sort_indices()
         data = np.zeros(self.indices.size)
@@ -230,3 +263,72 @@ class GramPattern:
     def lower(self, data: np.ndarray) -> np.ndarray:
         """The lower triangle's entries of a matrix on this pattern, given its ``data``."""
         return data[self.low]
+
+
+class SplitGram:
+    """``Q = Q_s + UᵀU``: a sparse Gram matrix ``Q_s`` and the dense rows ``U`` (``k × n``) of
+    :class:`GramPattern`, applied without forming ``UᵀU``. Supports ``Q @ x`` and ``shape``."""
+
+    def __init__(self, sparse: sp.csc_matrix, dense: sp.csr_matrix) -> None:
+        self.sparse, self.dense, self.shape = sparse, dense, sparse.shape
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        return self.sparse @ x + self.dense.T @ (self.dense @ x)
+
+
+#: Most refinement steps of :meth:`LowRankUpdatedFactor.solve`.
+REFINE_MAX = 8
+
+
+class LowRankUpdatedFactor:
+    """Solves ``(M + UᵀU) x = r`` from a factor of the sparse SPD ``M`` and the few dense rows
+    ``U`` (``k × n``) by the Sherman–Morrison–Woodbury formula,
+    ``x = M⁻¹r − Z (I + U Z)⁻¹ U M⁻¹r`` with ``Z = M⁻¹Uᵀ`` (``k`` solves, an ``n × k`` block
+    and a ``k × k`` matrix: memory linear in ``n``), followed by iterative refinement on the
+    true matrix: where ``M`` is nearly singular (a proximal term of 1e-12) the formula cancels
+    digits, and each refinement step wins them back.
+
+    Parameters
+    ----------
+    factor
+        Factor of ``M`` with ``solve`` (:class:`SPDFactor`).
+    apply_m
+        ``x -> M x``.
+    dense
+        ``U``, the dense rows.
+    """
+
+    def __init__(self, factor: SPDFactor, apply_m, dense: sp.csr_matrix) -> None:
+        from scipy.linalg import cho_factor
+
+        self.factor, self.dense = factor, dense
+        self._apply_m = apply_m
+        self._Z = np.asarray(factor.solve(dense.T.toarray())).reshape(dense.shape[1], dense.shape[0])
+        self._C = cho_factor(np.eye(dense.shape[0]) + dense @ self._Z)
+        self.backend = factor.backend
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """``(M + UᵀU) x``."""
+        return self._apply_m(x) + self.dense.T @ (self.dense @ x)
+
+    def _woodbury(self, r: np.ndarray) -> np.ndarray:
+        from scipy.linalg import cho_solve
+
+        y = self.factor.solve(r)
+        return y - self._Z @ cho_solve(self._C, self.dense @ y)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        r = np.asarray(rhs, dtype=float)
+        x = self._woodbury(r)
+        res = r - self.apply(x)
+        size = float(np.linalg.norm(res))
+        for _ in range(REFINE_MAX):  # while a step shrinks the residual at least twofold
+            x_new = x + self._woodbury(res)
+            res_new = r - self.apply(x_new)
+            new = float(np.linalg.norm(res_new))
+            if not new < size:
+                break
+            x, res, shrunk, size = x_new, res_new, new < 0.5 * size, new
+            if not shrunk or size == 0.0:
+                break
+        return x

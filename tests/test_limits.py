@@ -212,3 +212,189 @@ def test_the_estimate_covers_the_measured_peaks():
                 ("ipopt", 2_000): 212e6, ("ipopt", 8_000): 654e6}  # peak RSS, see selfsupport.memory
     for (method, n), peak in measured.items():
         assert peak < estimate_solve_bytes(n, method) < 2.5 * peak, (method, n)
+
+
+# ------------------------------------------------- limits that hold for every input
+def _run_measured(tmp_path, argv: list[str], timeout: float = 60.0) -> dict:
+    """``selfsupport ARGV`` in a fresh interpreter: exit code, stderr, wall time of the command
+    (from its call, imports excluded) and the process's peak resident memory [bytes]."""
+    import subprocess
+    import sys
+
+    script = ("import json, resource, sys, time\n"
+              "from selfsupport import cli\n"
+              "t0 = time.perf_counter()\n"
+              "code = cli.main(sys.argv[1:])\n"
+              "took = time.perf_counter() - t0\n"
+              "peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024\n"
+              "print(json.dumps({'code': code, 'took': took, 'peak': peak}), file=open(sys.argv[0] + '.out', 'w'))\n")
+    path = tmp_path / "measure.py"
+    path.write_text(script)
+    proc = subprocess.run([sys.executable, str(path), *argv], capture_output=True, text=True, timeout=timeout)
+    return {**json.loads((tmp_path / "measure.py.out").read_text()), "err": proc.stderr}
+
+
+def _cases_file(tmp_path, n: int):
+    path = tmp_path / "cases.toml"
+    path.write_text("".join(f"[cases.c{i}]\nuniform_mass = {10.0 + i}\n\n" for i in range(n)))
+    return path
+
+
+def test_many_load_cases_hold_the_memory_and_the_time_limit(tmp_path):
+    """30 uniform-mass cases on a 91-vertex dome: the joint polish paired every two cases in one
+    factored matrix (60 cases: 2.4 GB, 20 s for its first step, past a 5 s limit)."""
+    out = tmp_path / "net.json"
+    limit, memory = 5.0, 0.4
+    run = _run_measured(tmp_path, ["solve", "shape:dome:100", "--load-cases", str(_cases_file(tmp_path, 30)),
+                                   "--time-limit", str(limit), "--max-memory", str(memory), "--out", str(out), "-q"])
+    assert run["code"] in (cli.EXIT_CODES["ok"], cli.EXIT_CODES["limit"]), run["err"]
+    assert run["took"] <= _bound(limit), run["took"]
+    assert run["peak"] <= memory * 1024 ** 3, run["peak"]
+    assert len(json.loads(out.read_text())["load_cases"]) == 30
+
+
+def test_the_estimate_counts_load_cases(tmp_path, capsys):
+    from selfsupport.memory import estimate_solve_bytes
+
+    # peak RSS of solves of a 5,000-vertex dome under C uniform-mass cases (selfsupport.memory.case_factor)
+    measured = {1: 158e6, 2: 549e6, 4: 1.62e9, 5: 524e6, 16: 1.32e9}
+    for cases, peak in measured.items():
+        assert peak < estimate_solve_bytes(5000, "staggered", cases), cases
+    out = tmp_path / "x.json"
+    t0 = time.perf_counter()
+    code = cli.main(["solve", "shape:dome:3000", "--load-cases", str(_cases_file(tmp_path, 4)), "--max-memory", "0.5",
+                     "--time-limit", "2", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert time.perf_counter() - t0 < 5.0
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1 and not out.exists()
+    assert "under 4 load cases needs about" in err[0] and "fewer load cases" in err[0]
+
+
+def _fan(tmp_path, n: int):
+    """An OFF fan: ``n`` rim vertices (to be supported) around one free apex of valence ``n``."""
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    r = 1.0 + 0.3 * np.cos(3 * t)
+    V = np.r_[np.c_[r * np.cos(t), 0.8 * r * np.sin(t), 0.05 * np.sin(2 * t)], [[0.2, -0.1, 0.5]]]
+    path = tmp_path / f"fan{n}.off"
+    path.write_text(f"OFF\n{n + 1} {n} 0\n" + "".join(f"{x:.9f} {y:.9f} {z:.9f}\n" for x, y, z in V)
+                    + "".join(f"3 {n} {i} {(i + 1) % n}\n" for i in range(n)))
+    return path
+
+
+def test_a_high_valence_vertex_solves_in_bounded_memory_and_time(tmp_path):
+    """The weight fit of an apex with 3,000 edges: its rows put a dense 3,000² block into AᵀA
+    (2,000 edges: 0.43 GB and 5.7 s; 8,000: 4 GB and over 100 s)."""
+    out = tmp_path / "net.json"
+    limit, memory = 10.0, 0.4
+    run = _run_measured(tmp_path, ["solve", str(_fan(tmp_path, 3000)), "--supports", "boundary", "--time-limit",
+                                   str(limit), "--max-memory", str(memory), "--out", str(out), "-q"])
+    assert run["code"] == cli.EXIT_CODES["ok"], run["err"]
+    assert run["took"] <= _bound(limit) and run["peak"] <= memory * 1024 ** 3, (run["took"], run["peak"])
+    assert json.loads(out.read_text())["status"] == "converged"
+
+
+def test_dense_rows_split_off_give_the_weights_of_the_full_gram_matrix(tmp_path, monkeypatch):
+    import scipy.sparse as sp
+
+    from selfsupport import linalg
+    from selfsupport.io import read_mesh
+    from formulations.equilibrium import Topology, weight_matrix
+
+    mesh = read_mesh(_fan(tmp_path, 400))
+    free = np.zeros(mesh.n_vertices, bool)
+    free[-1] = True
+    A = sp.csc_matrix(weight_matrix(Topology.build(mesh.n_vertices, mesh.edges, ~free), mesh.vertices))
+    assert linalg.GramPattern(A).dense.size == 3  # the apex's x, y, z rows
+    b = np.array([0.3, -0.2, -1.0])
+    kw = dict(A=A, b=b, lower=np.full(A.shape[1], 1e-3), upper=np.full(A.shape[1], np.inf), w0=np.ones(A.shape[1]))
+    split = weightfit.ActiveSetFit().fit(**kw, prox=1e-4)
+    monkeypatch.setattr(linalg, "DENSE_ROW_MIN", 10 ** 9)  # every row in the Gram matrix, as a plain Cholesky
+    whole = weightfit.ActiveSetFit().fit(**kw, prox=1e-4)
+    assert split.status == whole.status == "optimal"
+    assert np.allclose(split.w, whole.w, rtol=1e-8, atol=1e-10 * np.abs(whole.w).max())
+    assert split.objective == pytest.approx(whole.objective, rel=1e-8, abs=1e-20)
+
+
+def test_a_ring_count_beyond_the_mesh_ends_with_the_connected_region(tmp_path):
+    """``roi_rings = 1e9`` ran 1e9 ring steps (a hang, in the CLI and in the design server)."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from selfsupport.design.laplacian import ring_region\n"
+            "from selfsupport.shapes import make_shape\n"
+            "m = make_shape('dome', n_vertices=200).mesh\n"
+            "seed = np.zeros(m.n_vertices, bool); seed[0] = True\n"
+            "print(int(ring_region(m, seed, int(1e9)).sum()), int(ring_region(m, seed, 1).sum()), m.n_vertices)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=15)
+    everything, first_ring, n = map(int, proc.stdout.split())
+    assert everything == n and 1 < first_ring < n
+
+
+def test_subdividing_goes_through_the_size_guard(monkeypatch):
+    """An edit script's or the design page's ``subdivide`` is refused before it is built, as
+    ``solve --subdivide`` is (levels=10 ended in MemoryError at 5.2 GB)."""
+    from selfsupport import memory
+    from selfsupport.design import subdivision
+    from selfsupport.design.edits import Design, Subdivide
+    from selfsupport.errors import TooLarge
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 300e6)
+    monkeypatch.setattr(subdivision, "catmull_clark", lambda *a, **k: pytest.fail("subdivided"))
+    scene = make_shape("dome", n_vertices=200)
+    with pytest.raises(TooLarge, match=r"subdividing 3 times .* needs about .* GiB, this machine has 0\.28 GiB"):
+        Subdivide(levels=3).apply(Design(scene=scene))
+    t0 = time.perf_counter()
+    with pytest.raises(TooLarge, match="subdividing 1000000000 times"):
+        subdivision.subdivide_scene(scene, 10 ** 9)
+    assert time.perf_counter() - t0 < 1.0
+
+
+def _one_line_input_error(capsys, code: int) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_CODES["input"] and len(err) == 1, err
+    assert "internal error" not in err[0] and "Traceback" not in err[0]
+    return err[0]
+
+
+def test_mesh_headers_are_checked_against_the_file_size(tmp_path, capsys):
+    off = tmp_path / "bomb.off"
+    off.write_text("OFF\n2000000000 1 0\n0 0 0\n3 0 0 0\n")
+    ply = tmp_path / "bomb.ply"
+    ply.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+                    b"property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                    b"end_header\n" + bytes(40))
+    for path in (off, ply):
+        t0 = time.perf_counter()
+        line = _one_line_input_error(capsys, cli.main(["check", str(path)]))
+        assert time.perf_counter() - t0 < 2.0  # nothing of the declared size was allocated
+        assert "2,000,000,000" in line and "the file has" in line and "fix the header" in line
+
+
+def test_deeply_nested_json_and_toml_are_input_errors(tmp_path, capsys):
+    deep = tmp_path / "deep.json"
+    deep.write_text('{"vertices": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    line = _one_line_input_error(capsys, cli.main(["check", str(deep)]))
+    assert "nests its values deeper" in line
+    cases = tmp_path / "cases.toml"
+    cases.write_text("[cases.a]\nuniform_mass = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    out = tmp_path / "x.json"
+    line = _one_line_input_error(capsys, cli.main(["solve", "shape:dome:50", "--load-cases", str(cases),
+                                                   "--out", str(out), "-q"]))
+    assert "nests its values deeper" in line and not out.exists()
+
+
+def test_render_dpi_and_construct_disk_have_upper_bounds(tmp_path, capsys):
+    from selfsupport.figures.render import MAX_PIXELS
+
+    net = tmp_path / "net.json"
+    assert cli.main(["solve", "shape:dome:50", "--out", str(net), "-q"]) == 0
+    capsys.readouterr()
+    png = tmp_path / "big.png"
+    line = _one_line_input_error(capsys, cli.main(["render", str(net), "--dpi", "100000", "--out", str(png)]))
+    assert f"{MAX_PIXELS:,} pixels" in line and "use at most" in line and not png.exists()
+    out = tmp_path / "disk.json"
+    t0 = time.perf_counter()
+    line = _one_line_input_error(capsys, cli.main(["construct", "--disk", "100000", "--out", str(out)]))
+    assert time.perf_counter() - t0 < 2.0 and not out.exists()
+    assert "--disk) of 30,000,300,001 vertices needs about" in line

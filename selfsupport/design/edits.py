@@ -490,13 +490,15 @@ EDITS: dict[str, type[Edit]] = {c.op: c for c in (Move, Raise, Lower, Pillar, Pi
 
 
 def edit_from_dict(d: Mapping[str, Any]) -> Edit:
-    """An edit from its script table (``op`` names the class in :data:`EDITS`); its values are
-    checked by :func:`check_values` first."""
+    """An edit from its script table (``op`` names the class in :data:`EDITS`): each field is
+    checked against its type and range (naming the field), then the whole table by
+    :func:`check_values` (plain, finite data, bounded nesting)."""
     op = d.get("op")
     if not isinstance(op, str) or op not in EDITS:
         raise InputError(f"unknown edit op {op!r}; choose one of {', '.join(EDITS)}")
+    edit = EDITS[op].from_dict(d)
     check_values(d, f"edit {op!r}")
-    return EDITS[op].from_dict(d)
+    return edit
 
 
 #: Deepest nesting :func:`check_values` accepts (a design message's selection box is 5 deep).

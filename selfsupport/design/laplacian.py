@@ -91,13 +91,18 @@ def laplacian_matrix(mesh: PolyMesh, vertices: np.ndarray | None = None) -> sp.c
 
 
 def ring_region(mesh: PolyMesh, seeds: np.ndarray, rings: int) -> np.ndarray:
-    """Mask of the vertices within ``rings`` edge steps of the ``seeds`` mask."""
+    """Mask of the vertices within ``rings`` edge steps of the ``seeds`` mask. The growth stops
+    once a ring adds no vertex, so any ``rings`` (``1e9``: everything connected to the seeds)
+    takes at most as many steps as the mesh has vertices."""
     e = mesh.edges
     n = mesh.n_vertices
     adj = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
     mask = np.asarray(seeds, bool).copy()
-    for _ in range(int(rings)):
-        mask = mask | (adj @ mask.astype(float) > 0)
+    for _ in range(min(int(rings), n)):
+        grown = mask | (adj @ mask.astype(float) > 0)
+        if np.array_equal(grown, mask):
+            break
+        mask = grown
     return mask
 
 

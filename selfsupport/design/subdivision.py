@@ -160,7 +160,8 @@ def catmull_clark(mesh: PolyMesh, *, crease: np.ndarray | None = None, corner: n
     return Subdivision(mesh=new, crease=crease_new, corner=corner_new, n_old=n, n_edges=m, n_faces=F)
 
 
-def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = True) -> Scene:
+def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = True,
+                    max_memory: float | None = None) -> Scene:
     """``levels`` Catmull–Clark steps of a scene's mesh, carrying supports and creases.
 
     Edges between two supports are creases (``crease_supports``); support vertices that do not
@@ -175,9 +176,17 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
     >>> fine = subdivide_scene(make_shape("dome", n_vertices=200), 2)
     >>> [p.mesh.n_vertices for p in subdivision_parents(fine)] + [fine.mesh.n_vertices]
     [217, 1201, 4705]
+
+    Raises :class:`~selfsupport.errors.TooLarge` before any step when a solve of the result
+    would not fit in ``max_memory`` [GiB] (default: the memory available;
+    :func:`~selfsupport.memory.check_memory`): each step quadruples the mesh.
     """
     if int(levels) < 0:
         raise InputError(f"subdivision levels must be >= 0, got {levels}")
+    from ..memory import check_memory
+
+    check_memory(subdivided_vertex_count(scene.mesh, levels), "multilevel", max_memory,
+                 what=f"subdividing {levels} times gives a mesh whose solve")
     mesh, sup = scene.mesh, np.asarray(scene.supports, bool)
     extras = {k: getattr(scene, k) for k in ("handles", "extra_mass", "point_loads")}
     crease = corner = None
@@ -206,6 +215,10 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
     return replace(out, name=f"{scene.name}+cc{levels}")
 
 
+#: :func:`subdivided_vertex_count` stops counting past this many vertices.
+COUNT_CAP = 10 ** 15
+
+
 def subdivided_vertex_count(mesh: PolyMesh, levels: int) -> int:
     """Vertices after ``levels`` Catmull–Clark steps, counted without subdividing (a size check
     before the work): each step adds a point per edge and per face; an n-gon becomes n quads
@@ -218,6 +231,8 @@ def subdivided_vertex_count(mesh: PolyMesh, levels: int) -> int:
     """
     v, e, f, corners = mesh.n_vertices, mesh.n_edges, mesh.n_faces, int(mesh.face_sizes.sum())
     for _ in range(int(levels)):
+        if v > COUNT_CAP:  # (far beyond any machine already: a count of 1e9 levels ends here)
+            break
         v, e, f, corners = v + e + f, 2 * e + corners, corners, 4 * corners
     return int(v)
 

@@ -53,6 +53,11 @@ DEVIATION_CMAP = "RdBu_r"
 ABOVE_HULL, BELOW_HULL = "#ff00ff", "#00b000"
 
 
+#: Most pixels of a rendered figure (50 megapixels: ~1,000 dpi at 8 x 6 in). A canvas is four
+#: bytes a pixel before the PNG is encoded: ``--dpi 100000`` asked for 1.9 TB.
+MAX_PIXELS = 50_000_000
+
+
 @dataclass(frozen=True, eq=False)
 class FigureInput:
     """Everything a figure may use; a figure kind takes what it needs.
@@ -96,6 +101,11 @@ class FigureInput:
             raise InputError(f"thickness must be a positive number of metres, got {self.thickness}")
         if self.dpi <= 0 or min(self.size) <= 0:
             raise InputError(f"figure size {self.size} in at {self.dpi} dpi is empty; give positive values")
+        w, h = self.pixel_size
+        if w * h > MAX_PIXELS:  # refused before a canvas of that size is made
+            most = int(math.sqrt(MAX_PIXELS / (self.size[0] * self.size[1])))
+            raise InputError(f"{self.dpi} dpi makes a {w:,} x {h:,} px figure, more than the {MAX_PIXELS:,} pixels "
+                             f"a figure may have; use at most {most} dpi")
 
     @property
     def reference_mesh(self) -> PolyMesh | None:

@@ -176,6 +176,9 @@ def read_load_cases(path: str | Path) -> tuple[CaseSpec, ...]:
         raise InputError(f"{p}: cannot read the load cases ({e.strerror or e})") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{p}: not a valid TOML file ({e}); see selfsupport solve --help for the format") from None
+    except RecursionError:  # (tomllib recurses once per nested array or inline table)
+        raise InputError(f"{p}: nests its values deeper than the TOML reader can follow; "
+                         "a load-case file is flat [cases.NAME] tables") from None
     cases = d.get("cases")
     if not isinstance(cases, Mapping) or not cases:
         raise InputError(f"{p}: no [cases.NAME] tables; write e.g. [cases.empty] and [cases.snow] with their loads")

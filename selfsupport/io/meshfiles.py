@@ -64,6 +64,24 @@ class Source:
                              line) from None
 
 
+#: Fewest bytes a record of a text mesh file can take: ``0 0 0`` and a newline per vertex, ``3 0 1 2``
+#: and a newline per face. Header counts are checked against the file's size with these before
+#: anything of their size is allocated (an OFF header claiming 2e9 vertices ended in MemoryError).
+MIN_VERTEX_BYTES, MIN_FACE_BYTES = 6, 8
+
+
+def check_declared_counts(src: Source, declared: list[tuple[str, int, int]], size: int, line: int | None = None) -> None:
+    """Refuse a header count the file is too small to hold: ``declared`` is (what, count, fewest
+    bytes per record) per kind of record, ``size`` the file's bytes. Each count is checked on its
+    own, which bounds every allocation by the file's size; a file a few records short is left to
+    the parser, which says where it ends."""
+    for what, count, per in declared:
+        if count * per > size:
+            raise src.error(f"the header declares {count:,} {what}, which need at least {count * per:,} bytes, but "
+                            f"the file has {size:,}", "the counts are wrong or the file is truncated; fix the header",
+                            line)
+
+
 @dataclass
 class RawMesh:
     """What a parser found, in file coordinates, before axis mapping and validation.
@@ -269,6 +287,8 @@ def read_off(path: str | Path, up: str | None = None) -> LoadedMesh:
                         lineno) from None
     if nv <= 0 or nf <= 0:
         raise src.error(f"declares {nv} vertices and {nf} faces", "an OFF mesh needs vertices and faces", lineno)
+    check_declared_counts(src, [("vertices", nv, MIN_VERTEX_BYTES), ("faces", nf, MIN_FACE_BYTES)],
+                          len(text.encode("utf-8")), lineno)
     verts = np.empty((nv, 3))
     vlines = np.empty(nv, dtype=np.int64)
     for k in range(nv):
@@ -523,6 +543,9 @@ def read_ply(path: str | Path, up: str | None = None) -> LoadedMesh:
     rotation(up)
     data = src.read_bytes()
     fmt, elements, body, first_line = _ply_header(src, data)
+    # (a record takes a byte per property at least: a binary char, an ASCII digit needs its separator too)
+    check_declared_counts(src, [(f"'{el.name}' records", el.count, max(len(el.properties), 1)) for el in elements],
+                          len(data) - body)
     if fmt == "ascii":
         parsed = _ply_ascii(src, data, elements, body, first_line)
     else:

@@ -332,6 +332,9 @@ def load_json(src: Source) -> dict[str, Any]:
         raise src.error(f"is not valid JSON ({e.msg}, column {e.colno})", "fix the syntax", e.lineno) from None
     except ValueError as e:
         raise src.error(f"contains {e}", "write non-finite numbers as null or fix them") from None
+    except RecursionError:  # (json's parser recurses once per level: 100k nested brackets exhaust the stack)
+        raise src.error("nests its values deeper than the JSON reader can follow",
+                        "a network file is an object of flat arrays; fix the file") from None
     if not isinstance(d, dict):
         raise src.error(f"holds a JSON {type(d).__name__}, not an object", "a network file is a JSON object "
                         "with vertices, faces, edges, weights, loads, supports")

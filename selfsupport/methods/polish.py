@@ -313,15 +313,21 @@ def load_jacobian_xyz(loads: LoadCase, mesh0, sc: Scaling, X: np.ndarray, L: np.
     return sp.csr_matrix((np.concatenate([J.data for J in blocks]), (R, C)), shape=(3 * nf, 3 * nf))
 
 
-def case_load_jacobians(models, mesh0, sc: Scaling, free: np.ndarray) -> Callable[[np.ndarray, np.ndarray], list]:
-    """For :func:`polish_joint`: ``(V, L) -> [∂L_c/∂X_free or None per case]`` (None for a load
-    independent of the geometry), one colouring shared by the cases (cached per topology)."""
+def case_load_jacobians(models, mesh0, sc: Scaling, free: np.ndarray) -> Callable[..., list | None]:
+    """For :func:`polish_joint`: ``(V, L, deadline=None) -> [∂L_c/∂X_free or None per case]``
+    (None for a load independent of the geometry), one colouring shared by the cases (cached per
+    topology); ``None`` instead of the list when ``deadline`` passes between two cases (each is
+    three coloured finite differences: 300 cases on a 91-vertex dome took 5 s)."""
     fidx = np.flatnonzero(free)
     colouring = load_colouring(mesh0, free) if any(m.depends_on_geometry for m in models) else None
 
-    def jacobians(V: np.ndarray, L: np.ndarray) -> list:
-        return [load_jacobian_xyz(m, mesh0, sc, V, L[c], fidx, colouring) if m.depends_on_geometry else None
-                for c, m in enumerate(models)]
+    def jacobians(V: np.ndarray, L: np.ndarray, deadline: float | None = None) -> list | None:
+        out = []
+        for c, m in enumerate(models):
+            if m.depends_on_geometry and out_of_time(deadline):
+                return None
+            out.append(load_jacobian_xyz(m, mesh0, sc, V, L[c], fidx, colouring) if m.depends_on_geometry else None)
+        return out
 
     return jacobians
 
@@ -353,10 +359,85 @@ def max_rel_error(top: Topology, V: np.ndarray, W: np.ndarray, L: np.ndarray) ->
     return out
 
 
+#: Load cases up to which :func:`polish_joint` factors ``J Jᵀ`` whole (:func:`min_norm_step`). Its
+#: blocks couple every pair of cases through the shared positions, so the factor grows with the
+#: square of the cases (4 cases on a 5,000-vertex dome: 1.6 GB against 0.16 GB for one; 60 cases on
+#: a 91-vertex dome: 2.4 GB and 20 s for one step); above this the step is found by conjugate
+#: gradients preconditioned by the groups' own blocks instead (memory linear in the cases, the
+#: step less exact: the Gauss-Newton iteration corrects it). :mod:`selfsupport.memory` counts both.
+DIRECT_CASES_MAX = 4
+#: Relative residual of ``J Jᵀ y = b`` at which the conjugate gradients of :func:`min_norm_step` stop.
+MIN_NORM_RTOL = 1e-14
+
+
+def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct: bool = True,
+                  deadline: float | None = None) -> np.ndarray | None:
+    """The minimum-norm ``d`` with ``J d = b``: ``d = Jᵀ (J Jᵀ + μ I)⁻¹ b`` (``μ`` round-off level,
+    only where ``J`` is rank deficient).
+
+    Parameters
+    ----------
+    J
+        The stacked rows, ``groups[i]`` rows per group (a load case, the planarity rows, the hull rows).
+    groups
+        Row counts of the groups, in order.
+    b
+        Right-hand side, one entry per row of ``J``.
+    direct
+        Factor ``J Jᵀ`` (else conjugate gradients, see below).
+    deadline
+        ``time.perf_counter()`` value; past it the conjugate gradients stop.
+
+    Returns
+    -------
+    d, or ``None`` when ``deadline`` passed before it was found.
+
+    ``direct``: ``J Jᵀ`` is factored (one step of iterative refinement). Otherwise it is never formed: conjugate gradients apply it as ``J (Jᵀ y)``,
+    preconditioned by the factors of its diagonal blocks (each group's rows with themselves, the
+    size of one case's system), so memory and time grow linearly with the cases.
+    """
+    if out_of_time(deadline):
+        return None
+    mu = 1e-14 * float(np.asarray(J.multiply(J).sum(axis=1)).max(initial=1.0))  # (J Jᵀ's largest diagonal entry)
+    groups = [g for g in groups if g > 0]
+    if direct or len(groups) < 2:
+        M = (J @ J.T).tocsc()
+        fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
+        y = fac.solve(b)
+        y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
+        return J.T @ y
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    bounds = np.r_[0, np.cumsum(groups)]
+    factors = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        if out_of_time(deadline):
+            return None
+        Jg = J[lo:hi]
+        factors.append(spd_factor((Jg @ Jg.T).tocsc() + mu * sp.identity(hi - lo, format="csc")))
+
+    def precondition(r: np.ndarray) -> np.ndarray:
+        return np.concatenate([f.solve(r[lo:hi]) for f, lo, hi in zip(factors, bounds[:-1], bounds[1:])])
+
+    def stop_at_deadline(_: np.ndarray) -> None:
+        if out_of_time(deadline):
+            raise DeadlineReached
+
+    n = J.shape[0]
+    op = LinearOperator((n, n), matvec=lambda y: J @ (J.T @ y) + mu * y, dtype=float)
+    pre = LinearOperator((n, n), matvec=precondition, dtype=float)
+    try:
+        y, _ = cg(op, b, rtol=MIN_NORM_RTOL, atol=0.0, maxiter=10 * len(groups) + 100, M=pre,
+                  callback=stop_at_deadline)
+    except DeadlineReached:
+        return None
+    return J.T @ y
+
+
 def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                  loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
                  max_iter: int = JOINT_POLISH_MAX_ITER,
-                 load_jacobian: Callable[[np.ndarray, np.ndarray], list] | None = None,
+                 load_jacobian: Callable[..., list | None] | None = None,
                  deadline: float | None = None) -> tuple[np.ndarray, np.ndarray, int, float, bool]:
     """Every load case in equilibrium to round-off, with loads of the final geometry.
 
@@ -425,7 +506,9 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
         below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
         inner = (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up  # (C, m)
         JX, Aw, rhs = [], weight_matrix(top, V), []
-        dL = load_jacobian(V, L) if load_jacobian is not None else [None] * C
+        dL = load_jacobian(V, L, deadline=deadline) if load_jacobian is not None else [None] * C
+        if dL is None:  # the deadline passed while the load Jacobians were formed
+            break
         for c in range(C):
             sr = np.repeat(S[c], 3)
             Kff, _ = position_blocks(top, W[c])
@@ -451,20 +534,15 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                 b = np.concatenate([b_eq, (goal[on] - sd[on]) / h])
             wcols = [np.flatnonzero(inner[c]) for c in range(C)]
             nW = [len(i) for i in wcols]
-            rows = [sp.hstack([JX[c]] + [sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w if j == c
-                                         else sp.csr_matrix((JX[c].shape[0], nW[j])) for j in range(C)])
-                    for c in range(C)]
-            if planar is not None:
-                rows.append(sp.hstack([JX[C], sp.csr_matrix((JX[C].shape[0], sum(nW)))]))
-            if Hr is not None:
-                rows.append(sp.hstack([Hr, sp.csr_matrix((Hr.shape[0], sum(nW)))]))
-            J = sp.vstack(rows, format="csr")
-            M = (J @ J.T).tocsc()
-            mu = 1e-14 * float(M.diagonal().max(initial=1.0))
-            fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
-            y = fac.solve(b)
-            y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
-            d = J.T @ y
+            # J = [position columns | each case's weight columns, block-diagonal by case]; the
+            # planarity and hull rows have position columns only
+            Xrows = JX + ([Hr] if Hr is not None else [])
+            extra = sum(r.shape[0] for r in Xrows[C:])
+            JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
+            J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
+            d = min_norm_step(J, [r.shape[0] for r in Xrows], b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
+            if d is None:  # the deadline passed inside the step: the best iterate so far
+                break
             off, crossing = len(xcols), False
             Wn = W.copy()
             for c in range(C):
@@ -486,6 +564,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                     crossing = True
             if not crossing:
                 break
+        if d is None:
+            break
         V[free] += dX.reshape(-1, 3)
         W = np.clip(Wn, lo, up)
         t_step = time.perf_counter() - t0

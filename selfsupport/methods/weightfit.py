@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..linalg import GramPattern, spd_factor
+from ..linalg import GramPattern, LowRankUpdatedFactor, SplitGram, spd_factor
 from .deadline import out_of_time
 
 
@@ -118,9 +118,14 @@ class _LowerQ:
     object for all the matrices of a fit that share its pattern — ``Q + diag(D)`` in the
     interior point, ``Q`` with the fixed variables' rows and columns replaced by their
     diagonal in PDAS — so that each is a numeric refactorization only (the symbolic analysis
-    is done once per pattern, and kept across fits while the pattern holds)."""
+    is done once per pattern, and kept across fits while the pattern holds).
 
-    def __init__(self, Q: sp.spmatrix, factor: Any = None, pattern: GramPattern | None = None) -> None:
+    ``dense``: the dense rows ``U`` of :class:`~selfsupport.linalg.GramPattern`, left out of
+    ``Q`` (which is then ``Q_s``, the full matrix being ``Q_s + UᵀU``); each factor is then a
+    :class:`~selfsupport.linalg.LowRankUpdatedFactor` of the full matrix."""
+
+    def __init__(self, Q: sp.spmatrix, factor: Any = None, pattern: GramPattern | None = None,
+                 dense: sp.csr_matrix | None = None) -> None:
         n = Q.shape[0]
         ii = np.arange(n)
         if pattern is not None:  # Q on a GramPattern: its lower triangle by indexing (diagonal stored)
@@ -135,16 +140,24 @@ class _LowerQ:
         self.diag = self.base[self.diag_pos]
         self.rows, self.cols = M.indices, np.repeat(ii, np.diff(M.indptr))
         self.factor = factor
+        self.dense = self.active_dense = dense
+        if dense is not None:  # (the full matrix's diagonal: the dense rows' share added)
+            self.diag = self.diag + np.asarray(dense.multiply(dense).sum(axis=0)).ravel()
 
     def _factor(self, data: np.ndarray):
         self.M.data = data
         self.factor = spd_factor(self.M, lower=True, reuse=self.factor)
-        return self.factor
+        if self.active_dense is None:
+            return self.factor
+        L = sp.csc_matrix((data, self.M.indices, self.M.indptr), shape=self.M.shape)
+        d = data[self.diag_pos]
+        return LowRankUpdatedFactor(self.factor, lambda x: L @ x + L.T @ x - d * x, self.active_dense)
 
     def with_diagonal(self, D: np.ndarray):
         """Factor of ``Q + diag(D)``."""
         data = self.base.copy()
         data[self.diag_pos] += D
+        self.active_dense = self.dense
         return self._factor(data)
 
     def fixing(self, fixed: np.ndarray):
@@ -154,6 +167,8 @@ class _LowerQ:
         data[fixed[self.rows] | fixed[self.cols]] = 0.0
         keep = np.where(self.diag > 0, self.diag, 1.0)
         data[self.diag_pos[fixed]] = keep[fixed]
+        if self.dense is not None:  # (the dense rows without the fixed columns)
+            self.active_dense = sp.csr_matrix(self.dense.multiply((~fixed)[None, :]))
         return self._factor(data), keep
 
 
@@ -320,7 +335,10 @@ class ActiveSetFit(WeightFitBackend):
         Q = self._pattern.gram(A, shift=prox if prox > 0 else 0.0)
         c = A.T @ b + prox * w0
         w, it, status = None, 0, "max_iter"
-        lowq = _LowerQ(Q, self._factor, self._pattern)  # (spd_factor starts afresh when the size changed)
+        # (spd_factor starts afresh when the size changed)
+        lowq = _LowerQ(Q, self._factor, self._pattern, dense=self._pattern.dense_part(A))
+        if lowq.dense is not None:  # a high-valence vertex's rows, kept out of the sparse Gram matrix
+            Q = SplitGram(Q, lowq.dense)
         guess = None
         if self._active is not None and self._active[0].shape == w0.shape:
             w, it, status, guess = self._pdas(lowq, Q, c, lower, upper, *self._active, deadline=deadline)
