@@ -531,7 +531,7 @@ def test_a_script_with_a_nan_edit_is_refused_in_one_line(tmp_path, capsys, monke
                                        'select = { vertices = [10] }\noffset = [nan, 0.0, 0.0]\n')
     rc = cli.main(["design", "bad.toml", "--no-browser"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert rc == 2 and len(err) == 1 and "offset[0]" in err[0] and "not a finite number" in err[0], err
+    assert rc == 2 and len(err) == 1 and "offset[0]" in err[0] and "finite number" in err[0], err
 
 
 # ------------------------------------------------------------------------------ saving
