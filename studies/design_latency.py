@@ -1,4 +1,4 @@
-"""Latency of ``selfsupport design`` (issue 20): from an edit sent to the new frame received.
+"""Latency of ``selfsupport design``: from an edit sent to the new frame received.
 
     python -m studies.design_latency [--scene shape:pillar_vault:1200 | --scenes DIR (lilium)]
                                      [--steps 30] [--step 0.001]

@@ -1,4 +1,4 @@
-"""Where a time-limited solve spends its time outside the solver loops (issue 16, item 4).
+"""Where a time-limited solve spends its time outside the solver loops.
 
     python -m studies.fixed_costs [--scene shape:dome:200000] [--time-limit 10] [--runs 3]
                                   [--json-runs 3] [--out DIR]

@@ -1,4 +1,4 @@
-"""Step 2's Newton systems, solved directly and by preconditioned CG (issue #21, item 1).
+"""Step 2's Newton systems, solved directly and by preconditioned CG.
 
     python -m studies.newton_systems --out OUT [--shapes concave_disk,pillar_vault]
         [--sizes 4000,16000] [--fits 0,5,15,30] [--every 4] [--rtol 1e-8] [--maxiter 500]

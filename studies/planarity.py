@@ -1,4 +1,4 @@
-"""Planarity against closeness on the paper's quad scenes (issue "One problem, every method").
+"""Planarity against closeness on the paper's quad scenes.
 
     python -m studies.planarity --scenes ../shared/paper-scenes/scenes --out OUT
         [--only vault,cas] [--terms planarity,planarity_volume] [--weights 10,1000]

@@ -35,7 +35,7 @@ For staggered rows the worker also measures, at the final weights:
   iteration's cost in direct Step-3 factorizations (1–3 would be a method that factors once per step);
 * ``limit_ratio`` — solve time / (outer iterations × ``factor_K_s``): an outer iteration's cost
   in Cholesky factorizations of the plain stress Laplacian of the mesh, the limit a method that
-  factors one mesh-sized Laplacian per step would approach (issue #21 asks for ≤ 10). For
+  factors one mesh-sized Laplacian per step would approach (the target is ≤ 10). For
   multilevel rows the iterations are the finest level's (1 when it starts in equilibrium), so
   this is the whole solve's cost; ``solve_over_factor`` — solve time / ``factor_K_s`` — is that
   cost for every method alike (a 25-iteration staggered solve at ratio 10 would be 250);

@@ -1,4 +1,4 @@
-"""Subdivided designs (issue #21's case): a paper scene refined by Catmull–Clark for
+"""Subdivided designs: a paper scene refined by Catmull–Clark for
 fabrication, solved on one level and by levels.
 
     python -m studies.subdivided --scenes ../shared/paper-scenes/scenes --out OUT

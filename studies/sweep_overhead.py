@@ -11,7 +11,7 @@ Measures, for the same solve repeated ``--runs`` times (distinct store keys thro
   from the call to its return (planning, submission, store inserts, progress included;
   cluster start-up reported separately).
 
-Targets (issue 6): overhead per run = (sweep wall time with 1 worker − Σ solve times) / runs
+Targets: overhead per run = (sweep wall time with 1 worker − Σ solve times) / runs
 ≤ 0.5 s, and throughput with 2 workers ≥ 1.6 × that with 1. Writes ``sweep_overhead.md`` and
 ``sweep_overhead.json`` into ``--out`` and prints the table. The load average is printed too:
 other processes on the machine distort both numbers.

@@ -3,7 +3,7 @@
 The project's solver settings are general, and there are held-out scenes of the same kind as
 the paper's. This registry makes such scenes from any scene: each variant maps the vertex
 positions (z up) and keeps the mesh, the supports and the loads' definition. ``studies.subdivided
---variants`` runs them (also subdivided, the issue #21 case):
+--variants`` runs them (also subdivided):
 
 - ``turned``: turned by 1.1 rad about the vertical, scaled by 2.5 and moved by (30, −12, 5) m. A
   similarity, so the network should be the original's, turned, scaled and moved (its distance

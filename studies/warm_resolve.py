@@ -1,4 +1,4 @@
-"""Warm re-solve benchmark (issue 18): cold vs warm staggered solves after small edits of lilium.
+"""Warm re-solve benchmark: cold vs warm staggered solves after small edits of lilium.
 
     python -m studies.warm_resolve --scenes ../shared/paper-scenes/scenes [--repeat 3]
 

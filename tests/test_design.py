@@ -1,4 +1,4 @@
-"""Design operations (issue 18): Laplacian handle edits, Catmull–Clark, edits, warm re-solves and
+"""Design operations: Laplacian handle edits, Catmull–Clark, edits, warm re-solves and
 edit scripts — on generated meshes only."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Diagnostics on stderr (issue 16, item 10): a network far from its reference, the input
+"""Diagnostics on stderr: a network far from its reference, the input
 warnings of ``parameters.input_issues`` (each once), and a network outside the masonry hull."""
 from __future__ import annotations
 

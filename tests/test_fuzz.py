@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the solve (issue 7, item 5) with hypothesis.
+"""Property-based fuzzing of the solve with hypothesis.
 
 Generated scenes: jittered grids (quads or triangles) and ring-triangulated disks, with random
 heights (a dome profile plus noise, possibly flat), random scale (1 mm .. 1 km across), random

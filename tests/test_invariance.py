@@ -1,4 +1,4 @@
-"""Invariances (issue 7, item 4): translating, rotating about the vertical axis or scaling a
+"""Invariances: translating, rotating about the vertical axis or scaling a
 scene gives the correspondingly transformed network with the same relative error; reordering
 vertices and faces gives the same network up to the permutation.
 

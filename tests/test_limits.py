@@ -1,4 +1,4 @@
-"""Limits that hold (issue 16, items 4 and 5): the time limit inside every inner loop, and the
+"""Limits that hold: the time limit inside every inner loop, and the
 memory guard before any allocation.
 
 The whole-run test slows Step 2 down on purpose instead of solving a 200k-vertex mesh: each

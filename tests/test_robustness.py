@@ -1,4 +1,4 @@
-"""Robustness (issue 7): a corpus of bad inputs, infeasible and hard designs, no data lost.
+"""Robustness: a corpus of bad inputs, infeasible and hard designs, no data lost.
 
 * Bad inputs (:data:`CORPUS`): every case is generated here and has one defined outcome — a
   named exception from the API, and from the real command line (a subprocess) one line on
@@ -176,7 +176,7 @@ V2, F2 = two_triangles()
 TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\n"
 SSS_OK = "v 0 0 0 0 1 0\nv 1 0 0 0 1 0\nv 0 0 1 0 1 0\nv 1 -1 1 0 0 0\nf 3 0 1 2\nf 3 1 3 2\n"
 
-#: Every bad input of issue 7's list (and a few more found on the way) with its outcome.
+#: Every bad input of the corpus with its outcome.
 CORPUS: list[Bad] = [
     # empty and truncated files
     Bad("empty OBJ", _write("e.obj", ""), InputError, "empty"),
@@ -1061,7 +1061,7 @@ def test_paper_scenes_pass_validation(name):
     assert ("overhang" in {i.code for i in issues}) == (name == "structural.obj")
 
 
-# ------------------------------------------------------------------ issue 16: never lose a user's file
+# ------------------------------------------------------------------ never lose a user's file
 def _dome_files(folder: Path) -> tuple[Path, Path]:
     """The small dome as OBJ and its supports file."""
     d = small_dome()

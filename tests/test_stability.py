@@ -1,4 +1,4 @@
-"""Will it stand (issue 17): the masonry hull, added loads, the maximum load, destruction.
+"""Will it stand: the masonry hull, added loads, the maximum load, destruction.
 
 Generated shells only (:func:`selfsupport.shapes.make_shape`). "Inside the hull" is checked by a
 distance computed here (brute-force point-to-triangle distances in numpy), never by the

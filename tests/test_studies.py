@@ -262,7 +262,7 @@ def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
 
 @pytest.mark.slow
 def test_fixed_costs_study_reports_wall_time_phases_and_json(tmp_path, capsys):
-    """studies/fixed_costs.py (issue 16, item 4) runs end to end on a small shape."""
+    """studies/fixed_costs.py runs end to end on a small shape."""
     from studies import fixed_costs
 
     assert fixed_costs.main(["--scene", "shape:dome:300", "--time-limit", "5", "--runs", "1", "--json-runs", "1",

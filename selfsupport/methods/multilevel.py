@@ -1,4 +1,4 @@
-"""Multilevel solve for big meshes (issue #21): coarsen the top view, solve, prolong, solve again.
+"""Multilevel solve for big meshes: coarsen the top view, solve, prolong, solve again.
 
 The staggered method's outer iterations follow its schedule for α, the pull towards the
 reference (halved after every accepted step, from 1): 25–45 iterations at 16k–64k vertices,
