@@ -25,7 +25,8 @@ module when the parser is built. Keep such modules light at import time (import 
 libraries inside ``run``), return an exit code from ``run``, raise
 :class:`~selfsupport.errors.SelfSupportError` subclasses for errors the user can fix.
 Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func:`load_scene`,
-:func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, and the argparse types
+:func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, for a network ``--out``
+:func:`add_network_out_arguments`, :func:`check_network_out`, :func:`write_network_out`, and the argparse types
 :func:`number_in` (a finite number in an interval), :func:`positive_float`, :func:`positive_int`,
 :data:`tolerance`.
 """

@@ -151,8 +151,8 @@ def read_ply_network(path: str | Path, up: str | None = None) -> Network:
                         "as a mesh")
     columns = {name: np.asarray(col) for name, col in [*vertex.items(), *edge.items()]}
     for name in ("load", "support", "vertex1", "vertex2", "weight"):
-        if columns[name].dtype.kind not in "iuf":
-            raise src.error(f"property {name!r} is a list", "write it as a scalar property")
+        if columns[name].dtype.kind not in "iuf" or columns[name].ndim != 1:
+            raise src.error(f"property {name!r} is not a scalar number", "write it as a scalar property")
     sup = columns["support"]
     if not np.isin(sup, (0, 1)).all():
         raise src.error("vertex property 'support' holds values other than 0 and 1", "write 0 or 1")
