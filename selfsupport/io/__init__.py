@@ -139,31 +139,24 @@ class NetworkFormat:
     holds: str | None = None
 
 
-def _write_json(path: str | Path, result_or_network, *, up: str = "z", **extra) -> None:
-    write_network(path, result_or_network, **extra)
+def _fixed_axis(write: Callable[..., None]) -> Callable[..., None]:
+    """The registry's writer of a format whose vertical axis is fixed (JSON, COMPAS: z up; .sss:
+    y down): ``up`` is not its to choose."""
 
+    def write_as(path: str | Path, result_or_network, *, up: str = "z", **extra) -> None:
+        write(path, result_or_network, **extra)
 
-def _write_compas(path: str | Path, result_or_network, *, up: str = "z", **extra) -> None:
-    write_compas(path, result_or_network, **extra)
-
-
-def _write_sss(path: str | Path, result_or_network, *, up: str = "z", **extra) -> None:
-    write_network_sss(path, result_or_network, **extra)
-
-
-def _read_json(path: str | Path, up: str | None = None) -> Network:
-    if up not in (None, "z"):
-        raise InputError(f"{path}: JSON networks are z up by definition, got up={up!r}; leave --up out")
-    return read_json_network(path)
+    return write_as
 
 
 #: suffix -> network format; a name is matched by its longest registered suffix (``.compas.json``
 #: before ``.json``)
 NETWORK_FORMATS: dict[str, NetworkFormat] = {
     ".json": NetworkFormat("json", "the network format (weights, loads, supports, status, evidence)",
-                           _write_json, _read_json),
+                           _fixed_axis(write_network), read_json_network),
     ".compas.json": NetworkFormat("compas", "a COMPAS mesh (edge weight, vertex load and support, "
-                                  "the rest as mesh attributes)", _write_compas, _read_json, suffixes=(".json",)),
+                                  "the rest as mesh attributes)", _fixed_axis(write_compas), read_json_network,
+                                  suffixes=(".json",)),
     ".ply": NetworkFormat("ply", "mesh with vertex load and support and an edge element with weight",
                           write_ply_network, read_ply_network,
                           holds="the network (weights in its edge element, loads and supports as vertex properties)"),
@@ -172,7 +165,8 @@ NETWORK_FORMATS: dict[str, NetworkFormat] = {
                           holds="the geometry; its weights are in {0}, its loads and supports in {1}"),
     ".off": NetworkFormat("off", "as .obj", write_with_side_files, read_with_side_files, side_files=side_files,
                           holds="the geometry; its weights are in {0}, its loads and supports in {1}"),
-    ".sss": NetworkFormat("sss", "the original tool's scene, with the weights", _write_sss, read_sss_network,
+    ".sss": NetworkFormat("sss", "the original tool's scene, with the weights", _fixed_axis(write_network_sss),
+                          read_sss_network,
                           holds="the network for the original tool (pins = supports, its load column = the "
                                 "downward loads, edge records with the weights)"),
 }

@@ -437,8 +437,14 @@ def _reference(src: Source, d: dict, faces: list[list[int]]) -> tuple[np.ndarray
     return rv, rf
 
 
-def read_network(path: str | Path) -> Network:
-    """Read a network file back into a :class:`Network` (weights in ``mesh.edges`` order).
+def _z_up(src: Source, up: str | None) -> None:
+    if up not in (None, "z"):
+        raise InputError(f"{src.path}: JSON networks are z up by definition, got up={up!r}; leave --up out")
+
+
+def read_network(path: str | Path, up: str | None = None) -> Network:
+    """Read a network file back into a :class:`Network` (weights in ``mesh.edges`` order);
+    ``up`` may only be ``None`` or ``"z"`` (JSON networks are z up).
 
     Raises
     ------
@@ -449,6 +455,7 @@ def read_network(path: str | Path) -> Network:
         The faces do not form a usable mesh.
     """
     src = Source(path)
+    _z_up(src, up)
     return _network_of(src, load_json(src))
 
 
@@ -541,8 +548,7 @@ def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
     consistent network (:func:`read_network`'s errors otherwise).
     """
     src = Source(path)
-    if up not in (None, "z"):
-        raise InputError(f"{src.path}: JSON networks are z up by definition, got up={up!r}; leave --up out")
+    _z_up(src, up)
     d = load_json(src)
     v = _numbers(src, d, "vertices", integer=False, width=3)
     faces = _faces(src, d, "faces", len(v))
