@@ -450,6 +450,8 @@ class CheckReport:
     stored_min_weight: float | None = None
     cases: tuple[dict[str, Any], ...] = ()  # per load case (several cases only): name, errors, min weights
     stored_self_supporting: bool | None = None
+    case_networks: tuple[tuple[str, Network], ...] = ()  # per load case (several cases only): the fitted network
+    load_model: Mapping[str, Any] | None = None  # the loads checked (LoadSpec.describe)
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) pairs for a summary table."""
@@ -472,6 +474,25 @@ class CheckReport:
         r += [("fitted weights: self-supporting", f"{'yes' if self.self_supporting else 'NO'} (tol {self.tol:g})"),
               ("time", f"{self.seconds:.2f} s")]
         return r
+
+    def file_fields(self) -> dict[str, Any]:
+        """The keys a network file of the fitted weights (:attr:`network`) carries beside the
+        network: ``status`` (``"self_supporting"`` when :attr:`self_supporting`, else
+        ``"not_self_supporting"``), ``method`` ``"check"``, the evidence, the loads checked
+        (``parameters.load_model``, so that checking the file again uses them) and, with several
+        load cases, each case's fitted weights (``load_cases``)."""
+        from .io.network_json import load_case_entries
+
+        d: dict[str, Any] = {
+            "status": "self_supporting" if self.self_supporting else "not_self_supporting", "method": "check",
+            "tol": self.tol, "max_relative_error": self.max_relative_error, "min_weight": self.min_weight,
+            "check": {"fit_status": self.fit_status, "E": self.E, "eps": self.eps, "n_at_lower": self.n_at_lower,
+                      "seconds": self.seconds},
+            "parameters": {"load_model": dict(self.load_model or {})},
+        }
+        if self.case_networks:
+            d["load_cases"] = load_case_entries(self.case_networks)
+        return d
 
 
 def _stored_document(path: Path) -> dict[str, Any]:
@@ -602,7 +623,8 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
                        tol=float(tol), max_relative_error=rel, E=float(sum(f.E for f in fits)), min_weight=min_w,
                        n_at_lower=int(sum(f.n_at_lower for f in fits)), eps=fits[0].eps, fit_status=fits[0].status,
                        total_load=float(L[0].sum()), seconds=time.perf_counter() - t0, network=nets[0],
-                       cases=tuple(cases) if len(cases) > 1 else (), **kw)
+                       cases=tuple(cases) if len(cases) > 1 else (), load_model=spec.describe(),
+                       case_networks=tuple(zip(prob.loads.names, nets)) if len(nets) > 1 else (), **kw)
 
 
 # -------------------------------------------------------------------------- sensitivity

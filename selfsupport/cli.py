@@ -3,7 +3,7 @@
 ::
 
     selfsupport solve SCENE --out NET.json [--method staggered|ipopt|nlopt] [...]
-    selfsupport check MESH_OR_NET [--supports ...] [--tol 1e-6]
+    selfsupport check MESH_OR_NET [--supports ...] [--tol 1e-6] [--out NET.json]
     selfsupport demo [--out DIR] [--shape NAME] [--vertices N]
 
 ``SCENE`` is a file (``.sss``, ``.obj``, ``.ply``, ``.off``, ``.json``) or a built-in shape
@@ -25,7 +25,8 @@ module when the parser is built. Keep such modules light at import time (import 
 libraries inside ``run``), return an exit code from ``run``, raise
 :class:`~selfsupport.errors.SelfSupportError` subclasses for errors the user can fix.
 Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func:`load_scene`,
-:func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, and the argparse types
+:func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, for a network ``--out``
+:func:`add_network_out_arguments`, :func:`check_network_out`, :func:`write_network_out`, and the argparse types
 :func:`number_in` (a finite number in an interval), :func:`positive_float`, :func:`positive_int`,
 :data:`tolerance`.
 """
@@ -50,7 +51,8 @@ from .errors import InputError, SelfSupportError
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
            "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
-           "number_in", "positive_float", "positive_int", "tolerance", "summary_rows", "sigterm_interrupts"]
+           "number_in", "positive_float", "positive_int", "tolerance", "summary_rows", "sigterm_interrupts",
+           "add_network_out_arguments", "check_network_out", "write_network_out"]
 
 PROG = "selfsupport"
 
@@ -339,14 +341,45 @@ def _not_converged_line(result) -> str:
             f"{result.max_relative_error:.2e} > {tol:g}; {hint}")
 
 
-def write_network_out(out: str | Path, result_or_network, **extra: Any) -> None:
-    """Write ``--out`` in the format its suffix names (:func:`selfsupport.io.write_network_as`); a
-    mesh suffix keeps the geometry only, which one stderr line says."""
-    from .io import write_network_as
+def network_out_help(what: str = "network file to write") -> str:
+    """The help of a network ``--out``: the formats of :data:`selfsupport.io.NETWORK_FORMATS`."""
+    from .io import NETWORK_FORMATS
 
-    if write_network_as(out, result_or_network, **extra) != ".json":
-        _err(f"note: {out} holds the network's geometry only; its weights, loads and status are written "
-             "with --out NAME.json")
+    return f"{what}: " + "; ".join(f"{s} {f.summary}" for s, f in NETWORK_FORMATS.items())
+
+
+def add_network_out_arguments(p: argparse.ArgumentParser, *, metavar: str = "NET.json", required: bool = True,
+                              what: str = "network file to write") -> None:
+    """``--out`` (a network file, in the format its suffix names) and ``--format``."""
+    from .io import FORMAT_NAMES
+
+    p.add_argument("--out", "-o", required=required, default=None, metavar=metavar, help=network_out_help(what))
+    p.add_argument("--format", choices=list(FORMAT_NAMES), default=None,
+                   help="the --out format when its suffix does not say it (compas: a COMPAS mesh in a .json file)")
+
+
+def check_network_out(out: str | Path, fmt: str | None = None,
+                      inputs: Sequence[tuple[str, str | Path | None]] = ()) -> None:
+    """Check a network ``--out`` before any work: the file (the rules of
+    :mod:`selfsupport.io.safety`), then its format (``fmt`` or its suffix: one no writer has is
+    refused), then the side files that format writes beside it."""
+    from .io import network_outputs
+    from .io.safety import check_outputs
+
+    check_outputs([("--out", out)], inputs)
+    check_outputs([("--out side file", f) for f in network_outputs(out, fmt)[1:]], inputs)
+
+
+def write_network_out(out: str | Path, result_or_network, fmt: str | None = None, **extra: Any) -> None:
+    """Write ``--out`` in the format ``fmt`` or its suffix names
+    (:func:`selfsupport.io.write_network_as`); a format that does not hold everything says in one
+    stderr line where the rest is (side files) and what is left out."""
+    from .io import network_note, write_network_as
+
+    write_network_as(out, result_or_network, fmt=fmt, **extra)
+    note = network_note(out, fmt)
+    if note:
+        _err(f"note: {note}")
 
 
 def built_status(network, tol: float) -> str:
@@ -373,7 +406,7 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "(reference_vertices), starting from the stored network and its weights (staggered, ipopt; "
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
+    add_network_out_arguments(p)
     p.add_argument("--method", choices=list(METHODS), default=None,
                    help="solution method (default staggered; with --subdivide, multilevel)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
@@ -461,15 +494,13 @@ def _run_solve(args: argparse.Namespace) -> int:
     from . import api
     from .progress import ProgressDisplay
 
-    from .io import network_suffix
     from .io.safety import check_output_dir, check_outputs, interrupted_path
     from .methods.staggered import parse_option
     from .memory import check_scene_spec
 
     out = Path(args.out)
     inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
-    check_outputs([("--out", out)], inputs)
-    network_suffix(out)
+    check_network_out(out, args.format, inputs)
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
@@ -503,10 +534,11 @@ def _run_solve(args: argparse.Namespace) -> int:
     if note:
         _err(f"warning: {note}")
     print_warnings(result, scene)
+    fmt = args.format
     if result.status == "interrupted" and not args.keep_partial:
-        out = interrupted_path(out)  # an interrupted run never replaces --out (see --keep-partial)
+        out, fmt = interrupted_path(out), None  # an interrupted run never replaces --out (see --keep-partial)
         check_outputs([("--out", out)], inputs)
-    write_network_out(out, result, scene=_scene_info(scene, args))
+    write_network_out(out, result, fmt, scene=_scene_info(scene, args))
     print_table(f"selfsupport solve -> {out}", summary_rows(result, scene))
     if args.report:
         _write_figures(result, Path(args.report), scene.name)
@@ -534,11 +566,17 @@ def _check_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=tolerance, default=DEFAULT_CHECK_TOL,
                    help=f"max relative error that counts as self-supporting, in (0, 1] (default {DEFAULT_CHECK_TOL:g})")
     p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
+    add_network_out_arguments(p, required=False, what="also write the network with the fitted weights, its status "
+                              "self_supporting or not_self_supporting")
 
 
 def _run_check(args: argparse.Namespace) -> int:
     from . import api
 
+    if args.out is not None:
+        check_network_out(args.out, args.format, scene_inputs(args))
+    elif args.format is not None:
+        raise InputError("--format names the format of --out; give --out too")
     spec = args.scene
     if spec.startswith("shape:"):
         target: Any = load_scene(spec, supports=args.supports, up=args.up)
@@ -549,7 +587,9 @@ def _run_check(args: argparse.Namespace) -> int:
         target, supports, up = spec, args.supports, args.up
     rep = api.check(target, supports=supports, up=up, density=args.density, thickness=args.thickness,
                     tol=args.tol, w_max=args.wmax)
-    print_table(f"selfsupport check {spec}", rep.rows())
+    if args.out is not None:
+        write_network_out(args.out, rep.network, args.format, scene=_scene_info(rep, args), **rep.file_fields())
+    print_table(f"selfsupport check {spec}" + (f" -> {args.out}" if args.out else ""), rep.rows())
     print(check_verdict(rep))
     ok = rep.self_supporting and rep.stored_self_supporting is not False
     return EXIT_CODES["ok"] if ok else EXIT_CODES["not_self_supporting"]

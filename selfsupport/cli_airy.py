@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
-                  positive_float, positive_int, print_table, tolerance, write_network_out)
+                  positive_float, positive_int, print_table, tolerance, write_network_out,
+                  add_network_out_arguments, check_network_out)
 from .errors import InputError
 
 __all__ = ["COMMANDS", "PHI_NAMES", "INTEGRATION_NAMES", "add_airy_arguments", "run_airy", "add_construct_arguments", "run_construct", "airy_document"]
@@ -208,7 +209,7 @@ def run_airy(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------ construct
 def add_construct_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport construct``."""
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
+    add_network_out_arguments(p)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--disk", type=positive_int, metavar="RINGS",
                      help="top view: the ring points of a disk (1 + 3 RINGS (RINGS+1) points)")
@@ -270,13 +271,10 @@ def run_construct(args: argparse.Namespace) -> int:
 
     from .analysis import construct_detailed
     from .api import DEFAULT_CHECK_TOL
-    from .io import network_suffix
     from .loads import SelfWeight
-    from .io.safety import check_outputs
     from .shapes import disk_points
 
-    check_outputs([("--out", args.out)], [("--points", args.points), ("--phi-values", args.phi_values)])
-    network_suffix(args.out)
+    check_network_out(args.out, args.format, [("--points", args.points), ("--phi-values", args.phi_values)])
     from .memory import check_memory
 
     if args.disk is not None or args.random is not None:  # (the size guard of a solve, before the points are made)
@@ -305,7 +303,7 @@ def run_construct(args: argparse.Namespace) -> int:
     net = c.network
     tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
     status = built_status(net, tol)
-    write_network_out(args.out, net, status=status, tol=tol, construction={
+    write_network_out(args.out, net, args.format, status=status, tol=tol, construction={
         "phi": phi_name, "load": "self_weight" if args.self_weight else load,
         "density": args.density if args.self_weight else None,
         "thickness": args.thickness if args.self_weight else None,

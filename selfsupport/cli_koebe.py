@@ -24,7 +24,8 @@ import os
 import time
 
 from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
-                  positive_float, positive_int, print_table, tolerance, write_network_out)
+                  positive_float, positive_int, print_table, tolerance, write_network_out,
+                  add_network_out_arguments, check_network_out)
 
 __all__ = ["COMMANDS", "EXAMPLE_NAMES", "KIND_NAMES", "MOBIUS_NAMES", "LOAD_RULE_NAMES", "add_koebe_arguments",
            "run_koebe"]
@@ -43,7 +44,7 @@ ALPHA_RANGE = "[-1e6, 1e6]"
 
 def add_koebe_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport koebe``."""
-    p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
+    add_network_out_arguments(p)
     src = p.add_mutually_exclusive_group()
     src.add_argument("--example", choices=EXAMPLE_NAMES, default=None,
                      help="built-in Koebe mesh (default enneper: the layout of the paper's Fig. 15)")
@@ -82,7 +83,7 @@ def run_koebe(args: argparse.Namespace) -> int:
     from .api import DEFAULT_CHECK_TOL, koebe
     from .errors import InputError
     from .evidence import face_nonplanarity
-    from .io import network_suffix, write_mesh
+    from .io import write_mesh
     from .io.axes import rotation
     from .io.safety import check_outputs
 
@@ -91,7 +92,7 @@ def run_koebe(args: argparse.Namespace) -> int:
     outputs = [("--out", args.out), ("--phi-out", args.phi_out), ("--partner-out", args.partner_out),
                ("--network-out", args.network_out)]
     check_outputs(outputs, [("--mesh", args.mesh)])
-    network_suffix(args.out)
+    check_network_out(args.out, args.format, [("--mesh", args.mesh)])
     named = [(w, os.path.realpath(p)) for w, p in outputs if p is not None]
     for k, (w, p) in enumerate(named):
         for w2, p2 in named[:k]:
@@ -126,7 +127,7 @@ def run_koebe(args: argparse.Namespace) -> int:
     }
     tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
     status = built_status(net, tol)
-    write_network_out(args.out, net, up=up, koebe=evidence, status=status, tol=tol,
+    write_network_out(args.out, net, args.format, up=up, koebe=evidence, status=status, tol=tol,
                       max_relative_error=net.max_relative_error(), min_weight=net.min_weight())
     written = [args.out]
     for path, mesh in ((args.phi_out, mesh_phi), (args.partner_out, mesh_r), (args.network_out, net.mesh)):

@@ -23,7 +23,8 @@ from __future__ import annotations
 import argparse
 
 from .cli import (EXIT_CODES, STATUS_EXIT, Command, _err, _not_converged_line, add_load_arguments, number_in,
-                  positive_float, print_table, summary_rows, tolerance, write_network_out)
+                  positive_float, print_table, summary_rows, tolerance, write_network_out,
+                  add_network_out_arguments, check_network_out)
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
@@ -33,7 +34,7 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     from .design.remesh import FIELDS, METHODS
 
     p.add_argument("network", metavar="NET.json", help="a network (selfsupport solve --out)")
-    p.add_argument("--out", "-o", required=True, metavar="PQ.json", help="the planar-quad network: .json (the network format), or .obj/.ply/.off for its geometry only")
+    add_network_out_arguments(p, metavar="PQ.json", what="the planar-quad network")
     p.add_argument("--spacing", type=positive_float, default=None, metavar="H",
                    help="distance between neighbouring lines [m] (default: the network's mean top-view edge length)")
     p.add_argument("--field", choices=FIELDS, default="principal",
@@ -57,18 +58,15 @@ def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
     from .design.pq import finish_summary, solve_planar
     from .design.remesh import remesh
-    from .io import network_suffix
     from .io.network_json import read_network
-    from .io.safety import check_outputs
 
-    check_outputs([("--out", args.out)], [("network", args.network)])
-    network_suffix(args.out)
+    check_network_out(args.out, args.format, [("network", args.network)])
     net = read_network(args.network)
     q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher)
     result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=args.time_limit,
                           density=args.density, thickness=args.thickness)
     planarity = result.parameters.get("planarity") or {}
-    write_network_out(args.out, result, remesh={"field": q.field, "method": q.method, "spacing": q.spacing,
+    write_network_out(args.out, result, args.format, remesh={"field": q.field, "method": q.method, "spacing": q.spacing,
                                             "source": str(args.network), "face_sizes": q.face_size_counts,
                                             "irregular_vertices": q.irregular_vertices})
     rows = summary_rows(result, q.scene)

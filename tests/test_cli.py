@@ -630,18 +630,23 @@ def test_out_with_a_suffix_no_writer_has_is_refused_before_any_work(tmp_path, ca
     assert not out.exists()
 
 
-@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off"])
-def test_out_with_a_mesh_suffix_holds_that_mesh_format(tmp_path, capsys, suffix):
-    """``--out NET.obj`` writes the network's geometry as OBJ (readable as a mesh of the same
-    vertices), not JSON under a mesh suffix; one stderr line says the weights are not in it."""
-    from selfsupport.io import read_mesh, read_network
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off", ".sss", ".compas.json"])
+def test_out_in_every_format_reads_back_to_the_network_the_json_holds(tmp_path, capsys, suffix):
+    """``--out NET.obj`` (and .ply, .off, .sss, .compas.json) writes that format, not JSON under
+    its suffix, and reads back to the network ``--out NET.json`` writes: weights, loads and
+    supports included. A format that leaves something out says in one stderr line where the
+    rest is (OBJ/OFF: the side files)."""
+    from selfsupport.io import read_network
 
     out, ref = tmp_path / f"net{suffix}", tmp_path / "net.json"
     assert cli.main(["construct", "--disk", "2", "--out", str(ref)]) == 0
     assert cli.main(["construct", "--disk", "2", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "geometry only" in err
-    assert not out.read_bytes().lstrip().startswith(b"{")
-    mesh, net = read_mesh(out), read_network(ref)
-    np.testing.assert_allclose(mesh.vertices, net.vertices, rtol=0, atol=1e-12 * np.abs(net.vertices).max())
-    assert mesh.n_faces == net.mesh.n_faces
+    if suffix in (".obj", ".off"):
+        assert err.count("\n") == 1 and "net.weights.csv" in err and "net.vertices.csv" in err
+    assert not out.read_bytes().lstrip().startswith(b"{") or suffix == ".compas.json"
+    back, net = read_network(out), read_network(ref)
+    np.testing.assert_array_equal(back.vertices, net.vertices)
+    assert back.mesh.faces == net.mesh.faces
+    for key in ("weights", "loads", "supports"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(net, key))

@@ -1,13 +1,17 @@
 """Reading and writing scenes, meshes and thrust networks.
 
 Formats are chosen by file suffix through dict registries (:data:`READERS`,
-:data:`MESH_WRITERS`):
+:data:`MESH_WRITERS`, :data:`NETWORK_FORMATS`):
 
 * ``.sss`` — the original tool's scenes (height = −y, pins, handles, cached loads, weights);
 * ``.obj``, ``.ply`` (ASCII / binary), ``.off`` — polygon meshes (faces kept as polygons); the
   file's vertical axis is ``up`` (default ``"z"``; the paper's OBJ files need ``up="-y"``), and
   supports come from ``supports="boundary"`` or a supports file;
-* ``.json`` — the project's network format (DESIGN.md §5).
+* ``.json`` — the project's network format (DESIGN.md §5), or a COMPAS mesh JSON.
+
+A network is written in any of :data:`NETWORK_FORMATS` (:func:`write_network_as`) and read back
+from it to the same network (:func:`read_network`): the JSON network, a COMPAS mesh JSON, PLY
+with its weights in an ``edge`` element, OBJ / OFF with side files, ``.sss``.
 
 Every reader raises :class:`~selfsupport.errors.InputError` (file, line, what, what to do) on a
 broken file and :class:`~selfsupport.errors.MeshError` on an unusable mesh. Every writer
@@ -15,6 +19,7 @@ writes atomically (:mod:`.atomic`).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -23,13 +28,18 @@ import numpy as np
 from ..errors import InputError
 from ..mesh import PolyMesh
 from ..scene import Scene
+from ..result import Network
+from .compas_mesh import write_compas
 from .meshfiles import MESH_READERS, MESH_WRITERS, LoadedMesh
-from .network_json import network_to_dict, read_json_scene, read_network, write_network
-from .sss import read_sss, write_scene_sss
+from .network_files import read_ply_network, read_with_side_files, side_files, write_ply_network, write_with_side_files
+from .network_json import network_to_dict, read_json_scene, write_network
+from .network_json import read_network as read_json_network
+from .sss import read_sss, read_sss_network, write_network_sss, write_scene_sss
 from .supports import resolve_supports
 
 __all__ = ["read_scene", "read_mesh", "write_mesh", "write_scene_sss", "network_to_dict", "write_network",
-           "read_network", "NETWORK_SUFFIXES", "network_suffix", "write_network_as"]
+           "read_network", "NetworkFormat", "NETWORK_FORMATS", "NETWORK_SUFFIXES", "FORMAT_NAMES", "network_suffix",
+           "network_outputs", "network_note", "write_network_as"]
 
 #: suffix -> reader ``(path, up) -> LoadedMesh``
 READERS: dict[str, Callable[..., LoadedMesh]] = {".sss": read_sss, **MESH_READERS, ".json": read_json_scene}
@@ -108,29 +118,138 @@ def write_mesh(path: str | Path, mesh: PolyMesh, *, up: str = "z") -> None:
     writer(path, mesh, up=up)
 
 
-#: Suffixes a network can be written as: the network format, or its geometry alone as a mesh.
-NETWORK_SUFFIXES: tuple[str, ...] = (".json", *MESH_WRITERS)
+@dataclass(frozen=True)
+class NetworkFormat:
+    """A file format a network is written in (:data:`NETWORK_FORMATS`) and read back from.
+
+    ``write(path, result_or_network, *, up, **extra)`` writes it (``up``: the file's vertical axis
+    where the format has a choice; ``extra``: keys for status and evidence, where it has a
+    place); ``read(path, up)`` reads it back to the same :class:`~selfsupport.result.Network`.
+    """
+
+    name: str  # the --format name
+    summary: str  # what the file is, for --help
+    write: Callable[..., None]
+    read: Callable[..., Network]
+    #: with ``--format``: the suffixes its file may have (default: its own)
+    suffixes: tuple[str, ...] = ()
+    #: the files written beside it
+    side_files: Callable[[Path], tuple[Path, ...]] = lambda path: ()
+    #: what the file holds when that is not everything, ``{0}``, ``{1}`` its side files
+    holds: str | None = None
 
 
-def network_suffix(path: str | Path, what: str = "--out") -> str:
-    """The (lower-case) suffix of a network output, checked before any work: ``.json`` (the
-    network format) or a mesh suffix of :data:`MESH_WRITERS` (the geometry only); anything else
-    raises :class:`InputError` with the list."""
-    suffix = Path(path).suffix.lower()
-    if suffix not in NETWORK_SUFFIXES:
-        raise InputError(f"{what} {path}: cannot write a network as {suffix or '(no suffix)'!r}; give a .json file "
-                         f"(the network: weights, loads, supports) or {', '.join(MESH_WRITERS)} (its geometry only)")
+def _fixed_axis(write: Callable[..., None]) -> Callable[..., None]:
+    """The registry's writer of a format whose vertical axis is fixed (JSON, COMPAS: z up; .sss:
+    y down): ``up`` is not its to choose."""
+
+    def write_as(path: str | Path, result_or_network, *, up: str = "z", **extra) -> None:
+        write(path, result_or_network, **extra)
+
+    return write_as
+
+
+#: suffix -> network format; a name is matched by its longest registered suffix (``.compas.json``
+#: before ``.json``)
+NETWORK_FORMATS: dict[str, NetworkFormat] = {
+    ".json": NetworkFormat("json", "the network format (weights, loads, supports, status, evidence)",
+                           _fixed_axis(write_network), read_json_network),
+    ".compas.json": NetworkFormat("compas", "a COMPAS mesh (edge weight, vertex load and support, "
+                                  "the rest as mesh attributes)", _fixed_axis(write_compas), read_json_network,
+                                  suffixes=(".json",)),
+    ".ply": NetworkFormat("ply", "mesh with vertex load and support and an edge element with weight",
+                          write_ply_network, read_ply_network,
+                          holds="the network (weights in its edge element, loads and supports as vertex properties)"),
+    ".obj": NetworkFormat("obj", "mesh, with NAME.weights.csv and NAME.vertices.csv beside it",
+                          write_with_side_files, read_with_side_files, side_files=side_files,
+                          holds="the geometry; its weights are in {0}, its loads and supports in {1}"),
+    ".off": NetworkFormat("off", "as .obj", write_with_side_files, read_with_side_files, side_files=side_files,
+                          holds="the geometry; its weights are in {0}, its loads and supports in {1}"),
+    ".sss": NetworkFormat("sss", "the original tool's scene, with the weights", _fixed_axis(write_network_sss),
+                          read_sss_network,
+                          holds="the network for the original tool (pins = supports, its load column = the "
+                                "downward loads, edge records with the weights)"),
+}
+#: Suffixes a network can be written as.
+NETWORK_SUFFIXES: tuple[str, ...] = tuple(NETWORK_FORMATS)
+#: ``--format`` name -> suffix of :data:`NETWORK_FORMATS`
+FORMAT_NAMES: dict[str, str] = {f.name: suffix for suffix, f in NETWORK_FORMATS.items()}
+
+
+def _suffix_of(path: str | Path) -> str | None:
+    """The longest suffix of :data:`NETWORK_FORMATS` that the file name ends with, or ``None``."""
+    name = Path(path).name.lower()
+    return max((s for s in NETWORK_FORMATS if name.endswith(s) and len(name) > len(s)), key=len, default=None)
+
+
+def network_suffix(path: str | Path, what: str = "--out", fmt: str | None = None) -> str:
+    """The format (its suffix in :data:`NETWORK_FORMATS`) a network output is written in,
+    checked before any work: ``fmt`` (a ``--format`` name) when given, which the file's suffix
+    must suit, else the file's own suffix; anything else raises :class:`InputError` saying what
+    can be written."""
+    suffix = _suffix_of(path)
+    if fmt is not None:
+        if fmt not in FORMAT_NAMES:
+            raise InputError(f"--format {fmt!r}: no such format; give one of {', '.join(FORMAT_NAMES)}")
+        want = FORMAT_NAMES[fmt]
+        accepted = NETWORK_FORMATS[want].suffixes or (want,)
+        if not any(Path(path).name.lower().endswith(s) and Path(path).name.lower() != s for s in accepted):
+            raise InputError(f"{what} {path}: --format {fmt} writes {' or '.join(accepted)} files; "
+                             f"give a name ending in {accepted[0]}")
+        return want
+    if suffix is None:
+        given = Path(path).suffix.lower()
+        raise InputError(f"{what} {path}: cannot write a network as {given or '(no suffix)'!r}; give a file "
+                         f"ending in {', '.join(NETWORK_FORMATS)} (.json: the network with its status; see --help "
+                         "for what each holds)")
     return suffix
 
 
-def write_network_as(path: str | Path, result_or_network, *, up: str = "z", **extra) -> str:
-    """Write a network in the format its suffix names (:func:`network_suffix`): JSON with
-    :func:`write_network` (``extra`` keys included), or the network's mesh with :func:`write_mesh`
-    (``up`` its vertical axis; weights, loads, supports and ``extra`` are not in a mesh file).
-    Returns the suffix written."""
-    suffix = network_suffix(path)
-    if suffix == ".json":
-        write_network(path, result_or_network, **extra)
-    else:
-        write_mesh(path, getattr(result_or_network, "network", result_or_network).mesh, up=up)
+def network_outputs(path: str | Path, fmt: str | None = None) -> list[Path]:
+    """Every file a network output writes: ``path`` and its format's side files (for the checks
+    before any work, :func:`~selfsupport.io.safety.check_outputs`)."""
+    return [Path(path), *NETWORK_FORMATS[network_suffix(path, fmt=fmt)].side_files(Path(path))]
+
+
+def network_note(path: str | Path, fmt: str | None = None) -> str | None:
+    """One line saying what a network output in ``path`` holds when that is not everything
+    (which side files hold the rest), or ``None`` (JSON, COMPAS: all of it)."""
+    f = NETWORK_FORMATS[network_suffix(path, fmt=fmt)]
+    if f.holds is None:
+        return None
+    return (f"{path} holds " + f.holds.format(*f.side_files(Path(path)))
+            + "; status and evidence are written with --out NAME.json")
+
+
+def write_network_as(path: str | Path, result_or_network, *, up: str = "z", fmt: str | None = None, **extra) -> str:
+    """Write a network (or a solve result) in the format ``fmt`` or its suffix names
+    (:func:`network_suffix`), with ``extra`` keys where the format has a place for them and
+    ``up`` its vertical axis where it has a choice; every file atomically. Returns the format's
+    suffix. :func:`read_network` reads it back to the same network."""
+    suffix = network_suffix(path, fmt=fmt)
+    NETWORK_FORMATS[suffix].write(path, result_or_network, up=up, **extra)
     return suffix
+
+
+def read_network(path: str | Path, *, up: str | None = None) -> Network:
+    """Read a network written in any format of :data:`NETWORK_FORMATS` (a COMPAS mesh JSON is
+    told by its content, whatever its name).
+
+    Parameters
+    ----------
+    path
+        The network file (``.json``, ``.compas.json``, ``.ply``, ``.obj`` / ``.off`` with their
+        side files, ``.sss``).
+    up
+        The file's vertical axis where the format has a choice (default ``"z"``).
+
+    Raises
+    ------
+    InputError, MeshError
+        Naming the file (or side file) and what is wrong.
+    """
+    suffix = _suffix_of(path)
+    if suffix is None:
+        raise InputError(f"{path}: unknown network file type {Path(path).suffix or '(no suffix)'!r}; "
+                         f"readable types are {', '.join(NETWORK_FORMATS)}")
+    return NETWORK_FORMATS[suffix].read(path, up)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from ..mesh import PolyMesh
 from .atomic import atomic_write_text
 from .axes import rotation
 
-__all__ = ["Source", "RawMesh", "LoadedMesh", "finish_mesh", "read_obj", "read_ply", "read_off",
+__all__ = ["Source", "RawMesh", "LoadedMesh", "finish_mesh", "read_obj", "read_ply", "read_ply_elements", "read_off",
            "write_obj", "write_ply", "write_off"]
 
 
@@ -538,6 +538,13 @@ def read_ply(path: str | Path, up: str | None = None) -> LoadedMesh:
     Needs a ``vertex`` element with ``x y z`` and a ``face`` element with a
     ``vertex_indices`` (or ``vertex_index``) list; other properties and elements are skipped.
     """
+    return read_ply_elements(path, up)[0]
+
+
+def read_ply_elements(path: str | Path, up: str | None = None) -> tuple[LoadedMesh, dict[str, dict[str, Any]]]:
+    """:func:`read_ply`, and every element of the file: ``{element: {property: column}}`` (a
+    column holds one value, or one list for a list property, per record), for the properties
+    beyond the mesh (a network's vertex ``load`` and ``support``, its ``edge`` element)."""
     src = Source(path)
     up = "z" if up is None else up
     rotation(up)
@@ -575,24 +582,63 @@ def read_ply(path: str | Path, up: str | None = None) -> LoadedMesh:
                             int(flines[k]) if flines is not None else None)
     fv, fo = faces_to_csr(faces)
     raw = RawMesh(verts, fv, fo, parsed["vertex"]["lines"], flines)
-    return LoadedMesh(finish_mesh(raw, src, up), meta={"format": "ply", "ply_format": fmt, "up": up})
+    loaded = LoadedMesh(finish_mesh(raw, src, up), meta={"format": "ply", "ply_format": fmt, "up": up})
+    return loaded, {el: v["columns"] for el, v in parsed.items()}
 
 
-def write_ply(path: str | Path, mesh: PolyMesh, *, up: str = "z") -> None:
-    """Write an ASCII PLY (double coordinates, exact via ``repr``; polygons kept)."""
+def write_ply(path: str | Path, mesh: PolyMesh, *, up: str = "z", vertex_properties: dict[str, Any] | None = None,
+              edge_properties: dict[str, Any] | None = None) -> None:
+    """Write an ASCII PLY (double coordinates, exact via ``repr``; polygons kept).
+
+    ``vertex_properties`` (name -> one value per vertex) add vertex properties after ``x y z``;
+    ``edge_properties`` (name -> one value per ``mesh.edges`` row) add the standard ``edge``
+    element, ``vertex1 vertex2`` and those properties. Floats are written as ``double``, booleans
+    as ``uchar`` 0/1, integers as ``int``.
+    """
     v = mesh.vertices @ rotation(up)
     count_type = "uchar" if mesh.n_faces == 0 or int(mesh.face_sizes.max()) < 256 else "int"
+    vprops = _ply_columns(vertex_properties, mesh.n_vertices, "vertex")
+    eprops = _ply_columns(edge_properties, mesh.n_edges, "edge")
+
+    def declare(props: list[tuple[str, str, list]]) -> str:
+        return "".join(f"property {t} {name}\n" for name, t, _ in props)
+
+    def rows(first: list[list], props: list[tuple[str, str, list]]) -> str:
+        cols = [col for _, _, col in props]
+        return "".join(" ".join([*row, *(c[k] for c in cols)]) + "\n" for k, row in enumerate(first))
 
     def chunks():
         yield ("ply\nformat ascii 1.0\ncomment written by selfsupport, up=" + up + "\n"
                f"element vertex {mesh.n_vertices}\nproperty double x\nproperty double y\nproperty double z\n"
-               f"element face {mesh.n_faces}\nproperty list {count_type} int vertex_indices\nend_header\n")
-        yield "".join(f"{_fmt(x)} {_fmt(y)} {_fmt(z)}\n" for x, y, z in v.tolist())
+               + declare(vprops)
+               + f"element face {mesh.n_faces}\nproperty list {count_type} int vertex_indices\n"
+               + (f"element edge {mesh.n_edges}\nproperty int vertex1\nproperty int vertex2\n" + declare(eprops)
+                  if eprops else "")
+               + "end_header\n")
+        yield rows([[_fmt(x), _fmt(y), _fmt(z)] for x, y, z in v.tolist()], vprops)
         fv, fo = mesh.face_vertices.tolist(), mesh.face_offsets.tolist()
         yield "".join(f"{fo[f + 1] - fo[f]} " + " ".join(map(str, fv[fo[f]:fo[f + 1]])) + "\n"
                       for f in range(mesh.n_faces))
+        if eprops:
+            yield rows([[str(i), str(j)] for i, j in mesh.edges.tolist()], eprops)
 
     atomic_write_text(path, chunks())
+
+
+def _ply_columns(props: dict[str, Any] | None, n: int, what: str) -> list[tuple[str, str, list[str]]]:
+    """``(name, PLY type, values as text)`` per property (see :func:`write_ply`)."""
+    out = []
+    for name, values in (props or {}).items():
+        a = np.asarray(values)
+        if a.shape != (n,):
+            raise ValueError(f"PLY {what} property {name!r} has shape {a.shape}, expected ({n},)")
+        if a.dtype.kind == "b":
+            out.append((name, "uchar", [str(int(x)) for x in a.tolist()]))
+        elif a.dtype.kind in "iu":
+            out.append((name, "int", [str(x) for x in a.tolist()]))
+        else:
+            out.append((name, "double", [_fmt(x) for x in a.astype(float).tolist()]))
+    return out
 
 
 #: suffix -> mesh reader ``(path, up) -> LoadedMesh``

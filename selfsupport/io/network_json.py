@@ -30,7 +30,8 @@ from ..result import Network, SolveResult
 from .atomic import atomic_write_text
 from .meshfiles import LoadedMesh, Source
 
-__all__ = ["NETWORK_KEYS", "to_jsonable", "network_to_dict", "write_network", "read_network", "read_json_scene"]
+__all__ = ["NETWORK_KEYS", "to_jsonable", "network_to_dict", "write_network", "read_network", "read_json_scene",
+           "edge_weights", "load_case_entries", "network_from_arrays"]
 
 #: keys every network file has
 NETWORK_KEYS = ("vertices", "faces", "edges", "weights", "loads", "supports")
@@ -107,13 +108,21 @@ def _result_fields(result: SolveResult) -> dict[str, Any]:
     if result.terms:
         fields["objective_terms"] = dict(result.terms)
     if result.cases:  # one weight vector (and load vector) per load case, each with its own evidence
-        fields["load_cases"] = [{"name": name, "weights": _edge_weights(net), "loads": np.asarray(net.loads, float),
-                                 "max_relative_error": net.max_relative_error(), "min_weight": net.min_weight()}
-                                for name, net in result.cases]
+        fields["load_cases"] = load_case_entries(result.cases)
     return fields
 
 
-def _edge_weights(net: Network) -> np.ndarray:
+def load_case_entries(cases: Any) -> list[dict[str, Any]]:
+    """The ``load_cases`` key of a network file: per ``(name, network)`` of ``cases``, its weights
+    (:func:`edge_weights`), loads and evidence (max relative error, min weight)."""
+    return [{"name": name, "weights": edge_weights(net), "loads": np.asarray(net.loads, float),
+             "max_relative_error": net.max_relative_error(), "min_weight": net.min_weight()}
+            for name, net in cases]
+
+
+def edge_weights(net: Network) -> np.ndarray:
+    """The weights a network file holds, in ``mesh.edges`` order: the network's, with 0 on
+    support–support edges (they carry no unknown; DESIGN.md §5). Every network writer uses it."""
     e = net.mesh.edges
     sup = np.asarray(net.supports, dtype=bool)
     w = np.array(net.weights, dtype=float)
@@ -163,7 +172,7 @@ def _document(network: Network | SolveResult, extra: dict[str, Any], *, arrays: 
     mesh = net.mesh
     e = mesh.edges
     sup = np.asarray(net.supports, dtype=bool)
-    w = _edge_weights(net)
+    w = edge_weights(net)
 
     def numbers(a: np.ndarray, where: str) -> Any:
         return a if arrays and a.dtype.kind in "fiu" and a.ndim in (1, 2) else to_jsonable(a, where)
@@ -325,6 +334,8 @@ def _reject_constant(name: str) -> None:
 
 
 def load_json(src: Source) -> dict[str, Any]:
+    """The JSON object of ``src``: a network document, or the one a COMPAS mesh JSON holds
+    (:func:`~selfsupport.io.compas_mesh.network_document`)."""
     text = src.read_text()
     try:
         d = json.loads(text, parse_constant=_reject_constant)
@@ -338,7 +349,9 @@ def load_json(src: Source) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise src.error(f"holds a JSON {type(d).__name__}, not an object", "a network file is a JSON object "
                         "with vertices, faces, edges, weights, loads, supports")
-    return d
+    from .compas_mesh import is_compas_mesh, network_document
+
+    return network_document(src, d) if is_compas_mesh(d) else d  # a COMPAS mesh reads as the network it holds
 
 
 _KIND_NAMES = {"U": "a string", "S": "a string", "O": "null or mixed values", "b": "true/false", "c": "a complex number"}
@@ -427,8 +440,14 @@ def _reference(src: Source, d: dict, faces: list[list[int]]) -> tuple[np.ndarray
     return rv, rf
 
 
-def read_network(path: str | Path) -> Network:
-    """Read a network file back into a :class:`Network` (weights in ``mesh.edges`` order).
+def _z_up(src: Source, up: str | None) -> None:
+    if up not in (None, "z"):
+        raise InputError(f"{src.path}: JSON networks are z up by definition, got up={up!r}; leave --up out")
+
+
+def read_network(path: str | Path, up: str | None = None) -> Network:
+    """Read a network file back into a :class:`Network` (weights in ``mesh.edges`` order);
+    ``up`` may only be ``None`` or ``"z"`` (JSON networks are z up).
 
     Raises
     ------
@@ -439,6 +458,7 @@ def read_network(path: str | Path) -> Network:
         The faces do not form a usable mesh.
     """
     src = Source(path)
+    _z_up(src, up)
     return _network_of(src, load_json(src))
 
 
@@ -454,30 +474,58 @@ def _network_of(src: Source, d: dict) -> Network:
     faces = _faces(src, d, "faces", n)
     mesh = _mesh(src, v, faces)
     e = _numbers(src, d, "edges", integer=True, width=2)
-    _check_range(src, "edges", e, n)
     w = _numbers(src, d, "weights", integer=False, width=None)
-    if len(w) != len(e):
-        raise src.error(f"key 'weights' has {len(w)} entries for {len(e)} edges", "write one weight per edge")
     loads = _numbers(src, d, "loads", integer=False, width=None)
-    if len(loads) != n:
-        raise src.error(f"key 'loads' has {len(loads)} entries for {n} vertices", "write one signed load per vertex")
     supports = _mask(src, d, "supports", n)
     if supports is None:
         raise src.error("missing key 'supports'", f"a network file needs {', '.join(NETWORK_KEYS)}")
     handles = _mask(src, d, "handles", n)
+    ref_v, ref_f = _reference(src, d, faces)
+    reference = None if ref_v is None else PolyMesh.from_faces(ref_v, ref_f)
+    return network_from_arrays(src, mesh, e, w, loads, supports, handles=handles, reference=reference)
+
+
+def network_from_arrays(src: Source, mesh: PolyMesh, edges: np.ndarray, weights: np.ndarray, loads: np.ndarray,
+                        supports: np.ndarray, *, handles: np.ndarray | None = None,
+                        reference: PolyMesh | None = None, edges_key: str = "key 'edges'",
+                        weights_key: str = "key 'weights'", loads_key: str = "key 'loads'") -> Network:
+    """A :class:`Network` from what a network file of any format holds, checked as one network:
+    one weight per listed edge, the edges exactly the faces' edges (each once, in any order and
+    direction; the weights are reordered into ``mesh.edges`` order), one load per vertex.
+
+    ``src`` names the file in the messages, ``edges_key`` / ``weights_key`` / ``loads_key`` the
+    place in it (a JSON key, a side file's rows, a PLY element).
+
+    Raises
+    ------
+    InputError
+        Naming the file and the place: a length mismatch, an index out of range, an edge listed
+        twice, joining a vertex to itself, or not an edge of the faces.
+    """
+    n = mesh.n_vertices
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    w = np.asarray(weights, dtype=float)
+    loads = np.asarray(loads, dtype=float)
+    if e.size and (e.min() < 0 or e.max() >= n):
+        bad = int(e.min()) if e.min() < 0 else int(e.max())
+        raise src.error(f"{edges_key} refers to index {bad}, outside the {n} vertices", "fix the index")
+    if len(w) != len(e):
+        raise src.error(f"{weights_key} has {len(w)} entries for {len(e)} edges", "write one weight per edge")
+    if len(loads) != n:
+        raise src.error(f"{loads_key} has {len(loads)} entries for {n} vertices", "write one signed load per vertex")
 
     # edges must be the faces' edges, each once; weights are reordered into mesh.edges order
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
     if np.any(lo == hi):
         k = int(np.argmax(lo == hi))
-        raise src.error(f"key 'edges': edge {k} joins vertex {int(lo[k])} to itself", "remove it")
+        raise src.error(f"{edges_key}: edge {k} joins vertex {int(lo[k])} to itself", "remove it")
     key = lo * (n + 1) + hi
     order = np.argsort(key, kind="stable")
     skey = key[order]
     dup = np.flatnonzero(skey[1:] == skey[:-1])
     if dup.size:
         k = int(order[dup[0] + 1])
-        raise src.error(f"key 'edges': edge ({int(lo[k])}, {int(hi[k])}) is listed twice", "list every edge once")
+        raise src.error(f"{edges_key}: edge ({int(lo[k])}, {int(hi[k])}) is listed twice", "list every edge once")
     me = mesh.edges
     mkey = me[:, 0] * (n + 1) + me[:, 1]
     if len(skey) != len(mkey) or not np.array_equal(skey, mkey):
@@ -485,12 +533,10 @@ def _network_of(src: Source, d: dict) -> Network:
         missing = np.setdiff1d(mkey, skey)
         if extra.size:
             a, b = divmod(int(extra[0]), n + 1)
-            raise src.error(f"key 'edges': ({a}, {b}) is not an edge of the faces", "list exactly the faces' edges")
+            raise src.error(f"{edges_key}: ({a}, {b}) is not an edge of the faces", "list exactly the faces' edges")
         a, b = divmod(int(missing[0]), n + 1)
-        raise src.error(f"key 'edges' lacks the faces' edge ({a}, {b}) ({len(missing)} missing)",
+        raise src.error(f"{edges_key} lacks the faces' edge ({a}, {b}) ({len(missing)} missing)",
                         "list every edge of the faces")
-    ref_v, ref_f = _reference(src, d, faces)
-    reference = None if ref_v is None else PolyMesh.from_faces(ref_v, ref_f)
     return Network(mesh=mesh, weights=w[order], loads=loads, supports=supports, reference=reference, handles=handles)
 
 
@@ -505,8 +551,7 @@ def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
     consistent network (:func:`read_network`'s errors otherwise).
     """
     src = Source(path)
-    if up not in (None, "z"):
-        raise InputError(f"{src.path}: JSON networks are z up by definition, got up={up!r}; leave --up out")
+    _z_up(src, up)
     d = load_json(src)
     v = _numbers(src, d, "vertices", integer=False, width=3)
     faces = _faces(src, d, "faces", len(v))

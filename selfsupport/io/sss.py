@@ -15,10 +15,13 @@ warns about them (``isolated_vertices``).
 The vertical axis is y and points down (height = −y): file coordinates (X, Y, Z) become
 ours as (X, Z, −Y), the proper rotation ``axes.UP_AXES["-y"]``.
 
-``load`` is the old tool's cached nodal load, recomputed there on every solve; it is never
-used as a load here (the solver recomputes self-weight from the geometry) but kept in
+``load`` is the old tool's cached nodal load, recomputed there on every solve; a scene's is
+never used as a load here (the solver recomputes self-weight from the geometry) but kept in
 ``meta["sss_loads"]``. The ``e`` records' weights are kept in ``meta["sss_edge_weights"]``
 as an ``(k, 3)`` array ``[i, j, w]`` (records without a weight are left out).
+
+A network is written as a ``.sss`` with its own loads and weights (:func:`write_network_sss`)
+and read back from them (:func:`read_sss_network`).
 """
 from __future__ import annotations
 
@@ -27,12 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..mesh import PolyMesh
+from ..result import Network, SolveResult
 from ..scene import Scene
 from .atomic import atomic_write_text
 from .axes import rotation
 from .meshfiles import LoadedMesh, RawMesh, Source, faces_to_csr, finish_mesh
 
-__all__ = ["SSS_UP", "read_sss", "write_scene_sss"]
+__all__ = ["SSS_UP", "read_sss", "write_scene_sss", "write_network_sss", "read_sss_network"]
 
 #: The .sss vertical axis (y pointing down); fixed by the format.
 SSS_UP = "-y"
@@ -168,9 +173,6 @@ def write_scene_sss(path: str | Path, scene: Scene) -> None:
     scene carries one for that edge, else 0.
     """
     mesh = scene.mesh
-    v = mesh.vertices @ rotation(SSS_UP)
-    pinned = np.asarray(scene.supports, dtype=bool)
-    handled = np.zeros(mesh.n_vertices, dtype=bool) if scene.handles is None else np.asarray(scene.handles, bool)
     edges = mesh.edges
     w = np.zeros(len(edges))
     stored = scene.meta.get("sss_edge_weights") if isinstance(scene.meta, dict) else None
@@ -183,13 +185,61 @@ def write_scene_sss(path: str | Path, scene: Scene) -> None:
         pos = np.clip(np.searchsorted(ekey, key), 0, len(ekey) - 1)
         hit = ekey[pos] == key
         w[pos[hit]] = stored[hit, 2]
+    _write_sss(path, mesh, np.zeros(mesh.n_vertices), scene.supports, scene.handles, w)
+
+
+def write_network_sss(path: str | Path, result_or_network: Network | SolveResult, **extra: object) -> None:
+    """Write a network as a ``.sss`` scene of the original tool, which :func:`read_sss_network`
+    reads back to the same network.
+
+    ``pinned`` = the supports, ``handled`` = the handles, one ``e`` record per mesh edge with its
+    weight (0 on support–support edges); ``load`` is the network's own downward load ``-L`` per
+    vertex, where the original tool caches its 9.8·(ρ·A·t + extra) (it recomputes that on every
+    solve). Status and evidence (``extra``) have no place in the format.
+    """
+    from .network_json import edge_weights
+
+    net = getattr(result_or_network, "network", result_or_network)
+    _write_sss(path, net.mesh, -np.asarray(net.loads, dtype=float), net.supports, net.handles, edge_weights(net))
+
+
+def _write_sss(path: str | Path, mesh: PolyMesh, load: np.ndarray, pinned: np.ndarray, handled: np.ndarray | None,
+               weights: np.ndarray) -> None:
+    """``v x y z load pinned handled`` per vertex (y down), ``f`` per face, ``e i j 0 0 w`` per
+    ``mesh.edges`` row; numbers exact via ``repr``."""
+    v = mesh.vertices @ rotation(SSS_UP)
+    pinned = np.asarray(pinned, dtype=bool)
+    handled = np.zeros(mesh.n_vertices, dtype=bool) if handled is None else np.asarray(handled, bool)
 
     def chunks():
-        yield "".join(f"v {x!r} {y!r} {z!r} 0 {int(p)} {int(h)}\n"
-                      for (x, y, z), p, h in zip(v.tolist(), pinned.tolist(), handled.tolist()))
+        yield "".join(f"v {x!r} {y!r} {z!r} {c!r} {int(p)} {int(h)}\n"
+                      for (x, y, z), c, p, h in zip(v.tolist(), np.asarray(load, float).tolist(), pinned.tolist(),
+                                                    handled.tolist()))
         fv, fo = mesh.face_vertices.tolist(), mesh.face_offsets.tolist()
         yield "".join(f"f {fo[f + 1] - fo[f]} " + " ".join(map(str, fv[fo[f]:fo[f + 1]])) + "\n"
                       for f in range(mesh.n_faces))
-        yield "".join(f"e {a} {b} 0 0 {wt!r}\n" for (a, b), wt in zip(edges.tolist(), w.tolist()))
+        yield "".join(f"e {a} {b} 0 0 {wt!r}\n" for (a, b), wt in zip(mesh.edges.tolist(),
+                                                                      np.asarray(weights, float).tolist()))
 
     atomic_write_text(path, chunks())
+
+
+def read_sss_network(path: str | Path, up: str | None = None) -> Network:
+    """The network a ``.sss`` file holds (one written by :func:`write_network_sss`): weights from
+    the ``e`` records (every edge of the faces needs one), loads ``-load`` (the column is the
+    downward load), supports = pinned, handles = handled.
+
+    Raises
+    ------
+    InputError
+        :func:`read_sss`'s errors, and ``e`` records that are not exactly the faces' edges with
+        a weight each (a scene never solved has none: solve it first).
+    """
+    from .network_json import network_from_arrays
+
+    loaded = read_sss(path, up)
+    ew = loaded.meta["sss_edge_weights"]
+    return network_from_arrays(Source(path), loaded.mesh, ew[:, :2].astype(np.int64), ew[:, 2],
+                               -loaded.meta["sss_loads"], loaded.supports, handles=loaded.handles,
+                               edges_key="the list of weighted 'e' records",
+                               weights_key="the list of 'e' records", loads_key="the list of 'v' records")
