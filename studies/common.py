@@ -71,7 +71,7 @@ class PaperScene:
     published: str | None = None
 
 
-#: Table 1 of the paper (DESIGN.md §2 and the paper-scenes README), keyed by file stem.
+#: Table 1 of the paper (docs/guide/paper.md and the paper-scenes README), keyed by file stem.
 PAPER_TABLE1: dict[str, PaperScene] = {s.name: s for s in (
     PaperScene("lilium", "lilium.sss", "Fig. 5b", 1201, 3504, 21.6, 9, 4.2e-5, published="lilium-n.obj"),
     PaperScene("lilium-pillar", "lilium-pillar.sss", "Fig. 5d", 1200, 3500, 26.5, 10, 8.5e-5,
@@ -354,7 +354,7 @@ def exit_on_sigterm() -> None:
 
 # ------------------------------------------------------------- independent evidence
 def json_network_arrays(path: str | Path) -> dict[str, np.ndarray]:
-    """Vertices, edges, weights, loads and a supports mask from a network JSON (DESIGN.md §5)."""
+    """Vertices, edges, weights, loads and a supports mask from a network JSON (docs/reference/formats.md)."""
     d = json.loads(Path(path).read_text(encoding="utf-8"))
     V = np.asarray(d["vertices"], float)
     sup = np.zeros(len(V), bool)

@@ -10,7 +10,7 @@ and the target (the reference itself). Each tool runs in its own process, from a
 script (:mod:`studies.peers_runners`) that writes vertices, edges and compression-positive force
 densities; :func:`network_metrics` then recomputes for all of them, in one way:
 
-* the max relative equilibrium error (DESIGN.md §1, the paper's Table 1 metric) with the
+* the max relative equilibrium error (the paper's Table 1 metric, docs/development/design.md) with the
   problem's loads, by the project's :func:`selfsupport.evidence.max_relative_error` and again by
   the plain-numpy :func:`studies.common.equilibrium_errors` (the two must agree);
 * the mean and max distance of the network's vertices to the reference surface over its
@@ -335,7 +335,7 @@ def write_outputs(out: Path, rows: list[dict[str, Any]], *, repeat: int, time_li
     notes = [f"{repeat} interleaved round(s) per problem, median wall time of the solve (imports and file I/O "
              f"excluded; jax-fdm's includes its JIT compilation); time limit {time_limit:g} s; load average {load_average()}",
              "loads: the project's self-weight (2000 kg/m³, 0.1 m) on the reference, held fixed for every tool; "
-             "target: the reference; error: DESIGN.md §1 metric with those loads, recomputed from each tool's "
+             "target: the reference; error: the paper's Table 1 metric with those loads, recomputed from each tool's "
              "vertices and force densities",
              *[f"{t.name}: {t.solves}" for t in TOOLS.values() if any(r['tool'] == t.name for r in rows)]]
     fails = [f"{r['problem']} / {r['tool']}: {r['status']}: {r['message']}" for r in rows

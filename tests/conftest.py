@@ -6,7 +6,7 @@ that uses them checks the physics, not the project's own bookkeeping:
 
 * :func:`relative_residuals` and friends — eqs. (2)-(3) at every non-support vertex,
   ``‖Σ_j w_ij (v_j − v_i) − (0, 0, L_i)‖ / |L_i|`` (the Table 1 metric), from arrays, from a
-  network object or from a JSON network document (DESIGN.md §5);
+  network object or from a JSON network document (docs/reference/formats.md);
 * :func:`independent_check` — runs ``shared/tools/check_network.py`` (which sits beside the
   repository: ``<repo>/../shared``, in a developer's tree and in CI's fresh clone alike) on a
   file, document or network and returns its parsed report; the test is skipped, with a reason,
@@ -124,7 +124,7 @@ def network_errors(net: Any, weights: Any = None) -> np.ndarray:
 
 
 def document_arrays(d: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``V, E, w, L, supports-mask`` of a JSON network document (DESIGN.md §5)."""
+    """``V, E, w, L, supports-mask`` of a JSON network document (docs/reference/formats.md)."""
     V = np.asarray(d["vertices"], float)
     sup = np.zeros(len(V), bool)
     sup[np.asarray(d["supports"], int)] = True

@@ -44,7 +44,7 @@ def random_network(seed: int = 0) -> Network:
 def assert_same_network(back: Network, net: Network, *, handles: bool = True) -> None:
     same_mesh(back.mesh, net.mesh)
     np.testing.assert_array_equal(back.edges, net.edges)
-    np.testing.assert_array_equal(back.weights, np.where(net.active_edges, net.weights, 0.0))  # DESIGN.md §5
+    np.testing.assert_array_equal(back.weights, np.where(net.active_edges, net.weights, 0.0))  # docs/reference/formats.md
     np.testing.assert_array_equal(back.loads, net.loads)
     np.testing.assert_array_equal(back.supports, net.supports)
     if handles:

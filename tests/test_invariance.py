@@ -121,7 +121,7 @@ def test_rotation_about_the_vertical_axis(base, degrees):
 
 def test_mirror_image(base):
     """x → −x turns every face clockwise in the top view (the Airy function's orientation sign,
-    DESIGN.md §1); the network is the mirror image all the same."""
+    docs/development/design.md); the network is the mirror image all the same."""
     f = lambda V: V * np.array([-1.0, 1.0, 1.0])  # noqa: E731
     check_equivariant(base, api.solve(transformed(base[0], f)), f)
 

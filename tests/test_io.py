@@ -604,7 +604,7 @@ def test_an_output_folder_below_a_file_is_refused_naming_the_folder_given(tmp_pa
 
 
 # ---------------------------------------------------------------------------------- paper scenes
-SSS_COUNTS = {  # ../shared/paper-scenes/README.md; pins from DESIGN.md and the files
+SSS_COUNTS = {  # ../shared/paper-scenes/README.md; pins from docs/reference/formats.md and the files
     "lilium": (1201, 3504, 96), "lilium-pillar": (1200, 3500, None), "cas": (1535, 2976, None),
     "twocirc-3": (752, 2165, None), "cyl2": (2348, 4302, None), "dome2": (577, 1600, None),
     "vault": (100, 180, None), "vault-pillar": (100, 180, None),

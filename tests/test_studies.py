@@ -23,7 +23,7 @@ from tests.conftest import CHECKER, SHARED, document_errors
 
 PAPER_README = SHARED / "paper-scenes" / "README.md"
 
-#: Table 1 as DESIGN.md §2 states it: figure -> (vertices, edges, time [s], iterations, max rel. error)
+#: Table 1 as the paper states it (docs/guide/paper.md): figure -> (vertices, edges, time [s], iterations, max rel. error)
 DESIGN_TABLE1 = {
     "Fig. 5b": (1201, 3504, 21.6, 9, 4.2e-5),
     "Fig. 5d": (1200, 3500, 26.5, 10, 8.5e-5),
@@ -32,7 +32,7 @@ DESIGN_TABLE1 = {
     "Fig. 11": (2358, 4302, 19.5, 9, 3.0e-4),
     "Fig. 16": (527, 998, 5.7, 25, 2.4e-5),
 }
-#: DESIGN.md §4: which scene file is which figure
+#: which scene file is which figure (docs/guide/paper.md)
 DESIGN_FIGURES = {"lilium": "Fig. 5b", "lilium-pillar": "Fig. 5d", "cas": "Fig. 6", "twocirc-3": "Fig. 8",
                   "cyl2": "Fig. 11", "structural": "Fig. 16"}
 
@@ -46,7 +46,7 @@ def test_paper_numbers_are_design_md_table1():
     for name, p in common.PAPER_TABLE1.items():
         assert p.figure == DESIGN_FIGURES[name]
         assert _registry_row(p) == DESIGN_TABLE1[p.figure]
-    # the published networks in the same vertex order (DESIGN.md §4)
+    # the published networks in the same vertex order (the paper-scenes README)
     assert {n: p.published for n, p in common.PAPER_TABLE1.items() if p.published} == {
         "lilium": "lilium-n.obj", "lilium-pillar": "lilium-pillar-n.obj", "cyl2": "cheese-n.obj",
         "structural": "structural-n.obj"}

@@ -42,7 +42,7 @@ the irregular vertices sit at the field's singularities and where lines meet the
 same lilium: 69 triangles, 51 such vertices (and its planar polish stalls as well). libigl's
 MIQ, which does this for cross fields, is not in its Python bindings, and the relative principal
 directions are a frame field (not orthogonal), hence :mod:`.param`. It is an option, not the
-default: measured on four scenes at four spacings in the README (``selfsupport pq``), with
+default: measured on four scenes at four spacings (``python -m studies.pq``), with
 what it does and does not change for the planar polish.
 
 Example

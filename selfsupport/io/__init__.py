@@ -7,7 +7,7 @@ Formats are chosen by file suffix through dict registries (:data:`READERS`,
 * ``.obj``, ``.ply`` (ASCII / binary), ``.off`` — polygon meshes (faces kept as polygons); the
   file's vertical axis is ``up`` (default ``"z"``; the paper's OBJ files need ``up="-y"``), and
   supports come from ``supports="boundary"`` or a supports file;
-* ``.json`` — the project's network format (DESIGN.md §5), or a COMPAS mesh JSON.
+* ``.json`` — the project's network format (docs/reference/formats.md), or a COMPAS mesh JSON.
 
 A network is written in any of :data:`NETWORK_FORMATS` (:func:`write_network_as`) and read back
 from it to the same network (:func:`read_network`): the JSON network, a COMPAS mesh JSON, PLY

@@ -73,7 +73,7 @@ def is_compas_mesh(d: Any) -> bool:
 
 
 def network_document(src: Source, d: dict[str, Any]) -> dict[str, Any]:
-    """The network document (DESIGN.md §5 keys) of a COMPAS mesh JSON ``d`` read from ``src``.
+    """The network document (keys of docs/reference/formats.md) of a COMPAS mesh JSON ``d`` read from ``src``.
 
     Vertex keys are numbered in increasing order (a mesh COMPAS edited may skip some); the
     mesh's attributes come back as the other keys. A mesh without any ``weight`` gives a scene

@@ -1,4 +1,4 @@
-"""The project's JSON thrust-network format (DESIGN.md §5).
+"""The project's JSON thrust-network format (docs/reference/formats.md).
 
 ::
 
@@ -122,13 +122,13 @@ def load_case_entries(cases: Any) -> list[dict[str, Any]]:
 
 def edge_weights(net: Network) -> np.ndarray:
     """The weights a network file holds, in ``mesh.edges`` order: the network's, with 0 on
-    support–support edges (they carry no unknown; DESIGN.md §5). Every network writer uses it."""
+    support–support edges (they carry no unknown; docs/reference/formats.md). Every network writer uses it."""
     e = net.mesh.edges
     sup = np.asarray(net.supports, dtype=bool)
     w = np.array(net.weights, dtype=float)
     if w.shape != (len(e),):
         raise ValueError(f"network has {w.size} weights for {len(e)} edges")
-    w[sup[e[:, 0]] & sup[e[:, 1]]] = 0.0  # support-support edges carry no unknown (DESIGN.md §5)
+    w[sup[e[:, 0]] & sup[e[:, 1]]] = 0.0  # support-support edges carry no unknown (docs/reference/formats.md)
     return w
 
 

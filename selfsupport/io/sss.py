@@ -1,6 +1,6 @@
 """The original tool's scene format ``.sss`` (evouga/SelfSupporting).
 
-One record per line (DESIGN.md §4)::
+One record per line (docs/reference/formats.md)::
 
     v x y z load pinned handled     pinned/handled are 0/1
     f n i_1 ... i_n                 0-based vertex indices

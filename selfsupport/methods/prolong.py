@@ -6,7 +6,7 @@ with the area it carries (h²), so a 4× finer level's first weight fit had a ma
 of 1.8 (concave disk, 4k → 16k; median 0.05, 90th percentile 0.6) and 36 (pillar vault,
 64k → 256k), and the fine level needed 10–21 staggered iterations to recover. What carries over
 from level to level is the *stress*: the horizontal force per length, a smooth 2×2 tensor field
-``σ`` (the cofactor of the Airy function's Hessian, DESIGN.md §1), which the coarse weights
+``σ`` (the cofactor of the Airy function's Hessian, docs/theory/airy.md), which the coarse weights
 sample along the coarse edges. So:
 
 1. the coarse network's stress per face, ``σ_F = Σ_{e ∈ F} s_e w_e e eᵀ / A_F`` (top-view edge
@@ -17,8 +17,8 @@ sample along the coarse edges. So:
    which step 2 carries as a force. Counted in the face stress as well, that force was carried
    twice, smeared over the interior edges beside the boundary; there the polish pulled those
    edges straight beside the arch and squashed the strip between them in plan (a 256k pillar
-   vault's 64k level: smallest vertex load 0.078 of the median, 0.165 without; see
-   docs/scale.md);
+   vault's 64k level: smallest vertex load 0.078 of the median, 0.165 without;
+   docs/theory/multilevel.md);
 2. each interior fine edge takes the weight of the Airy function ``φ_e = ½ (p − m_e)ᵀ H_e (p − m_e)``
    with ``H_e = cof σ(m_e)`` lifted over its two faces (the jump of the faces' gradients across
    it, as :func:`selfsupport.analysis.construction.lifting_weights`); a boundary edge the

@@ -8,7 +8,7 @@ in equilibrium — sequential quadratic programming on the simultaneous problem
 every step; by default the distance to the reference surface and a smooth displacement). The
 staggered iteration follows a penalty path
 with one linearized step per α, and the network it ends in has drifted from the reference by up
-to 3× more than the simultaneous optimum (structural, twocirc-3: DESIGN.md's IPOPT runs); this
+to 3× more than the simultaneous optimum (structural, twocirc-3: the IPOPT runs of docs/guide/methods.md); this
 phase walks back along the equilibrium manifold.
 
 One step linearizes the equilibrium residual ``r(X, w) = A(X) w − b(L(X))`` (rows scaled by
@@ -32,7 +32,7 @@ objective is smaller (in equilibrium to half of ``tol``: the caller rebuilds
 the network in SI units, which costs a little round-off, and keeps it only within ``tol``).
 
 Written here: no available sparse solver does SQP with this structure (IPOPT solves the same
-problem from scratch: DESIGN.md §2 has its times and failures).
+problem from scratch: docs/guide/methods.md has its times and failures).
 """
 from __future__ import annotations
 

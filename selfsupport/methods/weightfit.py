@@ -298,7 +298,7 @@ class ActiveSetFit(WeightFitBackend):
     ``centred_loose`` False for the exact fits only (:class:`CentredActiveSetFit`).
 
     Written here rather than taken from a library: scipy's ``lsq_linear`` takes 10–90 s at
-    3,500 edges (DESIGN.md §2), and none of the available sparse QP solvers warm-starts from
+    3,500 edges (docs/theory/staggered.md), and none of the available sparse QP solvers warm-starts from
     an active set.
     """
 

@@ -8,7 +8,7 @@ jax-fdm, compas-tna and compas-tno; the project's for selfsupport). It reads the
     {"tool": ..., "version": ..., "status": ..., "message": ...,
      "time_s": wall time of the solve (imports and file I/O excluded),
      "vertices": [[x, y, z], ...], "edges": [[i, j], ...],
-     "weights": [w, ...]}          # force densities, w > 0 = compression (DESIGN.md §1)
+     "weights": [w, ...]}          # force densities, w > 0 = compression (docs/development/design.md)
 
 Every runner converts its tool's own sign convention into ``weights`` and says how in a
 comment; the study recomputes every metric from these three arrays and the problem's loads.
