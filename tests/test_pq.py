@@ -192,7 +192,7 @@ def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_me
     method with the planarity penalty stalls (its fit error and the penalty pull against each
     other). From the same mesh's network in equilibrium without planar faces, the planar
     homotopy reaches both (it is returned), and so does IPOPT with the planarity rows as
-    equations (the last resort of solve_planar). Measured 2026-11-27: staggered stalled, the
+    equations (the last resort of solve_planar). Measured: staggered stalled, the
     homotopy converged in 0.3 s, IPOPT in ~1 s."""
     from selfsupport.design.pq import FINISH_METHOD, finish_summary, solve_planar
 

@@ -1445,8 +1445,8 @@ def test_design_of_a_network_file_without_weights_or_with_a_foreign_reference(va
 
 def test_a_polish_short_of_tol_names_the_worst_vertices_by_their_numbers(monkeypatch):
     """The message of a polish left above tol names vertices by their numbers in the mesh, not by
-    their positions among the free vertices (it did until 2026-11-27: on a mesh whose supports
-    are not numbered last those are other vertices, supports among them)."""
+    their positions among the free vertices (on a mesh whose supports are not numbered last those
+    would be other vertices, supports among them)."""
     import selfsupport.methods.staggered as st
 
     scene = make_shape("pillar_vault", n_vertices=300)

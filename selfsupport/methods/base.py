@@ -257,8 +257,8 @@ def load_cases_note(problem: Problem) -> str | None:
     extra mass in one case, not a uniform surcharge, which scales the self-weight). One geometry
     must carry every case; their difference, a load on that same geometry, must be carried by a
     difference of weights of either sign. Free edges leave that little room, and the sentence
-    names them when the mesh has boundary vertices that are not supports. Measured (2026-11-28,
-    ``selfsupport solve --load-cases``): generated domes and dented disks of ~400 vertices with a
+    names them when the mesh has boundary vertices that are not supports. Measured
+    (``selfsupport solve --load-cases``): generated domes and dented disks of ~400 vertices with a
     supported boundary converge under self-weight and self-weight plus a point load of up to a
     third of it; a pillar vault with free edges stalls under the same cases with both methods, as
     do a triangulated vault with free edges, dome2 with an oculus, and the pillar vault under a

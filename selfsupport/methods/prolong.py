@@ -38,8 +38,7 @@ sample along the coarse edges. So:
    floor). Where that fails, step 4 with the
    weights of step 2 as they are (clipped): the polish then moves the top view into horizontal
    equilibrium with them. Where neither comes within :data:`START_TOL`, the weights of steps
-   1–2 with the boundary edges counted in the stress after all, as they are (the rule before
-   2026-11-28, a fallback: on Catmull–Clark quads the boundary-free stress did not balance
+   1–2 with the boundary edges counted in the stress after all, as they are (a fallback: on Catmull–Clark quads the boundary-free stress did not balance
    where that did, cas subdivided twice 9.5e-2, twocirc-3's clusters 2.9).
 5. Where the fine scene is the coarse one refined by Catmull–Clark (a designer's subdivided
    design, :func:`~selfsupport.design.subdivision.subdivide_like`) and steps 1–4 fail: the
@@ -362,8 +361,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
         # zero by the large ones' corrections); where the polish cannot balance those, the weights
         # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
         # concave disk needed that, its 2,400- and 16,000-vertex versions the first). Where
-        # neither comes within START_TOL, the stress with the boundary edges counted (the rule
-        # until 2026-11-28): cas subdivided twice carried by its own levels, 9.5e-2 without them,
+        # neither comes within START_TOL, the stress with the boundary edges counted: cas subdivided twice carried by its own levels, 9.5e-2 without them,
         # in equilibrium with them
         projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
                                                    metric=np.maximum(w, sp_.lower) ** 2)
