@@ -10,26 +10,47 @@ from .geometry import bbox_diagonal
 from .mesh import PolyMesh
 
 
+def stress_sums(*, edges: np.ndarray, weights: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``Σ_j w_ij (f_j − f_i)`` at every vertex: the stress Laplacian Δ_φ applied to ``values``
+    (``(n,)`` or ``(n, k)``, e.g. heights, top-view or 3D positions). With the positions it is the
+    left side of eqs. (2)–(3); :func:`residuals` subtracts the loads.
+
+    >>> stress_sums(edges=np.array([[0, 1], [1, 2]]), weights=np.array([2.0, 1.0]), values=np.array([0.0, 1.0, 3.0]))
+    array([ 2.,  0., -2.])
+    """
+    values = np.asarray(values, float)
+    f = np.asarray(weights, float).reshape((-1,) + (1,) * (values.ndim - 1)) * (values[edges[:, 1]] - values[edges[:, 0]])
+    return _sum_at_ends(edges, f, -f, len(values))
+
+
+def force_sums(*, edges: np.ndarray, weights: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``Σ_j |w_ij| ‖f_j − f_i‖`` at every vertex: the size of the forces a vertex balances, the
+    scale its residual is judged against (``values`` ``(n, k)``: top-view or 3D positions)."""
+    values = np.asarray(values, float)
+    m = np.abs(np.asarray(weights, float)) * np.linalg.norm(values[edges[:, 1]] - values[edges[:, 0]], axis=1)
+    return _sum_at_ends(edges, m, m, len(values))
+
+
 def residuals(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
               loads: np.ndarray) -> np.ndarray:
     """``(n, 3)``: ``Σ_j w_ij (v_j − v_i) − (0, 0, A_i F_i)`` at every vertex (supports included)."""
-    dv = vertices[edges[:, 1]] - vertices[edges[:, 0]]
-    f = weights[:, None] * dv
-    r = _sum_at_ends(edges, f, -f, len(vertices))
+    r = stress_sums(edges=edges, weights=weights, values=vertices)
     r[:, 2] -= loads
     return r
 
 
 def _sum_at_ends(edges: np.ndarray, at_first: np.ndarray, at_second: np.ndarray, n: int) -> np.ndarray:
-    """``(n, 3)``: per vertex, the sum of ``at_first`` over the edges that start there and of
-    ``at_second`` over those that end there. One bincount per coordinate over both ends: the
-    same sums in the same order as ``np.add.at(r, e0, a); np.add.at(r, e1, b)`` (bit for bit),
-    3-5x faster on (n, 3) arrays."""
+    """Per vertex, the sum of ``at_first`` over the edges that start there and of ``at_second``
+    over those that end there (``(m,)`` or ``(m, k)`` arrays). One bincount per column over both
+    ends: the same sums in the same order as ``np.add.at(r, e0, a); np.add.at(r, e1, b)`` (bit
+    for bit), 3-5x faster on (n, 3) arrays."""
+    shape = (n,) + at_first.shape[1:]
     if not len(edges):
-        return np.zeros((n, 3))
+        return np.zeros(shape)
     ends = np.concatenate([edges[:, 0], edges[:, 1]])
-    return np.stack([np.bincount(ends, weights=np.concatenate([at_first[:, k], at_second[:, k]]), minlength=n)
-                     for k in range(3)], axis=1)
+    both = np.concatenate([at_first, at_second]).reshape(2 * len(edges), -1)
+    return np.stack([np.bincount(ends, weights=both[:, k], minlength=n) for k in range(both.shape[1])],
+                    axis=1).reshape(shape)
 
 
 def relative_errors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,

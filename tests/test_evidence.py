@@ -261,3 +261,26 @@ def test_a_warm_fit_counts_a_vertex_at_its_floor_as_fitted_unless_it_slid_onto_i
     assert degenerate(loads).tolist() == [False, False, True]
     np.testing.assert_array_equal(fit_floor_tolerance(floors, loads),
                                   [FLOOR_MARGIN * 1e-13, FLOOR_MARGIN * 2.4e-7, FLOOR_CAP])
+
+
+def test_stress_sums_are_the_stress_laplacian_and_the_residual_is_built_on_them():
+    """The one numeric form of eqs. (2)-(3)'s left side, ``Σ_j w_ij (f_j − f_i)``, equals the
+    sparse stress Laplacian of the problem layer applied to scalars, top views and positions, and
+    the residual is it minus the loads; ``force_sums`` is the sum of |w| × edge length."""
+    from formulations.equilibrium import Topology, stress_laplacian
+    from selfsupport.evidence import force_sums, residuals, stress_sums
+
+    rng = np.random.default_rng(3)
+    mesh = make_shape("dome", n_vertices=120).mesh
+    e, n = mesh.edges, mesh.n_vertices
+    w = rng.uniform(-1.0, 2.0, len(e))
+    L = stress_laplacian(Topology.build(n, e, np.zeros(n, bool)), w)
+    for values in (rng.normal(size=n), rng.normal(size=(n, 2)), mesh.vertices):
+        np.testing.assert_allclose(stress_sums(edges=e, weights=w, values=values), L @ values, rtol=0, atol=1e-12)
+    loads = rng.normal(size=n)
+    r = residuals(vertices=mesh.vertices, edges=e, weights=w, loads=loads)
+    np.testing.assert_array_equal(r[:, :2], stress_sums(edges=e, weights=w, values=mesh.vertices)[:, :2])
+    np.testing.assert_allclose(r[:, 2], L @ mesh.vertices[:, 2] - loads, rtol=0, atol=1e-12)
+    lengths = np.linalg.norm(mesh.vertices[e[:, 1]] - mesh.vertices[e[:, 0]], axis=1)
+    expected = np.bincount(e.ravel(), weights=np.repeat(np.abs(w) * lengths, 2), minlength=n)
+    np.testing.assert_allclose(force_sums(edges=e, weights=w, values=mesh.vertices), expected, rtol=1e-14)

@@ -73,6 +73,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
 
 from ..errors import InputError
+from ..evidence import force_sums, stress_sums
 from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
@@ -676,14 +677,8 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
 
     # closure: horizontal equilibrium (2) wherever it is required (free vertices); at interior ones
     # it is exactly the integrability of Φ around the vertex
-    f = w[:, None] * ev
-    hsum = np.zeros((n, 2))
-    np.add.at(hsum, e[:, 0], f)
-    np.add.at(hsum, e[:, 1], -f)
-    mag = np.zeros(n)
-    fn = np.abs(w) * np.sqrt(elen2)
-    np.add.at(mag, e[:, 0], fn)
-    np.add.at(mag, e[:, 1], fn)
+    hsum = stress_sums(edges=e, weights=w, values=xy)
+    mag = force_sums(edges=e, weights=w, values=xy)
     needs = ~supports
     closure = np.full(n, np.nan)
     closure[needs] = np.linalg.norm(hsum[needs], axis=1) / np.maximum(mag[needs], 1e-300)

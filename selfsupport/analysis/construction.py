@@ -45,6 +45,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
+from ..evidence import force_sums, stress_sums
 from ..geometry import vertex_areas
 from ..loads import LoadCase
 from ..mesh import PolyMesh
@@ -211,14 +212,12 @@ def restore_horizontal_equilibrium(xy: np.ndarray, edges: np.ndarray, w: np.ndar
     ``metric = w²`` (relative changes; the caller clips what leaves the bounds).
     """
     n = len(xy)
-    ev = xy[edges[:, 1]] - xy[edges[:, 0]]
-    hsum = np.zeros((n, 2))
-    np.add.at(hsum, edges[:, 0], w[:, None] * ev)
-    np.add.at(hsum, edges[:, 1], -w[:, None] * ev)
-    mag = np.bincount(edges.ravel(), weights=np.repeat(np.abs(w) * np.linalg.norm(ev, axis=1), 2), minlength=n)
+    hsum = stress_sums(edges=edges, weights=w, values=xy)
+    mag = force_sums(edges=edges, weights=w, values=xy)
     if not np.any(free) or np.all(np.linalg.norm(hsum[free], axis=1) <= tol * np.maximum(mag[free], 1e-300)):
         return w
 
+    ev = xy[edges[:, 1]] - xy[edges[:, 0]]
     cols = np.flatnonzero(w != 0)
     fi = -np.ones(n, dtype=np.int64)
     fi[free] = np.arange(int(free.sum()))
@@ -440,11 +439,8 @@ def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.nda
             sup[lp] = True
     free = ~sup
     e = flat.edges
-    ev = P[e[:, 1]] - P[e[:, 0]]
-    hsum = np.zeros((n, 2))
-    np.add.at(hsum, e[:, 0], w[:, None] * ev)
-    np.add.at(hsum, e[:, 1], -w[:, None] * ev)
-    mag = np.bincount(e.ravel(), weights=np.repeat(np.abs(w) * np.linalg.norm(ev, axis=1), 2), minlength=n)
+    hsum = stress_sums(edges=e, weights=w, values=P[:, :2])
+    mag = force_sums(edges=e, weights=w, values=P[:, :2])
     bad = free & (np.linalg.norm(hsum, axis=1) > 1e-9 * np.maximum(mag, 1e-300))
     if np.any(bad):
         k = int(np.flatnonzero(bad)[0])

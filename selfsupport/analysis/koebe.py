@@ -67,6 +67,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from ..errors import InputError, MeshError, NotKoenigs
+from ..evidence import stress_sums
 from ..linalg import spd_factor
 from ..mesh import PolyMesh
 from ..result import Network
@@ -475,14 +476,6 @@ class KoebeFamily:
         freeze_arrays(self)
 
 
-def _stress_laplacian(edges: np.ndarray, w: np.ndarray, f: np.ndarray) -> np.ndarray:
-    out = np.zeros(len(f))
-    d = w * (f[edges[:, 1]] - f[edges[:, 0]])
-    np.add.at(out, edges[:, 0], d)
-    np.add.at(out, edges[:, 1], -d)
-    return out
-
-
 def as_airy(mesh: PolyMesh) -> tuple[PolyMesh, bool]:
     """The convex orientation of a Koebe mesh: ``(Φ, flipped)``. A dome (every interior crease
     ≤ 0: the thrust network ``−Φ`` of α = 0, e.g. the paper's OBJ files read with ``up=-y``) is
@@ -545,8 +538,8 @@ def family(phi: PolyMesh, alpha: float, *, partner: MinimalPartner | None = None
         nodal[~sup] = -q * cell[~sup]
     s = -(phi_h + alpha * R.heights)
     net = Network(mesh=phi.with_vertices(np.c_[phi.vertices[:, :2], s]), weights=w, loads=nodal, supports=sup)
-    lap_phi = _stress_laplacian(e, crease, phi_h)
-    lap_r = _stress_laplacian(e, crease, R.heights)
+    lap_phi = stress_sums(edges=e, weights=crease, values=phi_h)
+    lap_r = stress_sums(edges=e, weights=crease, values=R.heights)
     harm = float(np.abs(lap_r[~sup]).max() / np.abs(lap_phi[~sup]).max()) if (~sup).any() else 0.0
     K = np.full(phi.n_vertices, np.nan)
     K[~sup] = cell[~sup] / area[~sup]
