@@ -481,6 +481,17 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _run_timed(cmd: list[str], time_limit: float, who: str) -> tuple[subprocess.CompletedProcess | None, float, dict | None]:
+    """Run ``cmd`` with ``time_limit`` + 120 s to spare: ``(process, its CPU seconds, None)``, or
+    ``(None, nan, a 'killed' row)`` when it ran out of that time."""
+    c0 = _children_cpu()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
+    except subprocess.TimeoutExpired:
+        return None, float("nan"), {"status": "killed", "message": f"{who}: no result within {time_limit + 120:g} s"}
+    return p, _children_cpu() - c0, None
+
+
 def _network_errors(path: Path, checker: Path | None) -> dict[str, float]:
     """Max relative error of a network file with its own loads: by the project's evidence, and
     by the independent checker (NaN without one)."""
@@ -527,12 +538,9 @@ def run_original(driver: Path, inputs: Sequence[str], prefix: Path, *, time_limi
     for suffix in (".json", ".trace.csv"):
         Path(f"{prefix}{suffix}").unlink(missing_ok=True)
     cmd = [str(driver), inputs[0], str(prefix), *ORIGINAL_STOP, "--quiet", *inputs[1:]]
-    c0 = _children_cpu()
-    try:
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
-    except subprocess.TimeoutExpired:
-        return {"status": "killed", "message": f"the original: no result within {time_limit + 120:g} s"}
-    cpu = _children_cpu() - c0
+    p, cpu, killed = _run_timed(cmd, time_limit, "the original")
+    if killed:
+        return killed
     try:
         res = parse_original_result(p.stdout + p.stderr)
         points = [(r["cpu_s"], r["maxrel_consistent"]) for r in read_original_trace(f"{prefix}.trace.csv")]
@@ -568,12 +576,9 @@ def run_selfsupport(scenes_dir: Path, name: str, net: Path, *, time_limit: float
     net.unlink(missing_ok=True)
     cmd = [*selfsupport_command(), "solve", str(path), *([f"--up={up}"] if up else []),
            *(["--supports", str(supports)] if supports else []), "--out", str(net), "--time-limit", f"{time_limit:g}"]
-    c0 = _children_cpu()
-    try:
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
-    except subprocess.TimeoutExpired:
-        return {"status": "killed", "message": f"selfsupport: no result within {time_limit + 120:g} s"}
-    cpu = _children_cpu() - c0
+    p, cpu, killed = _run_timed(cmd, time_limit, "selfsupport")
+    if killed:
+        return killed
     if not net.is_file():
         last = (p.stderr.strip().splitlines() or ["(no output)"])[-1]
         return {"status": "crashed", "message": f"selfsupport: exit {p.returncode}: {last}"}
