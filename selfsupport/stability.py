@@ -70,8 +70,9 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
     problem
         The design problem with its hull.
     method
-        A method instance (default: the staggered method). A method named ``"ipopt"`` treats the
-        hull as hard rows: one solve decides; any other method climbs ``penalties``.
+        A method instance (default: the staggered method). A method whose class says
+        ``hull_as_constraint = True`` (IPOPT) treats the hull as hard rows, warm-started from
+        ``warm_start``: one solve decides; any other method climbs ``penalties``.
     options
         The method's options for every solve.
     penalties
@@ -101,7 +102,7 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
         method = StaggeredLinearization()
     t0 = time.perf_counter()
     opts = dict(options or {})
-    hard = getattr(method, "name", "") == "ipopt"
+    hard = bool(getattr(method, "hull_as_constraint", False))
     if hard and warm_start is not None:
         opts["warm_start"] = warm_start  # (the staggered method starts from the reference)
     ladder = [None] if hard else list(penalties)
