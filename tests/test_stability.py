@@ -154,7 +154,7 @@ def test_stability_cli_max_load_line(tmp_path, capsys):
     from selfsupport.cli import main
 
     rc = main(["stability", "shape:dome:127", "--thickness", "0.3", "--density", "2000", "--load-at", "0",
-               "--loads", "4000", "--max-load", "--load-tol", "0.5", "--out", str(tmp_path)])
+               "--max-load", "--out", str(tmp_path)])
     out = capsys.readouterr().out
     assert rc == 0
     lines = [ln for ln in out.splitlines() if ln.startswith("max load:")]
@@ -162,7 +162,7 @@ def test_stability_cli_max_load_line(tmp_path, capsys):
     kg = float(re.fullmatch(r"max load: (\S+) kg", lines[0]).group(1))
     assert kg > 0
     doc = json.loads((tmp_path / "max-load.json").read_text())
-    assert doc["added_mass_kg"] == kg and doc["parameters"]["hull"]["certified"]
+    assert doc["added_mass_kg"] == pytest.approx(kg, rel=1e-5) and doc["parameters"]["hull"]["certified"]  # (%g)
     assert independent_check(tmp_path / "max-load.json").ok
 
 
