@@ -442,8 +442,9 @@ def _certified(kind: str, scene: Scene, value: float, optimum: float | None, res
 
 def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: Sequence[int] | None = None,
                w_max: Any = None, start: Network | SolveResult | None = None, start_kg: float = 0.0,
-               options: Mapping[str, Any] | None = None, time_limit: float = 600.0, tol: float = 1e-9,
-               max_iter: int = 3000, progress: Callable[[dict], None] | None = None) -> LimitResult:
+               slide_supports: bool = False, options: Mapping[str, Any] | None = None, time_limit: float = 600.0,
+               tol: float = 1e-9, max_iter: int = 3000,
+               progress: Callable[[dict], None] | None = None) -> LimitResult:
     """The largest added mass [kg] at ``at`` (spread evenly; default the scene's handled vertices)
     for which a compressive network lies inside the hull "reference ± t/2", by one NLP.
 
@@ -462,6 +463,9 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
         ``start_kg`` (:func:`~selfsupport.stability.solve_in_hull`).
     start_kg
         The λ [kg] the program starts from (a previous answer).
+    slide_supports
+        The supports move on their normals within the hull too (the thrust meets the ground
+        anywhere across the springing); default: held where the design has them.
     options
         Options of the staggered start.
     time_limit
@@ -483,9 +487,9 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     deadline = t_start + time_limit
     added, at_ = _pattern(scene, at)
     problem = _base_problem(scene, thickness, density, w_max)
-    V, W, how = _start(problem, start, float(start_kg), added, options)
+    V, W, how = _start(problem, start, float(start_kg), added, options, slide_supports)
     run = _program_run(problem, "max_load", V, W, added, kg=float(start_kg), deadline=deadline, tol=tol,
-                       max_iter=max_iter, progress=progress)
+                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
     tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
              f"{start_kg:g} kg")
     if not run.settled:
@@ -498,7 +502,7 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     for back in BACK_OFF if not ok else ():
         Vb, Wb = _si(run)
         frun = _program_run(problem, "feasibility", Vb, Wb, added, kg=optimum * (1 - back), deadline=deadline,
-                            tol=tol, max_iter=max_iter, progress=progress)
+                            tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
         rounds += [{**r, "back_off": back} for r in frun.rounds]
         if not frun.settled:
             continue
