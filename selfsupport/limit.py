@@ -283,7 +283,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
 
 
 def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
-    """λ held, the network made exact with loads of its own geometry, hull rows held on their faces."""
+    """λ held, the network made exact to round-off for its loads, hull rows held on their faces."""
     from .methods.polish import polish_joint
 
     prog = run.prog
