@@ -3,21 +3,24 @@
 ::
 
     selfsupport stability SCENE --thickness T [--load-at V[,V...]] [--loads 0,5000,10000,20000]
-                          [--density RHO] [--method staggered|ipopt] --out DIR [--max-load [--load-tol R]]
+                          [--density RHO] [--method staggered|ipopt] --out DIR [--max-load [--time-limit S]]
     selfsupport destroy SCENE --remove V [--remove V ...] --thickness T [--density RHO] --out DIR
 
 ``stability`` writes ``DIR/load-<kg>kg.json`` per added load (the network: certified, or the
-closest one found) and ``DIR/stability.json`` (the table); with ``--max-load`` it bisects
-(:func:`selfsupport.stability.max_load`) and writes ``DIR/max-load.json`` (the certifying
-network) and prints one line ``max load: N kg``. ``destroy`` writes ``DIR/stage-<k>.json``
+closest one found) and ``DIR/stability.json`` (the table); with ``--max-load`` it solves the limit program
+(:func:`selfsupport.stability.max_load`, :mod:`selfsupport.limit`), writes ``DIR/max-load.json``
+(the certifying network) and ``DIR/max-load-program.json`` (the program's rounds, optimum and
+binding vertices) and prints one line ``max load: N kg``. ``destroy`` writes ``DIR/stage-<k>.json``
 (network, original vertex ids, faces removed, stage status), ``DIR/destruction.json`` and
 ``DIR/stages.png``. Exit 0 when the runs completed (the verdicts are findings), 2 bad input,
-4 when ``--max-load`` finds not even the unloaded vault certified.
+4 when ``--max-load`` certifies no load (the verdict, on stderr, says "locally infeasible" only
+when IPOPT reported it).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -74,9 +77,10 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loads", default="0,5000,10000,20000", metavar="KG[,KG...]",
                    help="added masses [kg] (default 0,5000,10000,20000)")
     p.add_argument("--max-load", action="store_true",
-                   help="instead, bisect for the largest added mass with a network inside the hull")
-    p.add_argument("--load-tol", type=number_in("(0, 1)"), default=0.05, metavar="R",
-                   help="--max-load stops when the bracket is within R of its upper end (default 0.05)")
+                   help="instead, the largest added mass with a network inside the hull: one limit program (IPOPT), "
+                        "certified by its network")
+    p.add_argument("--time-limit", type=positive_float, default=600.0, metavar="S",
+                   help="--max-load: wall-clock limit of the whole analysis [s] (default 600)")
     p.add_argument("--method", choices=["staggered", "ipopt"], default="staggered",
                    help="staggered (no hull, then the hull as an active set) or ipopt (hard hull rows; warm-started from the "
                         "previous load)")
@@ -92,7 +96,7 @@ def _run_stability(args: argparse.Namespace) -> int:
     out = Path(args.out)
     loads = parse_loads(args.loads)
     at = parse_vertices(args.load_at) if args.load_at else None
-    files = (["max-load.json", "max-load-probes.json"] if args.max_load
+    files = (["max-load.json", "max-load-program.json"] if args.max_load
              else [f"load-{_kg_name(k)}kg.json" for k in loads] + ["stability.json"])
     check_output_dir(out, files=files, inputs=[("scene", None if args.scene.startswith("shape:") else args.scene)])
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
@@ -100,28 +104,22 @@ def _run_stability(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     info = {"name": scene.name, "input": args.scene, "thickness": args.thickness, "density": args.density}
     if args.max_load:
-        start = max([k for k in loads if k > 0], default=1000.0) / 4
-        m = max_load(scene, thickness=args.thickness, density=args.density, at=at, start_kg=start,
-                     rel_tol=args.load_tol, method=method)
-        probes = [s.row() for s in m.probes]
-        atomic_write_text(out / "max-load-probes.json", json.dumps({"scene": info, "probes": probes,
-                                                                    "max_load_kg": m.kg, "refused_kg": m.upper_kg,
-                                                                    "tolerance_kg": m.tolerance_kg}, indent=1,
-                                                                   default=float) + "\n")
-        print_table(f"selfsupport stability --max-load -> {out}",
-                    [(f"{r['added_kg']:g} kg", "certified" if r["found"] else
-                      f"not certified ({r['outside']} outside, max excess {r['max_hull_excess_m']:.3g} m)")
-                     for r in probes])
-        if m.kg is None:
-            print("selfsupport: not even the unloaded vault has a network inside the hull; no max load",
-                  file=__import__("sys").stderr)
+        m = max_load(scene, thickness=args.thickness, density=args.density, at=at, time_limit=args.time_limit)
+        r = m.limit
+        atomic_write_text(out / "max-load-program.json", json.dumps({
+            "scene": info, "verdict": r.verdict, "max_load_kg": r.value, "optimum_kg": r.optimum,
+            "ipopt_status": r.ipopt_status, "message": r.message, "rounds": list(r.rounds),
+            "binding": [{"vertex": v, "distance_over_half_thickness": d} for v, d in r.binding]},
+            indent=1, default=float) + "\n")
+        if not r.certified:
+            print(f"selfsupport: no max load: {r.message}", file=sys.stderr)
             return EXIT_CODES["not_converged"]
         write_network(out / "max-load.json", m.certificate, scene=info, added_mass_kg=m.kg,
-                      refused_mass_kg=m.upper_kg, bisection_tolerance_kg=m.tolerance_kg)
-        if m.upper_kg is None:
-            print("(every probe up to the cap was certified; the answer is a lower bound)")
-        else:
-            print(f"bracket: certified at {m.kg:g} kg, not at {m.upper_kg:g} kg (tolerance {m.tolerance_kg:g} kg)")
+                      program_optimum_kg=r.optimum)
+        print_table(f"selfsupport stability --max-load -> {out}", [
+            ("verdict", r.message),
+            ("binding", ", ".join(f"{v} ({d:+.4f} t/2)" for v, d in r.binding[:8]) +
+             (f", ... ({len(r.binding)} in all)" if len(r.binding) > 8 else ""))])
         print(f"max load: {m.kg:g} kg")
         return EXIT_CODES["ok"]
     steps = stability_series(scene, thickness=args.thickness, loads_kg=loads, density=args.density, at=at,

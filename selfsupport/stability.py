@@ -6,8 +6,8 @@ By the safe (lower-bound) theorem of limit analysis, a vault of no-tension mason
 the hull "reference mid-surface ± t/2" (:func:`~selfsupport.methods.base.hull_report` measures
 it). A network found inside certifies the vault; failing to find one proves nothing by itself.
 
-:func:`solve_in_hull` searches for such a network. With the IPOPT method the hull is a set of
-hard inequality rows and one solve decides. The staggered method holds the hull as hard bounds
+:func:`solve_in_hull` searches for such a network. With a method that holds the hull as hard
+inequality rows (``hull_as_constraint``: IPOPT) one solve decides. The staggered method holds the hull as hard bounds
 too (an active set in Step 3, :mod:`selfsupport.methods.staggered`), but its descent can stall
 where a network exists; the search therefore first solves without the hull (the network nearest
 to the reference — if it is already inside, that certifies the vault), then with it. Only when
@@ -15,8 +15,10 @@ both fail is the design reported ``infeasible``, with the vertices the closest e
 network found leaves outside and by how much. That verdict is a strong hint, not a proof of
 collapse.
 
-:func:`stability_series` runs one search per added load and :func:`max_load` bisects for the
-largest load that still admits a certified network.
+:func:`stability_series` runs one search per added load. :func:`max_load` answers the largest
+load that still admits a certified network with one limit program
+(:mod:`selfsupport.limit`: λ maximised by IPOPT over networks inside the hull), or, on request,
+by bisecting over searches.
 """
 from __future__ import annotations
 
@@ -70,8 +72,9 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
     problem
         The design problem with its hull.
     method
-        A method instance (default: the staggered method). A method named ``"ipopt"`` treats the
-        hull as hard rows: one solve decides; any other method climbs ``penalties``.
+        A method instance (default: the staggered method). A method whose class says
+        ``hull_as_constraint = True`` (IPOPT) treats the hull as hard rows, warm-started from
+        ``warm_start``: one solve decides; any other method climbs ``penalties``.
     options
         The method's options for every solve.
     penalties
@@ -101,7 +104,7 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
         method = StaggeredLinearization()
     t0 = time.perf_counter()
     opts = dict(options or {})
-    hard = getattr(method, "name", "") == "ipopt"
+    hard = bool(getattr(method, "hull_as_constraint", False))
     if hard and warm_start is not None:
         opts["warm_start"] = warm_start  # (the staggered method starts from the reference)
     ladder = [None] if hard else list(penalties)
@@ -243,26 +246,47 @@ def stability_series(scene: Scene, *, thickness: float, loads_kg: Sequence[float
 
 @dataclass(frozen=True)
 class MaxLoad:
-    """The bisection's outcome: the largest certified load, the smallest refused one, every probe."""
+    """The largest certified load and its network. From the limit program (``search="nlp"``):
+    ``upper_kg`` is the program's own optimum (a local one), ``limit`` its full answer; from the
+    bisection: the smallest load found not certified, and every probe."""
 
-    kg: float | None  # None: not even the unloaded vault is certified
-    upper_kg: float | None  # the smallest load found not certified (None: none up to the cap)
+    kg: float | None  # None: nothing certified (not even the unloaded vault, for the bisection)
+    upper_kg: float | None  # the bisection: the smallest load found not certified (None: none up to the cap)
     tolerance_kg: float
     certificate: SolveResult | None
     probes: tuple[LoadStep, ...] = field(default_factory=tuple)
+    limit: Any = None  # the limit program's LimitResult (search="nlp")
+    message: str = ""
 
 
 def max_load(scene: Scene, *, thickness: float, density: float = 2500.0, at: Sequence[int] | None = None,
              start_kg: float = 1000.0, rel_tol: float = 0.05, abs_tol: float = 1.0, cap_kg: float = 1e8,
              method: Any = None, options: Mapping[str, Any] | None = None,
-             progress: Callable[[LoadStep], None] | None = None) -> MaxLoad:
+             progress: Callable[[Any], None] | None = None, search: str = "nlp",
+             time_limit: float = 600.0) -> MaxLoad:
     """The largest added mass (kg, spread over ``at``) that still admits a certified network.
 
-    Brackets by doubling from ``start_kg`` (up to ``cap_kg``), then bisects until the bracket
-    ``[lo, hi]`` satisfies ``hi - lo <= max(rel_tol * hi, abs_tol)``. The answer is ``lo``, with
-    its certifying network. The staggered search is a heuristic (:func:`solve_in_hull`), so the
-    certified set need not be an interval; the bisection assumes it is, and every probe is kept.
+    ``search="nlp"`` (default): one limit program (:func:`selfsupport.limit.limit_load`: maximise
+    λ over networks inside the hull, IPOPT, warm-started from the staggered network), the answer
+    certified by its network; ``progress`` gets each IPOPT round's record, ``time_limit`` [s]
+    bounds the whole analysis; ``start_kg``, ``rel_tol``, ``abs_tol``, ``cap_kg`` and ``method``
+    are the bisection's. ``options`` go to the staggered start.
+
+    ``search="bisection"``: brackets by doubling from ``start_kg`` (up to ``cap_kg``), then
+    bisects until the bracket ``[lo, hi]`` satisfies ``hi - lo <= max(rel_tol * hi, abs_tol)``,
+    one :func:`solve_in_hull` per probe (``progress`` gets each :class:`LoadStep`). The answer
+    is ``lo``, with its certifying network. The search is a heuristic, so the certified set need
+    not be an interval; the bisection assumes it is, and every probe is kept. The design tool's
+    probe uses it: it reports a verdict per probe and is cancelled between probes.
     """
+    if search == "nlp":
+        from .limit import limit_load
+
+        r = limit_load(scene, thickness=thickness, density=density, at=at, options=options, time_limit=time_limit,
+                       progress=progress)
+        return MaxLoad(r.value, r.optimum, 0.0, r.certificate, (), r, r.message)
+    if search != "bisection":
+        raise InputError(f"unknown max-load search {search!r}; choose 'nlp' or 'bisection'")
     at_ = tuple(sorted(spread_mass(scene, at, 1.0)))
     probes: list[LoadStep] = []
 
@@ -276,7 +300,7 @@ def max_load(scene: Scene, *, thickness: float, density: float = 2500.0, at: Seq
 
     base = probe(0.0)
     if not base.certified:
-        return MaxLoad(None, 0.0, 0.0, None, tuple(probes))
+        return MaxLoad(None, 0.0, 0.0, None, tuple(probes), message=base.result.message)
     lo, best, hi = 0.0, base, None
     kg = float(start_kg)
     while kg <= cap_kg:

@@ -585,7 +585,7 @@ def test_a_point_load_on_a_support_is_warned_and_changes_nothing(tmp_path, capsy
     (["construct", "--disk", "3", "--out", "OUT", "--load", "5"], "(-inf, 0)"),
     (["construct", "--disk", "3", "--out", "OUT", "--boundary-height", "nan"], "(-inf, inf)"),
     (["construct", "--random", "9", "--out", "OUT", "--seed", "-1"], "[0, inf)"),
-    (["stability", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--load-tol", "2"], "(0, 1)"),
+    (["stability", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--max-load", "--time-limit", "-2"], "(0, inf)"),
     (["destroy", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--remove", "-3"], "[0, inf)"),
     (["destroy", "shape:dome", "--thickness", "0.1", "--out", "OUT", "--remove", "3", "--max-stages", "0"],
      "[1, inf)"),

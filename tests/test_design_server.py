@@ -422,7 +422,7 @@ def test_the_stability_probe_is_max_load(served):
     assert p["type"] == "probe" and p["kg"] is not None and p["upper_kg"] > p["kg"], p
     d = srv.log.design
     direct = max_load(d.scene, thickness=d.thickness, density=d.density, at=[v],
-                      options={**srv.log.solve, "time_limit": 20.0}, rel_tol=0.1)
+                      options={**srv.log.solve, "time_limit": 20.0}, rel_tol=0.1, search="bisection")
     assert (direct.kg, direct.upper_kg) == (p["kg"], p["upper_kg"])
 
 

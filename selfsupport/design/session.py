@@ -435,7 +435,7 @@ class SolveWorker:
         opts = {**self.options, "time_limit": float(a.pop("time_limit", 20.0))}
         m = max_load(d.scene, thickness=d.thickness, density=d.density, at=[v], options=opts,
                      rel_tol=float(a.pop("rel_tol", 0.1)), start_kg=float(a.pop("start_kg", 1000.0)),
-                     progress=progress)
+                     progress=progress, search="bisection")  # (a verdict per probe, cancellable between them)
         self.emit({"type": "probe", "seq": job.seq, "vertex": v, "kg": m.kg, "upper_kg": m.upper_kg,
                    "probes": len(m.probes)})
 

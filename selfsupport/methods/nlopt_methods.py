@@ -63,6 +63,7 @@ class NloptSimultaneous(Simultaneous):
 
     name = "simultaneous"
     backend = "nlopt"
+    hull_as_constraint = False  # (it refuses the hull's inequality rows)
     #: bound-constrained algorithms for the reduced (weights-only) problem (LD_MMA was tried:
     #: it does not converge on a 5×5 grid in 13,000 evaluations)
     REDUCED = ("LD_LBFGS",)

@@ -246,6 +246,9 @@ class Simultaneous:
 
     name = "simultaneous"
     backend = "ipopt"
+    #: The masonry hull is a set of hard inequality rows here (one solve decides), and a previous
+    #: network can start the solve: :func:`selfsupport.stability.solve_in_hull` asks for this.
+    hull_as_constraint = True
     #: IPOPT options (``ipopt.`` prefix added); ``tol``, ``max_iter``, ``max_wall_time`` and
     #: ``print_level`` come from the solve's options.
     defaults: dict[str, Any] = {
