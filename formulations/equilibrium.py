@@ -159,7 +159,8 @@ def block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
 # ---------------------------------------------------------------- bounds
 @dataclass(frozen=True)
 class WeightBounds:
-    """``lower ≤ w ≤ upper`` for the active edges; scalars broadcast, ``upper=None`` is +∞."""
+    """``lower ≤ w ≤ upper`` for the active edges; scalars broadcast, ``upper=None`` is +∞; a
+    negative ``lower`` allows tension."""
 
     lower: float | np.ndarray
     upper: float | np.ndarray | None = None
@@ -167,8 +168,8 @@ class WeightBounds:
     def arrays(self, m: int) -> tuple[np.ndarray, np.ndarray]:
         lo = np.broadcast_to(np.asarray(self.lower, float), (m,)).copy()
         up = np.full(m, np.inf) if self.upper is None else np.broadcast_to(np.asarray(self.upper, float), (m,)).copy()
-        if np.any(~np.isfinite(lo)) or np.any(lo < 0):
-            raise InputError("the lower weight bound must be finite and >= 0 (w >= 0 means compression)")
+        if np.any(~np.isfinite(lo)):
+            raise InputError("the lower weight bound must be finite (negative: tension allowed down to it)")
         if np.any(up < lo):
             k = int(np.argmax(up < lo))
             raise InputError(f"w_max ({up[k]:.3g}) is below the lower bound ({lo[k]:.3g}) on active edge {k}; "

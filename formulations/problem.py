@@ -44,17 +44,28 @@ LOAD_LIMIT = 1e150
 
 
 # ------------------------------------------------------------------------------ bounds
+#: Pascals per megapascal (``--max-stress`` is stated in MPa).
+MPA = 1e6
+
+
 @dataclass(frozen=True, eq=False)
 class Bounds:
-    """Weight bounds [N/m]: ``lower`` (ε; ``None``: the scale-free default of
-    :func:`~formulations.scaling.default_eps`) and ``upper`` (w_max; ``None``: unbounded).
-    Each a scalar, one value per mesh edge, or one per active edge."""
+    """Weight bounds [N/m], ``lower ≤ w ≤ upper`` on every active edge: the one statement of the
+    bounds that every method honours (through :meth:`Problem.scaled`).
+
+    ``lower`` (w_min; ``None``: the scale-free default ε of
+    :func:`~formulations.scaling.default_eps`) and ``upper`` (w_max; ``None``: unbounded) are
+    each a scalar, one value per mesh edge, or one per active edge. A NaN entry of a per-edge
+    array is not stated: that edge takes the default (ε below, no bound above). ``lower`` may be
+    zero or negative: a negative weight is tension, for structures that may take it (paper §5,
+    steel and glass); ``upper`` must be positive (``inf``: unbounded on that edge).
+    """
 
     lower: float | np.ndarray | None = None
     upper: float | np.ndarray | None = None
 
     @staticmethod
-    def _per_active(value, scene, what: str) -> np.ndarray | float | None:
+    def _per_active(value, scene, what: str, *, upper: bool) -> np.ndarray | float | None:
         if value is None:
             return None
         a = np.asarray(value, float)
@@ -68,17 +79,97 @@ class Bounds:
         else:
             raise InputError(f"{what} has {a.shape} entries; give a scalar, one per mesh edge ({scene.mesh.n_edges}) "
                              f"or one per active edge ({int(act.sum())})")
-        if not np.all(np.isfinite(out) | (np.asarray(out) == np.inf)) or np.any(np.asarray(out) <= 0):
-            raise InputError(f"{what} must be positive (w >= 0 means compression), got {value!r}")
+        o = np.atleast_1d(np.asarray(out, float))
+        stated = ~np.isnan(o) if a.ndim else np.ones(1, bool)  # (a scalar NaN is refused, not a default)
+        bad = (~(o > 0) if upper else ~np.isfinite(o)) & stated
+        if bad.any():
+            k = int(np.argmax(bad))
+            at = "" if a.ndim == 0 else f" on {_edge_name(scene, k)}"
+            need = ("positive (the most force density an edge may carry; inf: unbounded)" if upper
+                    else "a finite number (negative: tension allowed down to it)")
+            raise InputError(f"{what} must be {need}, got {o[k]:g}{at}")
         return out
 
     def active(self, scene) -> tuple[np.ndarray | float | None, np.ndarray | float | None]:
-        """``(lower, upper)`` restricted to the scene's active edges (scalars stay scalars)."""
-        return self._per_active(self.lower, scene, "eps"), self._per_active(self.upper, scene, "w_max")
+        """``(lower, upper)`` restricted to the scene's active edges (scalars stay scalars; NaN
+        entries: the default)."""
+        return (self._per_active(self.lower, scene, "the lower weight bound (eps, w_min)", upper=False),
+                self._per_active(self.upper, scene, "w_max", upper=True))
+
+    def over(self, base: "Bounds") -> "Bounds":
+        """These bounds where they are stated, ``base``'s on every other edge (a per-edge NaN is
+        not stated): a bounds file over the command line's scalar bounds."""
+        return Bounds(_overlay(self.lower, base.lower), _overlay(self.upper, base.upper))
 
     @property
     def has_upper(self) -> bool:
-        return self.upper is not None and not (np.ndim(self.upper) == 0 and np.isinf(float(self.upper)))
+        if self.upper is None:
+            return False
+        u = np.asarray(self.upper, float)
+        return bool(np.any(np.isfinite(u)))
+
+    @property
+    def allows_tension(self) -> bool:
+        """Whether a stated lower bound is at or below zero (``--eps 0``, a negative ``--w-min``
+        or file ``w_min``): the compression floor ε is lifted, and the solve reports its tension
+        edges."""
+        return self.lower is not None and bool(np.any(np.asarray(self.lower, float) <= 0))
+
+
+def _overlay(top: Any, base: Any) -> Any:
+    if top is None or (np.ndim(top) == 0 and np.isnan(float(top))):
+        return base
+    t = np.asarray(top, float)
+    if t.ndim == 0 or base is None:
+        return top
+    b = np.asarray(base, float)
+    if b.ndim and b.shape != t.shape:
+        raise InputError(f"per-edge bounds of {t.shape[0]} and {b.shape[0]} edges cannot be combined; "
+                         "state both for the same mesh")
+    return np.where(np.isnan(t), b, t)
+
+
+def _edge_name(scene, k: int) -> str:
+    """Active edge ``k`` by its vertex pair, for messages."""
+    i, j = scene.mesh.edges[np.flatnonzero(scene.active_edges)[k]]
+    return f"edge ({int(i)}, {int(j)})"
+
+
+def stress_w_max(mesh, max_stress: float, thickness: float) -> np.ndarray:
+    """Per-edge w_max [N/m] from a material strength: ``σ_max · t · b_e / |e|``.
+
+    An edge stands for the strip of shell around it: of thickness ``t`` and of its tributary
+    width ``b_e`` (:func:`~selfsupport.geometry.edge_tributary_widths`: twice the area of the
+    edge's triangles to the centroids of its faces over its length; on a regular grid of
+    spacing ``h`` it is ``h``). The force that strip carries at stress ``σ_max`` is
+    ``σ_max · t · b_e``; the edge's force is ``w |e|`` (``w`` is a force density, force per
+    length), so ``w ≤ σ_max · t · b_e / |e|``. With ``A_e`` the area of influence,
+    ``b_e = 2 A_e / |e|`` and the bound is ``2 σ_max t A_e / |e|²``; the original tool used
+    ``σ_max t A_e / |e|² / 8``, 16 times less, a factor no derivation gives (it acts as a
+    safety factor: pass a σ_max 16 times smaller for its bound). Lengths and widths are the
+    reference mesh's.
+
+    Parameters
+    ----------
+    mesh
+        The reference :class:`~selfsupport.mesh.PolyMesh`.
+    max_stress
+        Allowable stress σ_max [Pa].
+    thickness
+        Shell thickness t [m].
+
+    Returns
+    -------
+    numpy.ndarray
+        One bound per mesh edge [N/m].
+    """
+    from selfsupport.geometry import edge_tributary_widths, edge_vectors
+
+    for name, v in (("the maximum stress", max_stress), ("the thickness", thickness)):
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name} must be a positive number, got {v!r}")
+    length = np.linalg.norm(edge_vectors(mesh.vertices, mesh.edges), axis=1)
+    return float(max_stress) * float(thickness) * edge_tributary_widths(mesh) / length
 
 
 # ------------------------------------------------------------------------- constraints
@@ -192,10 +283,12 @@ class Problem:
 
     @classmethod
     def build(cls, scene, loads: Any = None, *, eps: Any = None, w_max: Any = None, objective: Any = None,
-              constraints: Sequence[Any] = ()) -> "Problem":
+              constraints: Sequence[Any] = (), bounds: Bounds | None = None) -> "Problem":
         """From a scene, load model(s) (one model, a mapping name -> model, or :class:`LoadCases`;
-        the scene's extras are added to each), bounds [N/m], an objective (see
-        :func:`parse_objective`) and constraints (instances or names in :data:`CONSTRAINTS`)."""
+        the scene's extras are added to each), bounds [N/m] (``eps``, ``w_max``; ``bounds``:
+        per-edge bounds stated over them, e.g. a bounds file's, see :meth:`Bounds.over`), an
+        objective (see :func:`parse_objective`) and constraints (instances or names in
+        :data:`CONSTRAINTS`)."""
         cons = []
         for c in constraints:
             if isinstance(c, str):
@@ -203,7 +296,8 @@ class Problem:
                     raise InputError(f"unknown constraint {c!r}; choose from {', '.join(CONSTRAINTS)}")
                 c = CONSTRAINTS[c]()
             cons.append(c)
-        return cls(scene=scene, loads=LoadCases.of(loads, scene), bounds=Bounds(eps, w_max),
+        stated = Bounds(eps, w_max) if bounds is None else bounds.over(Bounds(eps, w_max))
+        return cls(scene=scene, loads=LoadCases.of(loads, scene), bounds=stated,
                    objective=parse_objective(objective), constraints=tuple(cons))
 
     # -------------------------------------------------------------- constraints
@@ -269,13 +363,15 @@ class Problem:
         sc = Scaling.of(mesh.vertices, L[0], free)
         X = sc.pos(mesh.vertices)
         lo, up = self.bounds.active(scene)
-        lower = np.broadcast_to(default_eps(X, top.edges) if lo is None else sc.weight(np.asarray(lo, float)),
-                                (top.m,)).astype(float)
-        upper = np.broadcast_to(np.inf if up is None else sc.weight(np.asarray(up, float)), (top.m,)).astype(float)
+        lower = np.broadcast_to(np.nan if lo is None else sc.weight(np.asarray(lo, float)), (top.m,)).astype(float)
+        lower[np.isnan(lower)] = default_eps(X, top.edges)  # (not stated: the scale-free default)
+        upper = np.broadcast_to(np.nan if up is None else sc.weight(np.asarray(up, float)), (top.m,)).astype(float)
+        upper[np.isnan(upper)] = np.inf
         if np.any(lower >= upper):
             k = int(np.argmax(lower >= upper))
             raise InputError(f"w_max ({sc.weight_back(upper[k]):.6g} N/m) must exceed the lower weight bound "
-                             f"({sc.weight_back(lower[k]):.3g} N/m) on active edge {k}")
+                             f"({sc.weight_back(lower[k]):.3g} N/m) on {_edge_name(scene, k)}; raise w_max there "
+                             "or lower the lower bound")
         return ScaledProblem(top=top, scaling=sc, X=X, L=sc.load(L), lower=lower, upper=upper)
 
     # ---------------------------------------------------------------- objective

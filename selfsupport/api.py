@@ -38,10 +38,11 @@ from .result import Network, SolveResult
 from .scene import Scene
 from .validate import load_issues, validate_scene
 
-from formulations import Problem
+from formulations import Bounds, Problem
+from formulations.problem import stress_w_max
 
 __all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+           "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -267,15 +268,58 @@ def load_spec(*, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_TH
 def problem(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS,
             point_loads: Mapping[int, float] | None = None, extra_mass: Mapping[int, float] | None = None,
             load_cases: Any = None, w_max: Any = None, eps: Any = None, objective: Any = None,
-            constraints: Any = ()) -> Problem:
+            constraints: Any = (), bounds: Any = None, max_stress: float | None = None) -> Problem:
     """The :class:`~formulations.Problem` of a scene: load cases from :func:`load_spec` (plus the
-    scene's own extras), bounds [N/m, scalar or per edge], objective (``{"name": weight}``,
-    ``"name=weight"`` strings, terms; ``None``: the method's default) and constraints
-    (``"hull"``, ``"fixed_top_view"`` or instances)."""
+    scene's own extras), bounds [N/m, scalar or per edge; see :func:`weight_bounds` for
+    ``bounds`` and ``max_stress``], objective (``{"name": weight}``, ``"name=weight"`` strings,
+    terms; ``None``: the method's default) and constraints (``"hull"``, ``"fixed_top_view"`` or
+    instances)."""
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
                      load_cases=load_cases)
-    return Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
-                         constraints=constraints)
+    return Problem.build(scene, spec.cases(scene.mesh.n_vertices), objective=objective, constraints=constraints,
+                         bounds=weight_bounds(scene, eps=eps, w_max=w_max, bounds=bounds, max_stress=max_stress,
+                                              thickness=thickness))
+
+
+def weight_bounds(scene: Scene, *, eps: Any = None, w_max: Any = None, bounds: Any = None,
+                  max_stress: float | None = None, thickness: float = DEFAULT_THICKNESS) -> Bounds:
+    """The weight bounds a designer states, per edge of ``scene``'s mesh.
+
+    Parameters
+    ----------
+    scene
+        The scene being solved (the bounds file names edges of its mesh).
+    eps, w_max
+        Lower and upper bounds [N/m], scalars or one per edge (``None``: the scale-free default
+        ε / unbounded). A lower bound of zero or below allows tension down to it.
+    bounds
+        Per-edge bounds over ``eps`` / ``w_max``: a bounds file (``.csv`` / ``.json``,
+        :func:`~selfsupport.io.bounds.read_bounds`) or a :class:`~formulations.problem.Bounds`
+        (NaN entries: not stated).
+    max_stress
+        Allowable stress σ_max [Pa]: ``w_max`` per edge from the shell ``thickness`` and each
+        edge's tributary width (:func:`~formulations.problem.stress_w_max`); not with ``w_max``.
+
+    Returns
+    -------
+    Bounds
+        What :meth:`~formulations.Problem.build` states over its scalar bounds.
+    """
+    if max_stress is not None:
+        if w_max is not None:
+            raise InputError("give either w_max (--wmax) or a maximum stress (--max-stress), not both: each "
+                             "states the upper weight bound")
+        w_max = stress_w_max(scene.mesh, max_stress, thickness)
+    base = Bounds(eps, w_max)
+    if bounds is None:
+        return base
+    if isinstance(bounds, (str, os.PathLike)):
+        from .io.bounds import read_bounds
+
+        bounds = read_bounds(bounds, scene.mesh)
+    if not isinstance(bounds, Bounds):
+        raise InputError(f"bounds must be a bounds file or a Bounds, not a {type(bounds).__name__}")
+    return bounds.over(base)
 
 
 # -------------------------------------------------------------------------------- solve
@@ -287,7 +331,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
           objective: Any = None, point_loads: Mapping[int, float] | None = None,
           extra_mass: Mapping[int, float] | None = None, load_cases: Any = None, constraints: Any = (),
           max_memory: float | None = None, warm_start: Network | SolveResult | None = None,
-          started: float | None = None) -> SolveResult:
+          started: float | None = None, bounds: Any = None, max_stress: float | None = None) -> SolveResult:
     """Find the thrust network nearest to a reference surface.
 
     Parameters
@@ -305,7 +349,12 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         Self-weight ρ [kg/m³] and t [m]; the load is ρ·t·g per unit surface area.
     w_max, eps
         Upper and lower weight bounds [N/m], scalars or one per edge (``None``: no upper bound /
-        the scale-free default).
+        the scale-free default). A lower bound of zero or below allows tension down to it: the
+        result's ``parameters["tension"]`` counts the edges in tension.
+    bounds, max_stress
+        Per-edge bounds from a file (or a :class:`~formulations.problem.Bounds`) over ``eps`` /
+        ``w_max``, and w_max from an allowable stress [Pa] and ``thickness`` (see
+        :func:`weight_bounds`).
     tol, max_iter, time_limit
         Stopping rules; ``None`` keeps the method's defaults (staggered: ``tol`` is the required
         max relative error, ``max_iter`` counts outer iterations; IPOPT: its ``tol`` and its
@@ -364,8 +413,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     check_memory(scene.mesh.n_vertices, method, max_memory, n_cases=max(len(spec.case_specs), 1),
                  extra_bytes=dense_row_bytes(scene.mesh.edges, scene.mesh.n_vertices))
     issues = validate_scene(scene)  # raises for unusable input before any work; warnings go into the result
-    prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
-                         constraints=constraints)
+    prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), objective=objective, constraints=constraints,
+                         bounds=weight_bounds(scene, eps=eps, w_max=w_max, bounds=bounds, max_stress=max_stress,
+                                              thickness=thickness))
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
@@ -400,6 +450,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **start_kw, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     extra = {"design": design} if design else {}
+    tension = result.tension()
+    if tension["edges"] or prob.bounds.allows_tension:  # (reported whenever tension was allowed)
+        extra["tension"] = tension
     cpu = {"at_entry": cpu_entry, "solve": time.process_time() - cpu_entry}  # process CPU seconds
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues], "cpu": cpu, **extra})

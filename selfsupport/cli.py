@@ -280,6 +280,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
             ("iterations", str(result.iterations)), ("time", f"{result.wall_time:.2f} s"),
             ("max relative error", f"{result.max_relative_error:.3e}"),
             ("min weight", f"{result.min_weight:.4g} N/m"),
+            *tension_rows(result),
             ("total load", f"{float(net.loads.sum()):.6g} N"),
             ("distance to reference mean", f"{result.distance_mean:.3e} of bbox diagonal "
                                            f"({result.distance_mean * diag:.3g} m)"),
@@ -302,6 +303,14 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                      f"(max excess {hull['max_excess']:.3g} m)"))
         rows.append(("verdict", stands_line(result.parameters)))
     return rows
+
+
+def tension_rows(result) -> list[tuple[str, str]]:
+    """The summary row of the edges in tension, when the solve allowed tension or found some."""
+    t = result.parameters.get("tension")
+    if t is None:
+        return []
+    return [("tension edges", f"{t['edges']} (most negative weight {t['min_weight']:.4g} N/m)")]
 
 
 def _not_converged_line(result) -> str:
@@ -418,8 +427,16 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                         "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")
     add_load_arguments(p)
     p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
-    p.add_argument("--eps", type=positive_float, default=None, metavar="E",
-                   help="lower weight bound [N/m] (default: scale-free, 1e-4 of the natural weight scale)")
+    p.add_argument("--eps", "--w-min", type=number_in("(-inf, inf)"), default=None, metavar="E", dest="eps",
+                   help="lower weight bound [N/m] (default: scale-free, 1e-4 of the natural weight scale); "
+                        "0 or negative lets the edges take tension down to it (steel, glass)")
+    p.add_argument("--max-stress", type=positive_float, default=None, metavar="MPA",
+                   help="allowable stress [MPa]: w_max per edge = stress x thickness x the edge's tributary "
+                        "width / its length (instead of --wmax)")
+    p.add_argument("--bounds", metavar="FILE", default=None,
+                   help="per-edge bounds over --eps/--wmax/--max-stress: a CSV of i,j,w_min,w_max rows [N/m] "
+                        "(edges by their vertex pair, an empty bound keeps the default) or a JSON with edges "
+                        "and w_min / w_max arrays in their order")
     p.add_argument("--tol", type=tolerance, default=None,
                    help="required max relative error, in (0, 1] (default: the method's, 1e-9)")
     p.add_argument("--max-iter", type=positive_int, default=None, metavar="N",
@@ -499,7 +516,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     from .memory import check_scene_spec
 
     out = Path(args.out)
-    inputs = scene_inputs(args) + [("--load-cases file", args.load_cases)]
+    inputs = scene_inputs(args) + [("--load-cases file", args.load_cases), ("--bounds file", args.bounds)]
     check_network_out(out, args.format, inputs)
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
@@ -522,9 +539,12 @@ def _run_solve(args: argparse.Namespace) -> int:
         if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
             info = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
             scene = replace(scene, meta={**scene.meta, "design": info})
+    from formulations.problem import MPA
+
     progress = ProgressDisplay(enabled=False if args.quiet else None)
     result = api.solve(scene, method=method, backend=args.backend, density=args.density,
-                       thickness=args.thickness, w_max=args.wmax, eps=args.eps, tol=args.tol,
+                       thickness=args.thickness, w_max=args.wmax, eps=args.eps, bounds=args.bounds,
+                       max_stress=None if args.max_stress is None else args.max_stress * MPA, tol=args.tol,
                        max_iter=args.max_iter, time_limit=args.time_limit, progress=progress,
                        options=options, max_memory=args.max_memory, started=started, **problem_kwargs(args))
     # a network file is solved for its stored reference (api.design_of): distances, the hull

@@ -183,6 +183,23 @@ def mean_edge_length(vertices: np.ndarray, edges: np.ndarray) -> float:
     return float(np.linalg.norm(edge_vectors(vertices, edges), axis=1).mean())
 
 
+def edge_tributary_widths(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:
+    """Per edge, the width of the strip of surface it stands for: ``2 A_e / |e|``, where the
+    area of influence ``A_e`` is the sum of the triangles (edge, centroid of an adjacent face),
+    the centroid-fan triangles of :func:`face_areas`. A regular grid of spacing ``h`` gives
+    ``h`` inside and ``h / 2`` on the boundary.
+
+    >>> grid = PolyMesh.from_faces(np.array([[0, 0, 0], [2., 0, 0], [2, 2, 0], [0, 2, 0], [4, 0, 0], [4, 2, 0]]),
+    ...                            [[0, 1, 2, 3], [1, 4, 5, 2]])
+    >>> grid.edges.tolist()[2], edge_tributary_widths(grid).tolist()
+    ([1, 2], [1.0, 1.0, 2.0, 1.0, 1.0, 1.0, 1.0])
+    """
+    v = mesh.vertices if vertices is None else vertices
+    _, vec, _ = _fan(mesh, v)
+    area = _scatter_add(mesh.halfedge_data["halfedge_edge"], np.linalg.norm(vec, axis=1), mesh.n_edges)
+    return 2.0 * area / np.linalg.norm(edge_vectors(v, mesh.edges), axis=1)
+
+
 def turning_angles(loop: np.ndarray) -> np.ndarray:
     """Unsigned turning angle [degrees] at each corner of a closed top-view polygon ``loop`` (k, 2).
 

@@ -145,6 +145,17 @@ class SolveResult:
     def converged(self) -> bool:
         return self.status == "converged"
 
+    def tension(self) -> dict[str, Any]:
+        """The edges in tension (negative weight) over every load case: ``edges``, how many are in
+        tension in some case; ``min_weight``, the most negative weight [N/m] (0 without tension);
+        ``edge_indices``, those edges' indices in ``mesh.edges``."""
+        nets = [n for _, n in self.case_networks]
+        mask = np.zeros(self.network.mesh.n_edges, dtype=bool)
+        for n in nets:
+            mask |= n.active_edges & (n.weights < 0)
+        return {"edges": int(mask.sum()), "min_weight": min(0.0, *(n.min_weight() for n in nets)),
+                "edge_indices": np.flatnonzero(mask).tolist()}
+
     def summary(self) -> str:
         return (f"{self.method}/{self.backend}: {self.status}, {self.iterations} it, {self.wall_time:.3f} s, "
                 f"max rel. error {self.max_relative_error:.2e}, min w {self.min_weight:.3e}, "

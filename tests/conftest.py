@@ -192,11 +192,13 @@ class CheckerReport:
 
 
 def independent_check(target: Any, *, tol: float | None = None, unit_weight: float | None = None,
-                      load_tol: float | None = None, timeout: float = 120) -> CheckerReport:
+                      load_tol: float | None = None, allow_tension: bool = False,
+                      timeout: float = 120) -> CheckerReport:
     """Run ``shared/tools/check_network.py`` on ``target`` — a JSON file path, a network document
     (dict), a :class:`~selfsupport.result.Network` or a :class:`~selfsupport.result.SolveResult` —
     with the checker's own options (``--tol``, its default 1e-4; ``--unit-weight`` ρtg;
-    ``--load-tol``) and return its parsed report. Skips the test when the checker is absent."""
+    ``--load-tol``; ``--allow-tension``: negative weights are counted, ``tension_edges``, not
+    refused) and return its parsed report. Skips the test when the checker is absent."""
     if not CHECKER.is_file():
         pytest.skip(CHECKER_MISSING)
     with tempfile.TemporaryDirectory(prefix="checker-") as tmp:
@@ -214,6 +216,8 @@ def independent_check(target: Any, *, tol: float | None = None, unit_weight: flo
         for flag, value in (("--tol", tol), ("--unit-weight", unit_weight), ("--load-tol", load_tol)):
             if value is not None:
                 cmd += [flag, repr(float(value))]
+        if allow_tension:
+            cmd.append("--allow-tension")
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     if p.returncode not in (0, 1):  # 1 is its verdict "FAIL"; anything else is a crash
         raise AssertionError(f"the shared checker crashed ({p.returncode}):\n{p.stdout}{p.stderr}")

@@ -473,7 +473,7 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
     # ---- active set: weights on a bound (the polish's criterion), fixed x, y, hull rows on the face
     lo, up = np.tile(form.lower, C), np.tile(form.upper, C)
     wx = x[3 * nf:]
-    on_lo = wx <= lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)
+    on_lo = wx <= lo + BOUND_ACTIVE_REL * np.maximum(np.abs(lo), 1e-300)  # (a tension bound is negative)
     on_up = wx >= up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))
     bnd = form.bounds_args()
     fixed = np.flatnonzero(bnd["lbx"] == bnd["ubx"])  # the fixed top view's x, y
@@ -542,7 +542,9 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
     # bounds in scaled units: ŵ = w D / F̄. The default ε is stated in scaled units (fixed);
     # an explicit ε or w_max [N/m] moves with 1 / F̄ and w_max with its own derivative.
     lo_si, up_si = problem.bounds.active(scene)
-    d_lo = np.zeros(C * m) if lo_si is None else -lo * dlnF
+    # (per-edge NaN entries are the default ε, fixed in scaled units)
+    d_lo = np.zeros(C * m) if lo_si is None else np.where(np.tile(np.isnan(np.broadcast_to(lo_si, (m,))), C), 0.0,
+                                                          -lo * dlnF)
     d_up = np.tile(np.broadcast_to(par.d_upper(problem) * sc.length / sc.force, (m,)), C) - \
         np.where(np.isfinite(up), up, 0.0) * dlnF
     r3 = -np.concatenate([np.zeros(fixed.size), d_lo[A_lo - 3 * nf], d_up[A_up - 3 * nf]])
