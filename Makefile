@@ -73,7 +73,7 @@ test-latest:
 	rm -rf $(LATEST)
 	$(PYTHON) -m venv $(LATEST)
 	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
-	$(LATEST)/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[test]"
+	$(LATEST)/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[test,docs]"
 	$(LATEST)/bin/python requirements/drift.py requirements/test.lock
 	$(LATEST)/bin/pytest $(PYTEST_FAST) -p no:cacheprovider
 

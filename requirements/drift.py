@@ -11,7 +11,9 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-PIN = re.compile(r"^([A-Za-z0-9][A-Za-z0-9._-]*)(?:\[[^\]]*\])?==([^\s;#]+)")
+from packaging.markers import Marker
+
+PIN = re.compile(r"^([A-Za-z0-9][A-Za-z0-9._-]*)(?:\[[^\]]*\])?==([^\s;#]+)\s*(?:;([^#]*))?")
 
 
 def canonical(name: str) -> str:
@@ -20,11 +22,12 @@ def canonical(name: str) -> str:
 
 
 def locked(path: Path) -> dict[str, str]:
-    """``{name: version}`` of every ``name==version`` line of a lock file."""
+    """``{name: version}`` of every ``name==version`` line of a lock file whose environment
+    marker (``; python_full_version >= '3.12'``, ``; sys_platform == 'win32'``) holds here."""
     pins = {}
     for line in path.read_text(encoding="utf-8").splitlines():
         m = PIN.match(line.strip())
-        if m:
+        if m and (not m.group(3) or Marker(m.group(3).strip()).evaluate()):
             pins[canonical(m.group(1))] = m.group(2)
     return pins
 
