@@ -33,6 +33,7 @@ import numpy as np
 
 from .errors import BackendUnavailable, InputError
 from .loads import G, LoadCase, SelfWeight, with_scene_extras
+from .methods.choice import AUTO
 from .mesh import PolyMesh
 from .result import Network, SolveResult
 from .scene import Scene
@@ -40,7 +41,7 @@ from .validate import load_issues, validate_scene
 
 from formulations import Problem
 
-__all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
+__all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
@@ -279,7 +280,7 @@ def problem(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float 
 
 
 # -------------------------------------------------------------------------------- solve
-def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered", backend: str | None = None,
+def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "auto", backend: str | None = None,
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: Any = None,
           eps: Any = None, tol: float | None = None, max_iter: int | None = None,
           time_limit: float | None = None, supports: Any = None, up: str | None = None,
@@ -297,7 +298,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         that stores its reference is solved for that reference, starting from the stored
         network (:func:`design_of`).
     method
-        A name in :data:`METHODS`: ``"staggered"`` (default), ``"ipopt"``, ``"nlopt"``.
+        A name in :data:`METHODS` (``"staggered"``, ``"multilevel"``, ``"ipopt"``, ``"nlopt"``) or
+        ``"auto"`` (default): the multilevel method where it pays, else the staggered method
+        (:func:`~selfsupport.methods.choice.choose_method`; ``parameters["method_choice"]`` says
+        which and why).
     backend
         The method's inner solver, where it has a choice (staggered: Step-2 backend,
         default ``"active-set"``).
@@ -339,8 +343,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         Its ``parameters`` gain ``"loads"`` (the self-weight ρ, t), ``"load_model"`` (every load,
         so the file can be re-checked case by case), ``"input_issues"``: the warnings of
         :func:`~selfsupport.validate.validate_scene` and :func:`~selfsupport.validate.load_issues`
-        as dicts, and ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
-        the staggered history records' ``cpu_s``) and spent in it (``solve``).
+        as dicts, ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
+        the staggered history records' ``cpu_s``) and spent in it (``solve``), and with
+        ``method="auto"`` ``"method_choice"``: the method chosen and why (one line).
 
     Raises
     ------
@@ -363,6 +368,12 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
                          constraints=constraints)
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
+    choice = None
+    if method == AUTO:  # (the rule, from the problem: selfsupport.methods.choice)
+        from .methods.choice import choose_method
+
+        choice = choose_method(prob, warm_start=start)
+        method = choice.method
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
         if method not in ("staggered", "multilevel"):
@@ -396,6 +407,8 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **start_kw, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
     extra = {"design": design} if design else {}
+    if choice is not None:
+        extra["method_choice"] = choice.as_dict()
     cpu = {"at_entry": cpu_entry, "solve": time.process_time() - cpu_entry}  # process CPU seconds
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues], "cpu": cpu, **extra})

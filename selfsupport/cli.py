@@ -2,7 +2,7 @@
 
 ::
 
-    selfsupport solve SCENE --out NET.json [--method staggered|ipopt|nlopt] [...]
+    selfsupport solve SCENE --out NET.json [--method auto|staggered|multilevel|ipopt|nlopt] [...]
     selfsupport check MESH_OR_NET [--supports ...] [--tol 1e-6]
     selfsupport demo [--out DIR] [--shape NAME] [--vertices N]
 
@@ -274,7 +274,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
     rows = [("scene", scene.name), ("vertices", str(net.mesh.n_vertices)),
             ("edges", f"{net.mesh.n_edges} ({int(net.active_edges.sum())} carrying a weight)"),
             ("supports", str(int(net.supports.sum()))),
-            ("method", result.method), ("backend", result.backend), ("status", result.status),
+            ("method", _method_text(result)), ("backend", result.backend), ("status", result.status),
             ("iterations", str(result.iterations)), ("time", f"{result.wall_time:.2f} s"),
             ("max relative error", f"{result.max_relative_error:.3e}"),
             ("min weight", f"{result.min_weight:.4g} N/m"),
@@ -300,6 +300,12 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                      f"(max excess {hull['max_excess']:.3g} m)"))
         rows.append(("verdict", stands_line(result.parameters)))
     return rows
+
+
+def _method_text(result) -> str:
+    """The summary's method: its name, and with ``--method auto`` why it was chosen."""
+    choice = result.parameters.get("method_choice")
+    return f"{result.method} (auto: {choice['why']})" if choice else result.method
 
 
 def _not_converged_line(result) -> str:
@@ -365,7 +371,7 @@ def not_in_equilibrium_line(network, tol: float, path: str, hint: str) -> str:
 
 # ----------------------------------------------------------------------------- solve
 def _solve_args(p: argparse.ArgumentParser) -> None:
-    from .api import METHODS
+    from .api import AUTO, METHODS
 
     add_scene_arguments(p)
     # what a network file means as input (api.design_of): said here, where a user re-solving looks
@@ -374,8 +380,9 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
     p.add_argument("--out", "-o", required=True, metavar="NET.json", help="network file to write: .json (the network format), or .obj/.ply/.off for its geometry only")
-    p.add_argument("--method", choices=list(METHODS), default=None,
-                   help="solution method (default staggered; with --subdivide, multilevel)")
+    p.add_argument("--method", choices=[AUTO, *METHODS], default=AUTO,
+                   help="solution method (default auto: multilevel on a mesh large enough for coarser levels "
+                        "to pay, else staggered; the summary says which and why)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
                    help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
                         "creases), e.g. to fabrication resolution; the multilevel method then solves the "
@@ -473,9 +480,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
-    # a subdivided design by its own levels unless told otherwise (lilium subdivided twice: the single
-    # level stalled, the levels converged in 3.3 s)
-    method = args.method or ("multilevel" if args.subdivide else "staggered")
+    method = args.method  # ("auto": a subdivided design large enough goes up its own levels)
     check_scene_spec(args.scene, method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     if args.subdivide:  # (of the design a network file stores, not of its network)

@@ -27,6 +27,8 @@ from .errors import TooLarge
 GIB = 1024.0 ** 3
 #: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
 BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "multilevel": 16e3, "ipopt": 100e3, "nlopt": 100e3}
+#: ``--method auto`` runs one of these two (selfsupport.methods.choice): the larger of their rates.
+BYTES_PER_VERTEX["auto"] = max(BYTES_PER_VERTEX["staggered"], BYTES_PER_VERTEX["multilevel"])
 #: The interpreter and libraries before any mesh (measured: 96 MB).
 BASE_BYTES = 150e6
 

@@ -97,7 +97,7 @@ from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 from .weight_refit import edge_bounds, refit_weights
 from .weightfit import WeightFitBackend
 
-__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
+__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "why_not", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
            "START_TOL"]
 
 #: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
@@ -371,7 +371,7 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
                  meta={"coarsening": "delaunay"})
 
 
-def _why_not(problem: Problem) -> str | None:
+def why_not(problem: Problem) -> str | None:
     """Why ``problem`` cannot be restated on a coarser mesh (``None``: it can)."""
     scene = problem.scene
     if scene.extra_mass is not None or scene.point_loads is not None:
@@ -484,7 +484,7 @@ class Multilevel:
         opts = {**dict(options or {}), **overrides}
         # one deadline for all levels (each level's messages name the whole limit)
         deadline = t0 + float(opts.get("time_limit", self.staggered.options.time_limit)) if deadline is None else deadline
-        why = _why_not(problem)
+        why = why_not(problem)
         if why:
             scenes = [problem.scene]
         elif warm_start is not None:
