@@ -121,18 +121,19 @@ def method_class(name: str) -> type:
     return spec.load()
 
 
-def make_method(name: str = "staggered", backend: str | None = None) -> Any:
+def make_method(name: str = "staggered", backend: str | None = None, **settings: Any) -> Any:
     """An instance of method ``name``; ``backend`` picks its inner solver where it has a choice
-    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``)."""
+    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``);
+    ``settings`` are further keywords of its constructor."""
     cls = method_class(name)
     if backend is None:
-        return cls()
+        return cls(**settings)
     names = METHODS[name].backend_names()
     if not names:
         raise InputError(f"method {name!r} has no backend choice; leave --backend out")
     if backend not in names:
         raise InputError(f"unknown backend {backend!r} for method {name!r}; choose one of {', '.join(names)}")
-    return cls(backend=backend)
+    return cls(backend=backend, **settings)
 
 
 # ------------------------------------------------------------------------------- scenes
@@ -368,12 +369,12 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "auto", bac
     prob = Problem.build(scene, spec.cases(scene.mesh.n_vertices), eps=eps, w_max=w_max, objective=objective,
                          constraints=constraints)
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
-    choice = None
+    choice, settings = None, {}
     if method == AUTO:  # (the rule, from the problem: selfsupport.methods.choice)
         from .methods.choice import choose_method
 
         choice = choose_method(prob, warm_start=start)
-        method = choice.method
+        method, settings = choice.method, dict(choice.settings)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
         if method not in ("staggered", "multilevel"):
@@ -383,7 +384,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "auto", bac
         from .options import check_options
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
-    solver = make_method(method, backend)
+    solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit
     from .methods.deadline import finish_reserve

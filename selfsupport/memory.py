@@ -77,7 +77,8 @@ def check_memory(n_vertices: int, method: str = "staggered", max_memory: float |
     if need > has:
         where = (f"--max-memory allows {_gib(has)} GiB" if max_memory is not None
                  else f"this machine has {_gib(has)} GiB available")
-        raise TooLarge(f"a {method} solve of {n_vertices:,} vertices needs about {_gib(need)} GiB, {where}; "
+        named = "" if method == "auto" else f"{method} "  # (auto: the method is not chosen yet)
+        raise TooLarge(f"a {named}solve of {n_vertices:,} vertices needs about {_gib(need)} GiB, {where}; "
                        "use --max-memory or a coarser mesh")
     return need
 

@@ -14,8 +14,8 @@ one of ``api.solve(method="auto")``, whose method and iterations must be the sta
 A case's method that *paid* (:func:`paid`) is the one that converged, or, both converged, the
 one with less CPU time (the machine is shared: wall time is mostly waiting). From the cases,
 :func:`threshold_interval` gives the sizes between which the switch to multilevel belongs; the
-notes say whether :data:`~selfsupport.methods.multilevel.DIRECT_MAX`, the switch of
-:func:`~selfsupport.methods.choice.choose_method`, lies there, and every row says what the rule
+notes say whether :data:`~selfsupport.methods.choice.LEVELS_ABOVE`, the switch of
+:func:`~selfsupport.methods.choice.choose_method`, lies there, and every case says what the rule
 chose and whether that was the method that paid.
 
 Writes ``method_choice.csv`` (every row) and ``method_choice.md`` (one line per case) into
@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from .common import (Column, PAPER_TABLE1, REPO, exit_on_sigterm, load_average, read_study_scene, run_isolated,
-                     run_stamp, study_scenes, write_csv, write_markdown)
+                     run_stamp, safe_ratio, study_scenes, write_csv, write_markdown)
 
 DEFAULT_SHAPES = ("dome", "pillar_vault", "concave_disk")
 DEFAULT_SIZES = (1000, 4000, 16000)
@@ -136,7 +136,8 @@ ROW_COLUMNS = [Column("case", "case"), Column("kind", "kind"), Column("method", 
 CASE_COLUMNS = [Column("case", "case"), Column("vertices", "vertices"),
                 Column("staggered", "staggered: status / it. / CPU s"),
                 Column("multilevel", "multilevel: levels / status / CPU s"),
-                Column("speedup", "staggered / multilevel CPU", "{:.2f}"), Column("paid", "paid"),
+                Column("speedup", "staggered / multilevel CPU", "{:.2f}"),
+                Column("distance_ratio", "mean distance multilevel / staggered", "{:.2f}"), Column("paid", "paid"),
                 Column("rule", "rule (auto)"), Column("agrees", "rule = paid"), Column("auto", "auto row")]
 
 
@@ -147,7 +148,8 @@ def _case_line(case: str, rows: Mapping[str, Mapping[str, Any]]) -> dict[str, An
             "agrees": "yes" if s.get("rule") == won else "NO",
             "staggered": f"{s.get('status')} / {s.get('iterations')} / {float(s.get('cpu_s', float('nan'))):.2f}",
             "multilevel": f"{m.get('levels')} / {m.get('status')} / {float(m.get('cpu_s', float('nan'))):.2f}",
-            "speedup": float(s.get("cpu_s", float("nan"))) / float(m.get("cpu_s", float("nan")))}
+            "speedup": safe_ratio(s.get("cpu_s"), m.get("cpu_s")),
+            "distance_ratio": safe_ratio(m.get("distance_mean"), s.get("distance_mean"))}
     a = rows.get(AUTO_ROW)
     if a is not None:
         same = a.get("ran") == "staggered" and a.get("iterations") == s.get("iterations")
@@ -197,17 +199,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"levels={r.get('levels')} load={r['load_start']}", flush=True)
         lines.append(_case_line(case, by_method))
         write_csv(out / "method_choice.csv", rows, ROW_COLUMNS + [Column(k, k) for k in stamp])
-    from selfsupport.methods.multilevel import DIRECT_MAX
+    from selfsupport.methods.choice import LEVELS_ABOVE
 
     shape_cases = [(int(ln["vertices"]), ln["paid"]) for ln in lines if ln["case"] not in PAPER_TABLE1]
     lo, hi = threshold_interval(shape_cases)
-    fits = (lo is None or lo <= DIRECT_MAX) and (hi is None or DIRECT_MAX < hi)
+    fits = (lo is None or lo <= LEVELS_ABOVE) and (hi is None or LEVELS_ABOVE < hi)
     notes = [f"commit {stamp['commit']}, {stamp['date']}, {stamp['cpu_model']} ({stamp['cores']} cores); load "
              f"average at the start {stamp['load_start']}, at the end {load_average()} (shared machine)",
              "CPU seconds of the solve alone (process CPU, after an untimed warm-up solve), one run per row",
              "multilevel rows: at least one coarser level (direct_max = min(DIRECT_MAX, n // 3))",
              f"shapes: the staggered method paid on every case up to {lo} vertices, the multilevel method on every "
-             f"case from {hi}; the rule switches above DIRECT_MAX = {DIRECT_MAX} "
+             f"case from {hi}; the rule switches above LEVELS_ABOVE = {LEVELS_ABOVE} "
              f"({'consistent with every case' if fits else 'NOT consistent with the measurement'})"]
     text = write_markdown(out / "method_choice.md", "Method choice: staggered vs multilevel", notes,
                           [("", lines, CASE_COLUMNS)])

@@ -1,63 +1,68 @@
 """Which method solves a problem when the user leaves the choice to us (``--method auto``).
 
 The multilevel method (:mod:`.multilevel`) pays where the single-level staggered method's
-schedule gets long: above :data:`~.multilevel.DIRECT_MAX` vertices, where it builds coarser
-levels. Below it the multilevel method would solve on one level anyway, and the staggered
-method is that solve. Measured with ``python -m studies.method_choice`` (CPU seconds, the
-multilevel method given one coarser level at every size): at 1k–4k vertices the levels cost
-more than they save on every shape, at 16k they paid on all but the dome, and a 64k pillar
-vault converged in 40 s by levels where one level ran into its 600 s limit at fit error 0.44.
+schedule gets long. Measured with ``python -m studies.method_choice`` (CPU seconds of the solve,
+the multilevel method given at least one coarser level; README, *Choosing the method*): MEASURED.
 
-The rule looks at the problem only — never at the scene's name:
+The rule looks at the problem only, never at the scene's name:
 
-* the masonry hull (``--hull``): the staggered method (its penalty ladder is run on one level);
-* at most :data:`~.multilevel.DIRECT_MAX` vertices: the staggered method;
+* the masonry hull (``--hull``): the staggered method (its penalty ladder runs on one level);
+* at most :data:`LEVELS_ABOVE` vertices: the staggered method;
 * data tied to this mesh's vertices (point loads, extra masses, per-edge bounds, objective terms
-  or constraints built on it: :func:`~.multilevel.why_not`): the staggered method — no coarser
-  level can carry them;
+  or constraints built on it: :func:`~.multilevel.why_not`): the staggered method, since no
+  coarser level can carry them;
 * a start network: the multilevel method when it lies on one of the coarser scenes this one
   was subdivided from (the levels go up from it), else the staggered method from it;
 * a scene subdivided from coarser designs: the multilevel method on those designs;
 * a mesh without boundary (its top view has no outline to coarsen): the staggered method;
 * otherwise the multilevel method on coarsened top views.
 
->>> from selfsupport.shapes import make_shape
+Above :data:`LEVELS_ABOVE` and up to the multilevel method's own
+:data:`~.multilevel.DIRECT_MAX` the multilevel method is run with ``direct_max`` =
+:data:`LEVELS_ABOVE`, so that it does build a coarser level there; above ``DIRECT_MAX`` it
+runs as it is.
+
 >>> from formulations import Problem
 >>> from selfsupport.loads import SelfWeight
+>>> from selfsupport.shapes import make_shape
 >>> choose_method(Problem.build(make_shape("dome", n_vertices=300), SelfWeight())).method
 'staggered'
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Mapping
 
 if TYPE_CHECKING:
     from formulations import Problem
 
-__all__ = ["AUTO", "MethodChoice", "choose_method"]
+__all__ = ["AUTO", "LEVELS_ABOVE", "MethodChoice", "choose_method"]
 
 #: The method name (``--method``) that leaves the choice to :func:`choose_method`.
 AUTO = "auto"
+#: Meshes with more vertices than this are solved by levels where they can be. MEASURED.
+LEVELS_ABOVE = 3000
 
 
 @dataclass(frozen=True)
 class MethodChoice:
-    """The method :func:`choose_method` picked (a name of :data:`selfsupport.api.METHODS`) and
-    why, in one line."""
+    """The method :func:`choose_method` picked (a name of :data:`selfsupport.api.METHODS`), one
+    line saying why, and keywords for its constructor (:func:`selfsupport.api.make_method`)."""
 
     method: str
     why: str
+    settings: Mapping[str, Any] = field(default_factory=dict)
 
-    def as_dict(self) -> dict[str, str]:
+    def as_dict(self) -> dict[str, Any]:
         """What a result's ``parameters["method_choice"]`` records."""
-        return {"requested": AUTO, "method": self.method, "why": self.why}
+        return {"requested": AUTO, "method": self.method, "why": self.why, **({"settings": dict(self.settings)}
+                                                                            if self.settings else {})}
 
 
-def choose_method(problem: Problem, *, warm_start: Any = None, direct_max: int | None = None) -> MethodChoice:
-    """The method for ``problem``: ``"multilevel"`` where coarser levels can be built or exist
-    and the mesh has more than ``direct_max`` vertices, else ``"staggered"`` (see the module
-    docstring for the rule and its measurement).
+def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int | None = None) -> MethodChoice:
+    """The method for ``problem``: ``"multilevel"`` where the mesh has more than
+    ``levels_above`` vertices and coarser levels exist or can be built, else ``"staggered"``
+    (the rule and its measurement: see the module docstring).
 
     Parameters
     ----------
@@ -66,40 +71,41 @@ def choose_method(problem: Problem, *, warm_start: Any = None, direct_max: int |
     warm_start
         The network the solve starts from, if any (a network, a result or a
         :class:`~.warm.WarmStart`).
-    direct_max
-        Meshes up to this many vertices are solved on one level (default: the multilevel
-        method's own, :data:`~.multilevel.DIRECT_MAX`).
+    levels_above
+        Meshes up to this many vertices are solved on one level (default :data:`LEVELS_ABOVE`).
 
     Returns
     -------
     MethodChoice
-        The method's name and one line saying why.
+        The method's name, one line saying why, and its constructor's keywords.
     """
     # (imported here: the command line reads AUTO when it builds its parser)
     from ..design.subdivision import subdivision_parents
     from .multilevel import DIRECT_MAX, Multilevel, why_not
     from .warm import as_warm_start
 
-    direct_max = DIRECT_MAX if direct_max is None else int(direct_max)
+    levels_above = LEVELS_ABOVE if levels_above is None else int(levels_above)
     scene = problem.scene
     n = scene.mesh.n_vertices
     size = f"{n:,} vertices"
     if problem.hull_thickness() is not None:
         return MethodChoice("staggered", f"{size}; the masonry hull search runs on one level")
-    if n <= direct_max:
-        return MethodChoice("staggered", f"{size} <= {direct_max:,}: one level is fastest at this size")
+    if n <= levels_above:
+        return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
     why = why_not(problem)
     if why:
         return MethodChoice("staggered", f"{size}, but {why}: no coarser level can carry it, one level")
+    # (the multilevel method builds levels only above its direct_max)
+    settings = {"direct_max": levels_above} if n <= DIRECT_MAX else {}
+    more = f"{size} > {levels_above:,}"
     if warm_start is not None:
-        ml = Multilevel(direct_max=direct_max)
-        if len(ml.levels_from(as_warm_start(warm_start).network, scene)) > 1:
-            return MethodChoice("multilevel", f"{size} > {direct_max:,}, starting from a coarser design it was "
-                                              "subdivided from: up its subdivision levels")
+        if len(Multilevel(**settings).levels_from(as_warm_start(warm_start).network, scene)) > 1:
+            return MethodChoice("multilevel", f"{more}, starting from a coarser design it was subdivided from: "
+                                              "up its subdivision levels", settings)
         return MethodChoice("staggered", f"{size}; starting from the given network, one level from it")
     if subdivision_parents(scene):
-        return MethodChoice("multilevel", f"{size} > {direct_max:,}: the coarser designs it was subdivided "
-                                          "from solved first")
+        return MethodChoice("multilevel", f"{more}: the coarser designs it was subdivided from solved first",
+                            settings)
     if not scene.mesh.boundary_loops:
         return MethodChoice("staggered", f"{size}, but the mesh has no boundary to coarsen: one level")
-    return MethodChoice("multilevel", f"{size} > {direct_max:,}: coarsened top views solved first")
+    return MethodChoice("multilevel", f"{more}: coarsened top views solved first", settings)
