@@ -160,6 +160,21 @@ def test_an_explicit_staggered_method_is_honoured_above_the_switch(tmp_path, cap
     assert "multilevel" not in doc["parameters"]
 
 
+def test_choosing_for_a_small_mesh_does_not_load_the_multilevel_method():
+    """The rule settles a small mesh before it needs the multilevel machinery (half a second of
+    imports, paid by every small solve's process otherwise)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from selfsupport import api; from selfsupport.shapes import make_shape; "
+            "r = api.solve(make_shape('dome', n_vertices=200)); "
+            "assert r.parameters['method_choice']['method'] == 'staggered'; "
+            "print('selfsupport.methods.multilevel' in sys.modules)")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "False"
+
+
 def test_auto_needs_no_more_memory_than_the_methods_it_picks(tmp_path):
     """The memory guard estimates ``auto`` as the staggered / multilevel methods it runs (not as
     IPOPT's 6× larger need): a limit the staggered estimate fits under admits it."""
@@ -191,3 +206,13 @@ def test_the_study_brackets_the_switch_between_sizes_where_one_method_always_pai
     assert threshold_interval(cases) == (1000, 16000)
     assert threshold_interval([(1000, "multilevel"), (4000, "multilevel")]) == (None, 1000)
     assert threshold_interval([(1000, "staggered"), (4000, "staggered")]) == (4000, None)
+
+
+def test_the_study_examples():
+    """studies/ is not collected for doctests (scripts); the study's examples run here."""
+    import doctest
+
+    from studies import method_choice
+
+    result = doctest.testmod(method_choice, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 4 and result.failed == 0

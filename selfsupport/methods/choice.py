@@ -79,11 +79,6 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
     MethodChoice
         The method's name, one line saying why, and its constructor's keywords.
     """
-    # (imported here: the command line reads AUTO when it builds its parser)
-    from ..design.subdivision import subdivision_parents
-    from .multilevel import DIRECT_MAX, Multilevel, why_not
-    from .warm import as_warm_start
-
     levels_above = LEVELS_ABOVE if levels_above is None else int(levels_above)
     scene = problem.scene
     n = scene.mesh.n_vertices
@@ -92,6 +87,11 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
         return MethodChoice("staggered", f"{size}; the masonry hull search runs on one level")
     if n <= levels_above:
         return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
+    # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
+    from ..design.subdivision import subdivision_parents
+    from .multilevel import DIRECT_MAX, Multilevel, why_not
+    from .warm import as_warm_start
+
     why = why_not(problem)
     if why:
         return MethodChoice("staggered", f"{size}, but {why}: no coarser level can carry it, one level")
