@@ -132,7 +132,7 @@ ROW_COLUMNS = [Column("case", "case"), Column("kind", "kind"), Column("method", 
                Column("iterations", "it."), Column("cpu_s", "CPU s", "{:.2f}"), Column("wall_s", "wall s", "{:.2f}"),
                Column("max_relative_error", "max rel. error", "{:.1e}"),
                Column("distance_mean", "mean distance", "{:.3e}"), Column("rule", "rule"),
-               Column("rule_why", "why"), Column("load_start", "load"), Column("message", "message")]
+               Column("rule_why", "why"), Column("load", "load before the row"), Column("message", "message")]
 CASE_COLUMNS = [Column("case", "case"), Column("vertices", "vertices"),
                 Column("staggered", "staggered: status / it. / CPU s"),
                 Column("multilevel", "multilevel: levels / status / CPU s"),
@@ -190,13 +190,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             r = run_isolated("studies.method_choice:solve_row",
                              {"source": source, "method": method, "time_limit": args.time_limit,
                               "scenes_dir": scenes_dir}, hard_timeout=args.time_limit * 1.5 + 120)
-            r = {"case": case, "kind": "scene" if scenes_dir else "shape", "method": method,
-                 "load_start": load_average(), **stamp, **r}
+            r = {**stamp, "case": case, "kind": "scene" if scenes_dir else "shape", "method": method,
+                 "load": load_average(), **r}
             by_method[method] = r
             rows.append(r)
             print(f"{case:>24} {method:>10}: {r.get('status')} it={r.get('iterations')} "
                   f"cpu={float(r.get('cpu_s', float('nan'))):.2f}s wall={float(r.get('wall_s', float('nan'))):.2f}s "
-                  f"levels={r.get('levels')} load={r['load_start']}", flush=True)
+                  f"levels={r.get('levels')} load={r['load']}", flush=True)
         lines.append(_case_line(case, by_method))
         write_csv(out / "method_choice.csv", rows, ROW_COLUMNS + [Column(k, k) for k in stamp])
     from selfsupport.methods.choice import LEVELS_ABOVE
