@@ -321,7 +321,9 @@ def _not_converged_line(result) -> str:
     hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
             else HULL_HINT if in_hull else STATUS_HINT.get(result.status, "try the other method"))
     n = result.network.mesh.n_vertices
-    if result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]:
+    # (not after --method auto: it chose one level because no coarser level could carry the problem)
+    if (result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]
+            and "method_choice" not in result.parameters):
         from .methods.multilevel import DIRECT_MAX
 
         if n > DIRECT_MAX:
@@ -385,8 +387,8 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                         "to pay, else staggered; the summary says which and why)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
                    help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
-                        "creases), e.g. to fabrication resolution; the multilevel method then solves the "
-                        "design and each step in turn, each from the one before")
+                        "creases), e.g. to fabrication resolution; the multilevel method (which auto picks for a "
+                        "mesh large enough) then solves the design and each step in turn, each from the one before")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
                         "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")

@@ -160,6 +160,26 @@ def test_an_explicit_staggered_method_is_honoured_above_the_switch(tmp_path, cap
     assert "multilevel" not in doc["parameters"]
 
 
+def test_a_big_mesh_auto_kept_on_one_level_is_not_pointed_to_the_multilevel_method(tmp_path, capsys, monkeypatch):
+    """A stalled staggered solve above DIRECT_MAX is told to try the multilevel method, unless
+    auto chose one level because no coarser level can carry the problem (it would solve on one
+    level all the same)."""
+    from selfsupport.result import SolveResult
+
+    scene = make_shape("dome", n_vertices=int(DIRECT_MAX * 1.1))
+    net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
+                  supports=scene.supports, reference=scene.mesh)
+    why = choose_method(api.problem(scene, point_loads={5: 100.0})).as_dict()
+    fake = SolveResult.build(net, status="stalled", method="staggered", backend="active-set", iterations=57,
+                             wall_time=0.1, message="the fit error stopped falling",
+                             parameters={"tol": 1e-9, "method_choice": why})
+    monkeypatch.setattr(api, "solve", lambda *a, **k: fake)
+    code = cli.main(["solve", f"shape:dome:{scene.mesh.n_vertices}", "--point-load", "5:100",
+                     "--out", str(tmp_path / "n.json"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and len(err) == 1 and "--method multilevel" not in err[0]
+
+
 def test_choosing_for_a_small_mesh_does_not_load_the_multilevel_method():
     """The rule settles a small mesh before it needs the multilevel machinery (half a second of
     imports, paid by every small solve's process otherwise)."""
