@@ -281,7 +281,7 @@ def problem(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float 
 
 
 # -------------------------------------------------------------------------------- solve
-def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "auto", backend: str | None = None,
+def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backend: str | None = None,
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: Any = None,
           eps: Any = None, tol: float | None = None, max_iter: int | None = None,
           time_limit: float | None = None, supports: Any = None, up: str | None = None,

@@ -23,12 +23,13 @@ import os
 from pathlib import Path
 
 from .errors import TooLarge
+from .methods.choice import AUTO
 
 GIB = 1024.0 ** 3
 #: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
 BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "multilevel": 16e3, "ipopt": 100e3, "nlopt": 100e3}
 #: ``--method auto`` runs one of these two (selfsupport.methods.choice): the larger of their rates.
-BYTES_PER_VERTEX["auto"] = max(BYTES_PER_VERTEX["staggered"], BYTES_PER_VERTEX["multilevel"])
+BYTES_PER_VERTEX[AUTO] = max(BYTES_PER_VERTEX["staggered"], BYTES_PER_VERTEX["multilevel"])
 #: The interpreter and libraries before any mesh (measured: 96 MB).
 BASE_BYTES = 150e6
 
@@ -77,7 +78,7 @@ def check_memory(n_vertices: int, method: str = "staggered", max_memory: float |
     if need > has:
         where = (f"--max-memory allows {_gib(has)} GiB" if max_memory is not None
                  else f"this machine has {_gib(has)} GiB available")
-        named = "" if method == "auto" else f"{method} "  # (auto: the method is not chosen yet)
+        named = "" if method == AUTO else f"{method} "  # (auto: the method is not chosen yet)
         raise TooLarge(f"a {named}solve of {n_vertices:,} vertices needs about {_gib(need)} GiB, {where}; "
                        "use --max-memory or a coarser mesh")
     return need
