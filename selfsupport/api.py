@@ -33,6 +33,7 @@ import numpy as np
 
 from .errors import BackendUnavailable, InputError
 from .loads import G, LoadCase, SelfWeight, with_scene_extras
+from .methods.choice import AUTO
 from .mesh import PolyMesh
 from .result import Network, SolveResult
 from .scene import Scene
@@ -41,8 +42,9 @@ from .validate import load_issues, validate_scene
 from formulations import Bounds, Problem
 from formulations.problem import stress_w_max
 
-__all__ = ["METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY", "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
+__all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
+           "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
+           "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
 DEFAULT_DENSITY = 2000.0
@@ -121,18 +123,19 @@ def method_class(name: str) -> type:
     return spec.load()
 
 
-def make_method(name: str = "staggered", backend: str | None = None) -> Any:
+def make_method(name: str = "staggered", backend: str | None = None, **settings: Any) -> Any:
     """An instance of method ``name``; ``backend`` picks its inner solver where it has a choice
-    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``)."""
+    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``);
+    ``settings`` are further keywords of its constructor."""
     cls = method_class(name)
     if backend is None:
-        return cls()
+        return cls(**settings)
     names = METHODS[name].backend_names()
     if not names:
         raise InputError(f"method {name!r} has no backend choice; leave --backend out")
     if backend not in names:
         raise InputError(f"unknown backend {backend!r} for method {name!r}; choose one of {', '.join(names)}")
-    return cls(backend=backend)
+    return cls(backend=backend, **settings)
 
 
 # ------------------------------------------------------------------------------- scenes
@@ -323,7 +326,7 @@ def weight_bounds(scene: Scene, *, eps: Any = None, w_max: Any = None, bounds: A
 
 
 # -------------------------------------------------------------------------------- solve
-def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered", backend: str | None = None,
+def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backend: str | None = None,
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: Any = None,
           eps: Any = None, tol: float | None = None, max_iter: int | None = None,
           time_limit: float | None = None, supports: Any = None, up: str | None = None,
@@ -341,7 +344,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         that stores its reference is solved for that reference, starting from the stored
         network (:func:`design_of`).
     method
-        A name in :data:`METHODS`: ``"staggered"`` (default), ``"ipopt"``, ``"nlopt"``.
+        A name in :data:`METHODS` (``"staggered"``, ``"multilevel"``, ``"ipopt"``, ``"nlopt"``) or
+        ``"auto"`` (default): the multilevel method where it pays, else the staggered method
+        (:func:`~selfsupport.methods.choice.choose_method`; ``parameters["method_choice"]`` says
+        which and why).
     backend
         The method's inner solver, where it has a choice (staggered: Step-2 backend,
         default ``"active-set"``).
@@ -388,8 +394,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         Its ``parameters`` gain ``"loads"`` (the self-weight ρ, t), ``"load_model"`` (every load,
         so the file can be re-checked case by case), ``"input_issues"``: the warnings of
         :func:`~selfsupport.validate.validate_scene` and :func:`~selfsupport.validate.load_issues`
-        as dicts, and ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
-        the staggered history records' ``cpu_s``) and spent in it (``solve``).
+        as dicts, ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
+        the staggered history records' ``cpu_s``) and spent in it (``solve``), and with
+        ``method="auto"`` ``"method_choice"``: the method chosen and why (one line).
 
     Raises
     ------
@@ -417,6 +424,12 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
                          bounds=weight_bounds(scene, eps=eps, w_max=w_max, bounds=bounds, max_stress=max_stress,
                                               thickness=thickness))
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
+    choice, settings = None, {}
+    if method == AUTO:  # (the rule, from the problem: selfsupport.methods.choice)
+        from .methods.choice import choose_method
+
+        choice = choose_method(prob, warm_start=start)
+        method, settings = choice.method, dict(choice.settings)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
     if options:
         if method not in ("staggered", "multilevel"):
@@ -426,7 +439,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
         from .options import check_options
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
-    solver = make_method(method, backend)
+    solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit
     from .methods.deadline import finish_reserve
@@ -453,6 +466,8 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = "staggered"
     tension = result.tension()
     if tension["edges"] or prob.bounds.allows_tension:  # (reported whenever tension was allowed)
         extra["tension"] = tension
+    if choice is not None:
+        extra["method_choice"] = choice.as_dict()
     cpu = {"at_entry": cpu_entry, "solve": time.process_time() - cpu_entry}  # process CPU seconds
     return replace(result, parameters={**result.parameters, "loads": load_model, "load_model": spec.describe(),
                                        "input_issues": [i.as_dict() for i in issues], "cpu": cpu, **extra})

@@ -2,7 +2,7 @@
 
 ::
 
-    selfsupport solve SCENE --out NET.json [--method staggered|ipopt|nlopt] [...]
+    selfsupport solve SCENE --out NET.json [--method auto|staggered|multilevel|ipopt|nlopt] [...]
     selfsupport check MESH_OR_NET [--supports ...] [--tol 1e-6] [--out NET.json]
     selfsupport demo [--out DIR] [--shape NAME] [--vertices N]
 
@@ -276,7 +276,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
     rows = [("scene", scene.name), ("vertices", str(net.mesh.n_vertices)),
             ("edges", f"{net.mesh.n_edges} ({int(net.active_edges.sum())} carrying a weight)"),
             ("supports", str(int(net.supports.sum()))),
-            ("method", result.method), ("backend", result.backend), ("status", result.status),
+            ("method", _method_text(result)), ("backend", result.backend), ("status", result.status),
             ("iterations", str(result.iterations)), ("time", f"{result.wall_time:.2f} s"),
             ("max relative error", f"{result.max_relative_error:.3e}"),
             ("min weight", f"{result.min_weight:.4g} N/m"),
@@ -313,6 +313,12 @@ def tension_rows(result) -> list[tuple[str, str]]:
     return [("tension edges", f"{t['edges']} (most negative weight {t['min_weight']:.4g} N/m)")]
 
 
+def _method_text(result) -> str:
+    """The summary's method: its name, and with ``--method auto`` why it was chosen."""
+    choice = result.parameters.get("method_choice")
+    return f"{result.method} (auto: {choice['why']})" if choice else result.method
+
+
 def _not_converged_line(result) -> str:
     """One line for a solve that did not converge, true to what was written.
 
@@ -326,7 +332,9 @@ def _not_converged_line(result) -> str:
     hint = ("see the message for what to change" if result.parameters.get("roundoff_limit")
             else HULL_HINT if in_hull else STATUS_HINT.get(result.status, "try the other method"))
     n = result.network.mesh.n_vertices
-    if result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]:
+    # (not after --method auto: it chose one level because no coarser level could carry the problem)
+    if (result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]
+            and "method_choice" not in result.parameters):
         from .methods.multilevel import DIRECT_MAX
 
         if n > DIRECT_MAX:
@@ -407,7 +415,7 @@ def not_in_equilibrium_line(network, tol: float, path: str, hint: str) -> str:
 
 # ----------------------------------------------------------------------------- solve
 def _solve_args(p: argparse.ArgumentParser) -> None:
-    from .api import METHODS
+    from .api import AUTO, METHODS
 
     add_scene_arguments(p)
     # what a network file means as input (api.design_of): said here, where a user re-solving looks
@@ -416,12 +424,13 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                 "nlopt and the staggered --hull search start from the reference); its reference_vertices "
                 "are written unchanged. A file without a stored reference is its own reference.")
     add_network_out_arguments(p)
-    p.add_argument("--method", choices=list(METHODS), default=None,
-                   help="solution method (default staggered; with --subdivide, multilevel)")
+    p.add_argument("--method", choices=[AUTO, *METHODS], default=AUTO,
+                   help="solution method (default auto: multilevel on a mesh large enough for coarser levels "
+                        "to pay, else staggered; the summary says which and why)")
     p.add_argument("--subdivide", type=positive_int, default=None, metavar="K",
                    help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
-                        "creases), e.g. to fabrication resolution; the multilevel method then solves the "
-                        "design and each step in turn, each from the one before")
+                        "creases), e.g. to fabrication resolution; the multilevel method (which auto picks for a "
+                        "mesh large enough) then solves the design and each step in turn, each from the one before")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
                         "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")
@@ -521,9 +530,7 @@ def _run_solve(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir(args.report, what="--report", files=report_files(), inputs=inputs + [("--out", args.out)])
     options = dict(parse_option(o) for o in args.option)
-    # a subdivided design by its own levels unless told otherwise (lilium subdivided twice: the single
-    # level stalled, the levels converged in 3.3 s)
-    method = args.method or ("multilevel" if args.subdivide else "staggered")
+    method = args.method  # ("auto": a subdivided design large enough goes up its own levels)
     check_scene_spec(args.scene, method, args.max_memory)  # a built-in shape: before it is built
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     if args.subdivide:  # (of the design a network file stores, not of its network)

@@ -23,10 +23,13 @@ import os
 from pathlib import Path
 
 from .errors import TooLarge
+from .methods.choice import AUTO
 
 GIB = 1024.0 ** 3
 #: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
 BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "multilevel": 16e3, "ipopt": 100e3, "nlopt": 100e3}
+#: ``--method auto`` runs one of these two (selfsupport.methods.choice): the larger of their rates.
+BYTES_PER_VERTEX[AUTO] = max(BYTES_PER_VERTEX["staggered"], BYTES_PER_VERTEX["multilevel"])
 #: The interpreter and libraries before any mesh (measured: 96 MB).
 BASE_BYTES = 150e6
 
@@ -117,7 +120,8 @@ def check_memory(n_vertices: int, method: str = "staggered", max_memory: float |
         where = (f"--max-memory allows {_gib(has)} GiB" if max_memory is not None
                  else f"this machine has {_gib(has)} GiB available")
         cases = f" under {n_cases:,} load cases" if n_cases > 1 else ""
-        raise TooLarge(f"{what or f'a {method} solve'} of {n_vertices:,} vertices{cases} needs about {_gib(need)} GiB, {where}; "
+        named = "" if method == AUTO else f"{method} "  # (auto: the method is not chosen yet)
+        raise TooLarge(f"{what or f'a {named}solve'} of {n_vertices:,} vertices{cases} needs about {_gib(need)} GiB, {where}; "
                        f"use --max-memory{', a coarser mesh or fewer load cases' if cases else ' or a coarser mesh'}")
     return need
 

@@ -191,7 +191,7 @@ def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys
 
 def test_solve_subdivides_the_design_and_solves_it_on_the_designers_levels(tmp_path):
     """``--subdivide K``: the design refined by K Catmull–Clark steps is what is solved (the same
-    supports), by default with the multilevel method on levels that are the design and its steps;
+    supports), by default (auto) with the multilevel method on levels that are the design and its steps;
     the file stands by the independent checker. A network file's *design* is subdivided (its
     stored reference), not its network."""
     from selfsupport.design.subdivision import subdivide_scene
@@ -204,6 +204,7 @@ def test_solve_subdivides_the_design_and_solves_it_on_the_designers_levels(tmp_p
     assert np.array_equal(np.asarray(doc["reference_vertices"]), expected.mesh.vertices)
     assert sorted(doc["supports"]) == np.flatnonzero(expected.supports).tolist()
     assert doc["method"] == "multilevel"
+    assert "subdivided" in doc["parameters"]["method_choice"]["why"]  # (the default chose it, and says why)
     levels = doc["parameters"]["multilevel"]["levels"]
     assert expected.mesh.n_vertices > 6000 and [lv["coarsening"] for lv in levels] == ["subdivision", None]
     assert independent_check(out).ok

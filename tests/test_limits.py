@@ -191,7 +191,7 @@ def test_a_subdivision_beyond_the_memory_is_refused_before_it_is_built(monkeypat
     assert time.perf_counter() - t0 < 5.0 * load_factor()
     assert code == cli.EXIT_CODES["input"] and len(err) == 1 and not out.exists()
     n = subdivision.subdivided_vertex_count(make_shape("dome", n_vertices=200).mesh, 10)
-    assert f"a multilevel solve of {n:,} vertices" in err[0] and "--max-memory or a coarser mesh" in err[0]
+    assert f"a solve of {n:,} vertices" in err[0] and "--max-memory or a coarser mesh" in err[0]
 
 
 def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsys):

@@ -95,7 +95,7 @@ def vault_runs():
     scene = make_shape("pillar_vault", n_vertices=3000)
     records: list[dict] = []
     ml = Multilevel(direct_max=900).solve(scene, progress=records.append)
-    cold = api.solve(scene)
+    cold = api.solve(scene, method="staggered")  # (one level: the default picks levels at 3,000 vertices)
     return scene, ml, cold, records
 
 
@@ -494,3 +494,30 @@ def test_a_large_fine_level_stopped_out_of_equilibrium_is_solved_cold_unless_rou
         assert cold == [levels[0]["n_vertices"], scene.mesh.n_vertices]
         assert levels[2]["cold_after"] == "stalled" and res.status == "converged"
         assert res.max_relative_error <= 1e-9 and independent_check(res).ok
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_ctrl_c_on_any_level_ends_the_solve(level):
+    """Ctrl-C inside a level's iterations ends the whole solve, with no iteration after it: on a
+    coarse level it propagates (that level's network is no answer for the fine mesh, and starting
+    the fine level cold instead ran a 16k vault on for two minutes); on the finest the answer is
+    that level's network, labelled interrupted (not a cold solve of it run to convergence)."""
+    scene = make_shape("pillar_vault", n_vertices=1600)
+    after: list[dict] = []
+    raised = []
+
+    def progress(rec):
+        if raised:
+            after.append(rec)
+        elif rec.get("level") == level and isinstance(rec.get("iteration"), int):
+            raised.append(rec)
+            raise KeyboardInterrupt
+
+    ml = Multilevel(direct_max=500, prolongation="interpolation")  # (so that the fine level iterates)
+    if level == 0:
+        with pytest.raises(KeyboardInterrupt):
+            ml.solve(scene, progress=progress)
+    else:
+        res = ml.solve(scene, progress=progress)
+        assert res.status == "interrupted" and res.network.mesh.n_vertices == scene.mesh.n_vertices
+    assert raised and not [r for r in after if isinstance(r.get("iteration"), int)]

@@ -97,7 +97,7 @@ from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 from .weight_refit import edge_bounds, refit_weights
 from .weightfit import WeightFitBackend
 
-__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
+__all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "why_not", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
            "START_TOL"]
 
 #: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
@@ -371,7 +371,7 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
                  meta={"coarsening": "delaunay"})
 
 
-def _why_not(problem: Problem) -> str | None:
+def why_not(problem: Problem) -> str | None:
     """Why ``problem`` cannot be restated on a coarser mesh (``None``: it can)."""
     scene = problem.scene
     if scene.extra_mass is not None or scene.point_loads is not None:
@@ -484,7 +484,7 @@ class Multilevel:
         opts = {**dict(options or {}), **overrides}
         # one deadline for all levels (each level's messages name the whole limit)
         deadline = t0 + float(opts.get("time_limit", self.staggered.options.time_limit)) if deadline is None else deadline
-        why = _why_not(problem)
+        why = why_not(problem)
         if why:
             scenes = [problem.scene]
         elif warm_start is not None:
@@ -537,7 +537,7 @@ class Multilevel:
                         probe = self.staggered.solve(prob, {**opts, "max_iter": 1}, progress=step,
                                                      deadline=deadline)
                         carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
-                        if probe.status == "converged":
+                        if probe.status in ("converged", "interrupted"):  # (Ctrl-C ends the level too)
                             probed = probe
                         else:
                             extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
@@ -559,6 +559,11 @@ class Multilevel:
                 step(_carried_record(carried))
             res = probed or self.staggered.solve(prob, {**opts, **extra}, progress=step, deadline=deadline,
                                                  warm_start=warm)
+            if res.status == "interrupted":  # Ctrl-C: no level, refinement or cold solve after it
+                if scene is not problem.scene:  # (a coarser level's network is no answer for this mesh)
+                    raise KeyboardInterrupt(f"interrupted on level {k} ({scene.mesh.n_vertices} vertices)")
+                levels.append({**self._level(res, scene), **({"prolongation": carried} if carried else {})})
+                break
             tol = float(res.parameters.get("tol", self.staggered.options.tol))
             if (carried is not None and carried["by"] == "stress, nearest" and res.status != "converged"
                     and not res.max_relative_error <= pro.max_relative_error):
@@ -595,7 +600,7 @@ class Multilevel:
                 # converge, 61 s / 72 s). The nearer to equilibrium is kept.
                 cold = self.staggered.solve(problem, opts, progress=step, deadline=deadline)
                 levels.append({**self._level(cold, scene), "cold_after": res.status})
-                if cold.status == "converged" or cold.max_relative_error < res.max_relative_error:
+                if cold.status in ("converged", "interrupted") or cold.max_relative_error < res.max_relative_error:
                     began = "from interpolated heights" if carried["by"] == "interpolation" else \
                         f"from its prolongation ({carried['by']})"
                     why = f"the fine level iterated {began} ended {res.status}: it was solved cold"

@@ -1,0 +1,120 @@
+"""Which method solves a problem when the user leaves the choice to us (``--method auto``).
+
+The multilevel method (:mod:`.multilevel`) pays where the single-level staggered method's
+schedule gets long. Measured with ``python -m studies.method_choice`` (one run, CPU seconds of
+the solve, the multilevel method given at least one coarser level; README, *Choosing the
+method*): on the dome the levels cost 2.9-3.4x the CPU up to 3k vertices and broke even at 4k;
+on the pillar vault and the concave disk they paid from 2k (1.6-2.1x); at 4k they paid on every
+shape (1.06-12.8x), at 16k by 1.6-6.7x, and a 64k pillar vault converged by levels in 22 s of
+CPU where one level stopped at its 600 s limit at max relative error 0.34. On the paper's
+Table 1 scenes (527-2,348 vertices) levels saved CPU on lilium and lilium-pillar (1.6-1.7x),
+cost it on the other four (1.2-2.6x) and ended up to 3.7x farther from the reference: they
+stay on one level, with their results as they were.
+
+The rule looks at the problem only, never at the scene's name:
+
+* the masonry hull (``--hull``): the staggered method (its penalty ladder runs on one level);
+* at most :data:`LEVELS_ABOVE` vertices: the staggered method;
+* data tied to this mesh's vertices (point loads, extra masses, per-edge bounds, objective terms
+  or constraints built on it: :func:`~.multilevel.why_not`): the staggered method, since no
+  coarser level can carry them;
+* a start network: the multilevel method when it lies on one of the coarser scenes this one
+  was subdivided from (the levels go up from it), else the staggered method from it;
+* a scene subdivided from coarser designs: the multilevel method on those designs;
+* a mesh without boundary (its top view has no outline to coarsen): the staggered method;
+* otherwise the multilevel method on coarsened top views.
+
+Above :data:`LEVELS_ABOVE` and up to the multilevel method's own
+:data:`~.multilevel.DIRECT_MAX` the multilevel method is run with ``direct_max`` =
+:data:`LEVELS_ABOVE`, so that it does build a coarser level there; above ``DIRECT_MAX`` it
+runs as it is.
+
+>>> from formulations import Problem
+>>> from selfsupport.loads import SelfWeight
+>>> from selfsupport.shapes import make_shape
+>>> choose_method(Problem.build(make_shape("dome", n_vertices=300), SelfWeight())).method
+'staggered'
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Mapping
+
+if TYPE_CHECKING:
+    from formulations import Problem
+
+__all__ = ["AUTO", "LEVELS_ABOVE", "MethodChoice", "choose_method"]
+
+#: The method name (``--method``) that leaves the choice to :func:`choose_method`.
+AUTO = "auto"
+#: Meshes with more vertices than this are solved by levels where they can be: above the paper's
+#: scenes (up to 2,348 vertices, see the module docstring) and below 4k, where the levels paid on
+#: every measured shape (the dome lost by them up to 3k; the vaults gained from 2k).
+LEVELS_ABOVE = 3000
+
+
+@dataclass(frozen=True)
+class MethodChoice:
+    """The method :func:`choose_method` picked (a name of :data:`selfsupport.api.METHODS`), one
+    line saying why, and keywords for its constructor (:func:`selfsupport.api.make_method`)."""
+
+    method: str
+    why: str
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """What a result's ``parameters["method_choice"]`` records."""
+        return {"requested": AUTO, "method": self.method, "why": self.why, **({"settings": dict(self.settings)}
+                                                                            if self.settings else {})}
+
+
+def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int | None = None) -> MethodChoice:
+    """The method for ``problem``: ``"multilevel"`` where the mesh has more than
+    ``levels_above`` vertices and coarser levels exist or can be built, else ``"staggered"``
+    (the rule and its measurement: see the module docstring).
+
+    Parameters
+    ----------
+    problem
+        The problem to solve (its scene, loads, bounds, objective, constraints).
+    warm_start
+        The network the solve starts from, if any (a network, a result or a
+        :class:`~.warm.WarmStart`).
+    levels_above
+        Meshes up to this many vertices are solved on one level (default :data:`LEVELS_ABOVE`).
+
+    Returns
+    -------
+    MethodChoice
+        The method's name, one line saying why, and its constructor's keywords.
+    """
+    levels_above = LEVELS_ABOVE if levels_above is None else int(levels_above)
+    scene = problem.scene
+    n = scene.mesh.n_vertices
+    size = f"{n:,} vertices"
+    if problem.hull_thickness() is not None:
+        return MethodChoice("staggered", f"{size}; the masonry hull search runs on one level")
+    if n <= levels_above:
+        return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
+    # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
+    from ..design.subdivision import subdivision_parents
+    from .multilevel import DIRECT_MAX, Multilevel, why_not
+    from .warm import as_warm_start
+
+    why = why_not(problem)
+    if why:
+        return MethodChoice("staggered", f"{size}, but {why}: no coarser level can carry it, one level")
+    # (the multilevel method builds levels only above its direct_max)
+    settings = {"direct_max": levels_above} if n <= DIRECT_MAX else {}
+    more = f"{size} > {levels_above:,}"
+    if warm_start is not None:
+        if len(Multilevel(**settings).levels_from(as_warm_start(warm_start).network, scene)) > 1:
+            return MethodChoice("multilevel", f"{more}, starting from a coarser design it was subdivided from: "
+                                              "up its subdivision levels", settings)
+        return MethodChoice("staggered", f"{size}; starting from the given network, one level from it")
+    if subdivision_parents(scene):
+        return MethodChoice("multilevel", f"{more}: the coarser designs it was subdivided from solved first",
+                            settings)
+    if not scene.mesh.boundary_loops:
+        return MethodChoice("staggered", f"{size}, but the mesh has no boundary to coarsen: one level")
+    return MethodChoice("multilevel", f"{more}: coarsened top views solved first", settings)
