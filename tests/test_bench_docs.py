@@ -113,8 +113,13 @@ def test_paper_ipopt_converges_on_the_simple_scenes_only(table1):
 METHODS = "docs/guide/methods.md"
 
 
-def test_methods_refinement_gain_and_cost(table1, staggered):
-    m = sentence(METHODS, r"It ends (\S+)–(\S+)× closer to the reference on the paper's scenes, at (\S+)–(\S+)× the time")
+@pytest.mark.parametrize("page, pattern", [
+    (METHODS, r"It ends (\S+)–(\S+)× closer to the reference on the paper's scenes, at (\S+)–(\S+)× the time"),
+    ("docs/theory/refinement.md",
+     r"On the paper's scenes it ends (\S+)–(\S+)× closer to the reference than the default, at (\S+)–(\S+)× the time"),
+])
+def test_refinement_gain_and_cost(table1, staggered, page, pattern):
+    m = sentence(page, pattern)
     refined = by_scene(table1, REFINE)
     closer = [staggered[s]["dist_ref_mean"] / refined[s]["dist_ref_mean"] for s in refined]
     cost = [refined[s]["time_s"] / staggered[s]["time_s"] for s in refined]
@@ -132,8 +137,12 @@ def test_methods_default_on_table1(staggered):
     assert max(r["time_s"] for r in staggered.values()) < float(m[2])
 
 
-def test_methods_ipopt_does_not_finish_the_complex_shapes(table1):
-    m = sentence(METHODS, r"on complex shapes \(the paper's (.+?)\) it does not finish within (\w+) minutes")
+@pytest.mark.parametrize("page, pattern", [
+    (METHODS, r"on complex shapes \(the paper's (.+?)\) it does not finish within minutes"),
+    ("docs/theory/refinement.md", r"IPOPT on the full simultaneous problem does not finish (.+?) within minutes"),
+])
+def test_ipopt_does_not_finish_the_complex_shapes(table1, page, pattern):
+    m = sentence(page, pattern)
     ipopt = by_scene(table1, "simultaneous", "ipopt (cold)")
     assert all(ipopt[s]["status"] != "converged" for s in re.split(r", | and | or ", m[1]))
 
