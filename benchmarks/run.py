@@ -79,7 +79,8 @@ def _no_scenes(s: Settings) -> str:
 def _no_driver(s: Settings) -> str:
     from studies.peers import find_original_driver
 
-    return _no_scenes(s) or find_original_driver(s.original)[1]
+    reason = find_original_driver(s.original)[1]
+    return _no_scenes(s) or (f"{reason} (make bench: ORIGINAL=OUT)" if reason else "")
 
 
 def _checker(s: Settings) -> list[str]:

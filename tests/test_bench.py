@@ -160,7 +160,7 @@ def test_the_original_tool_without_a_driver_is_skipped_with_its_reason(tmp_path)
     lines: list[str] = []
     assert run.run_study(peers_study, here, work=tmp_path / "w", results=tmp_path / "r", log=lines.append) == "skipped"
     assert lines == [f"bench: peers skipped: no driver of the original tool at {tmp_path / 'build'}; build it with "
-                     "../shared/original-tool/build.sh OUT and pass --original-driver OUT"]
+                     "../shared/original-tool/build.sh OUT and pass --original-driver OUT (make bench: ORIGINAL=OUT)"]
 
 
 def test_a_failing_study_leaves_the_committed_csv_and_the_next_one_runs(tmp_path):
