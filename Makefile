@@ -5,6 +5,9 @@
 #   make docs        build the documentation site (MkDocs, --strict) into site/
 #   make test-slow   run the tests marked slow
 #   make fuzz        property-based fuzzing with the large hypothesis profile
+#   make bench       run the studies behind the documentation's numbers -> benchmarks/results/*.csv and the
+#                    generated page docs/benchmarks.md (20-40 minutes; BENCH_SIZES=1000,4000,16000,64000 for
+#                    the big scaling sizes, BENCH_ONLY=table1,pq for some studies)
 #   make lock        re-resolve requirements/*.lock from pyproject.toml's ranges (newest releases)
 #   make test-latest run the fast suite against the newest releases (.venv-latest) and list what moved
 #   make clean       remove the virtual environments, stamps and demo output
@@ -20,8 +23,13 @@ UV_VERSION := 0.13.9
 # Every pin, transitive ones and the build backend included, for Python 3.11+ on any platform.
 LOCK_FLAGS := --universal --python-version 3.11 --quiet --no-header --annotation-style line
 PYTEST_FAST := -q -m "not slow and not browser" -n auto
+# make bench's inputs: the paper's scenes, the original tool's build (../shared/original-tool/build.sh OUT)
+# and the independent checker, beside the checkout
+SCENES   ?= ../shared/paper-scenes/scenes
+ORIGINAL ?= ../build/original
+CHECKER  ?= ../shared/tools/check_network.py
 
-.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv docs
+.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv docs bench
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +60,11 @@ docs: $(STAMP_TEST)
 test: docs
 	$(BIN)/pytest $(PYTEST_FAST)
 	$(BIN)/pytest -q -m "browser and not slow"
+
+# A study that cannot run here (no scenes, no driver) is skipped with one line; the others still run.
+bench: $(STAMP_TEST)
+	$(BIN)/python -m benchmarks.run --scenes $(SCENES) --original $(ORIGINAL) --checker $(CHECKER) \
+		$(if $(BENCH_SIZES),--scaling-sizes $(BENCH_SIZES)) $(if $(BENCH_ONLY),--only $(BENCH_ONLY))
 
 test-slow: $(STAMP_TEST)
 	$(BIN)/pytest -q -m slow

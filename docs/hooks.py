@@ -3,15 +3,22 @@
 * ``<!-- cli-reference -->`` becomes one section per subcommand of ``selfsupport`` (its one-line
   help and its ``--help`` text), from :func:`selfsupport.cli.build_parser`;
 * ``<!-- network-schema -->`` becomes the network format's JSON Schema, as packaged
-  (``selfsupport/io/network.schema.json``).
+  (``selfsupport/io/network.schema.json``);
+* ``<!-- bench-table1 -->`` becomes the paper's Table 1 beside ours, from the committed
+  ``benchmarks/results/table1.csv`` (:func:`benchmarks.report.table1_comparison`).
 """
 from __future__ import annotations
 
 import argparse
 import os
+import sys
+from pathlib import Path
 
 MARKER = "<!-- cli-reference -->"
 SCHEMA_MARKER = "<!-- network-schema -->"
+TABLE1_MARKER = "<!-- bench-table1 -->"
+#: the checkout (benchmarks/ is not an installed package)
+ROOT = Path(__file__).resolve().parent.parent
 #: The width argparse wraps the help to (it reads COLUMNS), fixed so the page does not depend on
 #: the terminal the site was built in.
 WIDTH = "100"
@@ -47,10 +54,22 @@ def network_schema() -> str:
     return f"```json\n{text.rstrip()}\n```"
 
 
+def bench_table1() -> str:
+    """The Table 1 comparison from ``benchmarks/results/table1.csv``."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from benchmarks.report import RESULTS, table1_comparison, typed
+    from studies.common import read_csv_rows
+
+    return table1_comparison(typed(read_csv_rows(RESULTS / "table1.csv")))
+
+
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (mkdocs hook signature)
     """Replace the markers with the generated text."""
     if MARKER in markdown:
         markdown = markdown.replace(MARKER, cli_reference())
     if SCHEMA_MARKER in markdown:
         markdown = markdown.replace(SCHEMA_MARKER, network_schema())
+    if TABLE1_MARKER in markdown:
+        markdown = markdown.replace(TABLE1_MARKER, bench_table1())
     return markdown

@@ -429,6 +429,11 @@ class Column:
         return str(value).replace("|", "\\|").replace("\n", " ")
 
 
+#: The columns of :func:`run_stamp`, which every study's CSV ends with.
+STAMP_COLUMNS: tuple[Column, ...] = (Column("commit", "commit"), Column("date", "date"), Column("cpu_model", "CPU"),
+                                     Column("cores", "cores"), Column("load_start", "load at start (1/5/15 min)"))
+
+
 def write_csv(path: str | Path, rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> None:
     """Rows as CSV with the column keys as header (numbers unformatted, NaN as empty)."""
     buf = io.StringIO()

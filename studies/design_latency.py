@@ -1,7 +1,7 @@
 """Latency of ``selfsupport design``: from an edit sent to the new frame received.
 
     python -m studies.design_latency [--scene shape:pillar_vault:1200 | --scenes DIR (lilium)]
-                                     [--steps 30] [--step 0.001]
+                                     [--steps 30] [--step 0.001] [--out DIR]
 
 A real server (uvicorn on 127.0.0.1, :mod:`selfsupport.design.server`) and a scripted WebSocket
 client in this process. Each row is one kind of interaction, ``--steps`` edits, each sent when
@@ -23,7 +23,8 @@ Columns: median and 90th percentile of the end-to-end latency (send → frame pa
 client), of the solve alone (the frame's ``wall_time``) and of the server's time from receiving
 the edit to the frame's payload built (the edit, the solve, the payload); iterations (median)
 and the frame's size in bytes of JSON. A benchmark, not a timed test: the numbers depend on the
-machine and on its load (printed).
+machine and on its load (printed). ``--out DIR`` writes the rows to ``DIR/design_latency.csv``,
+each stamped (:func:`studies.common.run_stamp`) and with the scene's size.
 """
 from __future__ import annotations
 
@@ -36,6 +37,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from .common import STAMP_COLUMNS, Column, run_stamp, write_csv
+
+#: the CSV's columns (``--out``)
+COLUMNS = (Column("scene", "scene"), Column("vertices", "V"), Column("edges", "E"), Column("step", "step / diag"),
+           Column("interaction", "interaction"), Column("median_ms", "median [ms]"), Column("p90_ms", "p90 [ms]"),
+           Column("solve_ms", "solve [ms]"), Column("solve_p90_ms", "solve p90 [ms]"),
+           Column("server_ms", "server [ms]"), Column("server_p90_ms", "server p90 [ms]"),
+           Column("iterations", "iterations"), Column("frame_kb", "frame [kB]"), Column("steps", "edits"),
+           *STAMP_COLUMNS)
 
 
 def _stats(xs: list[float]) -> tuple[float, float]:
@@ -105,7 +116,8 @@ async def _bench(url: str, origin: str, steps: int, step: float) -> list[dict]:
             vm, vp = _stats(server)
             rows.append({"interaction": name, "median_ms": 1e3 * m, "p90_ms": 1e3 * p90, "solve_ms": 1e3 * sm,
                          "solve_p90_ms": 1e3 * sp, "server_ms": 1e3 * vm, "server_p90_ms": 1e3 * vp,
-                         "iterations": statistics.median(its), "frame_kb": statistics.median(size) / 1024})
+                         "iterations": statistics.median(its), "frame_kb": statistics.median(size) / 1024,
+                         "vertices": len(V), "edges": len(f0["edges"]) // 2, "step": step, "steps": steps})
         task.cancel()
         rows.append({"interaction": f"({len(V)} vertices, {len(f0['edges']) // 2} edges, step {step:g} of the "
                                     f"diagonal = {d * 1000:.1f} mm)"})
@@ -201,9 +213,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=30)
     p.add_argument("--step", type=float, default=0.001, help="drag step, fraction of the bounding-box diagonal")
     p.add_argument("--browser", action="store_true", help="also measure in the page (headless Chromium, drawn frames)")
+    p.add_argument("--out", type=Path, default=None, help="folder for design_latency.csv")
     a = p.parse_args(argv)
     scene = a.scene or (str(Path(a.scenes) / "lilium.sss") if a.scenes else "shape:pillar_vault:1200")
+    stamp = run_stamp()
     rows = run(scene, steps=a.steps, step=a.step, browser=a.browser)
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        name = Path(scene).stem if not scene.startswith("shape:") else scene
+        write_csv(a.out / "design_latency.csv", [{**r, "scene": name, **stamp} for r in rows if "median_ms" in r],
+                  COLUMNS)
     import os
 
     print(f"design latency: {scene}, {a.steps} edits per row, each sent when the previous frame arrived; "

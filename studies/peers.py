@@ -49,7 +49,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .common import (DEFAULT_CHECKER, REPO, Column, equilibrium_errors, json_network_arrays, load_average,
+from .common import (DEFAULT_CHECKER, REPO, STAMP_COLUMNS, Column, equilibrium_errors, json_network_arrays, load_average,
                      run_checker, run_stamp, safe_ratio, scene_read_args, study_scenes, write_csv, write_markdown)
 
 RUNNERS = Path(__file__).resolve().parent / "peers_runners"
@@ -279,7 +279,9 @@ COLUMNS = (
 def run_study(scenes_dir: Path, out: Path, *, peers_env: Path, problems: Sequence[str], tools: Sequence[str],
               repeat: int, time_limit: float, log=print) -> list[dict[str, Any]]:
     """Export every problem, run every tool on it ``repeat`` times interleaved, recompute the
-    metrics; one row per (problem, tool) with the median time."""
+    metrics; one row per (problem, tool) with the median time, stamped
+    (:func:`studies.common.run_stamp`) at the start."""
+    stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
     chosen = [TOOLS[t] for t in tools]
     pythons = {"project": Path(sys.executable)}
@@ -316,7 +318,7 @@ def run_study(scenes_dir: Path, out: Path, *, peers_env: Path, problems: Sequenc
             row: dict[str, Any] = {"problem": name, "vertices": nv, "tool": tool.name,
                                    "status": last.get("status"), "message": last.get("message", ""),
                                    "solves": tool.solves, "times_s": times,
-                                   "time_s": statistics.median(times) if times else float("nan")}
+                                   "time_s": statistics.median(times) if times else float("nan"), **stamp}
             if last.get("vertices"):
                 row.update(network_metrics(problem, np.asarray(last["vertices"], float),
                                            np.asarray(last["edges"], int), np.asarray(last["weights"], float)))
@@ -330,8 +332,10 @@ def run_study(scenes_dir: Path, out: Path, *, peers_env: Path, problems: Sequenc
 
 
 def write_outputs(out: Path, rows: list[dict[str, Any]], *, repeat: int, time_limit: float) -> str:
-    """``peers.json`` (every row in full) and ``peers.md`` (the table and what each tool solves)."""
+    """``peers.json`` (every row in full), ``peers.csv`` (the table's columns, the message and the
+    stamp) and ``peers.md`` (the table and what each tool solves)."""
     (out / "peers.json").write_text(json.dumps(rows, indent=1, default=float), encoding="utf-8")
+    write_csv(out / "peers.csv", rows, (*COLUMNS, Column("message", "message"), *STAMP_COLUMNS))
     notes = [f"{repeat} interleaved round(s) per problem, median wall time of the solve (imports and file I/O "
              f"excluded; jax-fdm's includes its JIT compilation); time limit {time_limit:g} s; load average {load_average()}",
              "loads: the project's self-weight (2000 kg/m³, 0.1 m) on the reference, held fixed for every tool; "
@@ -662,8 +666,6 @@ def run_original_study(scenes_dir: Path, names: Sequence[str], out: Path, *, dri
     return rows
 
 
-STAMP_COLUMNS = (Column("commit", "commit"), Column("date", "date"), Column("cpu_model", "CPU"),
-                 Column("cores", "cores"), Column("load_start", "load at start (1/5/15 min)"))
 ORIGINAL_COLUMNS = (
     Column("scene", "scene"), Column("vertices", "V"),
     Column("orig_status", "original: status"), Column("orig_iterations", "it"),

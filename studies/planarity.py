@@ -22,7 +22,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
+from .common import (STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv,
+                     write_markdown)
 
 COLUMNS = [Column("scene", "scene"), Column("objective", "objective"), Column("refine", "refine"),
            Column("status", "status"), Column("nonplanar_max", "non-planarity max", "{:.2e}"),
@@ -30,6 +31,8 @@ COLUMNS = [Column("scene", "scene"), Column("objective", "objective"), Column("r
            Column("reduction", "max reduction vs default", "{:.1f}x"),
            Column("dist_mean", "dist. to reference (mean)", "{:.3e}"),
            Column("max_rel_error", "max rel. error", "{:.1e}"), Column("time_s", "time [s]", "{:.1f}")]
+#: the CSV's columns: the table's, then the run's stamp (:func:`studies.common.run_stamp`)
+CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
 
 
 def run(scenes: Path, out: Path, only: Sequence[str], terms: Sequence[str], weights: Sequence[float],
@@ -40,6 +43,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], terms: Sequence[str], weig
     from selfsupport.loads import SelfWeight
     from selfsupport.methods.staggered import StaggeredLinearization
 
+    stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for name in only:
@@ -57,12 +61,13 @@ def run(scenes: Path, out: Path, only: Sequence[str], terms: Sequence[str], weig
             npl = face_nonplanarity(res.network.mesh)
             row = {"scene": name, "objective": label, "refine": n_ref, "status": res.status,
                    "nonplanar_max": float(np.nanmax(npl)), "nonplanar_mean": float(np.nanmean(npl)),
-                   "dist_mean": res.distance_mean, "max_rel_error": json_max_relative_error(path), "time_s": seconds}
+                   "dist_mean": res.distance_mean, "max_rel_error": json_max_relative_error(path), "time_s": seconds,
+                   **stamp}
             base = row["nonplanar_max"] if base is None else base
             row["reduction"] = base / row["nonplanar_max"]
             rows.append(row)
             print(" | ".join(str(row[c.key]) for c in COLUMNS), flush=True)
-    write_csv(out / "planarity.csv", rows, COLUMNS)
+    write_csv(out / "planarity.csv", rows, CSV_COLUMNS)
     write_markdown(out / "planarity.md", "Planarity against closeness (staggered + refinement)",
                    ["non-planarity: distance between the diagonals / mean edge length, per quad",
                     "reduction: the default run's max non-planarity over this row's"], [("", rows, COLUMNS)])

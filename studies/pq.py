@@ -24,7 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import Column, json_max_relative_error, read_study_scene, write_csv, write_markdown
+from .common import (STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv,
+                     write_markdown)
 
 COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
            Column("irregular", "interior valence ≠ 4"), Column("status", "status"),
@@ -33,6 +34,8 @@ COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "fa
            Column("start_nonplanar", "non-planarity before (max / mean)"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
            Column("dist_mean", "dist. to reference (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}")]
+#: the CSV's columns: the table's, then the run's stamp (:func:`studies.common.run_stamp`)
+CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
 
 
 def _nonplanarity(mesh) -> tuple[float, float]:
@@ -53,6 +56,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
     from selfsupport.io import read_mesh, write_network
     from selfsupport.shapes import make_shape
 
+    stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for name in only:
@@ -64,7 +68,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
         todo_meshes += [(field, how) for how in remeshers for field in ("principal", "grid")]
         for field, how in todo_meshes:
             tag = "" if how in ("", "streamlines") else f" ({how})"
-            row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}"}
+            row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}",
+                                   **stamp}
             t0 = time.perf_counter()
             try:
                 q = None if field == "as is" else remesh(net, spacing=h, field=field, method=how)
@@ -94,8 +99,9 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             mx, mn = _nonplanarity(m)
             rows.append({"scene": name, "mesh": "published pq-n", "faces": " ".join(
                 f"{k}:{v}" for k, v in zip(*np.unique(m.face_sizes, return_counts=True))),
-                "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "dist_mean": distance_stats(m.vertices, scene.mesh)[0]})
-    write_csv(out / "pq.csv", rows, COLUMNS)
+                "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "dist_mean": distance_stats(m.vertices, scene.mesh)[0],
+                **stamp})
+    write_csv(out / "pq.csv", rows, CSV_COLUMNS)
     write_markdown(out / "pq.md", "Planar faces: aligned remesh vs grid (paper Fig. 12)",
                    ["non-planarity: distance between a quad's diagonals / its mean edge length",
                     "dist.: mean distance of the vertices to the scene's reference surface / bbox diagonal"],

@@ -63,8 +63,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .common import (Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
-                     median_time, peak_rss_mib, run_isolated, safe_ratio, write_csv, write_markdown)
+from .common import (STAMP_COLUMNS, Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
+                     median_time, peak_rss_mib, run_isolated, run_stamp, safe_ratio, write_csv, write_markdown)
 
 DEFAULT_SIZES = (1000, 4000, 16000, 64000)
 DEFAULT_SHAPES = ("concave_disk", "pillar_vault")
@@ -296,6 +296,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("one_factor_ratio", "(factor Step 2 + factor H + cI) / factor −K_ff", "{:.1f}"),
     Column("n_factorizations", "factorizations", "{:d}"), Column("factor_share", "share in factorizations", "{:.0%}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
+    *STAMP_COLUMNS,
 )
 _BY_KEY = {c.key: c for c in COLUMNS}
 MD_COLUMNS = ("shape", "vertices", "edges", "method", "levels", "status", "time_s", "iterations", "max_rel_error",
@@ -305,7 +306,7 @@ MD_COLUMNS = ("shape", "vertices", "edges", "method", "levels", "status", "time_
               "solve_over_factor", "n_factorizations", "factor_share")
 FIT_COLUMNS = (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
                Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
-               Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))
+               Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"), *STAMP_COLUMNS)
 
 
 def fitted_exponent(n: Sequence[float], y: Sequence[float]) -> float:
@@ -326,9 +327,10 @@ def exponents(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         sel = [r for r in rows if r["shape"] == shape and r["method"] == method and r.get("status") == "converged"]
         n = [r["vertices"] for r in sel]
         mem = [r.get("peak_rss_mib", np.nan) - r.get("rss_before_mib", np.nan) for r in sel]
+        stamp = {c.key: rows[0].get(c.key) for c in STAMP_COLUMNS}  # the run's, as its rows carry it
         out.append({"shape": shape, "method": method, "sizes": ", ".join(str(v) for v in n),
                     "time_exponent": fitted_exponent(n, [r["time_s"] for r in sel]),
-                    "memory_exponent": fitted_exponent(n, mem)})
+                    "memory_exponent": fitted_exponent(n, mem), **stamp})
     return out
 
 
@@ -376,7 +378,9 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                 time_limits: dict[str, float], warmup: bool = True, echo: Callable[[str], None] = print,
                 on_row: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """Every (shape, size, method) row, each in its own process; ``on_row(rows)`` after each
-    (the CLI rewrites the outputs, so an interrupted run keeps its finished rows)."""
+    (the CLI rewrites the outputs, so an interrupted run keeps its finished rows). Every row
+    carries :func:`studies.common.run_stamp`, taken at the start."""
+    stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for shape in shapes:
@@ -385,7 +389,7 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
         for n in sorted(sizes):
             for method in methods:
                 tl = time_limits.get(method, time_limits.get(method.partition("/")[0], method_entry(method)[1]))
-                base = {"shape": shape, "target": n, "method": method, "time_limit_s": tl}
+                base = {"shape": shape, "target": n, "method": method, "time_limit_s": tl, **stamp}
                 if method in given_up:
                     rows.append({**base, "status": "skipped", "message": given_up[method]})
                     continue

@@ -49,9 +49,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .common import (PAPER_TABLE1, PUBLISHED_UP, Column, Stopwatch, current_rss_mib, equilibrium_errors,
+from .common import (PAPER_TABLE1, PUBLISHED_UP, STAMP_COLUMNS, Column, Stopwatch, current_rss_mib, equilibrium_errors,
                      exit_on_sigterm, json_network_arrays, load_average, peak_rss_mib,
-                     read_study_scene, run_checker, run_isolated, safe_ratio, scene_file, study_scenes_or_exit, write_csv,
+                     read_study_scene, run_checker, run_isolated, run_stamp, safe_ratio, scene_file, study_scenes_or_exit, write_csv,
                      write_markdown)
 
 
@@ -273,6 +273,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("dist_pub_mean", "vs published mean", "{:.2e}"), Column("dist_pub_max", "vs published max", "{:.2e}"),
     Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("rss_before_mib", "RSS before solve [MiB]", "{:.0f}"),
     Column("time_limit_s", "time limit [s]", "{:g}"), Column("network", "network"), Column("message", "message"),
+    *STAMP_COLUMNS,
 )
 _BY_KEY = {c.key: c for c in COLUMNS}
 #: The Markdown's two tables: Table 1 itself, then fidelity, memory and messages.
@@ -324,7 +325,9 @@ def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, varian
               echo: Callable[[str], None] = print,
               on_scene: Callable[[list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """Run every (scene, variant) row and the published comparisons; return the rows.
-    ``on_scene(rows)`` is called after each scene (the CLI rewrites the table then)."""
+    ``on_scene(rows)`` is called after each scene (the CLI rewrites the table then). Every row
+    carries :func:`studies.common.run_stamp`, taken at the start."""
+    stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for name in scenes:
@@ -372,7 +375,7 @@ def run_table(*, scenes_dir: Path, out: Path, published_dir: Path | None, varian
         t_ref = next((r.get("time_s") for r in scene_rows
                       if f"{r['method']}/{r['backend']}" == REFERENCE and r.get("status") == "converged"), None)
         for r in scene_rows:
-            r.update(paper_columns(name))
+            r.update(paper_columns(name), **stamp)
             r["speedup_vs_paper"] = safe_ratio(r.get("paper_time_s"), r.get("time_s"))
             r["time_vs_staggered"] = safe_ratio(r.get("time_s"), t_ref)
         rows += scene_rows

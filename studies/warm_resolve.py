@@ -1,6 +1,6 @@
 """Warm re-solve benchmark: cold vs warm staggered solves after small edits of lilium.
 
-    python -m studies.warm_resolve --scenes ../shared/paper-scenes/scenes [--repeat 3]
+    python -m studies.warm_resolve --scenes ../shared/paper-scenes/scenes [--repeat 3] [--out DIR]
 
 For each edit kind — a height-only handle move, a full (3D) handle move, a top-view handle move
 (each by ``--size`` of the bounding-box diagonal, Laplacian deformation of 6 rings around the
@@ -9,7 +9,8 @@ reference, uniform weights) and warm (from the unedited scene's network:
 :mod:`selfsupport.methods.warm`), and the table gives time (best of ``--repeat``), outer
 iterations, final max relative error, whether the warm start was kept (it falls back to the cold
 start when the first fit error exceeds ``finish_try``) and the largest vertex gap between the two
-networks. A benchmark, not a timed test: the numbers depend on the machine.
+networks. A benchmark, not a timed test: the numbers depend on the machine. ``--out DIR``
+writes the rows to ``DIR/warm_resolve.csv``, each stamped (:func:`studies.common.run_stamp`).
 """
 from __future__ import annotations
 
@@ -23,6 +24,15 @@ import numpy as np
 from selfsupport.design.edits import Design, Material, Move, Pin, Select
 from selfsupport.io import read_scene
 from selfsupport.methods.staggered import StaggeredLinearization
+
+from .common import STAMP_COLUMNS, Column, run_stamp, write_csv
+
+#: the CSV's columns (``--out``)
+COLUMNS = (Column("scene", "scene"), Column("edit", "edit"), Column("cold_s", "cold [s]"), Column("cold_it", "cold it"),
+           Column("cold_err", "cold error"), Column("warm_s", "warm [s]"), Column("warm_it", "warm it"),
+           Column("warm_err", "warm error"), Column("warm_used", "warm kept"), Column("speedup", "speed-up"),
+           Column("gap", "gap / diag"), Column("dist_cold", "dist. cold"), Column("dist_warm", "dist. warm"),
+           Column("size", "move / diag"), Column("repeat", "solves"), *STAMP_COLUMNS)
 
 
 def edits(scene, size: float) -> dict[str, object]:
@@ -39,6 +49,7 @@ def edits(scene, size: float) -> dict[str, object]:
 
 
 def run(scene_path: Path, size: float = 0.002, repeat: int = 3) -> list[dict]:
+    stamp = run_stamp()
     method = StaggeredLinearization()
     base_design = Design(read_scene(scene_path))
     base = method.solve(base_design.problem())
@@ -61,7 +72,8 @@ def run(scene_path: Path, size: float = 0.002, repeat: int = 3) -> list[dict]:
                      "warm_used": bool((rw.parameters.get("warm_start") or {}).get("used")),
                      "speedup": tc / tw, "gap": float(np.linalg.norm(rw.network.vertices - rc.network.vertices,
                                                                      axis=1).max()) / diag,
-                     "dist_cold": rc.distance_mean, "dist_warm": rw.distance_mean})
+                     "dist_cold": rc.distance_mean, "dist_warm": rw.distance_mean,
+                     "scene": Path(scene_path).stem, "size": size, "repeat": repeat, **stamp})
     return rows
 
 
@@ -71,8 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default="lilium")
     ap.add_argument("--size", type=float, default=0.002, help="handle move / bounding-box diagonal")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=None, help="folder for warm_resolve.csv")
     a = ap.parse_args(argv)
     rows = run(a.scenes / f"{a.scene}.sss", a.size, a.repeat)
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        write_csv(a.out / "warm_resolve.csv", rows, COLUMNS)
     head = (f"| {'edit':<14} | cold s | cold it | warm s | warm it | speed-up | warm kept | warm err | "
             f"gap/diag | dist cold | dist warm |")
     print(head)

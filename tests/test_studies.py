@@ -102,8 +102,11 @@ def test_table1_writes_the_documented_columns(table_run):
     documented = ["scene", "figure", "vertices", "edges", "method", "backend", "status", "time_s", "paper_time_s",
                   "speedup_vs_paper", "time_vs_staggered", "iterations", "paper_iterations", "max_rel_error",
                   "paper_max_rel_error", "min_weight", "dist_ref_mean", "dist_ref_max", "dist_pub_mean",
-                  "dist_pub_max", "peak_rss_mib"]
+                  "dist_pub_max", "peak_rss_mib", "commit", "date", "cpu_model", "cores", "load_start"]
     assert set(documented) <= set(csv_rows[0])
+    stamp = common.run_stamp()  # one stamp per run, the same on every row
+    assert all((r["commit"], r["cpu_model"], r["cores"]) == (stamp["commit"], stamp["cpu_model"], str(stamp["cores"]))
+               and r["date"] == csv_rows[0]["date"] and r["load_start"] for r in csv_rows)
     assert list(csv_rows[0]) == [c.key for c in table1.COLUMNS]
     assert [(r["method"], r["backend"]) for r in csv_rows] == [("staggered", "active-set"),
                                                                ("published", "paper's network, weights fitted")]

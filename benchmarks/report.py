@@ -1,0 +1,235 @@
+"""The documentation's benchmark page, written from the committed CSVs (``benchmarks/results``).
+
+    python -m benchmarks.report [--results benchmarks/results] [--page docs/benchmarks.md]
+
+``make bench`` runs this after the studies (:mod:`benchmarks.run`); the page is generated, never
+edited by hand. One section per CSV (:data:`SECTIONS`, in that order; a CSV not listed there gets
+a section with every column): what the study measures, the command that regenerates it, the run's
+stamp (commit, date, CPU model, cores, load average at the start) and the table.
+:func:`table1_comparison` is the Table 1 of docs/guide/paper.md (the docs' build hook puts it in
+that page), from the same CSV.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # run as a script, or loaded by the docs' build hook
+    sys.path.insert(0, str(ROOT))
+
+from studies.common import PAPER_TABLE1, STAMP_COLUMNS, Column, markdown_table, read_csv_rows  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+PAGE = ROOT / "docs" / "benchmarks.md"
+
+
+@dataclass(frozen=True)
+class Section:
+    """How the page shows one CSV: a title, what it measures, the command, the columns."""
+
+    csv: str
+    title: str
+    about: str
+    command: str
+    columns: tuple[Column, ...]
+
+
+def _num(value: str) -> float | int | str:
+    """A CSV cell as a number where it is one (int before float), else the text."""
+    for kind in (int, float):
+        try:
+            return kind(value)
+        except ValueError:
+            pass
+    return value
+
+
+def typed(rows: Sequence[Mapping[str, str]]) -> list[dict[str, float | int | str]]:
+    """The rows of :func:`studies.common.read_csv_rows` with numbers as numbers and empty cells as NaN."""
+    return [{k: (math.nan if v == "" else _num(v)) for k, v in r.items()} for r in rows]
+
+
+SECTIONS: tuple[Section, ...] = (
+    Section("table1.csv", "Table 1: the paper's scenes",
+            "Each Table 1 scene of the paper solved by the default method (staggered, active-set weight fit), "
+            "with its refinement phase and by the simultaneous IPOPT solve; the time is the `solve()` call "
+            "alone, in a process of its own after an untimed warm-up; the error is recomputed from the "
+            "written network with plain numpy. *dist. to ref.*: mean distance to the reference surface over "
+            "the bounding-box diagonal; *published*: the paper's network, weights fitted at fixed positions.",
+            "python -m studies.table1 --scenes $SCENES --out OUT --methods staggered/active-set "
+            "staggered-refine/active-set simultaneous/ipopt",
+            (Column("scene", "scene"), Column("vertices", "V"), Column("method", "method"),
+             Column("backend", "backend"), Column("status", "status"), Column("time_s", "time [s]", "{:.2f}"),
+             Column("paper_time_s", "paper time [s]", "{:.1f}"), Column("iterations", "iterations", "{:d}"),
+             Column("paper_iterations", "paper it.", "{:d}"),
+             Column("max_rel_error", "max rel. error", "{:.1e}"),
+             Column("paper_max_rel_error", "paper error", "{:.1e}"),
+             Column("checker_error", "checker error", "{:.1e}"),
+             Column("dist_ref_mean", "dist. to ref. (mean)", "{:.2e}"),
+             Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("time_limit_s", "limit [s]", "{:g}"))),
+    Section("peers_original.csv", "The paper's original code side by side",
+            "The paper's C++ code (built headless by `../shared/original-tool/build.sh OUT`, stopping at its "
+            "displayed error < 1e-4 or 50 iterations) and `selfsupport solve`, alternating scene by scene; "
+            "CPU seconds (medians over the rounds): the original's to its end and to a max relative error of "
+            "1e-3 (its trace), ours to 1e-3 and to 1e-9 (the solve's history), the whole solve and the whole "
+            "process; errors recomputed from the network files.",
+            "python -m studies.peers --scenes $SCENES --tools original --original-driver OUT --out OUT2",
+            (Column("scene", "scene"), Column("vertices", "V"), Column("orig_status", "original: status"),
+             Column("orig_iterations", "it", "{:d}"), Column("orig_cpu_s", "CPU s to its end", "{:.3g}"),
+             Column("orig_cpu_to_1e-03", "to 1e-3", "{:.3g}"), Column("orig_error", "final error", "{:.1e}"),
+             Column("ss_status", "ours: status"), Column("ss_iterations", "it", "{:d}"),
+             Column("ss_cpu_to_1e-03", "to 1e-3", "{:.3g}"), Column("ss_cpu_to_1e-09", "to 1e-9", "{:.3g}"),
+             Column("ss_process_cpu_s", "process", "{:.3g}"), Column("ss_error", "error", "{:.1e}"),
+             Column("ratio_process", "× process", "{:.3g}"), Column("rounds", "rounds", "{:d}"),
+             Column("message", "message"))),
+    Section("warm_resolve.csv", "Warm re-solve after an edit",
+            "lilium edited (handle moves of 0.2 % of the diagonal, a density change, a pin) and solved cold (from "
+            "the reference) and warm (from the unedited network); times are the best of the repeats.",
+            "python -m studies.warm_resolve --scenes $SCENES --out OUT",
+            (Column("scene", "scene"), Column("edit", "edit"), Column("cold_s", "cold [s]", "{:.3f}"),
+             Column("cold_it", "cold it", "{:d}"), Column("warm_s", "warm [s]", "{:.3f}"),
+             Column("warm_it", "warm it", "{:d}"), Column("speedup", "speed-up", "{:.1f}×"),
+             Column("warm_used", "warm start kept"), Column("warm_err", "warm error", "{:.1e}"),
+             Column("gap", "warm − cold / diag", "{:.1e}"))),
+    Section("design_latency.csv", "Design tool latency",
+            "A real `selfsupport design` server and a scripted WebSocket client: each edit sent when the "
+            "previous frame arrived; end-to-end from the edit sent to the new frame received, the solve "
+            "alone, and the server's time from the edit received to the frame built (median and 90th "
+            "percentile).",
+            "python -m studies.design_latency --scenes $SCENES --out OUT",
+            (Column("scene", "scene"), Column("vertices", "V"), Column("interaction", "interaction"),
+             Column("median_ms", "median [ms]", "{:.0f}"), Column("p90_ms", "p90 [ms]", "{:.0f}"),
+             Column("solve_ms", "solve [ms]", "{:.0f}"), Column("server_ms", "server [ms]", "{:.0f}"),
+             Column("iterations", "iterations", "{:g}"), Column("frame_kb", "frame [kB]", "{:.0f}"))),
+    Section("scaling.csv", "Scaling with mesh size",
+            "Generated shapes at growing sizes, each solve in a process of its own; *factor −K_ff*: one "
+            "Cholesky factorization of the free-vertex stress Laplacian at the final weights, the unit of "
+            "*time / (its × factor)*.",
+            "python -m studies.scaling --out OUT --sizes 1000,4000  (make bench BENCH_SIZES=1000,4000,16000,64000)",
+            (Column("shape", "shape"), Column("vertices", "V"), Column("method", "method"),
+             Column("status", "status"), Column("time_s", "time [s]", "{:.2f}"),
+             Column("iterations", "iterations", "{:d}"), Column("max_rel_error", "max rel. error", "{:.1e}"),
+             Column("peak_rss_mib", "peak RSS [MiB]", "{:.0f}"), Column("factor_K_s", "factor −K_ff [s]", "{:.4f}"),
+             Column("limit_ratio", "time / (its × factor)", "{:.1f}"), Column("message", "message"))),
+    Section("scaling_exponents.csv", "Scaling: fitted exponents",
+            "Least-squares slope of log time (and log solve memory) against log vertices over the converged "
+            "rows of the scaling table.",
+            "python -m studies.scaling --out OUT",
+            (Column("shape", "shape"), Column("method", "method"), Column("sizes", "sizes used"),
+             Column("time_exponent", "time ∝ n^k: k", "{:.2f}"),
+             Column("memory_exponent", "solve memory ∝ n^k: k", "{:.2f}"))),
+    Section("planarity.csv", "Planarity against closeness",
+            "The quad scenes solved with planarity terms in the objective, then refined; non-planarity is the "
+            "distance between a quad's diagonals over its mean edge length.",
+            "python -m studies.planarity --scenes $SCENES --out OUT",
+            (Column("scene", "scene"), Column("objective", "objective"), Column("refine", "refine", "{:d}"),
+             Column("status", "status"), Column("nonplanar_max", "non-planarity max", "{:.2e}"),
+             Column("nonplanar_mean", "mean", "{:.2e}"), Column("reduction", "max reduction", "{:.1f}×"),
+             Column("dist_mean", "dist. to ref. (mean)", "{:.3e}"),
+             Column("max_rel_error", "max rel. error", "{:.1e}"), Column("time_s", "time [s]", "{:.1f}"))),
+    Section("pq.csv", "Planar quads along the principal directions (Fig. 12)",
+            "Each scene remeshed along its relative principal directions and along a fixed grid, then solved "
+            "with planar faces required (tolerance 1e-3); the published `*-pq-n.obj` measured the same way.",
+            "python -m studies.pq --scenes $SCENES/.. --out OUT",
+            (Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
+             Column("status", "status"), Column("solved_by", "solved by"),
+             Column("max_rel_error", "max rel. error", "{:.1e}"),
+             Column("start_nonplanar", "non-planarity before (max / mean)"),
+             Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
+             Column("dist_mean", "dist. to ref. (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}"))),
+)
+_BY_CSV = {s.csv: s for s in SECTIONS}
+
+
+def stamp_line(rows: Sequence[Mapping[str, object]]) -> str:
+    """The run's stamp in one line: each stamp column's distinct values (one run: one value each)."""
+    parts = []
+    for c in STAMP_COLUMNS:
+        values = list(dict.fromkeys(str(r.get(c.key, "")) for r in rows if str(r.get(c.key, "")) not in ("", "nan")))
+        parts.append(f"{c.header}: {', '.join(values) if values else 'not recorded'}")
+    return "; ".join(parts)
+
+
+def section_markdown(section: Section, rows: Sequence[Mapping[str, object]]) -> str:
+    """One CSV's section of the page."""
+    present = [c for c in section.columns if any(c.key in r for r in rows)]
+    return "\n".join([f"## {section.title}", "", section.about, "", f"`{section.command}`", "",
+                      f"*{section.csv}* — {stamp_line(rows)}", "", markdown_table(rows, present), ""])
+
+
+def table1_comparison(rows: Sequence[Mapping[str, object]]) -> str:
+    """The Table 1 of docs/guide/paper.md: per scene, the paper's numbers beside the default
+    method's (``staggered`` / ``active-set``), and the mean distance to the reference of the
+    paper's published network beside ours."""
+    def first(scene: str, method: str, backend: str | None = None) -> Mapping[str, object]:
+        return next((r for r in rows if r.get("scene") == scene and r.get("method") == method
+                     and (backend is None or r.get("backend") == backend)), {})
+
+    def f(value: object, fmt: str) -> str:
+        return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else fmt.format(value)
+
+    out = ["| scene (figure) | V / E | time [s]: paper / ours | iterations: paper / ours "
+           "| max rel. error: paper / ours | dist. to reference: paper's network / ours |",
+           "|---|---|---|---|---|---|"]
+    for name, paper in PAPER_TABLE1.items():
+        ours = first(name, "staggered", "active-set")
+        if not ours:
+            continue
+        pub = first(name, "published")
+        out.append(f"| {name} ({paper.figure}) | {f(ours.get('vertices'), '{}')} / {f(ours.get('edges'), '{}')} "
+                   f"| {paper.time_s:g} / {f(ours.get('time_s'), '{:.2f}')} "
+                   f"| {paper.iterations} / {f(ours.get('iterations'), '{}')} "
+                   f"| {paper.max_rel_error:.1e} / {f(ours.get('max_rel_error'), '{:.1e}')} "
+                   f"| {f(pub.get('dist_ref_mean'), '{:.2e}')} / {f(ours.get('dist_ref_mean'), '{:.2e}')} |")
+    out += ["", f"*benchmarks/results/table1.csv* — {stamp_line([r for r in rows if r.get('method') == 'staggered'])}"]
+    return "\n".join(out)
+
+
+def page_markdown(results: Path = RESULTS) -> str:
+    """The whole page from the CSVs in ``results``."""
+    files = sorted(results.glob("*.csv"), key=lambda p: (p.name not in _BY_CSV,
+                                                          [s.csv for s in SECTIONS].index(p.name)
+                                                          if p.name in _BY_CSV else 0, p.name))
+    parts = ["# Benchmarks", "",
+             "<!-- Generated by `python -m benchmarks.report` from benchmarks/results/*.csv: do not edit. -->", "",
+             "Every number below comes from a CSV in `benchmarks/results`, written by `make bench` "
+             "(`python -m benchmarks.run`; the paper's scenes from `SCENES`, default "
+             "`../shared/paper-scenes/scenes`), and every row there records the commit, the date, the CPU "
+             "model, the number of cores and the load average when its study started. The machine may be "
+             "shared: timings taken under load vary by tens of percent between runs. "
+             "The full tables, with every column, are the CSVs themselves.", ""]
+    if not files:
+        parts += ["No results yet: run `make bench`.", ""]
+    for path in files:
+        rows = typed(read_csv_rows(path))
+        section = _BY_CSV.get(path.name) or Section(
+            path.name, path.stem, "", f"see {path.name}", tuple(Column(k, k) for k in (rows[0] if rows else {})))
+        parts.append(section_markdown(section, rows))
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def write_page(results: Path = RESULTS, page: Path = PAGE) -> Path:
+    """Write :func:`page_markdown` to ``page``; returns it."""
+    page.write_text(page_markdown(results), encoding="utf-8")
+    return page
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.report", description=__doc__.split("\n\n")[0])
+    p.add_argument("--results", type=Path, default=RESULTS, help="folder of the CSVs")
+    p.add_argument("--page", type=Path, default=PAGE, help="the page to write")
+    a = p.parse_args(argv)
+    if not a.results.is_dir():
+        print(f"report: no results folder {a.results}; run make bench first", file=sys.stderr)
+        return 2
+    print(f"wrote {write_page(a.results, a.page)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

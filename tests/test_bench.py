@@ -1,0 +1,227 @@
+"""``make bench``: the runner (:mod:`benchmarks.run`), the generated page (:mod:`benchmarks.report`)
+and the committed results it is written from."""
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks import report, run
+from studies import common, design_latency, pq, planarity, peers, scaling, table1, warm_resolve
+
+ROOT = Path(__file__).resolve().parents[1]
+STAMP = {"commit": "abc1234", "date": "2030-01-02T03:04:05Z", "cpu_model": "Test CPU 9000", "cores": 2,
+         "load_start": "1.5 / 1.2 / 1.0"}
+
+
+def _write(path: Path, rows: list[dict], keys: list[str] | None = None) -> None:
+    keys = keys or list(dict.fromkeys(k for r in rows for k in r))
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _table1_rows() -> list[dict]:
+    return [
+        {"scene": "lilium", "vertices": 1201, "edges": 3504, "method": "staggered", "backend": "active-set",
+         "status": "converged", "time_s": 1.23456, "paper_time_s": 21.6, "iterations": 21,
+         "max_rel_error": 6.14e-13, "dist_ref_mean": 0.021734, **STAMP},
+        {"scene": "lilium", "vertices": 1201, "edges": 3504, "method": "published",
+         "backend": "paper's network, weights fitted", "status": "self-supporting", "time_s": "",
+         "iterations": "", "max_rel_error": 3.1e-7, "dist_ref_mean": 0.022981, **STAMP},
+        {"scene": "cas", "vertices": 1535, "edges": 2976, "method": "staggered", "backend": "active-set",
+         "status": "converged", "time_s": 0.5, "iterations": 13, "max_rel_error": 1.5e-13,
+         "dist_ref_mean": 0.00166, **STAMP},
+    ]
+
+
+# ------------------------------------------------------------------------------ the page
+def test_report_page_has_a_section_per_csv_with_its_stamp_and_rounded_numbers(tmp_path):
+    _write(tmp_path / "table1.csv", _table1_rows())
+    _write(tmp_path / "zz_other.csv", [{"a": 1, "b": "x"}])  # a CSV the report does not know
+    page = report.page_markdown(tmp_path)
+    assert page.index("## Table 1: the paper's scenes") < page.index("## zz_other")
+    assert ("commit: abc1234; date: 2030-01-02T03:04:05Z; CPU: Test CPU 9000; cores: 2; "
+            "load at start (1/5/15 min): 1.5 / 1.2 / 1.0") in page
+    row = next(line for line in page.splitlines() if line.startswith("| lilium | 1201 | staggered"))
+    assert "| 1.23 |" in row and "| 21.6 |" in row and "| 6.1e-13 |" in row and "| 2.17e-02 |" in row
+    assert "| 1 | x |" in page  # the unknown CSV: every column as it is
+    assert "commit: not recorded" in page  # ... and no stamp is said to be missing, not left out
+
+
+def test_report_table1_comparison_puts_the_papers_numbers_beside_ours(tmp_path):
+    rows = report.typed([{k: str(v) for k, v in r.items()} for r in _table1_rows()])
+    text = report.table1_comparison(rows)
+    lines = text.splitlines()
+    assert lines[2] == ("| lilium (Fig. 5b) | 1201 / 3504 | 21.6 / 1.23 | 9 / 21 | 4.2e-05 / 6.1e-13 "
+                        "| 2.30e-02 / 2.17e-02 |")
+    assert lines[3] == "| cas (Fig. 6) | 1535 / 2976 | 17 / 0.50 | 21 / 13 | 2.7e-05 / 1.5e-13 | — / 1.66e-03 |"
+    assert len([ln for ln in lines if ln.startswith("| ")]) == 3  # the header and the two scenes run
+    assert "commit: abc1234" in lines[-1]
+
+
+def test_report_without_results_folder_is_one_line_and_exit_2(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "benchmarks.report", "--results", str(tmp_path / "none"),
+                        "--page", str(tmp_path / "page.md")], cwd=ROOT, capture_output=True, text=True)
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert p.stderr.strip().count("\n") == 0 and "run make bench" in p.stderr
+    assert not (tmp_path / "page.md").exists()
+
+
+def test_the_committed_page_is_the_one_the_committed_results_give():
+    assert (ROOT / "docs" / "benchmarks.md").read_text(encoding="utf-8") == report.page_markdown(), \
+        "docs/benchmarks.md is generated: run python -m benchmarks.report"
+
+
+# --------------------------------------------------------------------------- the results
+def test_every_committed_result_row_is_stamped():
+    files = sorted(report.RESULTS.glob("*.csv"))
+    assert {"table1.csv", "warm_resolve.csv", "design_latency.csv", "scaling.csv", "planarity.csv",
+            "pq.csv"} <= {f.name for f in files}
+    for f in files:
+        rows = common.read_csv_rows(f)
+        assert rows, f.name
+        for r in rows:
+            assert all(r.get(c.key) for c in common.STAMP_COLUMNS), (f.name, r)
+            assert "+dirty" not in r["commit"], f"{f.name}: measured on uncommitted code"
+            assert int(r["cores"]) >= 1 and len(r["load_start"].split(" / ")) == 3
+
+
+def test_every_study_of_the_bench_writes_the_stamp_columns():
+    for columns in (table1.COLUMNS, scaling.COLUMNS, scaling.FIT_COLUMNS, peers.ORIGINAL_CSV_COLUMNS,
+                    warm_resolve.COLUMNS, design_latency.COLUMNS, planarity.CSV_COLUMNS, pq.CSV_COLUMNS):
+        assert {c.key for c in common.STAMP_COLUMNS} <= {c.key for c in columns}
+
+
+def test_design_latency_writes_its_rows_stamped_with_the_scenes_size(tmp_path):
+    design_latency.main(["--scene", "shape:dome:60", "--steps", "2", "--out", str(tmp_path)])
+    out = common.read_csv_rows(tmp_path / "design_latency.csv")
+    assert [r["interaction"] for r in out] == ["drag (height)", "drag (full)", "drag (top view)", "pin / unpin",
+                                               "density"]
+    stamp = common.run_stamp()
+    for r in out:
+        assert (r["cpu_model"], r["cores"], r["scene"], int(r["steps"])) == (
+            stamp["cpu_model"], str(stamp["cores"]), "shape:dome:60", 2)
+        assert int(r["vertices"]) > 0 and 0 < float(r["solve_ms"]) <= float(r["median_ms"])
+
+
+def test_warm_resolve_writes_its_rows_stamped(tmp_path):
+    from selfsupport.io.sss import write_scene_sss
+    from selfsupport.shapes import make_shape
+
+    write_scene_sss(tmp_path / "dome.sss", make_shape("dome", n_vertices=80))
+    warm_resolve.main(["--scenes", str(tmp_path), "--scene", "dome", "--repeat", "1", "--out", str(tmp_path / "o")])
+    out = common.read_csv_rows(tmp_path / "o" / "warm_resolve.csv")
+    assert [r["edit"] for r in out] == ["height move", "full move", "top-view move", "density +10%", "pin a vertex"]
+    for r in out:
+        assert r["scene"] == "dome" and r["commit"] and r["date"] and r["load_start"]
+        assert float(r["speedup"]) == pytest.approx(float(r["cold_s"]) / float(r["warm_s"]))
+
+
+def test_scaling_exponents_carry_the_stamp_of_their_rows():
+    rows = [{"shape": "dome", "method": "staggered", "status": "converged", "vertices": n, "time_s": 0.01 * n ** 1.5,
+             "peak_rss_mib": 100.0 + n, "rss_before_mib": 100.0, **STAMP} for n in (1000, 4000)]
+    (fit,) = scaling.exponents(rows)
+    assert fit["time_exponent"] == pytest.approx(1.5) and {k: fit[k] for k in STAMP} == STAMP
+
+
+# ------------------------------------------------------------------------------ the runner
+def _study(module: str, csv_name: str = "x.csv") -> run.Study:
+    return run.Study("probe", module, ((csv_name, "probe.csv"),), lambda s, out: [str(out)], lambda s: "")
+
+
+SETTINGS = run.Settings(scenes=Path("/nonexistent/scenes"), original=Path("/nonexistent/build"),
+                        checker=Path("/nonexistent/check.py"), scaling_sizes="1000", peers_repeat=1)
+
+
+def test_a_study_without_scenes_is_skipped_with_one_line_and_its_results_kept(tmp_path):
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "table1.csv").write_text("kept\n", encoding="utf-8")
+    lines: list[str] = []
+    by_name = {s.name: s for s in run.STUDIES}
+    for name in ("table1", "peers", "pq"):
+        assert run.run_study(by_name[name], SETTINGS, work=tmp_path / "work", results=results,
+                             log=lines.append) == "skipped"
+    assert len(lines) == 3 and all("skipped: no scenes folder /nonexistent/scenes" in ln for ln in lines)
+    assert (results / "table1.csv").read_text(encoding="utf-8") == "kept\n"
+    assert not (tmp_path / "work").exists()
+
+
+def test_the_original_tool_without_a_driver_is_skipped_with_its_reason(tmp_path):
+    peers_study = next(s for s in run.STUDIES if s.name == "peers")
+    here = run.Settings(scenes=tmp_path, original=tmp_path / "build", checker=SETTINGS.checker,
+                        scaling_sizes="1000", peers_repeat=1)
+    lines: list[str] = []
+    assert run.run_study(peers_study, here, work=tmp_path / "w", results=tmp_path / "r", log=lines.append) == "skipped"
+    assert lines == [f"bench: peers skipped: no driver of the original tool at {tmp_path / 'build'}; build it with "
+                     "../shared/original-tool/build.sh OUT and pass --original-driver OUT (make bench: ORIGINAL=OUT)"]
+
+
+def test_a_failing_study_leaves_the_committed_csv_and_the_next_one_runs(tmp_path):
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "probe.csv").write_text("good\n", encoding="utf-8")
+    lines: list[str] = []
+    # a module that does not exist: python -m exits 1
+    assert run.run_study(_study("studies.no_such_study"), SETTINGS, work=tmp_path / "w", results=results,
+                         log=lines.append) == "failed"
+    assert (results / "probe.csv").read_text(encoding="utf-8") == "good\n"
+    assert "probe failed (exit status 1" in lines[-1]
+    # a study that exits 0 but writes no CSV fails too, and a stale CSV of an earlier run is not taken
+    (tmp_path / "w" / "probe").mkdir(parents=True)
+    (tmp_path / "w" / "probe" / "x.csv").write_text("stale\n", encoding="utf-8")
+    # (the standard library's ``this`` prints a poem and exits 0)
+    assert run.run_study(_study("this"), SETTINGS, work=tmp_path / "w", results=results,
+                         log=lines.append) == "failed"
+    assert "it wrote no x.csv" in lines[-1] and (results / "probe.csv").read_text(encoding="utf-8") == "good\n"
+
+
+def test_unknown_study_name_is_one_line_and_exit_2(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "benchmarks.run", "--scenes", str(tmp_path), "--original",
+                        str(tmp_path), "--checker", str(tmp_path), "--only", "tabel1"],
+                       cwd=ROOT, capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.strip() == (
+        "bench: unknown study tabel1; choose from " + ", ".join(s.name for s in run.STUDIES))
+
+
+# ------------------------------------------------------------------------------ the site
+def _hooks():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "hooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_paper_page_shows_table1_from_the_committed_csv():
+    page = (ROOT / "docs" / "guide" / "paper.md").read_text(encoding="utf-8")
+    assert page.count("<!-- bench-table1 -->") == 1 and "| lilium (Fig. 5b) |" not in page  # no copy by hand
+    md = _hooks().on_page_markdown(page, None, None, None)
+    csv_rows = common.read_csv_rows(report.RESULTS / "table1.csv")
+    for r in csv_rows:
+        if (r["method"], r["backend"]) == ("staggered", "active-set"):
+            p = common.PAPER_TABLE1[r["scene"]]
+            line = next(ln for ln in md.splitlines() if ln.startswith(f"| {r['scene']} ({p.figure}) |"))
+            assert f"| {p.time_s:g} / {float(r['time_s']):.2f} |" in line
+            assert f"| {p.iterations} / {r['iterations']} |" in line
+            assert f"/ {float(r['max_rel_error']):.1e} |" in line
+    assert f"commit: {csv_rows[0]['commit']}" in md
+
+
+@pytest.mark.slow
+def test_the_site_builds_strict_with_the_generated_pages(tmp_path):
+    p = subprocess.run([str(Path(sys.executable).parent / "mkdocs"), "build", "--strict", "--quiet",
+                        "--site-dir", str(tmp_path / "site")], cwd=ROOT, capture_output=True, text=True,
+                       env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    assert p.returncode == 0, p.stderr[-2000:]
+    html = (tmp_path / "site" / "benchmarks" / "index.html").read_text(encoding="utf-8")
+    assert "Table 1: the paper" in html and "load at start" in html
+    paper = (tmp_path / "site" / "guide" / "paper" / "index.html").read_text(encoding="utf-8")
+    assert "lilium (Fig. 5b)" in paper

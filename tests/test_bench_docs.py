@@ -1,0 +1,190 @@
+"""Every measured number the documentation quotes in its text, checked against the committed CSV
+it comes from (``benchmarks/results``, written by ``make bench``), within the rounding shown.
+
+Tables are generated from the CSVs (docs/benchmarks.md, the Table 1 of docs/guide/paper.md); the
+sentences below keep their numbers in the text, so each one is found here and compared. When a
+re-run of ``make bench`` moves a number, the test names the sentence to update; when a sentence
+is reworded, the test says it no longer finds it.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import pytest
+
+from benchmarks.report import RESULTS, typed
+from studies.common import PAPER_TABLE1, read_csv_rows
+
+ROOT = Path(__file__).resolve().parents[1]
+REFINE = "staggered + refine (20)"
+
+
+def sentence(page: str, pattern: str) -> re.Match:
+    """``pattern`` in ``page`` (whitespace, line breaks included, as single spaces)."""
+    text = " ".join((ROOT / page).read_text(encoding="utf-8").split())
+    m = re.search(pattern, text)
+    assert m, f"{page} no longer says /{pattern}/: update the sentence's check in {Path(__file__).name}"
+    return m
+
+
+def shown(quoted: str) -> tuple[float, float]:
+    """A quoted number and half the unit of its last shown digit (``2.9e-3``: 2.9e-3, 5e-5)."""
+    m = re.fullmatch(r"(\d+)(?:\.(\d+))?(?:e([+-]?\d+))?", quoted.replace(",", ""))
+    assert m, f"not a number: {quoted!r}"
+    return float(quoted.replace(",", "")), 0.5 * 10.0 ** (int(m.group(3) or 0) - len(m.group(2) or ""))
+
+
+def assert_shown(quoted: str, actual: float, what: str) -> None:
+    """``actual`` rounds to ``quoted`` at the precision ``quoted`` shows."""
+    value, half = shown(quoted)
+    assert math.isfinite(actual) and abs(actual - value) <= half * (1 + 1e-9), \
+        f"{what}: the docs say {quoted}, the CSV gives {actual:.4g}"
+
+
+def rows(name: str) -> list[dict]:
+    return typed(read_csv_rows(RESULTS / name))
+
+
+def by_scene(table: Sequence[Mapping], method: str, backend: str | None = None) -> dict[str, Mapping]:
+    return {r["scene"]: r for r in table if r["method"] == method and (backend is None or r["backend"] == backend)}
+
+
+@pytest.fixture(scope="module")
+def table1() -> list[dict]:
+    return rows("table1.csv")
+
+
+@pytest.fixture(scope="module")
+def staggered(table1) -> dict[str, Mapping]:
+    return by_scene(table1, "staggered", "active-set")
+
+
+# ------------------------------------------------------------------------ docs/guide/paper.md
+PAPER = "docs/guide/paper.md"
+
+
+def test_paper_every_table1_scene_converges_with_the_defaults(staggered):
+    sentence(PAPER, r"every scene converges with the default settings")
+    assert set(staggered) == set(PAPER_TABLE1)
+    assert {r["status"] for r in staggered.values()} == {"converged"}
+
+
+def test_paper_every_network_passes_the_independent_checker(staggered):
+    sentence(PAPER, r"every network passes the independent checker")
+    assert max(r["checker_error"] for r in staggered.values()) <= 1e-4  # check_network.py's default --tol
+
+
+def test_paper_errors_quoted_are_the_papers(staggered):
+    m = sentence(PAPER, r"the paper's errors are (\S+) to (\S+)\)")
+    assert_shown(m[1], min(p.max_rel_error for p in PAPER_TABLE1.values()), "the paper's smallest error")
+    assert_shown(m[2], max(p.max_rel_error for p in PAPER_TABLE1.values()), "the paper's largest error")
+
+
+def test_paper_more_outer_iterations_on_how_many_scenes(staggered):
+    m = sentence(PAPER, r"need more outer iterations than the paper on (\w+) of the six scenes")
+    more = sum(r["iterations"] > r["paper_iterations"] for r in staggered.values())
+    words = ["none", "one", "two", "three", "four", "five", "six"]
+    assert m[1] == words[more], f"the CSV has {more} scenes with more iterations than the paper"
+
+
+def test_paper_distance_to_the_reference_against_the_published_networks(table1, staggered):
+    m = sentence(PAPER, r"or closer, except on (\S+) \((\S+) against (\S+); `--option refine=20` brings it to (\S+)\)")
+    published = by_scene(table1, "published")
+    farther = [s for s in published if staggered[s]["dist_ref_mean"] > published[s]["dist_ref_mean"]]
+    assert farther == [m[1]]
+    assert_shown(m[2], staggered[m[1]]["dist_ref_mean"], f"{m[1]}: our mean distance to the reference")
+    assert_shown(m[3], published[m[1]]["dist_ref_mean"], f"{m[1]}: the paper's network's")
+    assert_shown(m[4], by_scene(table1, REFINE)[m[1]]["dist_ref_mean"], f"{m[1]}: refined")
+
+
+def test_paper_ipopt_converges_on_the_simple_scenes_only(table1):
+    m = sentence(PAPER, r"MUMPS, (\d+) s limit\) converges on (.+?), and does not finish (.+?) within the limit")
+    ipopt = by_scene(table1, "simultaneous", "ipopt (cold)")
+    assert {r["time_limit_s"] for r in ipopt.values()} == {float(m[1])}
+    named = lambda text: set(re.split(r", | and | or ", text))  # noqa: E731
+    assert {s for s, r in ipopt.items() if r["status"] == "converged"} == named(m[2])
+    assert all(ipopt[s]["status"] != "converged" for s in named(m[3]))
+
+
+# ---------------------------------------------------------------------- docs/guide/methods.md
+METHODS = "docs/guide/methods.md"
+
+
+@pytest.mark.parametrize("page, pattern", [
+    (METHODS, r"It ends (\S+)–(\S+)× closer to the reference on the paper's scenes, at (\S+)–(\S+)× the time"),
+    ("docs/theory/refinement.md",
+     r"On the paper's scenes it ends (\S+)–(\S+)× closer to the reference than the default, at (\S+)–(\S+)× the time"),
+])
+def test_refinement_gain_and_cost(table1, staggered, page, pattern):
+    m = sentence(page, pattern)
+    refined = by_scene(table1, REFINE)
+    closer = [staggered[s]["dist_ref_mean"] / refined[s]["dist_ref_mean"] for s in refined]
+    cost = [refined[s]["time_s"] / staggered[s]["time_s"] for s in refined]
+    assert set(refined) == set(PAPER_TABLE1)
+    assert_shown(m[1], min(closer), "refinement: the least gain")
+    assert_shown(m[2], max(closer), "refinement: the largest gain")
+    assert_shown(m[3], min(cost), "refinement: the least time factor")
+    assert_shown(m[4], max(cost), "refinement: the largest time factor")
+
+
+def test_methods_default_on_table1(staggered):
+    m = sentence(METHODS, r"it converges on every one, to max relative errors below (\S+), in under (\S+) s each")
+    assert {r["status"] for r in staggered.values()} == {"converged"}
+    assert max(r["max_rel_error"] for r in staggered.values()) < float(m[1])
+    assert max(r["time_s"] for r in staggered.values()) < float(m[2])
+
+
+@pytest.mark.parametrize("page, pattern", [
+    (METHODS, r"on complex shapes \(the paper's (.+?)\) it does not finish within minutes"),
+    ("docs/theory/refinement.md", r"IPOPT on the full simultaneous problem does not finish (.+?) within minutes"),
+])
+def test_ipopt_does_not_finish_the_complex_shapes(table1, page, pattern):
+    m = sentence(page, pattern)
+    ipopt = by_scene(table1, "simultaneous", "ipopt (cold)")
+    assert all(ipopt[s]["status"] != "converged" for s in re.split(r", | and | or ", m[1]))
+
+
+# ----------------------------------------------------------------- docs/guide/commands/edit.md
+def test_edit_warm_resolve_after_a_small_move_or_a_density_change():
+    m = sentence("docs/guide/commands/edit.md",
+                 r"a small move or a density change re-solves in (\w+) iterations?, (\S+)–(\S+)× faster than cold")
+    table = [r for r in rows("warm_resolve.csv") if r["edit"] != "pin a vertex"]
+    assert {r["edit"] for r in table} == {"height move", "full move", "top-view move", "density +10%"}
+    words = {"one": 1, "two": 2, "three": 3}
+    assert max(r["warm_it"] for r in table) == words[m[1]]
+    assert_shown(m[2], min(r["speedup"] for r in table), "warm re-solve: the least speed-up")
+    assert_shown(m[3], max(r["speedup"] for r in table), "warm re-solve: the largest speed-up")
+
+
+def test_paper_fig12_planar_quads_along_the_principal_directions_not_along_a_grid():
+    m = sentence(PAPER, r"along the principal directions lilium becomes planar \(non-planarity (\S+), below the (\S+) "
+                        r"tolerance\) and in equilibrium to (\S+), and ends closer to the reference than the published "
+                        r"`lilium-pq-n.obj`; along a grid the quads end (\S+) from planar, above the tolerance")
+    lilium = {r["mesh"]: r for r in rows("pq.csv") if r["scene"] == "lilium"}
+    principal, grid, published = lilium["remesh principal"], lilium["remesh grid"], lilium["published pq-n"]
+    tol = float(m[2])
+    assert principal["status"] == "converged"
+    assert_shown(m[1], principal["nonplanar_max"], "lilium along the principal directions: non-planarity")
+    assert principal["nonplanar_max"] <= tol < grid["nonplanar_max"]
+    assert principal["max_rel_error"] <= float(m[3])
+    assert principal["dist_mean"] < published["dist_mean"]
+    assert_shown(m[4], grid["nonplanar_max"], "lilium along a grid: non-planarity")
+
+
+# ---------------------------------------------------------------------------- the scaling study
+def test_multilevel_outer_iterations_of_the_staggered_method():
+    m = sentence("docs/theory/multilevel.md", r"(\d+)–(\d+) iterations at (\d+)k–(\d+)k vertices in the \[scaling study\]")
+    stag = [r for r in rows("scaling.csv") if r["method"] == "staggered" and r["status"] == "converged"]
+    assert (min(r["iterations"] for r in stag), max(r["iterations"] for r in stag)) == (int(m[1]), int(m[2]))
+    assert_shown(m[3], min(r["vertices"] for r in stag) / 1000, "the smallest size [k vertices]")
+    assert_shown(m[4], max(r["vertices"] for r in stag) / 1000, "the largest size [k vertices]")
+
+
+def test_the_staggered_solve_grows_faster_than_n():
+    sentence("docs/theory/multilevel.md", r"so a solve grows faster than n")
+    sentence(METHODS, r"`staggered` alone grows faster than n")
+    fits = [r for r in rows("scaling_exponents.csv") if r["method"] == "staggered"]
+    assert fits and all(r["time_exponent"] > 1 for r in fits)
