@@ -113,6 +113,15 @@ def test_user_objective_in_si_units_equals_default(scene, result):
     assert np.abs(res.network.vertices - result.network.vertices).max() < 1e-5 * diag
 
 
+def test_one_case_is_polished_to_round_off(result):
+    """One load case, free top view: with the weights frozen the positions are solved from
+    (2)-(3) with loads of their own geometry by the polish the staggered method uses (Newton on
+    the stress Laplacian's factor), so the network is in equilibrium to round-off, far below
+    IPOPT's tol."""
+    assert result.history[-1]["stage"] == "polish" and result.history[-1]["solver_status"] == "converged"
+    assert float(network_errors(result.network).max()) <= 1e-13
+
+
 def test_statuses_and_errors(scene):
     with pytest.raises(InputError, match="objective"):
         Simultaneous().solve(scene, LOADS, objective="nonsense")

@@ -14,9 +14,9 @@ start already near equilibrium cheaply; then three methods, each a fallback for 
    residual. From the iterates the solver polishes it converges in 4–13 steps on the paper's
    scenes, also where the load fixed point is no contraction (cyl2); far from a solution it
    may stall (seen on dome2), and the fallbacks take over.
-2. **Anderson** mixing (depth 5) on the fixed point ``z = G(z) = K⁻¹(z_s − L(z))``: needs no
-   Jacobian, used when Newton does not converge (e.g. a load model whose dependence is not
-   face-local, so the colouring misses entries).
+2. **Anderson** mixing (:func:`~selfsupport.methods.anderson.anderson`) on the fixed point
+   ``z = G(z) = K⁻¹(z_s − L(z))``: needs no Jacobian, used when Newton does not converge (e.g.
+   a load model whose dependence is not face-local, so the colouring misses entries).
 3. **Newton–Krylov** (scipy) on ``z − G(z)``, when even that diverges.
 """
 from __future__ import annotations
@@ -31,6 +31,7 @@ import scipy.sparse as sp
 
 from ..linalg import spd_factor
 from ..loads import LoadCase
+from .anderson import anderson
 from .deadline import DeadlineReached, out_of_time
 from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
 from formulations.nlp import ThrustNetworkProblem
@@ -85,7 +86,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         # a start already near the fixed point (the fit was nearly exact; a warm start or a
         # prolonged network in equilibrium) settles in a few cheap rounds, before Newton's
         # colouring and factorization
-        za, rounds, converged = _anderson(G, z_start, ftol, first, deadline=deadline)
+        za, rounds, converged = anderson(G, z_start, tol=ftol, max_rounds=first, deadline=deadline)
         z = za if converged else z_start
     if newton and not converged:
         ws = workspace if workspace is not None else {}
@@ -97,7 +98,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         rounds += r1
     if not converged and fallbacks and max_rounds > first and not out_of_time(deadline):
         # (with no more rounds than the first try had, it would repeat that try round for round)
-        z, r2, converged = _anderson(G, z_start, ftol, max_rounds, deadline=deadline)
+        z, r2, converged = anderson(G, z_start, tol=ftol, max_rounds=max_rounds, deadline=deadline)
         rounds += r2
     if not converged and fallbacks and krylov and not out_of_time(deadline):
         z, r3 = _newton_krylov(G, z_start, z, ftol, deadline=deadline)
@@ -229,40 +230,6 @@ def _colour_graph(C: sp.csr_matrix) -> np.ndarray:
             avail &= ~chosen & ~((C @ chosen.astype(float)) > 0)
         k += 1
     return colour
-
-
-def _anderson(G: Callable, z: np.ndarray, ftol: float, max_rounds: int,
-              deadline: float | None = None) -> tuple[np.ndarray, int, bool]:
-    """Anderson-accelerated fixed-point iteration (depth 5); gives up when it diverges or at
-    ``deadline`` (then it returns its start: only a converged Anderson point is known to be better)."""
-    dz_hist: list[np.ndarray] = []
-    df_hist: list[np.ndarray] = []
-    f_prev = z_prev = None
-    f_first = np.inf
-    z_start = z
-    for rounds in range(1, max_rounds + 1):
-        if out_of_time(deadline):
-            return z_start, rounds - 1, False
-        gz = G(z)
-        f = gz - z
-        fmax = float(np.abs(f).max())
-        if fmax <= ftol:
-            return gz, rounds, True
-        f_first = fmax if rounds == 1 else f_first
-        if rounds >= 15 and fmax > f_first:  # diverging: leave it to Newton–Krylov
-            return z, rounds, False
-        if f_prev is not None:
-            dz_hist.append(z - z_prev)
-            df_hist.append(f - f_prev)
-            dz_hist, df_hist = dz_hist[-5:], df_hist[-5:]
-        z_prev, f_prev = z, f
-        if df_hist:
-            dF = np.stack(df_hist, axis=1)
-            gamma = np.linalg.lstsq(dF, f, rcond=None)[0]
-            z = z + f - (np.stack(dz_hist, axis=1) + dF) @ gamma
-        else:
-            z = gz
-    return z, max_rounds, False
 
 
 def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: float,
