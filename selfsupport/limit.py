@@ -543,10 +543,7 @@ def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: flo
     """
     t_start = time.perf_counter()
     deadline = t_start + time_limit
-    if kg == 0 and at is None:
-        added, at_ = np.zeros(scene.mesh.n_vertices), ()
-    else:
-        added, at_ = _pattern(scene, at)
+    added, at_ = _added_pattern(scene, at, kg)
     problem = _base_problem(scene, thickness, density, w_max)
     V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
     run = _program_run(problem, "feasibility", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
@@ -566,6 +563,13 @@ def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: flo
                f"{hull['max_excess']:.3g} m)")
     return LimitResult("feasibility", None, float(kg), False, dataclasses.replace(res, message=message),
                        "not certified", run.raw, message, tuple(run.rounds), _binding(scene, hull), thickness)
+
+
+def _added_pattern(scene: Scene, at: Sequence[int] | None, kg: float) -> tuple[np.ndarray, tuple]:
+    """Where ``kg`` goes: no pattern for no added load at no vertex, else :func:`_pattern`."""
+    if kg == 0 and at is None:
+        return np.zeros(scene.mesh.n_vertices), ()
+    return _pattern(scene, at)
 
 
 def min_thickness(scene: Scene, *, density: float = 2000.0, guess: float, kg: float = 0.0,
@@ -596,10 +600,7 @@ def min_thickness(scene: Scene, *, density: float = 2000.0, guess: float, kg: fl
     """
     t_start = time.perf_counter()
     deadline = t_start + time_limit
-    if kg == 0 and at is None:
-        added, at_ = np.zeros(scene.mesh.n_vertices), ()
-    else:
-        added, at_ = _pattern(scene, at)
+    added, at_ = _added_pattern(scene, at, kg)
     problem = _base_problem(scene, guess, density, w_max)
     V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
     run = _program_run(problem, "min_thickness", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
