@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import cho_factor, cho_solve
 
 try:  # cvxopt bundles CHOLMOD; without it the QDLDL path below still works
     from cvxopt import cholmod as _cholmod
@@ -299,8 +300,6 @@ class LowRankUpdatedFactor:
     """
 
     def __init__(self, factor: SPDFactor, apply_m, dense: sp.csr_matrix) -> None:
-        from scipy.linalg import cho_factor
-
         self.factor, self.dense = factor, dense
         self._apply_m = apply_m
         self._Z = np.asarray(factor.solve(dense.T.toarray())).reshape(dense.shape[1], dense.shape[0])
@@ -312,8 +311,6 @@ class LowRankUpdatedFactor:
         return self._apply_m(x) + self.dense.T @ (self.dense @ x)
 
     def _woodbury(self, r: np.ndarray) -> np.ndarray:
-        from scipy.linalg import cho_solve
-
         y = self.factor.solve(r)
         return y - self._Z @ cho_solve(self._C, self.dense @ y)
 
