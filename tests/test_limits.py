@@ -221,12 +221,15 @@ def _run_measured(tmp_path, argv: list[str], timeout: float = 60.0) -> dict:
     import subprocess
     import sys
 
-    script = ("import json, resource, sys, time\n"
+    # (the peak of the process's own address space: ru_maxrss would inherit the pytest worker's
+    # RSS through fork and exec)
+    script = ("import json, sys, time\n"
               "from selfsupport import cli\n"
+              "from studies.common import peak_rss_mib\n"
               "t0 = time.perf_counter()\n"
               "code = cli.main(sys.argv[1:])\n"
               "took = time.perf_counter() - t0\n"
-              "peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024\n"
+              "peak = peak_rss_mib() * 2 ** 20\n"
               "print(json.dumps({'code': code, 'took': took, 'peak': peak}), file=open(sys.argv[0] + '.out', 'w'))\n")
     path = tmp_path / "measure.py"
     path.write_text(script)
