@@ -39,6 +39,28 @@ CHECKER_MISSING = f"the shared independent checker is not beside the repository 
 requires_checker = pytest.mark.skipif(not CHECKER.is_file(), reason=CHECKER_MISSING)
 
 
+# ------------------------------------------------------------------ a long design edit
+@pytest.fixture
+def slow_subdivide(monkeypatch):
+    """``Subdivide`` edits that block until released: ``(started, release)`` events; the edit
+    sets ``started`` when it begins and returns the design unchanged once ``release`` is set (or
+    after 20 s). Released when the test ends."""
+    import threading
+
+    from selfsupport.design import edits as edits_mod
+
+    started, release = threading.Event(), threading.Event()
+
+    def slow_apply(self, design):
+        started.set()
+        release.wait(20)
+        return design
+
+    monkeypatch.setattr(edits_mod.Subdivide, "apply", slow_apply)
+    yield started, release
+    release.set()
+
+
 # ------------------------------------------------------------------ wall-clock bounds under load
 def load_factor() -> float:
     """How many times longer a CPU-bound step takes now than on an idle machine, at least 1: the

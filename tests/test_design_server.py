@@ -579,21 +579,12 @@ def test_save_never_replaces_a_file_the_session_did_not_write(served):
 
 
 # ------------------------------------------------------------------ long edits, stopping
-def test_a_long_edit_blocks_no_other_page_and_is_dropped_at_its_limit(served, monkeypatch):
+def test_a_long_edit_blocks_no_other_page_and_is_dropped_at_its_limit(served, slow_subdivide):
     """One page's edit runs past the server's edit time limit: another page's edit is answered
     meanwhile, the long one gets an error at the limit, and it never enters the log."""
-    from selfsupport.design import edits as edits_mod
-
     client, token, srv, _ = served
     srv.edit_time_limit = 0.5
-    started, release = threading.Event(), threading.Event()
-
-    def slow_apply(self, design):
-        started.set()
-        release.wait(20)
-        return design
-
-    monkeypatch.setattr(edits_mod.Subdivide, "apply", slow_apply)
+    started, release = slow_subdivide
     try:
         with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws1, \
                 client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws2:

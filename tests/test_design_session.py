@@ -308,19 +308,12 @@ def test_an_edit_past_its_deadline_changes_nothing(dome):
     assert log.seq == 0 and not log.edits
 
 
-def test_a_long_edit_does_not_hold_up_other_edits(dome, monkeypatch):
+def test_a_long_edit_does_not_hold_up_other_edits(dome, slow_subdivide):
     """While one edit is computed, another goes through; the long one, made on the design before,
     is refused when it ends and changes nothing."""
     from selfsupport.design import edits as edits_mod
 
-    started, release = threading.Event(), threading.Event()
-
-    def slow_apply(self, design):
-        started.set()
-        release.wait(20)
-        return design
-
-    monkeypatch.setattr(edits_mod.Subdivide, "apply", slow_apply)
+    started, release = slow_subdivide
     log = EditLog(Design(dome))
     out: dict = {}
 
