@@ -9,13 +9,13 @@
 * :mod:`formulations.scaling` — the scale-free units;
 * :mod:`formulations.nlp` — :class:`ThrustNetworkProblem`, the NLP handed to IPOPT / nlopt.
 """
-from .equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds
-from .loadcases import DEFAULT_CASE, LoadCases
-from .nlp import ThrustNetworkProblem
-from .problem import (CONSTRAINTS, Bounds, FixedTopView, Hull, ObjectiveTerm, Planar, Problem, ScaledProblem,
+from formulations.equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds
+from formulations.loadcases import DEFAULT_CASE, LoadCases
+from formulations.nlp import ThrustNetworkProblem
+from formulations.problem import (CONSTRAINTS, Bounds, FixedTopView, Hull, ObjectiveTerm, Planar, Problem, ScaledProblem,
                       parse_objective)
-from .scaling import Scaling, default_eps
-from .terms import (TERMS, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity, PlanarityVolume, PointDistance,
+from formulations.scaling import Scaling, default_eps
+from formulations.terms import (TERMS, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity, PlanarityVolume, PointDistance,
                     ReferenceDistance, Scaled, Sum, Term, TermContext)
 
 __all__ = ["Problem", "ScaledProblem", "Bounds", "Hull", "FixedTopView", "Planar", "CONSTRAINTS", "ObjectiveTerm",

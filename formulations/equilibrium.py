@@ -40,7 +40,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 
 #: Symbol types a formulation can be built with (MX: fast to build for large graphs; SX:
 #: scalar graphs, handy for small Jacobian checks).

@@ -1,15 +1,15 @@
 """Load cases of a problem: a named set of load models for which one geometry must stand.
 
 Each case maps a geometry to signed vertical nodal loads ``A_i F_i`` [N] (the load models of
-:mod:`selfsupport.loads`: self-weight re-estimated from the geometry, extra mass, point loads;
+:mod:`selfsupport.core.loads`: self-weight re-estimated from the geometry, extra mass, point loads;
 they add up with ``+``). With several cases a network has one weight vector per case, and every
 case must be in equilibrium with compressive weights: the shell stands empty *and* under snow.
 The scene's own extra masses and point loads (``.sss`` handled vertices) belong to every case.
 
 Example
 -------
->>> from selfsupport.shapes import make_shape
->>> from selfsupport.loads import SelfWeight, PointLoad
+>>> from selfsupport.core.shapes import make_shape
+>>> from selfsupport.core.loads import SelfWeight, PointLoad
 >>> import numpy as np
 >>> scene = make_shape("dome", n_vertices=60)
 >>> f = np.zeros(scene.mesh.n_vertices); f[30] = -5000.0
@@ -27,9 +27,9 @@ from typing import Iterator, Mapping
 
 import numpy as np
 
-from selfsupport.errors import InputError
-from selfsupport.loads import LoadCase, SelfWeight, with_scene_extras
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.errors import InputError
+from selfsupport.core.loads import LoadCase, SelfWeight, with_scene_extras
+from selfsupport.core.mesh import PolyMesh
 
 #: Name of the case when a problem has a single one.
 DEFAULT_CASE = "self-weight"

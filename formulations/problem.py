@@ -15,7 +15,7 @@ explicit objective is used as stated by every method.
 
 Example
 -------
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> p = Problem.build(make_shape("dome", n_vertices=80), objective={"vertices": 1.0, "planarity": 10.0})
 >>> [t.name for t in p.objective], p.loads.names
 (['vertices', 'planarity'], ('self-weight',))
@@ -30,12 +30,12 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 
-from .equilibrium import Topology
-from .loadcases import LoadCases
-from .scaling import Scaling, default_eps
-from .terms import TERMS, Scaled, Sum, Term, TermContext
+from formulations.equilibrium import Topology
+from formulations.loadcases import LoadCases
+from formulations.scaling import Scaling, default_eps
+from formulations.terms import TERMS, Scaled, Sum, Term, TermContext
 
 
 #: Largest nodal load magnitude [N] the arithmetic takes: forces are squared in norms and in the
@@ -139,7 +139,7 @@ def stress_w_max(mesh, max_stress: float, thickness: float) -> np.ndarray:
     """Per-edge w_max [N/m] from a material strength: ``σ_max · t · b_e / |e|``.
 
     An edge stands for the strip of shell around it: of thickness ``t`` and of its tributary
-    width ``b_e`` (:func:`~selfsupport.geometry.edge_tributary_widths`: twice the area of the
+    width ``b_e`` (:func:`~selfsupport.core.geometry.edge_tributary_widths`: twice the area of the
     edge's triangles to the centroids of its faces over its length; on a regular grid of
     spacing ``h`` it is ``h``). The force that strip carries at stress ``σ_max`` is
     ``σ_max · t · b_e``; the edge's force is ``w |e|`` (``w`` is a force density, force per
@@ -152,7 +152,7 @@ def stress_w_max(mesh, max_stress: float, thickness: float) -> np.ndarray:
     Parameters
     ----------
     mesh
-        The reference :class:`~selfsupport.mesh.PolyMesh`.
+        The reference :class:`~selfsupport.core.mesh.PolyMesh`.
     max_stress
         Allowable stress σ_max [Pa].
     thickness
@@ -163,7 +163,7 @@ def stress_w_max(mesh, max_stress: float, thickness: float) -> np.ndarray:
     numpy.ndarray
         One bound per mesh edge [N/m].
     """
-    from selfsupport.geometry import edge_tributary_widths, edge_vectors
+    from selfsupport.core.geometry import edge_tributary_widths, edge_vectors
 
     for name, v in (("the maximum stress", max_stress), ("the thickness", thickness)):
         if not (np.isfinite(v) and v > 0):
@@ -275,7 +275,7 @@ class ScaledProblem:
 class Problem:
     """A thrust-network design problem (see the module docstring). Build with :meth:`build`."""
 
-    scene: Any  # selfsupport.scene.Scene
+    scene: Any  # selfsupport.core.scene.Scene
     loads: LoadCases
     bounds: Bounds = Bounds()
     objective: tuple | None = None  # of ObjectiveTerm / Term (SI units); None: the method's default
@@ -325,7 +325,7 @@ class Problem:
     # ---------------------------------------------------------------- checks
     def validate(self) -> None:
         """Mesh, supports and (for a flat reference) the need for ``w_max``; raises named errors."""
-        from selfsupport.validate import require_rise
+        from selfsupport.methods.validate import require_rise
 
         self.scene.mesh.validate()
         self.scene.check_supports()

@@ -1,5 +1,5 @@
 """Scale-free units: lengths relative to the diagonal of the smallest upright box around the
-scene (:func:`~selfsupport.geometry.plan_box_diagonal`: unchanged by turning the scene about the
+scene (:func:`~selfsupport.core.geometry.plan_box_diagonal`: unchanged by turning the scene about the
 vertical axis, and equal to the axis-aligned box's diagonal wherever that box is the smallest),
 forces relative to the mean nodal load. Every solver works in these units so one set of defaults serves scenes
 from 2 m to 30 m and any density or thickness; a scaled scene gives the scaled network.
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from selfsupport.geometry import plan_box_diagonal
+from selfsupport.core.geometry import plan_box_diagonal
 
 
 @dataclass(frozen=True)

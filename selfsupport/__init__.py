@@ -1,8 +1,8 @@
 """selfsupport: design of self-supporting masonry surfaces (Vouga et al., SIGGRAPH 2012)."""
-from .errors import (BackendUnavailable, InfeasibleDesign, InputError, MeshError,
+from selfsupport.core.errors import (BackendUnavailable, InfeasibleDesign, InputError, MeshError,
                      SelfSupportError, SupportError)
-from .loads import CombinedLoad, ExtraMass, LoadCase, PointLoad, SelfWeight
-from .mesh import PolyMesh
-from .scene import Scene
+from selfsupport.core.loads import CombinedLoad, ExtraMass, LoadCase, PointLoad, SelfWeight
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
 
 __version__ = "0.1.0"

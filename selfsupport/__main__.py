@@ -2,7 +2,7 @@
 import sys
 
 try:  # Ctrl-C while numpy & co. are still importing: the same one line as later on
-    from .cli import main
+    from selfsupport.cli.common import main
 except KeyboardInterrupt:
     print("selfsupport: interrupted; nothing was written", file=sys.stderr)
     sys.exit(130)

@@ -3,7 +3,7 @@
 Two calls cover the usual jobs::
 
     >>> from selfsupport import api
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> res = api.solve(make_shape("dome", n_vertices=300))
     >>> res.status, res.max_relative_error < 1e-9
     ('converged', True)
@@ -11,14 +11,14 @@ Two calls cover the usual jobs::
     True
 
 * :func:`solve` reads a scene (or takes one), builds the self-weight load case, picks a method
-  from :data:`METHODS` by name and returns its :class:`~selfsupport.result.SolveResult`.
+  from :data:`METHODS` by name and returns its :class:`~selfsupport.core.result.SolveResult`.
 * :func:`check` keeps the positions as they are, fits the weights with the staggered method's
   Step 2 (same scaling, same bounds, same backend) and says whether the surface stands:
   a :class:`CheckReport`.
 
 Methods are named in :data:`METHODS` and imported only when used (the IPOPT method pulls in
 CasADi; a method whose module is not installed yet raises
-:class:`~selfsupport.errors.BackendUnavailable` with the reason instead of breaking the import).
+:class:`~selfsupport.core.errors.BackendUnavailable` with the reason instead of breaking the import).
 """
 from __future__ import annotations
 
@@ -31,13 +31,13 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .errors import BackendUnavailable, InputError
-from .loads import G, LoadCase, SelfWeight, with_scene_extras
-from .methods.choice import AUTO
-from .mesh import PolyMesh
-from .result import Network, SolveResult
-from .scene import Scene
-from .validate import load_issues, validate_scene
+from selfsupport.core.errors import BackendUnavailable, InputError
+from selfsupport.core.loads import G, LoadCase, SelfWeight, with_scene_extras
+from selfsupport.methods.choice import AUTO
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
+from selfsupport.methods.validate import load_issues, validate_scene
 
 from formulations import Bounds, Problem
 from formulations.problem import stress_w_max
@@ -142,7 +142,7 @@ def make_method(name: str = "staggered", backend: str | None = None, **settings:
 def _supports_mask(spec: Any, mesh: PolyMesh, source: str) -> np.ndarray:
     """``spec`` as a boolean mask: ``"boundary"`` / a supports file / indices / a mask."""
     if isinstance(spec, (str, os.PathLike)):
-        from .io.supports import resolve_supports
+        from selfsupport.io.supports import resolve_supports
 
         return np.asarray(resolve_supports(spec, mesh, source=source), bool)
     a = np.asarray(spec)
@@ -174,7 +174,7 @@ def as_scene(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: A
         The file's vertical axis (files only; ``None`` = the format's convention).
     """
     if isinstance(obj, (str, os.PathLike)):
-        from .io import read_scene
+        from selfsupport.io import read_scene
 
         if supports is None or isinstance(supports, (str, os.PathLike)):
             return read_scene(obj, up=up, supports=None if supports is None else str(supports))
@@ -259,7 +259,7 @@ def load_spec(*, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_TH
     """The load model: self-weight ρ [kg/m³], t [m]; ``point_loads`` {vertex: N, positive down}
     and ``extra_mass`` {vertex: kg} on every case; ``load_cases`` a TOML file or a sequence of
     :class:`~selfsupport.io.loadcases.CaseSpec` (see :mod:`selfsupport.io.loadcases`)."""
-    from .io.loadcases import LoadSpec, read_load_cases
+    from selfsupport.io.loadcases import LoadSpec, read_load_cases
 
     cases = ()
     if load_cases is not None:
@@ -317,7 +317,7 @@ def weight_bounds(scene: Scene, *, eps: Any = None, w_max: Any = None, bounds: A
     if bounds is None:
         return base
     if isinstance(bounds, (str, os.PathLike)):
-        from .io.bounds import read_bounds
+        from selfsupport.io.bounds import read_bounds
 
         bounds = read_bounds(bounds, scene.mesh)
     if not isinstance(bounds, Bounds):
@@ -377,7 +377,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     max_memory
         Memory the solve may use [GiB] (default: what the machine has available now); a mesh
         whose estimated need exceeds it is refused before any work
-        (:func:`~selfsupport.memory.check_memory`).
+        (:func:`~selfsupport.methods.memory.check_memory`).
     warm_start
         A network to start from instead of the reference (default: the stored network of a
         network file, else none). Used by the staggered method (its offset from its own
@@ -393,7 +393,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     SolveResult
         Its ``parameters`` gain ``"loads"`` (the self-weight ρ, t), ``"load_model"`` (every load,
         so the file can be re-checked case by case), ``"input_issues"``: the warnings of
-        :func:`~selfsupport.validate.validate_scene` and :func:`~selfsupport.validate.load_issues`
+        :func:`~selfsupport.methods.validate.validate_scene` and :func:`~selfsupport.methods.validate.load_issues`
         as dicts, ``"cpu"``: the process's CPU seconds at the call (``at_entry``, the origin of
         the staggered history records' ``cpu_s``) and spent in it (``solve``), and with
         ``method="auto"`` ``"method_choice"``: the method chosen and why (one line).
@@ -401,7 +401,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     Raises
     ------
     MeshError, SupportError, InputError
-        Unusable input (see :func:`~selfsupport.validate.validate_scene`), before any solving.
+        Unusable input (see :func:`~selfsupport.methods.validate.validate_scene`), before any solving.
     TooLarge
         The solve would need more memory than ``max_memory`` / the machine has.
     """
@@ -410,9 +410,9 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     cpu_entry = time.process_time()  # (the origin of the history records' "cpu_s" stamps)
     scene, stored = design_of(as_scene(scene_or_path, supports=supports, up=up))
     start = warm_start if warm_start is not None else stored
-    from .memory import check_memory
+    from selfsupport.methods.memory import check_memory
 
-    from .memory import dense_row_bytes
+    from selfsupport.methods.memory import dense_row_bytes
 
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
                      load_cases=load_cases)
@@ -426,7 +426,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
     choice, settings = None, {}
     if method == AUTO:  # (the rule, from the problem: selfsupport.methods.choice)
-        from .methods.choice import choose_method
+        from selfsupport.methods.choice import choose_method
 
         choice = choose_method(prob, warm_start=start)
         method, settings = choice.method, dict(choice.settings)
@@ -435,14 +435,14 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         if method not in ("staggered", "multilevel"):
             raise InputError(f"method options {sorted(options)} apply to the staggered method (and multilevel) "
                              f"only, not {method!r}")
-        from .methods.staggered import StaggeredOptions
-        from .options import check_options
+        from selfsupport.methods.staggered import StaggeredOptions
+        from selfsupport.core.options import check_options
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
     solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit
-    from .methods.deadline import finish_reserve
+    from selfsupport.methods.deadline import finish_reserve
 
     until = {} if time_limit is None else {
         "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices, len(spec.case_specs))}
@@ -453,7 +453,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         design["start"] = started
     if prob.hull_thickness() is not None:
         # the masonry hull: search for a certifying network, or the verdict "infeasible"
-        from .stability import solve_in_hull
+        from selfsupport.structure.stability import solve_in_hull
 
         result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress,
                                **start_kw)
@@ -549,7 +549,7 @@ class CheckReport:
         ``"not_self_supporting"``), ``method`` ``"check"``, the evidence, the loads checked
         (``parameters.load_model``, so that checking the file again uses them) and, with several
         load cases, each case's fitted weights (``load_cases``)."""
-        from .io.network_json import load_case_entries
+        from selfsupport.io.network_json import load_case_entries
 
         d: dict[str, Any] = {
             "status": "self_supporting" if self.self_supporting else "not_self_supporting", "method": "check",
@@ -609,8 +609,8 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     eps, w_max, backend
         Weight bounds [N/m] and the Step-2 backend, as in the staggered method.
     """
-    from .io.loadcases import LoadSpec
-    from .methods.fixed_fit import fit_weights
+    from selfsupport.io.loadcases import LoadSpec
+    from selfsupport.methods.fixed_fit import fit_weights
 
     t0 = time.perf_counter()
     stored: Network | None = None
@@ -618,7 +618,7 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     if isinstance(obj, Network):
         stored = obj
     elif isinstance(obj, (str, os.PathLike)) and Path(obj).suffix.lower() == ".json":
-        from .io import read_network
+        from selfsupport.io import read_network
 
         doc = _stored_document(Path(obj))
         if "weights" in doc or "edges" in doc:  # not a hand-made {"vertices", "faces", "supports"} scene
@@ -702,7 +702,7 @@ def sensitivity(result: Any, parameter: str, *, problem: Problem | None = None) 
     :class:`~selfsupport.methods.sensitivity.Sensitivity` (SI units). ``problem``: the solved
     problem (default: rebuilt from the result's parameters). See
     :func:`selfsupport.methods.sensitivity.sensitivity`."""
-    from .methods.sensitivity import sensitivity as _sensitivity
+    from selfsupport.methods.sensitivity import sensitivity as _sensitivity
 
     return _sensitivity(result, parameter, problem=problem)
 
@@ -725,8 +725,8 @@ def koebe(source: PolyMesh | str | os.PathLike = "enneper", *, alpha: float = 1.
     >>> fam.network.max_relative_error() < 1e-10
     True
     """
-    from .analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
-    from .io import read_mesh
+    from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
+    from selfsupport.io import read_mesh
 
     if isinstance(source, PolyMesh):
         mesh = source

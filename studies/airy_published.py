@@ -102,12 +102,12 @@ def compare_lilium(published: Path, scenes: Path, out: Path) -> dict[str, Any]:
 
     from selfsupport import api
     from selfsupport.analysis import airy, curvatures, face_principal_directions, reciprocal, write_vector_fields
-    from selfsupport.cli_airy import airy_document
+    from selfsupport.cli.airy import airy_document
     from selfsupport.io import write_mesh
     from selfsupport.io.atomic import atomic_write_text
     from selfsupport.io.axes import to_ours
     from selfsupport.io.network_json import to_jsonable
-    from selfsupport.result import Network
+    from selfsupport.core.result import Network
 
     sc = _published_scene(published, scenes, "lilium-n")
     t0 = time.perf_counter()
@@ -218,7 +218,7 @@ def timings(published: Path, scenes: Path, rings: Sequence[int]) -> list[dict[st
     """Step 4: analysis times on the published networks and on constructed ones."""
     from selfsupport import api
     from selfsupport.analysis import construct
-    from selfsupport.shapes import disk_points
+    from selfsupport.core.shapes import disk_points
 
     rows: list[dict[str, Any]] = []
     for stem in PUBLISHED_NETWORKS:

@@ -368,7 +368,7 @@ def equilibrium_errors(vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
     """Per non-support vertex ``‖(0,0,L_i) − Σ_j w_ij (v_j − v_i)‖ / |L_i|`` (the paper's Table 1 metric).
 
     Written again here in plain numpy, deliberately not the project's
-    :mod:`selfsupport.evidence`, so that the table's error column is an independent check.
+    :mod:`selfsupport.core.evidence`, so that the table's error column is an independent check.
     """
     r = np.zeros_like(vertices)
     f = weights[:, None] * (vertices[edges[:, 1]] - vertices[edges[:, 0]])

@@ -3,7 +3,7 @@
     python -m studies.design_latency [--scene shape:pillar_vault:1200 | --scenes DIR (lilium)]
                                      [--steps 30] [--step 0.001] [--out DIR]
 
-A real server (uvicorn on 127.0.0.1, :mod:`selfsupport.design.server`) and a scripted WebSocket
+A real server (uvicorn on 127.0.0.1, :mod:`selfsupport.app.server`) and a scripted WebSocket
 client in this process. Each row is one kind of interaction, ``--steps`` edits, each sent when
 the previous frame has arrived (a user dragging no faster than the tool answers):
 
@@ -187,8 +187,8 @@ def _browser_rows(url: str, steps: int, step: float) -> list[dict]:
 def run(scene: str, *, steps: int = 30, step: float = 0.001, root: Path | None = None,
         browser: bool = False) -> list[dict]:
     """Start a server on ``scene`` and measure (see the module docstring)."""
-    from selfsupport.cli_design import open_session
-    from selfsupport.design.server import DesignServer, bind_loopback, create_app, new_token, serve
+    from selfsupport.cli.design import open_session
+    from selfsupport.app.server import DesignServer, bind_loopback, create_app, new_token, serve
 
     log = open_session(scene)
     sock = bind_loopback(0)

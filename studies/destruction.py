@@ -15,7 +15,7 @@ Two parts (t = 0.5 m, ρ = 2500 kg/m³ unless given):
   a collapse, which is not applied: our cascade after the previous cut must predict it. Per paper
   stage: faces left (paper, ours), and how much of what the paper lost we lost too.
 * **One removal** (``--remove VERTEX``, default the highest free vertex): its 1-ring deleted, the
-  cascade run (:func:`selfsupport.destruction.destroy`).
+  cascade run (:func:`selfsupport.structure.destruction.destroy`).
 
 The hull's mid-surface is, by default, the design's own thrust network — the vault as built (the
 published stage 0 is a network, 3.8 m below twocirc-3's reference at the top); ``--reference
@@ -111,7 +111,7 @@ def paper_steps(scene: Any, files: Sequence[Path]) -> list[dict[str, Any]]:
 def replay(scene: Any, steps: Sequence[Mapping[str, Any]], *, thickness: float, density: float,
            max_stages: int) -> tuple[list[dict[str, Any]], list[Any]]:
     """Apply the paper's cuts in turn, each followed by our cascade; compare every step."""
-    from selfsupport.destruction import destroy
+    from selfsupport.structure.destruction import destroy
 
     faces = list(range(scene.mesh.n_faces))
     rows, shown = [], []
@@ -148,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "or the scene's reference surface")
     args = ap.parse_args(argv)
 
-    from selfsupport.destruction import destroy
+    from selfsupport.structure.destruction import destroy
     from selfsupport.figures.hull import stage_strip
     from selfsupport.io import read_scene, write_network
 

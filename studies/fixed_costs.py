@@ -34,7 +34,8 @@ _PHASE_DRIVER = r'''
 import json, sys, time
 t_start = time.perf_counter()
 import numpy as np
-from selfsupport import api, cli, result
+from selfsupport import api, cli
+from selfsupport.core import result
 from selfsupport.io import network_json as nj
 from selfsupport.methods import staggered
 t_imported = time.perf_counter()

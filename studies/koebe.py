@@ -56,7 +56,7 @@ def _mean_edge(mesh) -> float:
 def describe(mesh, name: str) -> dict[str, Any]:
     """Facts about a mesh against the Maxwell paraboloid (lengths over the mean edge length)."""
     from selfsupport.analysis.koebe import paraboloid_gaps
-    from selfsupport.evidence import face_nonplanarity
+    from selfsupport.core.evidence import face_nonplanarity
 
     ell = _mean_edge(mesh)
     vg, eg = paraboloid_gaps(mesh)

@@ -3,7 +3,7 @@
     python -m studies.method_choice --out DIR [--shapes dome,pillar_vault,concave_disk]
         [--sizes 1000,4000,16000] [--big pillar_vault:64000] [--scenes DIR] [--time-limit S]
 
-For each generated shape and size (:func:`selfsupport.shapes.make_shape`) two rows, each in its
+For each generated shape and size (:func:`selfsupport.core.shapes.make_shape`) two rows, each in its
 own spawned process after an untimed warm-up solve: the single-level staggered method, and the
 multilevel method with at least one coarser level (its ``direct_max`` lowered to a third of the
 mesh below :data:`~selfsupport.methods.multilevel.DIRECT_MAX`, so that it builds levels where it
@@ -82,7 +82,7 @@ def threshold_interval(cases: Sequence[tuple[int, str]]) -> tuple[int | None, in
 # ------------------------------------------------------------------------------- one row
 def _scene(source: str, scenes_dir: str | None) -> Any:
     if source.startswith("shape:"):
-        from selfsupport.shapes import make_shape
+        from selfsupport.core.shapes import make_shape
 
         _, name, n = source.split(":")
         return make_shape(name, n_vertices=int(n))
@@ -98,7 +98,7 @@ def solve_row(*, source: str, method: str, time_limit: float, scenes_dir: str | 
     from selfsupport.methods.choice import choose_method
     from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     scene = _scene(source, scenes_dir)
     n = scene.mesh.n_vertices

@@ -104,7 +104,7 @@ def record(shape: str, n_vertices: int, fits: Sequence[int]) -> tuple[Any, list]
     return the scene and its captured systems (:func:`capture_newton_systems`)."""
     from selfsupport.api import scene_loads
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape(shape, n_vertices=n_vertices)
     with capture_newton_systems(fits) as (backend, systems):
@@ -163,7 +163,7 @@ def solve_systems(systems: list, solvers: Sequence[str], *, every: int = 1, rtol
     The CHOLMOD factor is updated on every system (as the backend does, so its symbolic
     analysis is reused); ``cholmod-stale`` uses the factor of the same fit's previous system.
     """
-    from selfsupport import linalg
+    from selfsupport.core import linalg
 
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []

@@ -11,10 +11,10 @@ script (:mod:`studies.peers_runners`) that writes vertices, edges and compressio
 densities; :func:`network_metrics` then recomputes for all of them, in one way:
 
 * the max relative equilibrium error (the paper's Table 1 metric, docs/development/design.md) with the
-  problem's loads, by the project's :func:`selfsupport.evidence.max_relative_error` and again by
+  problem's loads, by the project's :func:`selfsupport.core.evidence.max_relative_error` and again by
   the plain-numpy :func:`studies.common.equilibrium_errors` (the two must agree);
 * the mean and max distance of the network's vertices to the reference surface over its
-  bounding-box diagonal (:func:`selfsupport.evidence.distance_stats`);
+  bounding-box diagonal (:func:`selfsupport.core.evidence.distance_stats`);
 * the smallest force density on an edge that carries something (not support to support):
   positive means compression only.
 
@@ -111,7 +111,7 @@ def export_problem(scene: Any, *, density: float = 2000.0, thickness: float = 0.
     Parameters
     ----------
     scene
-        A :class:`selfsupport.scene.Scene` (reference mesh, z up, SI units; supports).
+        A :class:`selfsupport.core.scene.Scene` (reference mesh, z up, SI units; supports).
     density, thickness
         Of the self-weight (kg/m³, m).
 
@@ -123,7 +123,7 @@ def export_problem(scene: Any, *, density: float = 2000.0, thickness: float = 0.
         [N], negative down: the self-weight on the reference, plus the scene's own extras),
         ``density``, ``thickness``.
     """
-    from selfsupport.loads import SelfWeight, with_scene_extras
+    from selfsupport.core.loads import SelfWeight, with_scene_extras
 
     mesh = scene.mesh
     loads = with_scene_extras(SelfWeight(density=density, thickness=thickness), scene).nodal(mesh, mesh.vertices)
@@ -140,10 +140,10 @@ def export_problem(scene: Any, *, density: float = 2000.0, thickness: float = 0.
 
 
 def problem_scene(problem: Mapping[str, Any]) -> Any:
-    """The :class:`~selfsupport.scene.Scene` of an exported problem (the inverse of
+    """The :class:`~selfsupport.core.scene.Scene` of an exported problem (the inverse of
     :func:`export_problem` up to the loads, which a scene does not hold)."""
-    from selfsupport.mesh import PolyMesh
-    from selfsupport.scene import Scene
+    from selfsupport.core.mesh import PolyMesh
+    from selfsupport.core.scene import Scene
 
     mesh = PolyMesh.from_faces(np.asarray(problem["vertices"], float), problem["faces"])
     return Scene(mesh=mesh, supports=np.asarray(problem["supports"], int), name=str(problem["name"]))
@@ -152,11 +152,11 @@ def problem_scene(problem: Mapping[str, Any]) -> Any:
 def read_problem_source(source: str, scenes_dir: Path, name: str) -> Any:
     """A scene from the scenes folder (by stem) or a built-in ``shape:NAME:VERTICES``."""
     if source.startswith("shape:"):
-        from selfsupport.shapes import make_shape
+        from selfsupport.core.shapes import make_shape
 
         _, shape, nv = source.split(":")
         scene = make_shape(shape, n_vertices=int(nv))
-        from selfsupport.scene import Scene
+        from selfsupport.core.scene import Scene
 
         return Scene(mesh=scene.mesh, supports=scene.supports, name=name)
     from .common import read_study_scene
@@ -197,8 +197,8 @@ def network_metrics(problem: Mapping[str, Any], vertices: np.ndarray, edges: np.
         diagonal), ``min_w`` (over edges not joining two supports), ``n_tension`` (edges there
         with w < 0), ``xy_drift`` (max horizontal move of a vertex, over the diagonal).
     """
-    from selfsupport.evidence import distance_stats, max_relative_error
-    from selfsupport.geometry import bbox_diagonal
+    from selfsupport.core.evidence import distance_stats, max_relative_error
+    from selfsupport.core.geometry import bbox_diagonal
 
     V0 = np.asarray(problem["vertices"], float)
     E = np.asarray(problem["edges"], int).reshape(-1, 2)
@@ -499,7 +499,7 @@ def _run_timed(cmd: list[str], time_limit: float, who: str) -> tuple[subprocess.
 def _network_errors(path: Path, checker: Path | None) -> dict[str, float]:
     """Max relative error of a network file with its own loads: by the project's evidence, and
     by the independent checker (NaN without one)."""
-    from selfsupport.evidence import max_relative_error
+    from selfsupport.core.evidence import max_relative_error
 
     return {"error": float(max_relative_error(**json_network_arrays(path))),
             "error_checker": run_checker(checker, path)}

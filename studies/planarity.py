@@ -9,7 +9,7 @@ objective, the reference distance only), and for each planarity term and weight 
 method with ``objective = reference=1 + TERM=W`` and its refinement run to its step limit
 (``refine_gain=0``: the penalty path relaxes the objective towards its end; the refinement
 minimises it on the equilibrium manifold). Columns: max / mean face non-planarity (distance
-between the diagonals / mean edge length, :func:`selfsupport.evidence.face_nonplanarity`), the
+between the diagonals / mean edge length, :func:`selfsupport.core.evidence.face_nonplanarity`), the
 mean distance to the reference (/ bbox diagonal), the max relative error recomputed from the
 saved network, time. Writes ``planarity.csv``, ``planarity.md`` and one JSON per row.
 """
@@ -38,9 +38,9 @@ CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
 def run(scenes: Path, out: Path, only: Sequence[str], terms: Sequence[str], weights: Sequence[float],
         refine: int, time_limit: float) -> list[dict[str, Any]]:
     from formulations import Problem
-    from selfsupport.evidence import face_nonplanarity
+    from selfsupport.core.evidence import face_nonplanarity
     from selfsupport.io import write_network
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.methods.staggered import StaggeredLinearization
 
     stamp = run_stamp()

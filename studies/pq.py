@@ -4,11 +4,11 @@
         [--spacing 1.0] [--time-limit 300] [--remesher streamlines[,param]]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
-scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
+scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.remesh.streamlines.remesh` along the relative principal
 directions and along a fixed grid (``--spacing`` × the network's mean top-view edge length; with
-each remesher of ``--remesher``, :data:`selfsupport.design.remesh.METHODS`), each
+each remesher of ``--remesher``, :data:`selfsupport.remesh.streamlines.METHODS`), each
 solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
-:func:`selfsupport.design.pq.solve_planar` (the staggered method, and where it does not converge
+:func:`selfsupport.remesh.planar.solve_planar` (the staggered method, and where it does not converge
 the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
@@ -39,7 +39,7 @@ CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
 
 
 def _nonplanarity(mesh) -> tuple[float, float]:
-    from selfsupport.evidence import face_nonplanarity
+    from selfsupport.core.evidence import face_nonplanarity
 
     q = face_nonplanarity(mesh)
     q = q[np.isfinite(q)]
@@ -49,12 +49,12 @@ def _nonplanarity(mesh) -> tuple[float, float]:
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
         finish: bool = True, remeshers: Sequence[str] = ("streamlines",)) -> list[dict[str, Any]]:
     from selfsupport import api
-    from selfsupport.design.pq import finish_summary, solve_planar
-    from selfsupport.design.remesh import remesh
-    from selfsupport.errors import SelfSupportError
-    from selfsupport.evidence import distance_stats
+    from selfsupport.remesh.planar import finish_summary, solve_planar
+    from selfsupport.remesh.streamlines import remesh
+    from selfsupport.core.errors import SelfSupportError
+    from selfsupport.core.evidence import distance_stats
     from selfsupport.io import read_mesh, write_network
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)
@@ -117,9 +117,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--spacing", type=float, default=1.0, help="line spacing / the network's mean top-view edge length")
     p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
     p.add_argument("--no-finish", dest="finish", action="store_false",
-                   help="the staggered method alone (no finish, selfsupport.design.pq)")
+                   help="the staggered method alone (no finish, selfsupport.remesh.planar)")
     p.add_argument("--remesher", default="streamlines",
-                   help="remeshers to compare (comma-separated: streamlines, param; selfsupport.design.remesh)")
+                   help="remeshers to compare (comma-separated: streamlines, param; selfsupport.remesh.streamlines)")
     a = p.parse_args(argv)
     run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","))
     return 0

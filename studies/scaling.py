@@ -10,7 +10,7 @@ its iterations and Step-2/3 columns are those of its finest level; ``levels`` li
 level's vertices and iterations). Rows run size by size with the methods interleaved, so that
 rows compared with one another are measured side by side on a shared machine.
 
-For each generated shape (:func:`selfsupport.shapes.make_shape`) and target size one row per
+For each generated shape (:func:`selfsupport.core.shapes.make_shape`) and target size one row per
 method: solve time, iterations, max relative error (recomputed from the saved JSON), distance to
 the reference, peak RSS. Each row runs in its own spawned process (peak memory is per row;
 a row that hangs is terminated). IPOPT is run from the smallest size up and stops after the
@@ -20,7 +20,7 @@ The floor
 ---------
 For staggered rows the worker also measures, at the final weights:
 
-* ``factor_K_s`` — one :func:`selfsupport.linalg.spd_factor` factorization of ``−K_ff``, the
+* ``factor_K_s`` — one :func:`selfsupport.core.linalg.spd_factor` factorization of ``−K_ff``, the
   free-vertex block of the stress Laplacian (``n_free × n_free``: the polish's matrix), median of 7;
 * ``factor_step3_s`` — one factorization of the Step-3 system itself, ``H ⊗ I₃ + c·⊕(b₀I + b₁nnᵀ)``
   (``3 n_free × 3 n_free``, ``H = K_tᵀK_t``, ``K_t`` = ``K_ff`` with rows over ``|A_i F_i|``):
@@ -123,7 +123,7 @@ class _FactorRecorder:
     (creation and ``update`` alike) while active."""
 
     def __enter__(self) -> "_FactorRecorder":
-        from selfsupport.linalg import SPDFactor
+        from selfsupport.core.linalg import SPDFactor
 
         self.calls: list[tuple[int, float]] = []
         self._cls, self._orig = SPDFactor, SPDFactor._factor
@@ -153,7 +153,7 @@ def _floor_measurements(result, scene) -> dict[str, float]:
     from formulations.equilibrium import Topology, position_blocks, weight_matrix
     from formulations.scaling import Scaling
     from selfsupport.methods.weightfit import _LowerQ
-    from selfsupport.linalg import spd_factor
+    from selfsupport.core.linalg import spd_factor
 
     net = result.network
     active = scene.active_edges
@@ -235,7 +235,7 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
     """Worker (own process): generate the shape, solve it, save the network, return the numbers."""
     from selfsupport.api import scene_loads
     from selfsupport.io import write_network
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     factory = method_entry(method)[0]
     scene = make_shape(shape, n_vertices=n_vertices)
@@ -402,7 +402,7 @@ def run_scaling(*, out: Path, shapes: Sequence[str], sizes: Sequence[int], metho
                                  hard_timeout=2.0 * tl + 300.0)
                 r.update(base)
                 if "vertices" not in r:  # the process died or was killed: size the row here (cheap)
-                    from selfsupport.shapes import make_shape
+                    from selfsupport.core.shapes import make_shape
 
                     mesh = make_shape(shape, n_vertices=n).mesh
                     r["vertices"], r["edges"] = mesh.n_vertices, mesh.n_edges
@@ -487,7 +487,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
             unknown.append(m)
     if unknown:
         raise SystemExit(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)} or staggered/BACKEND")
-    from selfsupport.shapes import SHAPES
+    from selfsupport.core.shapes import SHAPES
 
     bad = [s for s in shapes if s not in SHAPES]
     if bad:

@@ -5,7 +5,7 @@
     python -m studies.stability_dome --scenes ../shared/paper-scenes/scenes --out out/stability_dome
 
 dome2.sss, ρ = 2500 kg/m³, t = 0.1 m and 1 m, added 0 / 5,000 / 10,000 / 15,000 / 20,000 kg at
-the apex (:func:`selfsupport.stability.stability_series`). Per thickness and
+the apex (:func:`selfsupport.structure.stability.stability_series`). Per thickness and
 load: found or not (a compressive network in equilibrium inside reference ± t/2), max relative
 error, max hull excess, vertices outside, and the distance to the paper's published network
 ``DIR/../published/dome2-<load>kg-n.obj`` — per vertex (same vertex count, order assumed shared)
@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from selfsupport.figures.hull import hull_figure
     from selfsupport.io import read_scene, write_network
-    from selfsupport.stability import stability_series
+    from selfsupport.structure.stability import stability_series
 
     scenes = Path(args.scenes)
     pub_dir = Path(args.published) if args.published else scenes.parent / "published"
@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"the apex (vertex {at[0]}), supported on the {int(scene.supports.sum())} boundary vertices on the ground "
              "(the experiment's configuration, see the module docstring; --as-stored for the file's own pins)")
     notes = [f"dome2.sss ({scene.mesh.n_vertices} vertices), ρ = {DENSITY:g} kg/m³, added mass at {where}; hull search: "
-             "selfsupport.stability.solve_in_hull (staggered: no hull, then the hull as an active set)",
+             "selfsupport.structure.stability.solve_in_hull (staggered: no hull, then the hull as an active set)",
              "paper: Fig. 9, t = 0.1 m, a network inside the hull under an added 11,000 kg; Fig. 10, t = 1 m, "
              "0 / 5,000 / 10,000 / 20,000 kg, the network leaving the hull as the load grows", *pub_note,
              f"command: python -m studies.stability_dome --scenes {args.scenes} --out {args.out}"]

@@ -7,7 +7,7 @@ fabrication, solved on one level and by levels.
 
 Each scene of Table 1 found in ``--scenes`` (:data:`studies.common.PAPER_TABLE1`; in a folder
 without any, every scene file there: :func:`studies.common.study_scenes`) is subdivided
-``--levels`` times (:func:`selfsupport.design.subdivision.subdivide_scene`: quads, supports kept
+``--levels`` times (:func:`selfsupport.core.subdivision.subdivide_scene`: quads, supports kept
 along creases).
 That is how a designer takes a 1k-vertex design to 7k, 28k or 110k vertices. The multilevel
 method solves the scenes it was refined from as its levels (the designer's own hierarchy);
@@ -61,9 +61,9 @@ def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out
               warmup: bool = True, variant: str = "none") -> dict[str, Any]:
     """Worker (own process): subdivide the scene, solve it, save the network, return the row."""
     from selfsupport.api import scene_loads
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
     from selfsupport.io import write_network
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     design = variant_scene(read_study_scene(scenes_dir, scene_name), variant)
     scene = subdivide_scene(design, levels) if levels else design

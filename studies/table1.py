@@ -163,8 +163,8 @@ def _loads(scene):
 
 def _warmup(variant: Variant) -> None:
     """Solve a tiny dome with the same method: loads solver plug-ins and caches (untimed)."""
-    from selfsupport.errors import SelfSupportError
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.errors import SelfSupportError
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape("dome", n_vertices=60)
     try:
@@ -181,7 +181,7 @@ def solve_row(*, scenes_dir: str, scene_name: str, variant: str, out_json: str, 
     Runs in its own process (see :func:`studies.common.run_isolated`). The time is the
     ``solve()`` call alone; the scene is read and the warm-up solve done before the clock starts.
     """
-    from selfsupport.errors import BackendUnavailable
+    from selfsupport.core.errors import BackendUnavailable
     from selfsupport.io import read_network, write_network
 
     v = VARIANTS[variant]
@@ -228,10 +228,10 @@ def published_row(*, scenes_dir: str, scene_name: str, published: str, out_json:
     """Worker: the paper's own network — weights fitted at fixed positions (``api.check``),
     its distance to the reference, saved as JSON like the solver rows."""
     from selfsupport.api import check
-    from selfsupport.evidence import distance_stats
+    from selfsupport.core.evidence import distance_stats
     from selfsupport.io import read_mesh, write_network
-    from selfsupport.result import Network
-    from selfsupport.scene import Scene
+    from selfsupport.core.result import Network
+    from selfsupport.core.scene import Scene
 
     scene = read_study_scene(scenes_dir, scene_name)
     pub = read_mesh(published, up=PUBLISHED_UP)

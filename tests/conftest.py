@@ -161,7 +161,7 @@ def document_errors(d: dict) -> np.ndarray:
 def document_floors(d: dict) -> np.ndarray:
     """Per non-support vertex of a JSON network document, the relative error that rounding its
     coordinates to doubles can leave, ``eps ‖Σ_j |w_ij| (|v_i| + |v_j|)‖ / |L_i|`` (per
-    coordinate; :func:`selfsupport.evidence.roundoff_floors`, recomputed here as
+    coordinate; :func:`selfsupport.core.evidence.roundoff_floors`, recomputed here as
     :func:`relative_residuals` sums the forces)."""
     V, E, w, L, sup = document_arrays(d)
     a = np.abs(w)[:, None] * (np.abs(V[E[:, 0]]) + np.abs(V[E[:, 1]]))
@@ -217,7 +217,7 @@ def independent_check(target: Any, *, tol: float | None = None, unit_weight: flo
                       load_tol: float | None = None, allow_tension: bool = False,
                       timeout: float = 120) -> CheckerReport:
     """Run ``shared/tools/check_network.py`` on ``target`` — a JSON file path, a network document
-    (dict), a :class:`~selfsupport.result.Network` or a :class:`~selfsupport.result.SolveResult` —
+    (dict), a :class:`~selfsupport.core.result.Network` or a :class:`~selfsupport.core.result.SolveResult` —
     with the checker's own options (``--tol``, its default 1e-4; ``--unit-weight`` ρtg;
     ``--load-tol``; ``--allow-tension``: negative weights are counted, ``tension_edges``, not
     refused) and return its parsed report. Skips the test when the checker is absent."""

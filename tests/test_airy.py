@@ -13,9 +13,9 @@ from selfsupport.analysis.construction import lifting_weights, lower_hull
 from selfsupport.analysis.curvature import relative_principal, vertex_hessians
 from selfsupport.analysis.reciprocal import vertex_face_rings
 from selfsupport.io.axes import to_ours
-from selfsupport.mesh import PolyMesh
-from selfsupport.result import Network
-from selfsupport.shapes import disk_points, make_shape
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.core.shapes import disk_points, make_shape
 from tests.conftest import SHARED
 
 
@@ -75,7 +75,7 @@ def lifted_network(values: np.ndarray, rings: int = 7) -> Network:
 @pytest.fixture(scope="module")
 def solved():
     """Networks from the staggered method (converged to machine precision)."""
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.methods.staggered import StaggeredLinearization
 
     out = {}
@@ -288,9 +288,9 @@ def test_interior_supports_have_periods_equal_to_their_reactions(solved):
 def holed_dome() -> Network:
     """A dome with an off-centre hole whose rim is pinned and one pinned interior vertex, solved:
     both sources have a non-zero period and their cuts run through free vertices."""
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.scene import Scene
+    from selfsupport.core.scene import Scene
 
     m = make_shape("dome", rings=10).mesh
     V = m.vertices
@@ -455,7 +455,7 @@ def test_vector_field_export_layout(tmp_path, solved):
     assert ok.mean() > 0.9
     np.testing.assert_allclose(np.linalg.norm(u[ok], axis=1), 1.0, atol=1e-8)
     # tangent to the faces of the network
-    from selfsupport.geometry import face_normals
+    from selfsupport.core.geometry import face_normals
 
     nrm = face_normals(net.mesh)
     assert np.abs((u * nrm).sum(axis=1)[ok]).max() < 1e-6 and np.abs((v * nrm).sum(axis=1)[ok]).max() < 1e-6
@@ -543,7 +543,7 @@ def test_cli_airy_rejects_a_missing_file(tmp_path, capsys):
 def test_cli_choice_lists_match_the_registries():
     from selfsupport.analysis.airy import INTEGRATIONS
     from selfsupport.analysis.construction import PHI_FUNCTIONS
-    from selfsupport.cli_airy import INTEGRATION_NAMES, PHI_NAMES
+    from selfsupport.cli.airy import INTEGRATION_NAMES, PHI_NAMES
 
     assert sorted(PHI_NAMES) == sorted(PHI_FUNCTIONS)
     assert sorted(INTEGRATION_NAMES) == sorted(INTEGRATIONS)

@@ -64,10 +64,10 @@ def test_the_polish_and_ipopts_load_rounds_share_the_accelerator(monkeypatch):
     """One accelerator: the polish's fixed-point rounds (Newton off) and the simultaneous method's
     load rounds both mix through :class:`Anderson`."""
     from formulations import Problem
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.methods.polish import polish
     from selfsupport.methods.simultaneous import Simultaneous
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     seen: list[int] = []
     real = Anderson.next

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.errors import BackendUnavailable, InputError, SupportError
+from selfsupport.core.errors import BackendUnavailable, InputError, SupportError
 from selfsupport.io import write_network
-from selfsupport.loads import G
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.core.loads import G
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from tests.conftest import relative_residuals
 
 

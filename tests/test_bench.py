@@ -112,7 +112,7 @@ def test_design_latency_writes_its_rows_stamped_with_the_scenes_size(tmp_path):
 
 def test_warm_resolve_writes_its_rows_stamped(tmp_path):
     from selfsupport.io.sss import write_scene_sss
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     write_scene_sss(tmp_path / "dome.sss", make_shape("dome", n_vertices=80))
     warm_resolve.main(["--scenes", str(tmp_path), "--scene", "dome", "--repeat", "1", "--out", str(tmp_path / "o")])

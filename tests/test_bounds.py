@@ -16,10 +16,10 @@ import pytest
 from formulations import Bounds, Problem
 from formulations.problem import stress_w_max
 from selfsupport import api, cli
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 from selfsupport.io.bounds import read_bounds, write_bounds
-from selfsupport.mesh import PolyMesh
-from selfsupport.shapes import make_shape
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.shapes import make_shape
 from tests.conftest import independent_check, requires_checker
 from tests.test_cli import assert_one_line_error
 

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from selfsupport import cli
+import selfsupport.cli.common as cli_main
 from selfsupport.io import write_mesh
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 from tests.conftest import SHARED, document_check, independent_check, requires_checker
 
 G = 9.81
@@ -131,7 +132,7 @@ def test_iteration_limit_still_writes_the_network_labelled_and_exits_5(tmp_path,
 
 def test_a_network_out_of_equilibrium_is_written_labelled_and_exits_4(tmp_path, capsys, monkeypatch):
     from selfsupport import api
-    from selfsupport.result import Network, SolveResult
+    from selfsupport.core.result import Network, SolveResult
 
     scene = make_shape("dome", n_vertices=100)
     net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
@@ -171,7 +172,7 @@ def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys
     (subdivided paper scenes, 28k quads, stalled there and converge by levels); below, not."""
     from selfsupport import api
     from selfsupport.methods.multilevel import DIRECT_MAX
-    from selfsupport.result import Network, SolveResult
+    from selfsupport.core.result import Network, SolveResult
 
     scene = make_shape("dome", n_vertices=n)
     assert (scene.mesh.n_vertices > DIRECT_MAX) == suggested
@@ -194,7 +195,7 @@ def test_solve_subdivides_the_design_and_solves_it_on_the_designers_levels(tmp_p
     supports), by default (auto) with the multilevel method on levels that are the design and its steps;
     the file stands by the independent checker. A network file's *design* is subdivided (its
     stored reference), not its network."""
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
 
     out = tmp_path / "fine.json"
     code = cli.main(["solve", "shape:pillar_vault:450", "--subdivide", "2", "--out", str(out), "-q"])
@@ -364,7 +365,7 @@ def test_check_says_not_self_supporting_when_a_vertex_sits_below_its_neighbours(
     nbrs = {b for a, b in d["edges"] if a == k} | {a for a, b in d["edges"] if b == k}
     V[k, 2] = min(V[j, 2] for j in nbrs) - 0.05
     bent = tmp_path / "bent.obj"
-    from selfsupport.mesh import PolyMesh
+    from selfsupport.core.mesh import PolyMesh
 
     write_mesh(bent, PolyMesh.from_faces(V, d["faces"]))
     (tmp_path / "sup.txt").write_text(" ".join(map(str, d["supports"])) + "\n")
@@ -439,7 +440,7 @@ def test_progress_prints_one_line_per_record_with_its_numbers():
 
     from rich.console import Console
 
-    from selfsupport.progress import ProgressDisplay
+    from selfsupport.core.progress import ProgressDisplay
 
     buf = io.StringIO()
     p = ProgressDisplay(console=Console(file=buf, force_terminal=True, color_system=None, width=120))
@@ -511,15 +512,15 @@ def test_the_hint_of_an_unfinished_ipopt_solve_suggests_the_other_method():
 
     res = api.solve(make_shape("dome", n_vertices=100), method="ipopt", max_iter=2)
     assert res.status == "iteration_limit"
-    line = cli._not_converged_line(res)
+    line = cli_main._not_converged_line(res)
     assert "--method ipopt" not in line and "--method staggered" in line
 
 
 @pytest.mark.parametrize("status", sorted(cli.STATUS_HINT) + ["hull"])
 def test_no_hint_points_a_big_mesh_to_ipopt(status):
     """Above IPOPT_HINT_MAX vertices every hint has its IPOPT alternative struck out
-    (cli._NO_IPOPT rewrites the phrases of STATUS_HINT and HULL_HINT: this keeps the two in step)."""
-    from selfsupport.result import Network, SolveResult
+    (cli_main._NO_IPOPT rewrites the phrases of STATUS_HINT and HULL_HINT: this keeps the two in step)."""
+    from selfsupport.core.result import Network, SolveResult
 
     scene = make_shape("dome", n_vertices=cli.IPOPT_HINT_MAX + 500)
     assert scene.mesh.n_vertices > cli.IPOPT_HINT_MAX
@@ -528,7 +529,7 @@ def test_no_hint_points_a_big_mesh_to_ipopt(status):
     hull = {"hull": {"thickness": 0.1}} if status == "hull" else {}
     res = SolveResult.build(net, status="infeasible" if status == "hull" else status, method="multilevel",
                             backend="active-set", iterations=1, wall_time=0.1, parameters={"tol": 1e-9, **hull})
-    line = cli._not_converged_line(res)
+    line = cli_main._not_converged_line(res)
     assert "ipopt" not in line.lower() and "  " not in line and ", ;" not in line
 
 
@@ -555,7 +556,7 @@ def test_a_negative_vertical_axis_is_taken_after_a_space(barrel_obj, tmp_path, c
 def test_a_point_load_on_a_support_is_warned_and_changes_nothing(tmp_path, capsys):
     """A point load on a support goes straight into the ground: the solve says so in one warning
     line naming the vertex, and the network is the one solved without that load."""
-    from selfsupport.shapes import make_shape as shape
+    from selfsupport.core.shapes import make_shape as shape
 
     scene = shape("pillar_vault", n_vertices=100)
     s = int(np.flatnonzero(scene.supports)[0])

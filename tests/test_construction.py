@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from selfsupport.analysis import airy, construct, construct_detailed
-from selfsupport.errors import InputError
-from selfsupport.loads import SelfWeight
-from selfsupport.shapes import disk_points
+from selfsupport.core.errors import InputError
+from selfsupport.core.loads import SelfWeight
+from selfsupport.core.shapes import disk_points
 from tests.conftest import independent_check, requires_checker, roundoff_scale
 
 
@@ -165,8 +165,8 @@ def test_cocircular_grid_gives_zero_force_diagonals_and_a_quad_network():
     """On a square grid every cell's corners are co-circular, so the lifted paraboloid has
     quadrilateral hull faces: qhull's diagonals are zero-force edges. Dropping them leaves a
     quad network that is in equilibrium and whose Airy surface has planar quads."""
-    from selfsupport.mesh import PolyMesh
-    from selfsupport.result import Network
+    from selfsupport.core.mesh import PolyMesh
+    from selfsupport.core.result import Network
 
     k = 8
     g = np.linspace(-1, 1, k + 1)

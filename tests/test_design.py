@@ -8,10 +8,10 @@ import pytest
 from selfsupport.design.edits import Cut, Delete, Design, Pillar, Select, cut_along
 from selfsupport.design.laplacian import LaplacianEditor, laplacian_matrix, ring_region
 from selfsupport.design.script import EditScript, replay
-from selfsupport.design.subdivision import catmull_clark, subdivide_scene
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.subdivision import catmull_clark, subdivide_scene
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 from tests.conftest import independent_check, requires_checker
 
 
@@ -144,7 +144,7 @@ def test_a_subdivided_scene_remembers_its_coarser_scenes_until_it_is_edited() ->
     positions or supports the coarser scenes no longer describe this design, and none are given."""
     from dataclasses import replace
 
-    from selfsupport.design.subdivision import subdivision_parents
+    from selfsupport.core.subdivision import subdivision_parents
 
     scene = make_shape("pillar_vault", n_vertices=120)
     fine = subdivide_scene(scene, 2)
@@ -283,7 +283,7 @@ relative_dummy_removed = 0
 def test_edit_script_fields_are_checked_strictly_when_the_script_is_read(table, needle) -> None:
     """A string is not a bool ("false" is true in Python), NaN is no point, a negative ring count
     is no region: each is refused when the script is parsed, naming the edit and the field."""
-    from selfsupport.errors import InputError
+    from selfsupport.core.errors import InputError
 
     text = '[start]\nscene = "shape:dome:80"\n[[edit]]\nop = "raise"\n' + table + "\n"
     with pytest.raises(InputError) as e:
@@ -297,7 +297,7 @@ def test_edit_script_fields_are_checked_strictly_when_the_script_is_read(table, 
     ("w_max = nan", "w_max must be a finite number"),
 ])
 def test_edit_script_start_values_are_checked_when_the_script_is_read(start, needle) -> None:
-    from selfsupport.errors import InputError
+    from selfsupport.core.errors import InputError
 
     with pytest.raises(InputError, match="edit script \\[start\\]") as e:
         EditScript.loads('[start]\nscene = "shape:dome:80"\n' + start + "\n")
@@ -375,7 +375,7 @@ levels = 2
 
 
 def test_edit_script_rejects_unknown_keys() -> None:
-    from selfsupport.errors import InputError
+    from selfsupport.core.errors import InputError
 
     with pytest.raises(InputError, match="unknown key"):
         EditScript.loads(SCRIPT)

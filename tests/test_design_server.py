@@ -23,10 +23,10 @@ with warnings.catch_warnings():  # starlette 1.x prefers "httpx2" for its test c
     from starlette.testclient import TestClient  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
-from selfsupport.cli_design import open_session  # noqa: E402
-from selfsupport.design.server import (COOKIE, DesignServer, bind_loopback, create_app, new_token,  # noqa: E402
+from selfsupport.cli.design import open_session  # noqa: E402
+from selfsupport.app.server import (COOKIE, DesignServer, bind_loopback, create_app, new_token,  # noqa: E402
                                        safe_path, serve)
-from selfsupport.errors import InputError  # noqa: E402
+from selfsupport.core.errors import InputError  # noqa: E402
 from tests.conftest import independent_check, load_factor, requires_checker  # noqa: E402
 
 BASE = "http://127.0.0.1:8123"
@@ -410,8 +410,8 @@ def test_an_edit_cancels_a_running_probe(served):
 
 @pytest.mark.slow
 def test_the_stability_probe_is_max_load(served):
-    """The page's probe is :func:`selfsupport.stability.max_load` at the picked vertex."""
-    from selfsupport.stability import max_load
+    """The page's probe is :func:`selfsupport.structure.stability.max_load` at the picked vertex."""
+    from selfsupport.structure.stability import max_load
 
     client, token, srv, _ = served
     with client.websocket_connect(f"/ws?token={token}", headers=ORIGIN) as ws:

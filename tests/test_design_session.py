@@ -1,5 +1,5 @@
 """The interactive design session without the web: edit log, undo / redo, drags, the edit script
-it saves, and the background solver's cancellation (selfsupport/design/session.py)."""
+it saves, and the background solver's cancellation (selfsupport/app/session.py)."""
 from __future__ import annotations
 
 import threading
@@ -10,9 +10,9 @@ import pytest
 
 from selfsupport.design.edits import Design, Load, Material, Move, Objective, Pin, Select, Unpin
 from selfsupport.design.script import EditScript
-from selfsupport.design.session import SOLVE_DEFAULTS, EditLog, SolveWorker
-from selfsupport.errors import InputError
-from selfsupport.shapes import make_shape
+from selfsupport.app.session import SOLVE_DEFAULTS, EditLog, SolveWorker
+from selfsupport.core.errors import InputError
+from selfsupport.core.shapes import make_shape
 from tests.conftest import max_relative_error
 
 

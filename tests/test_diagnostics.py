@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.diagnostics import FAR_FROM_REFERENCE, HULL_MAJORITY, solve_warnings
+from selfsupport.methods.diagnostics import FAR_FROM_REFERENCE, HULL_MAJORITY, solve_warnings
 from selfsupport.io import write_mesh
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 
 
 def _warnings(err: str) -> list[str]:
@@ -42,7 +42,7 @@ def test_a_network_outside_the_masonry_hull_is_reported(tmp_path, capsys):
     (line,) = [w for w in solve_warnings(res, scene) if "masonry hull" in w]
     # the same numbers as the report a hull-constrained solve records (one computation)
     from formulations import Problem
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.methods.base import hull_excess, hull_report
 
     rep = hull_excess(scene, res.network, 0.1)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from selfsupport.evidence import closest_points, distance_stats, roundoff_message, triangulate
-from selfsupport.shapes import make_shape
+from selfsupport.core.evidence import closest_points, distance_stats, roundoff_message, triangulate
+from selfsupport.core.shapes import make_shape
 
 
 def test_closest_points_agree_with_trimesh():
@@ -36,7 +36,7 @@ def test_a_non_finite_point_has_no_closest_point():
 def test_normals_at_the_reference_vertices_are_its_vertex_normals():
     """At a vertex every adjacent triangle gives barycentric (1, 0, 0): the interpolated
     normal is exactly that vertex's normal, whichever triangle the tree reports."""
-    from selfsupport.geometry import vertex_normals
+    from selfsupport.core.geometry import vertex_normals
 
     ref = make_shape("pillar_vault", n_vertices=400).mesh
     closest, d, n = closest_points(ref.vertices, ref)
@@ -58,7 +58,7 @@ def test_points_on_the_surface_have_zero_distance():
 
 def test_distance_to_surface_is_exact_near_and_far():
     """libigl's AABB query equals trimesh's exact query, near the surface and far from it."""
-    from selfsupport import evidence
+    from selfsupport.core import evidence
 
     ref = make_shape("concave_disk", n_vertices=800).mesh
     rng = np.random.default_rng(5)
@@ -81,7 +81,7 @@ def test_a_result_asks_the_reference_once_about_its_vertices(monkeypatch):
     """The distance evidence, the objective terms and the hull record of one result all ask about
     the same final vertices: one AABB query per reference mesh and set of points (0.3 s at 200k
     vertices), whose answer is exactly that of a fresh query."""
-    from selfsupport import evidence
+    from selfsupport.core import evidence
     from selfsupport.methods.base import hull_signed_distance
 
     ref = make_shape("dome", n_vertices=300).mesh
@@ -113,7 +113,7 @@ def test_a_result_asks_the_reference_once_about_its_vertices(monkeypatch):
 
 def test_residuals_sum_in_the_order_of_np_add_at():
     """The bincount residuals are the np.add.at sums bit for bit (same terms, same order)."""
-    from selfsupport.evidence import residuals
+    from selfsupport.core.evidence import residuals
 
     m = make_shape("cross_vault", n_vertices=400).mesh
     rng = np.random.default_rng(2)
@@ -135,9 +135,9 @@ def test_a_network_far_from_the_origin_is_in_equilibrium_to_its_roundoff_floor()
     equilibrium to a tolerance of 1e-9 as far as doubles can tell; a vertex moved by 1e-7 m is
     not (its error is ~100× the floor). Moved 10⁶ m (error ~3e-8) it is within its floor but
     above FLOOR_CAP, which the floor never relaxes a tolerance past."""
-    from selfsupport.evidence import FLOOR_CAP, FLOOR_MARGIN
+    from selfsupport.core.evidence import FLOOR_CAP, FLOOR_MARGIN
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.result import Network
+    from selfsupport.core.result import Network
 
     net = StaggeredLinearization().solve(make_shape("pillar_vault", n_vertices=400)).network
     assert net.in_equilibrium(1e-9) and net.max_relative_error() <= 1e-11
@@ -175,7 +175,7 @@ def test_a_flat_arch_is_held_above_tol_by_its_thrust_not_by_where_it_lies():
     load (2e-9 N), so one spacing of doubles in the crown's x (2.2e-16 m) is a relative error of
     2.2e-7 — above the cap, within the floor (eps·4 N·m / 2e-9 N = 4.4e-7). Moving it to the
     origin would not help; the report says the forces are why."""
-    from selfsupport.evidence import FLOOR_CAP, roundoff_limit
+    from selfsupport.core.evidence import FLOOR_CAP, roundoff_limit
 
     h = 1e-9
     V = np.array([[0.0, 0, 0], [1.0, 0, h], [2.0, 0, 0]])
@@ -198,7 +198,7 @@ def test_the_round_off_report_names_a_vertex_whose_squashed_faces_carry_little_l
     neighbours' load (2e-11 N against 1e-9 N): one spacing of doubles in its x is within its
     floor, and the report blames the small load alongside the forces. The same arch with equal
     loads is not called squashed."""
-    from selfsupport.evidence import DEGENERATE_LOAD, SQUASHED_LOAD, residuals, roundoff_limit
+    from selfsupport.core.evidence import DEGENERATE_LOAD, SQUASHED_LOAD, residuals, roundoff_limit
 
     h = 1e-9
     q = np.array([1.0, 0.02, 1.0]) * h  # the free vertices' loads (second differences of z)
@@ -233,7 +233,7 @@ def test_a_vertex_with_next_to_no_load_is_degenerate_not_held_by_rounding():
     of doubles, every vertex is within its floor — the middle one only because its load nearly
     vanishes. That is a degenerate vertex (load < DEGENERATE_LOAD × the median), so the report
     does not blame rounding; with a proper load there it does."""
-    from selfsupport.evidence import DEGENERATE_LOAD, residuals, roundoff_limit
+    from selfsupport.core.evidence import DEGENERATE_LOAD, residuals, roundoff_limit
 
     def chain(kink: float) -> dict:
         V = np.array([[0.0, 0, 0], [1, 0, 1], [2, 0, 1.5], [3, 0, 2 - kink], [4, 0, 0]])
@@ -254,7 +254,7 @@ def test_a_warm_fit_counts_a_vertex_at_its_floor_as_fitted_unless_it_slid_onto_i
     """The warm start's 'fits already' tolerance: 4× the floor without the 1e-8 cap (the 256k
     pillar vault's start, floor 1.6e-7, ran the interior point 150 s for nothing), but capped
     at a vertex whose load is below DEGENERATE_LOAD × the median."""
-    from selfsupport.evidence import DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, degenerate, fit_floor_tolerance
+    from selfsupport.core.evidence import DEGENERATE_LOAD, FLOOR_CAP, FLOOR_MARGIN, degenerate, fit_floor_tolerance
 
     floors = np.array([1e-13, 2.4e-7, 2.4e-7])
     loads = -np.array([1.0, 0.5, 0.1 * DEGENERATE_LOAD])
@@ -268,7 +268,7 @@ def test_stress_sums_are_the_stress_laplacian_and_the_residual_is_built_on_them(
     sparse stress Laplacian of the problem layer applied to scalars, top views and positions, and
     the residual is it minus the loads; ``force_sums`` is the sum of |w| × edge length."""
     from formulations.equilibrium import Topology, stress_laplacian
-    from selfsupport.evidence import force_sums, residuals, stress_sums
+    from selfsupport.core.evidence import force_sums, residuals, stress_sums
 
     rng = np.random.default_rng(3)
     mesh = make_shape("dome", n_vertices=120).mesh

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from selfsupport import cli
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 from selfsupport.io import read_network, write_mesh, write_network_as
-from selfsupport.result import Network
+from selfsupport.core.result import Network
 from tests.conftest import document_check, independent_check, relative_residuals
 from tests.test_cli import assert_one_line_error
 from tests.test_io import mixed_mesh, same_mesh
@@ -214,7 +214,7 @@ def _stands(tmp_path: Path) -> tuple[Path, Path, dict]:
     net_path = tmp_path / "built.json"
     assert cli.main(["construct", "--disk", "3", "--self-weight", "--out", str(net_path)]) == 0
     d = json.loads(net_path.read_text())
-    from selfsupport.mesh import PolyMesh
+    from selfsupport.core.mesh import PolyMesh
 
     mesh_path, sup_path = tmp_path / "surface.obj", tmp_path / "surface.supports"
     write_mesh(mesh_path, PolyMesh.from_faces(np.asarray(d["vertices"]), d["faces"]))
@@ -233,7 +233,7 @@ def test_check_out_writes_the_fitted_network_of_a_surface_that_stands(tmp_path, 
     rep = document_check(d)
     assert rep["max_rel"] <= 1e-8 and rep["min_w"] >= 0.0
     # the loads are the self-weight of this geometry (default 2000 kg/m^3 x 0.1 m x g)
-    from selfsupport.loads import G
+    from selfsupport.core.loads import G
 
     assert rep["total_load"] == pytest.approx(-2000 * 0.1 * G * rep["area"], rel=1e-9)
     checker = independent_check(out, tol=1e-8, unit_weight=2000 * 0.1 * G, load_tol=1e-9)
@@ -250,7 +250,7 @@ def test_check_out_of_a_surface_that_cannot_stand_says_so(tmp_path, capsys):
     k = int(np.flatnonzero(~sup)[0])
     nbrs = {b for a, b in d["edges"] if a == k} | {a for a, b in d["edges"] if b == k}
     V[k, 2] = min(V[j, 2] for j in nbrs) - 0.05
-    from selfsupport.mesh import PolyMesh
+    from selfsupport.core.mesh import PolyMesh
 
     write_mesh(mesh_path, PolyMesh.from_faces(V, d["faces"]))
     out = tmp_path / "checked.ply"
@@ -303,7 +303,7 @@ def test_the_original_tool_loads_the_written_sss(tmp_path):
     """The paper's own C++ tool (its headless driver, built by ../shared/original-tool/build.sh)
     loads the ``.sss``: the same counts and pins, our weights on its edges, and the load column
     read as the nodal self-weight (the ρ·t its loads imply is ours, times g/9.8)."""
-    from selfsupport.loads import G
+    from selfsupport.core.loads import G
     from studies.peers import find_original_driver
 
     driver, reason = find_original_driver(os.environ.get("SELFSUPPORT_ORIGINAL_DRIVER"))

@@ -12,12 +12,12 @@ import pytest
 
 import matplotlib.image as mpimg  # noqa: E402
 
-from selfsupport.errors import InputError  # noqa: E402
-from selfsupport.loads import SelfWeight  # noqa: E402
-from selfsupport.mesh import PolyMesh  # noqa: E402
+from selfsupport.core.errors import InputError  # noqa: E402
+from selfsupport.core.loads import SelfWeight  # noqa: E402
+from selfsupport.core.mesh import PolyMesh  # noqa: E402
 from selfsupport.methods.staggered import StaggeredLinearization  # noqa: E402
-from selfsupport.result import Network  # noqa: E402
-from selfsupport.shapes import make_shape  # noqa: E402
+from selfsupport.core.result import Network  # noqa: E402
+from selfsupport.core.shapes import make_shape  # noqa: E402
 from selfsupport.figures.render import (_CBAR_RECT, _MAIN_RECT, FIGURES, FigureInput, edge_forces,  # noqa: E402
                                         make_figure, render, render_png_bytes, signed_distances)
 
@@ -298,7 +298,7 @@ def test_directions_figure_draws_the_conjugate_principal_directions(solved):
 
 # ------------------------------------------------------------------------------ registry, CLI, report
 def test_registry_and_errors(solved, tmp_path):
-    from selfsupport.cli_figures import FIGURE_KINDS
+    from selfsupport.cli.figures import FIGURE_KINDS
 
     assert set(FIGURES) == set(FIGURE_KINDS) == {"network", "deviation", "airy", "reciprocal", "directions",
                                                  "history"}

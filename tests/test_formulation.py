@@ -8,8 +8,8 @@ import pytest
 from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity,
                           PlanarityVolume, PointDistance, ReferenceDistance, Scaled, Sum, ThrustNetworkProblem,
                           WeightBounds)
-from selfsupport.errors import InputError
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
 from formulations import equilibrium as assembly
 
 

@@ -6,12 +6,12 @@ supports (the boundary, part of it, or random vertices), random density, thickne
 
 Properties, for every example:
 
-* the solve either raises a :class:`~selfsupport.errors.SelfSupportError` (a clear refusal) or
+* the solve either raises a :class:`~selfsupport.core.errors.SelfSupportError` (a clear refusal) or
   returns a result with a known status — no other exception escapes;
 * the file it writes holds finite numbers only, and the max relative error it reports (in the
   result and in the file) equals the one recomputed here from the written network with numpy;
 * the written loads are the self-weight of the written geometry (vertex areas recomputed here,
-  independently of ``selfsupport.geometry``);
+  independently of ``selfsupport.core.geometry``);
 * the weights are compressive and within ``w_max``; "converged" means error <= tol, or (said so
   in the message) within the round-off floor's tolerance (``FLOOR_MARGIN`` × the floor
   recomputed here, at most ``FLOOR_CAP``).
@@ -33,13 +33,13 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from selfsupport import api
-from selfsupport.errors import SelfSupportError
+from selfsupport.core.errors import SelfSupportError
 from selfsupport.io import write_network
-from selfsupport.mesh import PolyMesh
-from selfsupport.result import STATUSES
-from selfsupport.scene import Scene
-from selfsupport.shapes import disk
-from selfsupport.evidence import floor_tolerance
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import STATUSES
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import disk
+from selfsupport.core.evidence import floor_tolerance
 from tests.conftest import document_errors, document_floors
 
 G = 9.81

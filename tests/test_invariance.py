@@ -28,10 +28,10 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.mesh import PolyMesh
-from selfsupport.result import Network
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from tests.conftest import max_relative_error
 
 POS_TOL = 1e-4  # of the bounding-box diagonal, see the module docstring
@@ -132,7 +132,7 @@ def test_turning_about_the_vertical_axis_leaves_the_unit_of_length_alone():
     that changed the balance of a solve's terms (lilium turned by 0.3 rad: a network 4.7e-3 of
     the diagonal away; the paper's Fig. 16 vault 3.5e-2)."""
     from formulations.scaling import Scaling
-    from selfsupport.geometry import bbox_diagonal
+    from selfsupport.core.geometry import bbox_diagonal
 
     rng = np.random.default_rng(3)
     V = rng.normal(size=(500, 3)) * [3.0, 1.0, 0.5]  # an elongated cloud: its box turns with it

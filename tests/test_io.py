@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfsupport.errors import InputError, MeshError, SupportError
+from selfsupport.core.errors import InputError, MeshError, SupportError
 from selfsupport.io import (network_to_dict, read_mesh, read_network, read_scene, write_mesh, write_network,
                             write_scene_sss)
 from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
 from selfsupport.io.axes import UP_AXES, to_file, to_ours
-from selfsupport.mesh import PolyMesh
-from selfsupport.result import Network, SolveResult
-from selfsupport.scene import Scene
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
 from tests.conftest import SHARED, independent_check, load_factor, requires_checker
 
 SCENES = SHARED / "paper-scenes" / "scenes"
@@ -672,7 +672,7 @@ def test_network_schema_states_the_writer_and_reader_contract():
     import jsonschema
 
     from selfsupport.io.network_json import NETWORK_KEYS
-    from selfsupport.result import STATUSES
+    from selfsupport.core.result import STATUSES
 
     schema = network_schema()
     jsonschema.Draft202012Validator.check_schema(schema)
@@ -686,7 +686,7 @@ def test_solved_networks_validate_against_the_schema(tmp_path):
     import jsonschema
 
     from selfsupport import api
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     cases = write(tmp_path, "cases.toml", '[cases.empty]\n\n[cases.apex]\npoint_loads = { "0" = 2000.0 }\n')
     res = api.solve(make_shape("dome", n_vertices=100), load_cases=cases)

@@ -17,11 +17,11 @@ from selfsupport.analysis.construction import lifting_weights
 from selfsupport.analysis.koebe import (KINDS, KOEBE_EXAMPLES, LOAD_RULES, MOBIUS_MAPS, as_airy, christoffel_dual,
                                         family, koebe_mesh, minimal_partner, paraboloid_gaps, polar_mesh,
                                         quad_dual_scalars)
-from selfsupport.errors import NotKoenigs
-from selfsupport.evidence import face_nonplanarity
+from selfsupport.core.errors import NotKoenigs
+from selfsupport.core.evidence import face_nonplanarity
 from selfsupport.io import write_mesh, write_network
-from selfsupport.mesh import PolyMesh
-from selfsupport.result import Network
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
 
 from .conftest import CHECKER, requires_checker
 
@@ -272,7 +272,7 @@ def test_a_dome_is_reflected_into_phi_and_refused_as_phi_itself():
 
 # ------------------------------------------------------------------------------ API and CLI
 def test_cli_choices_match_the_registries():
-    from selfsupport import cli_koebe
+    from selfsupport.cli import koebe as cli_koebe
 
     assert set(cli_koebe.EXAMPLE_NAMES) == set(KOEBE_EXAMPLES)
     assert set(cli_koebe.KIND_NAMES) == set(KINDS)

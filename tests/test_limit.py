@@ -1,4 +1,4 @@
-"""Limit analysis by one program (:mod:`selfsupport.limit`): answers with analytic anchors, and
+"""Limit analysis by one program (:mod:`selfsupport.structure.limit`): answers with analytic anchors, and
 every "stands" checked outside the package: equilibrium by plain numpy and the shared checker,
 "inside the hull" by brute-force point-to-triangle distances (tests/test_stability.py)."""
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.limit import CERTIFY_TOL, feasible, limit_load, min_thickness
-from selfsupport.loads import G
-from selfsupport.shapes import make_shape
+from selfsupport.structure.limit import CERTIFY_TOL, feasible, limit_load, min_thickness
+from selfsupport.core.loads import G
+from selfsupport.core.shapes import make_shape
 from tests.conftest import independent_check, max_relative_error, requires_checker
 from tests.test_stability import distance_to_mesh
 

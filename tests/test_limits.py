@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.loads import SelfWeight
+from selfsupport.core.loads import SelfWeight
 from selfsupport.methods import weightfit
 from selfsupport.methods.deadline import DeadlineReached, finish_reserve, out_of_time
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 
 from .conftest import load_factor, time_limit_bound
 
@@ -154,16 +154,16 @@ def test_absurd_built_in_shapes_are_refused_up_front(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == cli.EXIT_CODES["input"] and len(err) == 1
     assert "needs about" in err[0] and "GiB" in err[0] and "--max-memory or a coarser mesh" in err[0]
-    from selfsupport.errors import InputError
-    from selfsupport.shapes import MAX_SHAPE_VERTICES
+    from selfsupport.core.errors import InputError
+    from selfsupport.core.shapes import MAX_SHAPE_VERTICES
 
     with pytest.raises(InputError, match="use fewer vertices"):
         make_shape("dome", n_vertices=MAX_SHAPE_VERTICES + 1)  # also for the API and every command
 
 
 def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
-    from selfsupport import memory
-    from selfsupport.errors import TooLarge
+    from selfsupport.methods import memory
+    from selfsupport.core.errors import TooLarge
 
     # pretend the machine has 100 MB free: the refusal must come from the estimate, not an allocation
     monkeypatch.setattr(memory, "available_bytes", lambda: 100e6)
@@ -195,7 +195,7 @@ def test_a_subdivision_beyond_the_memory_is_refused_before_it_is_built(monkeypat
 
 
 def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsys):
-    from selfsupport import memory
+    from selfsupport.methods import memory
 
     out = tmp_path / "x.json"
     assert cli.main(["solve", "shape:dome:3000", "--max-memory", "0.05", "--out", str(out), "-q"]) == 2
@@ -206,10 +206,10 @@ def test_max_memory_overrides_the_machine_both_ways(monkeypatch, tmp_path, capsy
 
 
 def test_the_estimate_covers_the_measured_peaks():
-    from selfsupport.memory import estimate_solve_bytes
+    from selfsupport.methods.memory import estimate_solve_bytes
 
     measured = {("staggered", 20_000): 313e6, ("staggered", 50_000): 705e6, ("staggered", 200_000): 2.16e9,
-                ("ipopt", 2_000): 212e6, ("ipopt", 8_000): 654e6}  # peak RSS, see selfsupport.memory
+                ("ipopt", 2_000): 212e6, ("ipopt", 8_000): 654e6}  # peak RSS, see selfsupport.methods.memory
     for (method, n), peak in measured.items():
         assert peak < estimate_solve_bytes(n, method) < 2.5 * peak, (method, n)
 
@@ -257,9 +257,9 @@ def test_many_load_cases_hold_the_memory_and_the_time_limit(tmp_path):
 
 
 def test_the_estimate_counts_load_cases(tmp_path, capsys):
-    from selfsupport.memory import estimate_solve_bytes
+    from selfsupport.methods.memory import estimate_solve_bytes
 
-    # peak RSS of solves of a 5,000-vertex dome under C uniform-mass cases (selfsupport.memory.case_factor)
+    # peak RSS of solves of a 5,000-vertex dome under C uniform-mass cases (selfsupport.methods.memory.case_factor)
     measured = {1: 158e6, 2: 549e6, 4: 1.62e9, 5: 524e6, 16: 1.32e9}
     for cases, peak in measured.items():
         assert peak < estimate_solve_bytes(5000, "staggered", cases), cases
@@ -299,7 +299,7 @@ def test_a_high_valence_vertex_solves_in_bounded_memory_and_time(tmp_path):
 def test_dense_rows_split_off_give_the_weights_of_the_full_gram_matrix(tmp_path, monkeypatch):
     import scipy.sparse as sp
 
-    from selfsupport import linalg
+    from selfsupport.core import linalg
     from selfsupport.io import read_mesh
     from formulations.equilibrium import Topology, weight_matrix
 
@@ -325,7 +325,7 @@ def test_a_ring_count_beyond_the_mesh_ends_with_the_connected_region(tmp_path):
 
     code = ("import numpy as np\n"
             "from selfsupport.design.laplacian import ring_region\n"
-            "from selfsupport.shapes import make_shape\n"
+            "from selfsupport.core.shapes import make_shape\n"
             "m = make_shape('dome', n_vertices=200).mesh\n"
             "seed = np.zeros(m.n_vertices, bool); seed[0] = True\n"
             "print(int(ring_region(m, seed, int(1e9)).sum()), int(ring_region(m, seed, 1).sum()), m.n_vertices)\n")
@@ -337,10 +337,10 @@ def test_a_ring_count_beyond_the_mesh_ends_with_the_connected_region(tmp_path):
 def test_subdividing_goes_through_the_size_guard(monkeypatch):
     """An edit script's or the design page's ``subdivide`` is refused before it is built, as
     ``solve --subdivide`` is (levels=10 ended in MemoryError at 5.2 GB)."""
-    from selfsupport import memory
+    from selfsupport.methods import memory
     from selfsupport.design import subdivision
     from selfsupport.design.edits import Design, Subdivide
-    from selfsupport.errors import TooLarge
+    from selfsupport.core.errors import TooLarge
 
     monkeypatch.setattr(memory, "available_bytes", lambda: 300e6)
     monkeypatch.setattr(subdivision, "catmull_clark", lambda *a, **k: pytest.fail("subdivided"))

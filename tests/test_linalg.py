@@ -1,10 +1,10 @@
-"""The shared SPD factorization (selfsupport.linalg): CHOLMOD, its fallbacks, reuse of the pattern."""
+"""The shared SPD factorization (selfsupport.core.linalg): CHOLMOD, its fallbacks, reuse of the pattern."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from selfsupport.linalg import spd_factor
-from selfsupport.shapes import make_shape
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.shapes import make_shape
 from formulations.equilibrium import Topology, position_blocks
 
 
@@ -85,8 +85,8 @@ def test_structural_gram_is_the_gram_on_a_pattern_fixed_by_the_structure(shift):
     values: a grid's edges at the reference (zero x, y or z differences) give the same pattern
     as after a step, so one symbolic analysis serves them and CHOLMOD orders the full pattern."""
     from formulations.equilibrium import Topology, weight_matrix
-    from selfsupport.linalg import structural_gram
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.linalg import structural_gram
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape("cross_vault", n_vertices=400)
     m = scene.mesh
@@ -107,7 +107,7 @@ def test_structural_gram_is_the_gram_on_a_pattern_fixed_by_the_structure(shift):
         assert np.array_equal(G.indptr, grams[0].indptr) and np.array_equal(G.indices, grams[0].indices)
     # one GramPattern, taken at the moved positions, serves the flat grid's matrix too (a solve
     # keeps it across its fits), and its lower triangle is the lower triangle of that matrix
-    from selfsupport.linalg import GramPattern
+    from selfsupport.core.linalg import GramPattern
 
     pattern = GramPattern(weight_matrix(top, moved))
     assert pattern.matches(A_flat)

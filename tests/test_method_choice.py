@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.memory import estimate_solve_bytes
+from selfsupport.methods.memory import estimate_solve_bytes
 from selfsupport.methods import choice
 from selfsupport.methods.choice import LEVELS_ABOVE, choose_method
 from selfsupport.methods.multilevel import DIRECT_MAX
-from selfsupport.result import Network
-from selfsupport.shapes import make_shape
+from selfsupport.core.result import Network
+from selfsupport.core.shapes import make_shape
 from studies.common import PAPER_TABLE1
 from studies.method_choice import paid, threshold_interval
 
@@ -64,7 +64,7 @@ def test_per_edge_bounds_keep_one_level():
 def test_a_subdivided_design_goes_up_its_levels_and_a_start_decides_where_from():
     """A scene refined from a coarser design: multilevel (the design's levels exist). A start on
     the coarser design's mesh goes up from it; a start on the mesh itself is one level from it."""
-    from selfsupport.design.subdivision import subdivide_scene, subdivision_parents
+    from selfsupport.core.subdivision import subdivide_scene, subdivision_parents
 
     coarse = make_shape("pillar_vault", n_vertices=300)
     scene = subdivide_scene(coarse, 2)
@@ -87,9 +87,9 @@ def test_a_mesh_without_boundary_keeps_one_level():
     """Coarsening needs the top view's outline: a closed mesh is solved on one level."""
     from formulations import Problem
 
-    from selfsupport.loads import SelfWeight
-    from selfsupport.mesh import PolyMesh
-    from selfsupport.scene import Scene
+    from selfsupport.core.loads import SelfWeight
+    from selfsupport.core.mesh import PolyMesh
+    from selfsupport.core.scene import Scene
 
     V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
     F = [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
@@ -164,7 +164,7 @@ def test_a_big_mesh_auto_kept_on_one_level_is_not_pointed_to_the_multilevel_meth
     """A stalled staggered solve above DIRECT_MAX is told to try the multilevel method, unless
     auto chose one level because no coarser level can carry the problem (it would solve on one
     level all the same)."""
-    from selfsupport.result import SolveResult
+    from selfsupport.core.result import SolveResult
 
     scene = make_shape("dome", n_vertices=int(DIRECT_MAX * 1.1))
     net = Network(mesh=scene.mesh, weights=np.ones(scene.mesh.n_edges), loads=-np.ones(scene.mesh.n_vertices),
@@ -186,7 +186,7 @@ def test_choosing_for_a_small_mesh_does_not_load_the_multilevel_method():
     import subprocess
     import sys
 
-    code = ("import sys; from selfsupport import api; from selfsupport.shapes import make_shape; "
+    code = ("import sys; from selfsupport import api; from selfsupport.core.shapes import make_shape; "
             "r = api.solve(make_shape('dome', n_vertices=200)); "
             "assert r.parameters['method_choice']['method'] == 'staggered'; "
             "print('selfsupport.methods.multilevel' in sys.modules)")

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.evidence import distance_stats
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.evidence import distance_stats
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.methods.multilevel import RECLAIM, RECLAIM_STEPS, START_TOL, Multilevel, coarsen
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.warm import interpolate_offsets
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 
 from .conftest import independent_check, time_limit_bound
 
@@ -25,7 +25,7 @@ def _loop_area(xy: np.ndarray) -> float:
 
 
 def _top_area(mesh: PolyMesh) -> float:
-    from selfsupport.evidence import triangulate
+    from selfsupport.core.evidence import triangulate
 
     xy = mesh.vertices[:, :2]
     t = triangulate(mesh)
@@ -174,7 +174,7 @@ def test_a_level_that_ends_farther_from_equilibrium_than_its_prolonged_start_ret
 
     import selfsupport.methods.prolong as prolong_module
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.result import SolveResult
+    from selfsupport.core.result import SolveResult
 
     scene, _, _, _ = vault_runs
     monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)
@@ -209,7 +209,7 @@ def test_a_returned_start_held_above_tol_by_rounding_is_balanced_by_its_weights(
 
     import selfsupport.methods.multilevel as multilevel_module
     import selfsupport.methods.prolong as prolong_module
-    from selfsupport.result import SolveResult
+    from selfsupport.core.result import SolveResult
 
     scene = make_shape("pillar_vault", n_vertices=3000)
     far = Scene(mesh=scene.mesh.with_vertices(scene.mesh.vertices + [1e4, 3e3, 0.0]), supports=scene.supports,
@@ -266,7 +266,7 @@ def test_a_subdivided_design_is_solved_on_the_designers_own_coarser_scenes():
     finer one from the stress carried up, the fine level confirmed in one iteration, the fine
     network in equilibrium by the independent checker. (On paper scenes subdivided twice this
     converged where a single level stalled; README.)"""
-    from selfsupport.design.subdivision import subdivide_scene, subdivision_parents
+    from selfsupport.core.subdivision import subdivide_scene, subdivision_parents
 
     scene = subdivide_scene(make_shape("pillar_vault", n_vertices=120), 2)
     ml = Multilevel(direct_max=200)
@@ -297,7 +297,7 @@ def test_a_warm_start_goes_up_from_its_own_level_or_skips_the_levels():
     """A warm start on the mesh of a scene the problem was subdivided from starts the levels at
     that scene; one on any other mesh (here the fine mesh itself) gives one level, as the
     staggered method would take it."""
-    from selfsupport.design.subdivision import subdivide_scene, subdivision_parents
+    from selfsupport.core.subdivision import subdivide_scene, subdivision_parents
 
     coarse = make_shape("concave_disk", n_vertices=300)
     scene = subdivide_scene(coarse, 2)
@@ -359,7 +359,7 @@ def _subdivided_vault_folded_in_plan() -> Scene:
     """A 300-vertex pillar vault subdivided once (quads: the clusters refuse them, so the
     Delaunay coarsening runs), one interior vertex pushed past its neighbour in plan: its
     triangles overlap in the top view, which matplotlib's point location refuses."""
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
 
     sc = subdivide_scene(make_shape("pillar_vault", n_vertices=300), 1)
     m = sc.mesh
@@ -388,7 +388,7 @@ def test_a_coarsening_that_pinches_ends_the_hierarchy_instead_of_failing(monkeyp
     as a coarsening: the levels stop there and the multilevel solve goes on with those it has."""
     import igl.triangle
 
-    from selfsupport.errors import InputError
+    from selfsupport.core.errors import InputError
 
     def pinched(pts, segs, holes, flags):  # two triangles sharing one corner only
         return pts, np.array([[0, 1, 2], [0, 3, 4]]), None, None, None
@@ -406,7 +406,7 @@ def test_the_delaunay_coarsening_is_as_fine_at_any_scale(scale):
     differ in round-off, so the counts within 2%). Triangle's area bound used to be written as
     "a5e-05" for a small scene, which Triangle reads as a = 5 and the switch "e"; the process
     then died (lilium subdivided three times, 2 m across, killed a study's row)."""
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
 
     scene = subdivide_scene(make_shape("pillar_vault", n_vertices=300), 1)  # quads: the Delaunay path
     small = Scene(mesh=scene.mesh.with_vertices(scale * scene.mesh.vertices), supports=scene.supports, name="s")
@@ -426,7 +426,7 @@ def test_a_fine_level_that_does_not_converge_from_interpolated_heights_is_solved
     vertices) that ended far from equilibrium (cyl2 subdivided twice, by clusters: stalled at
     2.05). Here the prolongation is made to fail and the warm run gets one iteration: the
     answer is then the single-level network itself, checked independently."""
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
     from selfsupport.methods import multilevel as multilevel_module
     from selfsupport.methods.prolong import Prolongation
 
@@ -464,7 +464,7 @@ def test_a_large_fine_level_stopped_out_of_equilibrium_is_solved_cold_unless_rou
     rounding of its positions alone holds it there (``parameters["roundoff_limit"]``): then
     nothing would mend it, and it is the answer. The warm run here is the real one, reported as
     stalled at 5e-8."""
-    from selfsupport.design.subdivision import subdivide_scene
+    from selfsupport.core.subdivision import subdivide_scene
     from selfsupport.methods import multilevel as multilevel_module
     from selfsupport.methods.prolong import Prolongation
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 from selfsupport.io.atomic import atomic_write_text
 from selfsupport.io.safety import interrupted_path
 from tests.test_cli import assert_one_line_error

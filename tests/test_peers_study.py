@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from formulations import Problem
-from selfsupport.geometry import vertex_areas
-from selfsupport.loads import PointLoad
+from selfsupport.core.geometry import vertex_areas
+from selfsupport.core.loads import PointLoad
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 from studies.common import read_csv_rows
 from studies.peers import (ORIGINAL_STOP, align_weights, cpu_to_reach, export_problem, find_original_driver, main,
                            network_metrics, original_input, original_row, parse_original_result, problem_scene,
@@ -266,7 +266,7 @@ def test_the_original_and_selfsupport_side_by_side_on_a_small_held_out_scene(sce
     driver, reason = find_original_driver(os.environ.get("SELFSUPPORT_ORIGINAL_DRIVER"))
     if driver is None:
         pytest.skip(reason)
-    from selfsupport.evidence import distance_stats
+    from selfsupport.core.evidence import distance_stats
     from studies.common import json_network_arrays
 
     scenes = _scenes_folder(scene, tmp_path / "scenes")

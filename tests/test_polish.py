@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from selfsupport.loads import SelfWeight
+from selfsupport.core.loads import SelfWeight
 from selfsupport.methods.polish import load_colouring, load_jacobian
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 
 
 @pytest.mark.parametrize("shape", ["pillar_vault", "concave_disk", "dome"])
@@ -56,7 +56,7 @@ def test_coloured_jacobian_equals_column_by_column_differences(shape):
 def test_polish_with_loads_independent_of_the_geometry_is_one_linear_solve():
     """Fixed point loads: J = 0, so the Newton step is the exact stress-Laplacian solve and
     the polish ends after it (a second round only confirms); the result is in equilibrium."""
-    from selfsupport.loads import PointLoad
+    from selfsupport.core.loads import PointLoad
     from formulations.equilibrium import load_vector, weight_matrix
     from selfsupport.methods.polish import polish
     from formulations import Problem

@@ -10,11 +10,11 @@ import pytest
 
 from formulations import Planar
 from selfsupport import api
-from selfsupport.design.remesh import MERGE, remesh
-from selfsupport.evidence import distance_stats, distance_to_surface
-from selfsupport.mesh import PolyMesh
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.remesh.streamlines import MERGE, remesh
+from selfsupport.core.evidence import distance_stats, distance_to_surface
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from tests.conftest import independent_check, requires_checker
 
 
@@ -103,7 +103,7 @@ def test_the_aligned_remesh_ends_closer_than_a_grid_fig12(dome):
 
 
 def test_remesh_refuses_a_bad_spacing(dome):
-    from selfsupport.errors import InputError
+    from selfsupport.core.errors import InputError
 
     scene, net = dome
     for bad in (-1.0, 0.0, float("nan")):
@@ -194,7 +194,7 @@ def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_me
     homotopy reaches both (it is returned), and so does IPOPT with the planarity rows as
     equations (the last resort of solve_planar). Measured: staggered stalled, the
     homotopy converged in 0.3 s, IPOPT in ~1 s."""
-    from selfsupport.design.pq import FINISH_METHOD, finish_summary, solve_planar
+    from selfsupport.remesh.planar import FINISH_METHOD, finish_summary, solve_planar
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
     scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
@@ -269,7 +269,7 @@ def test_the_planar_homotopy_narrows_the_band_in_equilibrium_and_ends_planar():
 
 def test_remesh_leaves_no_quad_with_a_corner_outside_20_to_160_degrees(dome):
     """Near-triangular quads (a straight corner) are split into two triangles by the remesher."""
-    from selfsupport.design.remesh import DEGENERATE_ANGLE
+    from selfsupport.remesh.streamlines import DEGENERATE_ANGLE
 
     for method in ("streamlines", "param"):
         q = remesh(dome[1], spacing=0.08, relative=True, method=method)
@@ -301,7 +301,7 @@ def test_param_of_a_constant_frame_is_the_dual_frame_and_its_isolines_are_h_apar
     (residual at round-off), so the iso-u lines are parallel to d2 and cross a d1-line h apart,
     whatever the signs the directions are given with. Held to the boundary (the default), the
     bottom edge, along d1, is an integer iso-line of v."""
-    from selfsupport.design.param import frame_parametrization, isolines
+    from selfsupport.remesh.param import frame_parametrization, isolines
 
     xy, tris = _square(12)
     d1, d2 = np.array([1.0, 0.0]), np.array([np.cos(np.pi / 3), np.sin(np.pi / 3)])
@@ -338,9 +338,9 @@ def test_param_of_a_dome_is_seamless_its_lines_end_only_at_the_boundary(dome):
     middle (no T-junction)."""
     from shapely.geometry import Point
 
-    from selfsupport.design.param import frame_parametrization, isolines
-    from selfsupport.design.remesh import _domain, _fill_doubled, principal_line_fields
-    from selfsupport.evidence import triangulate
+    from selfsupport.remesh.param import frame_parametrization, isolines
+    from selfsupport.remesh.streamlines import _domain, _fill_doubled, principal_line_fields
+    from selfsupport.core.evidence import triangulate
 
     scene, net = dome
     xy = net.vertices[:, :2]
@@ -373,7 +373,7 @@ def test_param_remesh_of_a_dome_has_fewer_triangles_than_streamlines_and_polishe
     the boundary: fewer triangles and fewer irregular vertices than the streamlines (measured:
     4 vs 35 triangles, 0 vs 30 interior vertices of valence other than 4), a valid manifold
     mesh of more than 85% quads, whose planar polish converges by the staggered method alone."""
-    from selfsupport.design.pq import solve_planar
+    from selfsupport.remesh.planar import solve_planar
 
     scene, net = dome
     par = remesh(net, method="param")

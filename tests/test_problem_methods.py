@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 
 from formulations import FixedTopView, Hull, Problem
-from selfsupport.errors import InputError
-from selfsupport.geometry import vertex_normals
+from selfsupport.core.errors import InputError
+from selfsupport.core.geometry import vertex_normals
 from selfsupport.io import write_network
-from selfsupport.loads import PointLoad, SelfWeight
+from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.methods.base import HULL_TOL, hull_signed_distance, term_values
 from selfsupport.methods.nlopt_methods import NloptSimultaneous
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 
 from .conftest import CHECKER, document_errors, independent_check, kkt_residual
 
@@ -316,10 +316,10 @@ def test_a_fixed_top_view_that_no_compressive_network_balances_is_refused_at_onc
     (the free edges bent inwards) the same problem is accepted, and both methods keep that top view
     (IPOPT had held the reference's instead, and reported its problem infeasible)."""
     from selfsupport import api
-    from selfsupport.errors import InfeasibleDesign
-    from selfsupport.scene import Scene
-    from selfsupport.shapes import make_shape
-    from selfsupport.validate import unbalanceable_vertices
+    from selfsupport.core.errors import InfeasibleDesign
+    from selfsupport.core.scene import Scene
+    from selfsupport.core.shapes import make_shape
+    from selfsupport.methods.validate import unbalanceable_vertices
 
     barrel = make_shape("barrel_vault", n_vertices=150)
     x = np.abs(barrel.mesh.vertices[:, 0])

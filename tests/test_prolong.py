@@ -10,15 +10,15 @@ import pytest
 
 from formulations import FixedTopView
 from selfsupport.analysis.construction import lifting_weights
-from selfsupport.design.subdivision import subdivide_like, subdivide_scene, subdivision_parents
-from selfsupport.evidence import distance_stats
-from selfsupport.loads import SelfWeight
+from selfsupport.core.subdivision import subdivide_like, subdivide_scene, subdivision_parents
+from selfsupport.core.evidence import distance_stats
+from selfsupport.core.loads import SelfWeight
 from selfsupport.methods.base import as_problem
 from selfsupport.methods.multilevel import coarse_problem, coarsen
 from selfsupport.methods.prolong import PROLONG_TOL, boundary_weights, cofactor, face_stress, prolong, stress_weights
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.warm import WarmStart, transfer
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 
 from .conftest import independent_check
 
@@ -145,7 +145,7 @@ def test_top_view_interpolation_reproduces_linear_fields_and_agrees_with_matplot
     interpolant, and the linear one equals matplotlib's own LinearTriInterpolator elsewhere."""
     import matplotlib.tri as mtri
 
-    from selfsupport.evidence import triangulate
+    from selfsupport.core.evidence import triangulate
     from selfsupport.methods.warm import interpolate_over_top_view
 
     mesh = make_shape("concave_disk", n_vertices=1500).mesh

@@ -6,7 +6,7 @@
 * Legal but unusual inputs (duplicate vertices, zero-area faces, non-planar polygons, local
   overhangs, a vertex below its neighbours, extreme scales, several components): the solve
   runs, the network is in equilibrium (recomputed here with numpy), and
-  :func:`selfsupport.validate.validate_scene` reports what was unusual.
+  :func:`selfsupport.methods.validate.validate_scene` reports what was unusual.
 * Infeasible and hard designs: bounded time, a non-converged status, a message naming
   vertices and what to try, the written file labelled with that status, exit code 4 or 5.
 * No data lost: failed, interrupted and crashing runs never replace or half-write a file.
@@ -31,12 +31,12 @@ import numpy as np
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.errors import InfeasibleDesign, InputError, MeshError, SelfSupportError, SupportError
+from selfsupport.core.errors import InfeasibleDesign, InputError, MeshError, SelfSupportError, SupportError
 from selfsupport.io import network_to_dict, write_mesh
-from selfsupport.mesh import PolyMesh
-from selfsupport.scene import Scene
-from selfsupport.shapes import disk, make_shape
-from selfsupport.validate import scene_issues, top_view_winding, unbalanceable_vertices, validate_scene
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import disk, make_shape
+from selfsupport.methods.validate import scene_issues, top_view_winding, unbalanceable_vertices, validate_scene
 from tests.conftest import SHARED, document_errors, independent_check, network_errors
 
 NOT_CONVERGED = {"stalled", "infeasible", "iteration_limit", "time_limit"}
@@ -155,7 +155,7 @@ def _two_components_obj() -> str:
 def _network_json() -> str:
     """A network file as ``solve`` writes it (its numbers do not matter: it gets cut short)."""
     from selfsupport.io.network_json import dumps_network
-    from selfsupport.result import Network
+    from selfsupport.core.result import Network
 
     d = small_dome()
     net = Network(mesh=d.mesh, weights=np.ones(d.mesh.n_edges), loads=-np.ones(d.mesh.n_vertices),
@@ -715,7 +715,7 @@ def test_a_vertical_flat_reference_is_not_refused_and_stands():
 def test_a_flat_top_view_that_no_positive_weights_balance_is_not_refused():
     """A flat strip held at one vertex: its free straight edges cannot be balanced in plan (eq. 2),
     so the solve must move them by a finite amount, and "any rise will do" does not apply."""
-    from selfsupport.validate import _top_view_balanceable, require_rise
+    from selfsupport.methods.validate import _top_view_balanceable, require_rise
 
     V = [[-1, -1, 0], [-0.5, -1, 0], [0, -1, 0], [0.5, -1, 0], [1, -1, 0],
          [-1, 1, 0], [-0.5, 1, 0], [0, 1, 0], [0.5, 1, 0], [1, 1, 0]]
@@ -767,7 +767,7 @@ def test_top_view_balance_agrees_with_a_linear_program(seed):
     from scipy.optimize import linprog
 
     from formulations.equilibrium import Topology, weight_matrix
-    from selfsupport.validate import _top_view_balanceable
+    from selfsupport.methods.validate import _top_view_balanceable
 
     scene = _flipped_flat_triangulation(seed, flips=1 + seed)
     mesh = scene.mesh
@@ -782,7 +782,7 @@ def test_top_view_balance_agrees_with_a_linear_program(seed):
 def test_top_view_balance_by_candidates_and_by_the_fit_agree(monkeypatch):
     """The Delaunay disk is balanced by its cotangent weights; without that candidate the weight
     fit finds balancing weights too; above the fit's size limit nothing is claimed."""
-    import selfsupport.validate as validate
+    import selfsupport.methods.validate as validate
 
     disk = make_shape("disk", n_vertices=300)
     assert validate._top_view_balanceable(disk)
@@ -794,7 +794,7 @@ def test_top_view_balance_by_candidates_and_by_the_fit_agree(monkeypatch):
 
 def test_a_nearly_flat_reference_is_not_refused():
     """Rise 1e-6 of the diagonal (above the flatness threshold 1e-9): a very shallow dome is a design."""
-    from selfsupport.validate import FLAT, require_rise
+    from selfsupport.methods.validate import FLAT, require_rise
 
     scene = make_shape("disk", n_vertices=120)
     V = scene.mesh.vertices.copy()
@@ -809,7 +809,7 @@ def test_free_straight_gables_are_predicted_and_bent_inward():
     """A barrel vault held on its springing lines only: the straight free gables cannot stand
     as they are (all neighbours on one side, equation (2)); the solve bends them inward in plan,
     after which no vertex is unbalanceable."""
-    from selfsupport.shapes import barrel_vault
+    from selfsupport.core.shapes import barrel_vault
 
     scene = barrel_vault(nx=12, ny=16, gables_supported=False)
     low, one_sided = unbalanceable_vertices(scene)
@@ -910,7 +910,7 @@ class _Interrupting:
 def test_ctrl_c_never_replaces_out_and_writes_name_interrupted_json(precious, monkeypatch, capsys):
     """Issue 16 item 3: the solver stops, the network so far is polished and written labelled
     'interrupted' to NAME.interrupted.json; the existing --out file stays byte for byte; exit 130."""
-    import selfsupport.progress as progress
+    import selfsupport.core.progress as progress
 
     monkeypatch.setattr(progress, "ProgressDisplay", _Interrupting)
     before, ino = precious.read_bytes(), precious.stat().st_ino
@@ -927,7 +927,7 @@ def test_ctrl_c_never_replaces_out_and_writes_name_interrupted_json(precious, mo
 
 
 def test_ctrl_c_with_keep_partial_writes_out_itself(precious, monkeypatch, capsys):
-    import selfsupport.progress as progress
+    import selfsupport.core.progress as progress
 
     monkeypatch.setattr(progress, "ProgressDisplay", _Interrupting)
     assert _cli_solve(precious, "--keep-partial", shape="shape:pillar_vault:300") == 130
@@ -1037,7 +1037,7 @@ def test_coordinates_far_from_the_origin_are_reported():
 
 
 def test_issue_codes_are_documented():
-    from selfsupport.validate import ISSUE_CODES, __doc__ as doc
+    from selfsupport.methods.validate import ISSUE_CODES, __doc__ as doc
 
     for code in ISSUE_CODES:
         assert f"``{code}``" in doc, code

@@ -28,11 +28,11 @@ import pytest
 import selfsupport.methods.simultaneous as simultaneous
 from formulations import Problem
 from selfsupport import api
-from selfsupport.errors import InputError
-from selfsupport.loads import PointLoad, SelfWeight
+from selfsupport.core.errors import InputError
+from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.methods.sensitivity import parse_parameter, sensitivity
 from selfsupport.methods.simultaneous import Simultaneous
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 
 from .test_simultaneous import dome_scene
 

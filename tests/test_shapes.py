@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from selfsupport.errors import InputError
-from selfsupport.geometry import face_areas, face_normals
-from selfsupport.shapes import (SHAPES, barrel_vault, concave_disk, cross_vault, disk, disk_points, dome,
+from selfsupport.core.errors import InputError
+from selfsupport.core.geometry import face_areas, face_normals
+from selfsupport.core.shapes import (SHAPES, barrel_vault, concave_disk, cross_vault, disk, disk_points, dome,
                                 make_shape, pillar_vault)
 
 NAMES = sorted(SHAPES)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from formulations import PointDistance
-from selfsupport.errors import BackendUnavailable, InputError
-from selfsupport.geometry import face_areas
-from selfsupport.loads import SelfWeight
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.errors import BackendUnavailable, InputError
+from selfsupport.core.geometry import face_areas
+from selfsupport.core.loads import SelfWeight
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.methods.nlopt_methods import NloptSimultaneous
 from selfsupport.methods.simultaneous import Simultaneous
-from selfsupport.result import STATUSES
-from selfsupport.scene import Scene
+from selfsupport.core.result import STATUSES
+from selfsupport.core.scene import Scene
 from tests.conftest import network_errors
 
 LOADS = SelfWeight(density=2000.0, thickness=0.1)
@@ -152,8 +152,8 @@ def test_nlopt_refuses_large_problems():
 
 
 def test_scene_extras_are_added_once():
-    from selfsupport.loads import ExtraMass
-    from selfsupport.loads import with_scene_extras
+    from selfsupport.core.loads import ExtraMass
+    from selfsupport.core.loads import with_scene_extras
 
     base = dome_scene(5)
     mass = np.zeros(base.mesh.n_vertices)
@@ -298,7 +298,7 @@ def test_converged_is_said_only_of_a_network_in_equilibrium(shape):
     and 5e-8 (barrel) while the run said "converged". The status now follows the evidence."""
     import dataclasses
 
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape(shape, n_vertices=100)
     half = scene.supports & (scene.mesh.vertices[:, 0] <= np.median(scene.mesh.vertices[:, 0]))

@@ -1,6 +1,6 @@
 """Will it stand: the masonry hull, added loads, the maximum load, destruction.
 
-Generated shells only (:func:`selfsupport.shapes.make_shape`). "Inside the hull" is checked by a
+Generated shells only (:func:`selfsupport.core.shapes.make_shape`). "Inside the hull" is checked by a
 distance computed here (brute-force point-to-triangle distances in numpy), never by the
 solver's own numbers; equilibrium by the shared independent checker.
 """
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.destruction import destroy, sub_scene
-from selfsupport.errors import InputError
+from selfsupport.structure.destruction import destroy, sub_scene
+from selfsupport.core.errors import InputError
 from selfsupport.methods.base import HULL_TOL
-from selfsupport.shapes import make_shape
-from selfsupport.stability import max_load, solve_in_hull, stability_series
+from selfsupport.core.shapes import make_shape
+from selfsupport.structure.stability import max_load, solve_in_hull, stability_series
 from tests.conftest import independent_check, requires_checker
 
 
@@ -258,7 +258,7 @@ def test_the_default_load_points_are_the_free_handled_vertices():
     pinned carries nothing (lilium-pillar has one) and is left out, not blamed on --load-at."""
     import dataclasses
 
-    from selfsupport.stability import spread_mass
+    from selfsupport.structure.stability import spread_mass
 
     scene = make_shape("dome", n_vertices=100)
     free, pinned = np.flatnonzero(~scene.supports)[:3], np.flatnonzero(scene.supports)[:1]

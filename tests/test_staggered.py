@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from selfsupport.geometry import face_areas, vertex_areas
-from selfsupport.loads import SelfWeight
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.geometry import face_areas, vertex_areas
+from selfsupport.core.loads import SelfWeight
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.scene import Scene
-from selfsupport.shapes import make_shape
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from tests.conftest import hidden_displacement, max_relative_error
 
 
@@ -298,7 +298,7 @@ def test_a_finish_try_held_above_tol_by_rounding_alone_ends_the_iteration(monkey
     iteration stops at that try with the same network, status "stalled" and a message that says
     why; it does not retry (the code before this rule ran 35 iterations and 3 retries to 1.9e-13,
     then blamed the supports)."""
-    import selfsupport.evidence as evidence
+    import selfsupport.core.evidence as evidence
 
     scene, loads = make_shape("pillar_vault", n_vertices=300), SelfWeight(density=2000, thickness=0.1)
     ref = StaggeredLinearization().solve(scene, loads)
@@ -346,7 +346,7 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     from formulations.equilibrium import Topology, position_blocks
     from formulations.equilibrium import block_diagonal
     from selfsupport.methods.staggered import _solve_blocks
-    from selfsupport.geometry import vertex_normals
+    from selfsupport.core.geometry import vertex_normals
 
     scene = make_shape("pillar_vault", n_vertices=400)
     m = scene.mesh
@@ -425,7 +425,7 @@ def test_loose_far_fits_converge_as_close_as_exact_ones_on_a_4k_concave_disk():
 def _point_loaded_vault(share: float, n_vertices: int = 300):
     """A pillar vault (289 vertices by default) with ``share`` of its self-weight hung on one
     free vertex (off-centre, away from the pillars)."""
-    from selfsupport.loads import PointLoad
+    from selfsupport.core.loads import PointLoad
 
     scene = make_shape("pillar_vault", n_vertices=n_vertices)
     V, free = scene.mesh.vertices, np.flatnonzero(~scene.supports)
@@ -458,7 +458,7 @@ def test_a_point_load_is_refined_back_towards_the_reference():
     assert len(rec) == 1 and rec[0]["applied"] and not any(h.get("iteration") == "refine" for h in plain.history)
     assert refined.distance_mean < 0.1 * plain.distance_mean
     # the spike: the loaded vertex is the plain network's farthest from the reference surface
-    from selfsupport.evidence import closest_points
+    from selfsupport.core.evidence import closest_points
 
     d_plain, d_refined = (closest_points(r.network.vertices, scene.mesh)[1] for r in (plain, refined))
     assert int(np.argmax(d_plain)) == v and d_refined[v] < 0.1 * d_plain[v]
@@ -543,7 +543,7 @@ def test_a_stalled_run_under_a_point_load_is_refined_back_and_then_converged():
 def _two_cases(shape: str, share: float, vertex: int = 150):
     """A generated shape (~400 vertices) and two load cases one geometry must carry: its
     self-weight alone, and with ``share`` of that weight hung on ``vertex``."""
-    from selfsupport.loads import PointLoad
+    from selfsupport.core.loads import PointLoad
 
     scene = make_shape(shape, n_vertices=400)
     self_weight = SelfWeight(density=2000, thickness=0.1)
@@ -606,7 +606,7 @@ def test_a_stalled_solve_of_cases_that_are_not_proportional_says_why():
     note. Proportional cases (a heavier material) on the free-edged vault converge too."""
     import dataclasses
 
-    from selfsupport.loads import PointLoad
+    from selfsupport.core.loads import PointLoad
 
     scene = make_shape("pillar_vault", n_vertices=100)
     sw = SelfWeight(density=2000, thickness=0.1)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from selfsupport.io import write_mesh
-from selfsupport.shapes import make_shape
+from selfsupport.core.shapes import make_shape
 from studies import common, scaling, table1
 from tests.conftest import CHECKER, SHARED, document_errors
 

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from selfsupport.errors import InputError
+from selfsupport.core.errors import InputError
 from selfsupport.sweep import parse_spec, read_export, run_key, scene_digest
 from selfsupport.sweep.runner import STORE_NAME, plan_runs
 from selfsupport.sweep.store import COLUMN_NAMES, ResultStore
@@ -69,7 +69,7 @@ def test_expansion_counts_and_defaults(tmp_path):
 def test_objective_grid_is_read_by_name_and_reaches_the_solve(tmp_path, monkeypatch):
     """A sweep varies the objective like any parameter; names come from the term registry."""
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
     from selfsupport.sweep.runner import execute_run
 
     text = sweep_text(grid='objective = ["default", "reference=1, planarity=10"]')
@@ -96,7 +96,7 @@ def test_objective_grid_is_read_by_name_and_reaches_the_solve(tmp_path, monkeypa
 
 def test_keys_depend_on_content_and_parameters_only(tmp_path):
     from selfsupport.io import write_mesh
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape("dome", n_vertices=150)
     a, b = tmp_path / "a" / "one.obj", tmp_path / "b" / "two.obj"
@@ -196,7 +196,7 @@ def test_every_run_is_recorded_with_physics_that_matches_its_parameters(finished
         d = g.sort_values("density")["distance_mean"].to_numpy()
         assert d[0] == pytest.approx(d[1], rel=1e-6, abs=1e-12), scene
     # sizes recorded are the scenes' (active edges: both-support edges carry no unknown)
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
     dome = make_shape("dome", n_vertices=200)
     row = ok[ok["scene"] == "dome?n_vertices=200"].iloc[0]
     assert row["n_vertices"] == dome.mesh.n_vertices and row["n_edges"] == int(dome.active_edges.sum())
@@ -301,7 +301,7 @@ def test_sigkill_mid_sweep_then_resume_loses_and_repeats_nothing(tmp_path):
                                 grid="density = [1000.0, 1500.0, 2000.0, 4000.0]"))
     expected = 12
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "selfsupport.cli_sweep", str(sweep), "--out", str(out), "--workers", "2",
+    cmd = [sys.executable, "-m", "selfsupport.cli.sweep", str(sweep), "--out", str(out), "--workers", "2",
            "--quiet", "--no-report"]
     db = out / STORE_NAME
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

@@ -10,9 +10,9 @@ import scipy.sparse as sp
 
 from formulations import TERMS, Problem, TermContext
 from formulations.problem import FixedTopView, Hull, ObjectiveTerm, parse_objective
-from selfsupport.errors import InputError
-from selfsupport.mesh import PolyMesh
-from selfsupport.shapes import make_shape
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.shapes import make_shape
 from tests.test_formulation import MESHES, all_terms, grid_mesh
 
 

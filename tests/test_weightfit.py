@@ -6,12 +6,12 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from selfsupport.loads import SelfWeight
+from selfsupport.core.loads import SelfWeight
 from formulations.equilibrium import Topology, load_vector, weight_matrix
 from formulations.scaling import Scaling, default_eps
 from selfsupport.methods.weightfit import ActiveSetFit, make_backend
-from selfsupport.errors import InputError
-from selfsupport.shapes import make_shape
+from selfsupport.core.errors import InputError
+from selfsupport.core.shapes import make_shape
 
 
 def kkt_violation(A, b, w, lo, up, prox, w0):
@@ -233,7 +233,7 @@ def test_the_lsmr_correction_stops_once_it_stalls(monkeypatch):
     2,000-vertex dome ran to the limit, 120,000 iterations (16 s), and gained 20%."""
     from selfsupport import api
     from selfsupport.methods.fixed_fit import LSMR_CHUNK
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     res = api.solve(make_shape("pillar_vault", n_vertices=600))
     calls = _lsmr_counted(monkeypatch)

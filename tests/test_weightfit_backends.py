@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from selfsupport.errors import BackendUnavailable, InputError
+from selfsupport.core.errors import BackendUnavailable, InputError
 from selfsupport.methods.weightfit_backends import IpoptFit, NloptFit, OsqpFit
 
 BACKENDS = {"ipopt": IpoptFit, "osqp": OsqpFit, "nlopt": NloptFit}
@@ -149,10 +149,10 @@ def failing_optimize(monkeypatch, make_exc, *, evaluations: int, times: int | No
 def dome_fit(n_vertices: int = 150, seed: int = 0):
     """Step 2's fit as the staggered method poses it (rows scaled by 1/|L_i|), on a generated dome
     with its free vertices moved off the reference."""
-    from selfsupport.loads import SelfWeight
+    from selfsupport.core.loads import SelfWeight
     from formulations.equilibrium import load_vector, weight_matrix
     from formulations import Problem
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
 
     scene = make_shape("dome", n_vertices=n_vertices)
     loads = SelfWeight()
@@ -203,7 +203,7 @@ def test_staggered_solve_survives_nlopt_failures_in_step_2(monkeypatch, tmp_path
     import nlopt
     from selfsupport import cli
     from selfsupport.io import write_mesh
-    from selfsupport.shapes import make_shape
+    from selfsupport.core.shapes import make_shape
     from tests.conftest import document_errors
 
     scene = make_shape("dome", n_vertices=150)

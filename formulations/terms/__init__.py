@@ -16,13 +16,13 @@ Example
 >>> sorted(TERMS)
 ['fairness', 'hull', 'normal_drift', 'planar', 'planarity', 'planarity_volume', 'reference', 'vertices']
 """
-from .base import PlaneDistance, Scaled, Sum, Term, TermContext
-from .fairness import Fairness
-from .hull import HullPenalty
-from .normal_drift import NormalDrift
-from .planarity import PlanarFaces, Planarity, PlanarityVolume
-from .reference import TANGENTIAL, ReferenceDistance
-from .vertices import PointDistance
+from formulations.terms.base import PlaneDistance, Scaled, Sum, Term, TermContext
+from formulations.terms.fairness import Fairness
+from formulations.terms.hull import HullPenalty
+from formulations.terms.normal_drift import NormalDrift
+from formulations.terms.planarity import PlanarFaces, Planarity, PlanarityVolume
+from formulations.terms.reference import TANGENTIAL, ReferenceDistance
+from formulations.terms.vertices import PointDistance
 
 #: Registry of objective terms by name (``--objective NAME=WEIGHT``).
 TERMS: dict[str, type[Term]] = {cls.name: cls for cls in

@@ -30,10 +30,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.errors import InputError
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
 
-from ..equilibrium import to_dm
+from formulations.equilibrium import to_dm
 
 
 def vertex_indices(mask: np.ndarray | None, n: int) -> np.ndarray:

@@ -9,10 +9,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.mesh import PolyMesh
 
-from ..equilibrium import to_dm
-from .base import Term, TermContext, points_array, vertex_indices
+from formulations.equilibrium import to_dm
+from formulations.terms.base import Term, TermContext, points_array, vertex_indices
 
 
 @dataclass(frozen=True, eq=False)

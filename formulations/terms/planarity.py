@@ -9,10 +9,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.mesh import PolyMesh
+from selfsupport.core.mesh import PolyMesh
 
-from ..equilibrium import flat_selection, to_dm
-from .base import Term, TermContext
+from formulations.equilibrium import flat_selection, to_dm
+from formulations.terms.base import Term, TermContext
 
 
 def _face_lengths(mesh: PolyMesh, faces: np.ndarray) -> np.ndarray:
@@ -113,7 +113,7 @@ def diagonal_distance(V: np.ndarray, Q: np.ndarray, *, jacobian: bool = False
                       ) -> tuple[np.ndarray, sp.csr_matrix | None]:
     """Per row ``(a, b, c, d)`` of ``Q``: the signed distance between the lines ``a–c`` and ``b–d``
     (a quad's diagonals) over the mean length of the sides ``a→b→c→d→a`` — the fabrication
-    measure of a quad's non-planarity (:func:`selfsupport.evidence.face_nonplanarity` is its
+    measure of a quad's non-planarity (:func:`selfsupport.core.evidence.face_nonplanarity` is its
     absolute value). Zero exactly when the four points are coplanar (and the lines not parallel).
     It is scale-free in the face's own size: a face shrunk by k keeps it, while
     ``det[b − a, c − a, d − a] / ℓ³`` with ``ℓ`` of the reference (the rows of :class:`PlanarFaces`)
@@ -174,7 +174,7 @@ def coplanarity_rows(mesh: PolyMesh, fixed: np.ndarray | None = None) -> tuple[n
     and a free fourth corner held in it could not carry its load (a quad at a vault's foot would
     pin its free corner to the ground).
 
-    >>> from selfsupport.mesh import PolyMesh
+    >>> from selfsupport.core.mesh import PolyMesh
     >>> m = PolyMesh.from_faces(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0.]]), [[0, 1, 2, 3, 4]])
     >>> coplanarity_rows(m)[0].tolist()  # (0, 1, 2) is collinear: the triple is (0, 2, 3)
     [[0, 2, 3, 1], [0, 2, 3, 4]]
@@ -257,7 +257,7 @@ class PlanarityVolume(_FaceTerm):
 @dataclass(frozen=True, eq=False)
 class PlanarFaces(PlanarityVolume):
     """The rows of :class:`PlanarityVolume` divided once more by ``ℓ_f``: dimensionless (for a
-    square face twice its :func:`~selfsupport.evidence.face_nonplanarity`), held at zero by the
+    square face twice its :func:`~selfsupport.core.evidence.face_nonplanarity`), held at zero by the
     :class:`~formulations.problem.Planar` constraint — equality rows of IPOPT's NLP and of the
     joint polish, a penalty not relaxed along the staggered path in Step 3.
     Registered as ``"planar"``.

@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 import numpy as np
 import scipy.sparse as sp
 
-from .base import Term, TermContext, points_array, selection, vertex_indices
+from formulations.terms.base import Term, TermContext, points_array, selection, vertex_indices
 
 
 @dataclass(frozen=True, eq=False)

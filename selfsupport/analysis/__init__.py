@@ -3,7 +3,7 @@ force diagram and the polar dual, curvatures relative to Φ (eqs. 5–6, relativ
 directions), and the construction of self-supporting networks from a convex Airy function.
 
 >>> from selfsupport.analysis import airy, reciprocal, curvatures, construct
->>> from selfsupport.shapes import disk_points
+>>> from selfsupport.core.shapes import disk_points
 >>> net = construct(disk_points(6), "paraboloid", load=-1.0)
 >>> res = airy(net)
 >>> float(abs(reciprocal(res).edge_residual).max()) < 1e-12
@@ -11,11 +11,11 @@ True
 >>> curvatures(net, res).max_balance_residual < 1e-12
 True
 """
-from .airy import AiryResult, Period, airy
-from .construction import (AREA_RULES, PHI_FUNCTIONS, Construction, construct, construct_detailed, lifting_weights,
+from selfsupport.analysis.airy import AiryResult, Period, airy
+from selfsupport.analysis.construction import (AREA_RULES, PHI_FUNCTIONS, Construction, construct, construct_detailed, lifting_weights,
                            lower_hull)
-from .curvature import Curvatures, curvatures, face_principal_directions, write_vector_fields
-from .reciprocal import ReciprocalDiagram, reciprocal
+from selfsupport.analysis.curvature import Curvatures, curvatures, face_principal_directions, write_vector_fields
+from selfsupport.analysis.reciprocal import ReciprocalDiagram, reciprocal
 
 __all__ = ["airy", "AiryResult", "Period", "reciprocal", "ReciprocalDiagram", "curvatures", "Curvatures",
            "face_principal_directions", "write_vector_fields", "construct", "construct_detailed", "Construction",

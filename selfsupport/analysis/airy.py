@@ -56,7 +56,7 @@ Example
 -------
 >>> import numpy as np
 >>> from selfsupport.analysis import construct, airy
->>> from selfsupport.shapes import disk_points
+>>> from selfsupport.core.shapes import disk_points
 >>> net = construct(disk_points(6), "paraboloid", load=-1.0)
 >>> res = airy(net)
 >>> bool(res.convex), res.max_closure_residual < 1e-12
@@ -72,12 +72,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
 
-from ..errors import InputError
-from ..evidence import force_sums, stress_sums
-from ..linalg import spd_factor
-from ..mesh import PolyMesh
-from ..result import Network
-from .stars import Stars, accumulate_along, vertex_stars
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import force_sums, stress_sums
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.analysis.stars import Stars, accumulate_along, vertex_stars
 
 __all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "face_orientation", "top_view_jumps", "face_planes_through"]
 
@@ -533,8 +533,8 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
     Parameters
     ----------
     network
-        A :class:`~selfsupport.result.Network` (or anything with a ``.network``, e.g. a
-        :class:`~selfsupport.result.SolveResult`). Its weights are used as they are; the
+        A :class:`~selfsupport.core.result.Network` (or anything with a ``.network``, e.g. a
+        :class:`~selfsupport.core.result.SolveResult`). Its weights are used as they are; the
         network need not be exactly in equilibrium (the defect is reported).
     tol
         Relative tolerance of the convexity verdict: Φ counts as convex when every crease

@@ -23,13 +23,13 @@ Loads
 a number, one value per point, or a callable ``F(x, y)`` — turned into nodal loads
 ``A_i F_i`` with ``A_i`` from :data:`AREA_RULES` (default: the mixed-Voronoi top-view area,
 which is the exact Voronoi area on non-obtuse triangulations), or a
-:class:`~selfsupport.loads.LoadCase` (e.g. :class:`~selfsupport.loads.SelfWeight`), whose
+:class:`~selfsupport.core.loads.LoadCase` (e.g. :class:`~selfsupport.core.loads.SelfWeight`), whose
 nodal loads depend on the 3D geometry: then the Poisson problem is re-solved with loads
 from the new heights until they agree to round-off (a fixed point; ``load_rounds``).
 
 Example
 -------
->>> from selfsupport.shapes import disk_points
+>>> from selfsupport.core.shapes import disk_points
 >>> net = construct(disk_points(8), "paraboloid", load=-1.0)
 >>> net.max_relative_error() < 1e-12, net.min_weight() >= 0
 (True, True)
@@ -44,15 +44,15 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ..errors import InputError
-from ..evidence import force_sums, stress_sums
-from ..geometry import vertex_areas
-from ..loads import LoadCase
-from ..mesh import PolyMesh
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import force_sums, stress_sums
+from selfsupport.core.geometry import vertex_areas
+from selfsupport.core.loads import LoadCase
+from selfsupport.core.mesh import PolyMesh
 from formulations.equilibrium import Topology, stress_laplacian
-from ..result import Network
-from ..linalg import spd_factor
-from .airy import _J, face_orientation, face_planes_through, freeze_arrays
+from selfsupport.core.result import Network
+from selfsupport.core.linalg import spd_factor
+from selfsupport.analysis.airy import _J, face_orientation, face_planes_through, freeze_arrays
 
 __all__ = ["PHI_FUNCTIONS", "AREA_RULES", "Construction", "construct", "construct_detailed", "lower_hull",
            "lifting_weights", "phi_function"]
@@ -78,7 +78,7 @@ def _voronoi_areas(mesh: PolyMesh) -> np.ndarray:
 
 def _barycentric_areas(mesh: PolyMesh) -> np.ndarray:
     v = np.c_[mesh.vertices[:, :2], np.zeros(mesh.n_vertices)]
-    from ..geometry import face_areas
+    from selfsupport.core.geometry import face_areas
 
     fa = face_areas(mesh, v)
     face_of, _, _ = mesh.corner_data
@@ -303,7 +303,7 @@ def construct_detailed(points: np.ndarray, phi: PhiLike, *, load: float | np.nda
         one sampled value per point.
     load
         Load per unit top-view area ``F`` [N/m², negative = down] (number, array or callable),
-        or a :class:`~selfsupport.loads.LoadCase` (nodal loads from the 3D geometry, iterated).
+        or a :class:`~selfsupport.core.loads.LoadCase` (nodal loads from the 3D geometry, iterated).
     boundary_heights
         Heights of the supports (number, one per point, or callable ``h(x, y)``).
     supports

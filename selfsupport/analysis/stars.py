@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import PolyMesh
+from selfsupport.core.mesh import PolyMesh
 
 __all__ = ["Stars", "vertex_stars"]
 

@@ -9,6 +9,6 @@
 * :mod:`.session` — an interactive session: edit log with undo / redo, warm solves in a background
   thread (newest edit wins); :mod:`.server` puts it on a local web page (``selfsupport design``).
 """
-from .laplacian import LaplacianEditor, laplacian_matrix, ring_region
+from selfsupport.design.laplacian import LaplacianEditor, laplacian_matrix, ring_region
 
 __all__ = ["LaplacianEditor", "laplacian_matrix", "ring_region"]

@@ -28,7 +28,7 @@ script serves a scene at any scale.
 
 Example
 -------
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> d = Design(make_shape("barrel_vault", n_vertices=200))
 >>> d2 = Pillar(select=Select(nearest=(0.5, 0.5), relative=True), hole=True).apply(d)
 >>> int(d2.scene.supports.sum() - d.scene.supports.sum()), d2.scene.mesh.n_vertices == d.scene.mesh.n_vertices - 1
@@ -48,10 +48,10 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
-from ..mesh import PolyMesh
-from ..scene import Scene
-from .laplacian import MODES, LaplacianEditor, ring_region
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
+from selfsupport.design.laplacian import MODES, LaplacianEditor, ring_region
 
 __all__ = ["Design", "Select", "Edit", "EDITS", "Move", "Raise", "Lower", "Pillar", "Pin", "Unpin", "Delete",
            "Cut", "Material", "Objective", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict",
@@ -75,7 +75,7 @@ class Design:
 
     def problem(self, **kw: Any):
         """The :class:`~formulations.Problem` of this design (self-weight plus the scene's extras)."""
-        from ..api import problem
+        from selfsupport.api import problem
 
         if self.objective is not None:
             kw.setdefault("objective", dict(self.objective))
@@ -419,7 +419,7 @@ class Objective(Edit):
     :data:`formulations.terms.TERMS`) beside the distance to the reference (weight 1, the method's
     default term); a weight of 0 drops that term.
 
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> d = Objective(weights={"planarity": 0.5}).apply(Design(make_shape("dome", n_vertices=80)))
     >>> dict(d.objective), [t.name for t in d.problem().objective]
     ({'reference': 1.0, 'planarity': 0.5}, ['reference', 'planarity'])
@@ -476,7 +476,7 @@ class Subdivide(Edit):
     op: ClassVar[str] = "subdivide"
 
     def apply(self, design: Design) -> Design:
-        from .subdivision import subdivide_scene
+        from selfsupport.core.subdivision import subdivide_scene
 
         sc = subdivide_scene(design.scene, int(self.levels))
         n_old = design.scene.mesh.n_vertices
@@ -512,7 +512,7 @@ def check_values(value: Any, what: str) -> None:
 
     The one check of an edit's values, for edit scripts and the design page's messages alike
     (:func:`edit_from_dict`) and again before an edit enters the session's log
-    (:meth:`selfsupport.design.session.EditLog.apply`): a NaN or an infinite offset would make the
+    (:meth:`selfsupport.app.session.EditLog.apply`): a NaN or an infinite offset would make the
     design's vertices NaN, and the log's JSON form (strict JSON has no NaN) unsendable.
 
     Parameters
@@ -708,8 +708,8 @@ def _diagonal(mesh: PolyMesh) -> float:
 
 def _known(cls: type, d: Mapping[str, Any], what: str) -> dict[str, Any]:
     """``d`` as keywords of ``cls``: every key one of its fields, every value of the field's type
-    (:func:`_check_value`) and inside its ``metadata["range"]`` (:func:`selfsupport.options.check_range`)."""
-    from ..options import check_range
+    (:func:`_check_value`) and inside its ``metadata["range"]`` (:func:`selfsupport.core.options.check_range`)."""
+    from selfsupport.core.options import check_range
 
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(d) - set(fields)

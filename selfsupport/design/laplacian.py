@@ -22,7 +22,7 @@ Laplacian coordinates are not rotation invariant): the edits of §4 are translat
 Example
 -------
 >>> import numpy as np
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> mesh = make_shape("dome", n_vertices=200).mesh
 >>> top = np.argmax(mesh.vertices[:, 2])
 >>> handles = np.zeros(mesh.n_vertices, bool); handles[top] = True
@@ -38,9 +38,9 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
-from ..linalg import spd_factor
-from ..mesh import PolyMesh
+from selfsupport.core.errors import InputError
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.mesh import PolyMesh
 
 __all__ = ["MODES", "laplacian_matrix", "ring_region", "LaplacianEditor"]
 

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..errors import InputError
-from .edits import Design, Edit, _check_value, edit_from_dict
+from selfsupport.core.errors import InputError
+from selfsupport.design.edits import Design, Edit, _check_value, edit_from_dict
 
 __all__ = ["EditScript", "Stage", "replay", "dumps_toml"]
 
@@ -136,7 +136,7 @@ class Stage:
 
 
 def _start_scene(script: EditScript, scene: Any) -> Any:
-    from ..cli import load_scene
+    from selfsupport.cli.common import load_scene
 
     if scene is not None:
         return load_scene(str(scene)) if isinstance(scene, (str, Path)) else scene
@@ -157,16 +157,16 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     script
         The parsed script.
     scene
-        The starting scene (a :class:`~selfsupport.scene.Scene`, a file or ``shape:...``);
+        The starting scene (a :class:`~selfsupport.core.scene.Scene`, a file or ``shape:...``);
         default: the script's ``[start] scene``.
     on_stage
         Called with every finished :class:`Stage` (the CLI writes files there).
     warm
         Override the script's ``[solve] warm``.
     """
-    from ..methods.multilevel import solve_warm
-    from ..methods.staggered import StaggeredLinearization
-    from ..methods.warm import WarmStart
+    from selfsupport.methods.multilevel import solve_warm
+    from selfsupport.methods.staggered import StaggeredLinearization
+    from selfsupport.methods.warm import WarmStart
 
     opts = dict(script.solve)
     use_warm = bool(opts.pop("warm", True)) if warm is None else bool(warm)

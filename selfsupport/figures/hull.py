@@ -7,8 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..result import Network
-from .render import FORCE_CMAP, FigureInput, _figure, _norm, edge_forces, signed_distances
+from selfsupport.core.result import Network
+from selfsupport.figures.render import FORCE_CMAP, FigureInput, _figure, _norm, edge_forces, signed_distances
 
 __all__ = ["hull_figure", "stage_strip"]
 
@@ -39,7 +39,7 @@ def hull_figure(network: Network, path: str | Path, *, thickness: float, referen
     hull band ±t/2 (shaded), vertices outside the band in red."""
     from matplotlib.cm import ScalarMappable
 
-    from ..io.atomic import atomic_write_bytes
+    from selfsupport.io.atomic import atomic_write_bytes
 
     ref = reference if reference is not None else network.reference
     inp = FigureInput(network=network, reference=ref, thickness=thickness, size=(12.0, 5.0), dpi=110)
@@ -84,7 +84,7 @@ def stage_strip(stages: Sequence[Any], path: str | Path, *, thickness: float) ->
     vertices: outside the hull), with the stage's status."""
     import io
 
-    from ..io.atomic import atomic_write_bytes
+    from selfsupport.io.atomic import atomic_write_bytes
 
     k = max(len(stages), 1)
     inp = FigureInput(network=next(s.result.network for s in stages if s.result is not None),

@@ -20,7 +20,7 @@ Example
 >>> from pathlib import Path
 >>> from selfsupport import api
 >>> from selfsupport.figures.render import FigureInput, render
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> result = api.solve(make_shape("dome", n_vertices=150))
 >>> out = Path(tempfile.mkdtemp())
 >>> render("network", FigureInput(result.network, title="dome"), out / "dome.png").name
@@ -36,10 +36,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError
-from ..evidence import closest_points, triangulate
-from ..mesh import PolyMesh
-from ..result import Network
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import closest_points, triangulate
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
 
 __all__ = ["FigureInput", "FIGURES", "HISTORY_SERIES", "Unit", "make_figure", "render", "render_png_bytes",
            "edge_forces", "signed_distances",
@@ -404,8 +404,8 @@ def figure_deviation(inp: FigureInput):
     _reference_surface(ax, ref, alpha=0.1)
     cmap = colormaps[DEVIATION_CMAP]
     if inp.thickness is not None:
-        from ..methods.base import hull_excess
-        from ..scene import Scene
+        from selfsupport.methods.base import hull_excess
+        from selfsupport.core.scene import Scene
 
         half = 0.5 * inp.thickness
         cmap = cmap.with_extremes(over=ABOVE_HULL, under=BELOW_HULL)
@@ -728,7 +728,7 @@ def render_png_bytes(kind: str, inp: FigureInput) -> bytes:
 
 def render(kind: str, inp: FigureInput, path: str | Path) -> Path:
     """Render ``kind`` to the PNG file ``path`` (written atomically) and return the path."""
-    from ..io.atomic import atomic_write_bytes
+    from selfsupport.io.atomic import atomic_write_bytes
 
     path = Path(path)
     if path.suffix.lower() != ".png":

@@ -19,8 +19,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError, SelfSupportError
-from ..result import Network, SolveResult
+from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.core.result import Network, SolveResult
 
 __all__ = ["REPORT_KINDS", "ReportFiles", "write_report", "stored_thickness", "network_title"]
 
@@ -97,9 +97,9 @@ def write_report(result: SolveResult | Network, directory: str | Path, *, name: 
     -------
     ReportFiles
     """
-    from ..io.atomic import atomic_write_bytes
-    from .render import FIGURES, FigureInput, airy_of, directions_of, render_png_bytes
-    from .viewer import write_view
+    from selfsupport.io.atomic import atomic_write_bytes
+    from selfsupport.figures.render import FIGURES, FigureInput, airy_of, directions_of, render_png_bytes
+    from selfsupport.figures.viewer import write_view
 
     unknown = [k for k in kinds if k not in FIGURES]
     if unknown:

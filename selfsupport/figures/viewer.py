@@ -18,7 +18,7 @@ Example
 >>> from pathlib import Path
 >>> from selfsupport import api
 >>> from selfsupport.figures.viewer import write_view
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> result = api.solve(make_shape("dome", n_vertices=150))
 >>> out = Path(tempfile.mkdtemp())
 >>> write_view(out / "dome.html", result.network, title="dome").layers[:3]
@@ -33,12 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, SelfSupportError
-from ..evidence import residuals, triangulate
-from ..geometry import bbox_diagonal
-from ..mesh import PolyMesh
-from ..result import Network
-from .render import Unit, airy_of, edge_forces, reciprocal_segments
+from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.core.evidence import residuals, triangulate
+from selfsupport.core.geometry import bbox_diagonal
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.figures.render import Unit, airy_of, edge_forces, reciprocal_segments
 
 __all__ = ["LAYERS", "PRESETS", "ViewInfo", "build_view", "view_html", "write_view"]
 
@@ -340,7 +340,7 @@ def view_html(fig, title: str | None = None) -> str:
 def write_view(path: str | Path, network: Network, *, reference: PolyMesh | None = None,
                title: str | None = None, airy: Any = None, with_analysis: bool = True) -> ViewInfo:
     """Write the interactive view of ``network`` to ``path`` (HTML, atomically); see :func:`build_view`."""
-    from ..io.atomic import atomic_write_text
+    from selfsupport.io.atomic import atomic_write_text
 
     path = Path(path)
     if path.suffix.lower() not in (".html", ".htm"):

@@ -13,8 +13,8 @@ A network is written in any of :data:`NETWORK_FORMATS` (:func:`write_network_as`
 from it to the same network (:func:`read_network`): the JSON network, a COMPAS mesh JSON, PLY
 with its weights in an ``edge`` element, OBJ / OFF with side files, ``.sss``.
 
-Every reader raises :class:`~selfsupport.errors.InputError` (file, line, what, what to do) on a
-broken file and :class:`~selfsupport.errors.MeshError` on an unusable mesh. Every writer
+Every reader raises :class:`~selfsupport.core.errors.InputError` (file, line, what, what to do) on a
+broken file and :class:`~selfsupport.core.errors.MeshError` on an unusable mesh. Every writer
 writes atomically (:mod:`.atomic`).
 """
 from __future__ import annotations
@@ -25,17 +25,17 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InputError
-from ..mesh import PolyMesh
-from ..scene import Scene
-from ..result import Network
-from .compas_mesh import write_compas
-from .meshfiles import MESH_READERS, MESH_WRITERS, LoadedMesh
-from .network_files import read_ply_network, read_with_side_files, side_files, write_ply_network, write_with_side_files
-from .network_json import network_to_dict, read_json_scene, write_network
-from .network_json import read_network as read_json_network
-from .sss import read_sss, read_sss_network, write_network_sss, write_scene_sss
-from .supports import resolve_supports
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
+from selfsupport.core.result import Network
+from selfsupport.io.compas_mesh import write_compas
+from selfsupport.io.meshfiles import MESH_READERS, MESH_WRITERS, LoadedMesh
+from selfsupport.io.network_files import read_ply_network, read_with_side_files, side_files, write_ply_network, write_with_side_files
+from selfsupport.io.network_json import network_to_dict, read_json_scene, write_network
+from selfsupport.io.network_json import read_network as read_json_network
+from selfsupport.io.sss import read_sss, read_sss_network, write_network_sss, write_scene_sss
+from selfsupport.io.supports import resolve_supports
 
 __all__ = ["read_scene", "read_mesh", "write_mesh", "write_scene_sss", "network_to_dict", "write_network",
            "read_network", "NetworkFormat", "NETWORK_FORMATS", "NETWORK_SUFFIXES", "FORMAT_NAMES", "network_suffix",
@@ -124,7 +124,7 @@ class NetworkFormat:
 
     ``write(path, result_or_network, *, up, **extra)`` writes it (``up``: the file's vertical axis
     where the format has a choice; ``extra``: keys for status and evidence, where it has a
-    place); ``read(path, up)`` reads it back to the same :class:`~selfsupport.result.Network`.
+    place); ``read(path, up)`` reads it back to the same :class:`~selfsupport.core.result.Network`.
     """
 
     name: str  # the --format name

@@ -11,7 +11,7 @@ temporary name, ``.NAME.HEX.tmp``, shortens ``NAME`` as needed to stay within th
 What may be written is decided by :func:`selfsupport.io.safety.write_target`: a regular file the
 user may write or a new path; a symlink is written through to its target (the link stays a
 link); a directory, device, FIFO, socket or read-only file is refused with an
-:class:`~selfsupport.errors.InputError`.
+:class:`~selfsupport.core.errors.InputError`.
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ import secrets
 from pathlib import Path
 from typing import Iterable
 
-from ..errors import InputError
-from .safety import fit_name, name_max, write_target
+from selfsupport.core.errors import InputError
+from selfsupport.io.safety import fit_name, name_max, write_target
 
 __all__ = ["atomic_write_text", "atomic_write_bytes"]
 

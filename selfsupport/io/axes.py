@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
+from selfsupport.core.errors import InputError
 
 
 def _rotation(rows: list[list[int]]) -> np.ndarray:

@@ -31,10 +31,10 @@ import numpy as np
 
 from formulations.problem import Bounds
 
-from ..errors import InputError
-from ..mesh import PolyMesh
-from .atomic import atomic_write_text
-from .meshfiles import Source, strip_comment
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.meshfiles import Source, strip_comment
 
 __all__ = ["BOUNDS_SUFFIXES", "read_bounds", "write_bounds"]
 
@@ -157,7 +157,7 @@ def _vertex(src: Source, text: str, line: int) -> int:
 
 
 def _json_rows(src: Source):
-    from .network_json import load_json
+    from selfsupport.io.network_json import load_json
 
     d = load_json(src)
     edges = d.get("edges")

@@ -24,9 +24,9 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from ..result import Network, SolveResult
-from .atomic import atomic_write_text
-from .meshfiles import Source
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.meshfiles import Source
 
 __all__ = ["COMPAS_MESH_DTYPE", "compas_mesh_data", "write_compas", "is_compas_mesh", "network_document"]
 
@@ -61,7 +61,7 @@ def compas_mesh_data(doc: dict[str, Any]) -> dict[str, Any]:
 def write_compas(path: str | Path, result_or_network: Network | SolveResult, **extra: Any) -> None:
     """Write a network (or a solve result, with its status and evidence) as a COMPAS mesh JSON,
     atomically; ``extra`` keys go into the mesh's attributes."""
-    from .network_json import network_to_dict
+    from selfsupport.io.network_json import network_to_dict
 
     doc = compas_mesh_data(network_to_dict(result_or_network, **extra))
     atomic_write_text(path, json.dumps(doc, allow_nan=False) + "\n")

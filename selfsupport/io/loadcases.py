@@ -34,8 +34,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import InputError
-from ..loads import G, ExtraMass, LoadCase, PointLoad, SelfWeight
+from selfsupport.core.errors import InputError
+from selfsupport.core.loads import G, ExtraMass, LoadCase, PointLoad, SelfWeight
 
 
 def parse_vertex_value(text: str, what: str) -> tuple[int, float]:
@@ -137,7 +137,7 @@ class LoadSpec:
     @classmethod
     def from_description(cls, d: Mapping[str, Any]) -> "LoadSpec":
         """The inverse of :meth:`describe` (missing keys: defaults)."""
-        from ..api import DEFAULT_DENSITY, DEFAULT_THICKNESS
+        from selfsupport.api import DEFAULT_DENSITY, DEFAULT_THICKNESS
 
         return cls(density=float(d.get("density", DEFAULT_DENSITY)), thickness=float(d.get("thickness", DEFAULT_THICKNESS)),
                    point_loads=_vertex_map(d.get("point_loads", {}), "point_loads"),

@@ -4,7 +4,7 @@ Small parsers of our own, because trimesh triangulates quads on every load path 
 thrust network lives on the polygon edges. Every reader
 
 * keeps polygons as polygons,
-* reports a broken file with an :class:`~selfsupport.errors.InputError` naming the file, the
+* reports a broken file with an :class:`~selfsupport.core.errors.InputError` naming the file, the
   line (where there is one), what is wrong and what to do,
 * maps the file's vertical axis (``up``, see :mod:`.axes`) to z up and validates the mesh
   (:meth:`PolyMesh.validate`, re-raised with the file name).
@@ -21,10 +21,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InputError, MeshError
-from ..mesh import PolyMesh
-from .atomic import atomic_write_text
-from .axes import rotation
+from selfsupport.core.errors import InputError, MeshError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.axes import rotation
 
 __all__ = ["Source", "RawMesh", "LoadedMesh", "finish_mesh", "read_obj", "read_ply", "read_ply_elements", "read_off",
            "write_obj", "write_ply", "write_off"]

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from ..result import Network, SolveResult
-from .atomic import atomic_write_text
-from .meshfiles import MESH_READERS, MESH_WRITERS, Source, read_ply_elements, write_ply
-from .network_json import edge_weights, network_from_arrays
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.meshfiles import MESH_READERS, MESH_WRITERS, Source, read_ply_elements, write_ply
+from selfsupport.io.network_json import edge_weights, network_from_arrays
 
 __all__ = ["SIDE_SUFFIXES", "side_files", "write_with_side_files", "read_with_side_files", "write_ply_network",
            "read_ply_network"]

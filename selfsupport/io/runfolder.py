@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from ..errors import InputError
-from .atomic import atomic_write_text
-from .safety import check_output_dir, same_file
+from selfsupport.core.errors import InputError
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.safety import check_output_dir, same_file
 
 __all__ = ["RunFolder", "MANIFEST", "MANIFEST_FORMAT", "file_sha256"]
 

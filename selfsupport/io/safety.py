@@ -28,7 +28,7 @@ import stat
 from pathlib import Path
 from typing import Iterable
 
-from ..errors import InputError
+from selfsupport.core.errors import InputError
 
 __all__ = ["write_target", "check_output_file", "check_output_dir", "check_outputs", "same_file",
            "interrupted_path", "name_max", "fit_name", "check_name_lengths"]

@@ -14,9 +14,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import SupportError
-from ..mesh import PolyMesh
-from .meshfiles import Source, strip_comment
+from selfsupport.core.errors import SupportError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.io.meshfiles import Source, strip_comment
 
 __all__ = ["SUPPORT_RULES", "read_supports_file", "resolve_supports"]
 

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from .deadline import out_of_time
+from selfsupport.methods.deadline import out_of_time
 
 #: Differences mixed by :func:`anderson` unless told otherwise.
 DEPTH = 5

@@ -13,9 +13,9 @@ import numpy as np
 from formulations import Problem, TermContext
 from formulations.scaling import Scaling
 
-from ..evidence import DEGENERATE_LOAD, degenerate
-from ..result import Network, SolveResult
-from ..scene import Scene
+from selfsupport.core.evidence import DEGENERATE_LOAD, degenerate
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
 
 
 @runtime_checkable
@@ -38,7 +38,7 @@ def as_problem(problem: Problem | Scene, loads: Any = None, *, eps: Any = None, 
         extra = {k: v for k, v in (("loads", loads), ("eps", eps), ("w_max", w_max), ("objective", objective))
                  if v is not None}
         if extra or constraints:
-            from ..errors import InputError
+            from selfsupport.core.errors import InputError
 
             raise InputError(f"{sorted(extra) + (['constraints'] if constraints else [])} are part of the problem; "
                              "pass them to Problem.build instead")
@@ -51,7 +51,7 @@ def loads_or_options(options: Any, loads: Any = None) -> tuple[Any, Any]:
     argument that is a load model, a set of them or a mapping name -> load model is the loads."""
     from formulations.loadcases import LoadCases
 
-    from ..loads import LoadCase
+    from selfsupport.core.loads import LoadCase
 
     if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
                                                        and all(isinstance(v, LoadCase) for v in options.values())):
@@ -91,7 +91,7 @@ def hull_signed_distance(reference, vertices: np.ndarray) -> np.ndarray:
     ``|d| <= t/2``. (The solvers' hull term uses the tangent plane at the reference vertex
     instead, its linearization.)
     """
-    from ..evidence import closest_points
+    from selfsupport.core.evidence import closest_points
 
     V = np.asarray(vertices, float)
     C, dist, nrm = closest_points(V, reference)
@@ -104,7 +104,7 @@ def hull_excess(scene: Scene, network: Network, thickness: float, *, tol: float 
     per-vertex signed distance to the reference surface [m] and inside/outside (supports count as
     inside), the free vertices outside (worst first) with their excess beyond t/2 [m], the max
     excess. The one computation behind the ``hull`` record of a solve, the certification of
-    :mod:`selfsupport.stability` and the warning of :mod:`selfsupport.diagnostics`."""
+    :mod:`selfsupport.structure.stability` and the warning of :mod:`selfsupport.methods.diagnostics`."""
     t = float(thickness)
     d = hull_signed_distance(scene.mesh, network.vertices)
     excess = np.abs(d) - 0.5 * t
@@ -128,7 +128,7 @@ def hull_report(problem: Problem, network: Network, thickness: float | None = No
 
 def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | None:
     """For a problem with the :class:`~formulations.problem.Planar` constraint: the largest and
-    mean quad non-planarity (:func:`~selfsupport.evidence.face_nonplanarity`, distance of the
+    mean quad non-planarity (:func:`~selfsupport.core.evidence.face_nonplanarity`, distance of the
     diagonals over the mean edge length), the largest coplanarity row of the polygons with more
     than four corners (over ``ℓ_f³``: for a square twice its non-planarity), the tolerance and
     whether it is met; ``None`` without the constraint. Faces with three or more supported
@@ -138,7 +138,7 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     from formulations import Planar
     from formulations.terms.planarity import coplanarity_rows
 
-    from ..evidence import face_nonplanarity
+    from selfsupport.core.evidence import face_nonplanarity
 
     planar = problem.constraint(Planar)
     if planar is None:
@@ -184,11 +184,11 @@ def case_networks(problem: Problem, scaling: Scaling, X: np.ndarray, ws: list[np
 def short_of_tol(net: Network, tol: float, err: float | None = None) -> str:
     """Why a polished network misses ``tol`` (``err``: its max relative error over every load
     case, default the network's own): its worst vertices by number and, where they carry almost
-    no load (:func:`~selfsupport.evidence.degenerate`), that their faces collapsed.
+    no load (:func:`~selfsupport.core.evidence.degenerate`), that their faces collapsed.
 
     >>> import dataclasses
     >>> from selfsupport.methods.staggered import StaggeredLinearization
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> net = StaggeredLinearization().solve(make_shape("dome", n_vertices=60)).network
     >>> v = int(np.flatnonzero(~net.supports)[3])
     >>> loads = net.loads.copy(); loads[v] *= 1e-5  # that vertex's area collapsed
@@ -230,8 +230,8 @@ def cases_proportional(problem: Problem) -> bool:
     (within :data:`PROPORTIONAL_RTOL`)? A single case is; a uniform surcharge on the self-weight
     is; a point load or extra mass in one case is not.
 
-    >>> from selfsupport.shapes import make_shape
-    >>> from selfsupport.loads import PointLoad, SelfWeight
+    >>> from selfsupport.core.shapes import make_shape
+    >>> from selfsupport.core.loads import PointLoad, SelfWeight
     >>> from formulations import Problem
     >>> scene = make_shape("dome", n_vertices=60)
     >>> f = np.zeros(scene.mesh.n_vertices); f[int(np.flatnonzero(~scene.supports)[0])] = -100.0
@@ -268,8 +268,8 @@ def load_cases_note(problem: Problem) -> str | None:
     which the staggered method now tries first for such cases
     (:func:`selfsupport.methods.staggered._couples_first`).
 
-    >>> from selfsupport.shapes import make_shape
-    >>> from selfsupport.loads import PointLoad, SelfWeight
+    >>> from selfsupport.core.shapes import make_shape
+    >>> from selfsupport.core.loads import PointLoad, SelfWeight
     >>> from formulations import Problem
     >>> scene = make_shape("pillar_vault", n_vertices=100)
     >>> f = np.zeros(scene.mesh.n_vertices); f[45] = -1000.0

@@ -30,8 +30,8 @@ Above :data:`LEVELS_ABOVE` and up to the multilevel method's own
 runs as it is.
 
 >>> from formulations import Problem
->>> from selfsupport.loads import SelfWeight
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.loads import SelfWeight
+>>> from selfsupport.core.shapes import make_shape
 >>> choose_method(Problem.build(make_shape("dome", n_vertices=300), SelfWeight())).method
 'staggered'
 """
@@ -97,9 +97,9 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
     if n <= levels_above:
         return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
     # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
-    from ..design.subdivision import subdivision_parents
-    from .multilevel import DIRECT_MAX, Multilevel, why_not
-    from .warm import as_warm_start
+    from selfsupport.core.subdivision import subdivision_parents
+    from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel, why_not
+    from selfsupport.methods.warm import as_warm_start
 
     why = why_not(problem)
     if why:

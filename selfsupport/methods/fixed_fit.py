@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from formulations import Problem
 from formulations.equilibrium import load_vector, weight_matrix
 
-from .weightfit import make_backend
+from selfsupport.methods.weightfit import make_backend
 
 #: :func:`fit_weights` starts with the staggered method's proximal weight
 #: (``StaggeredOptions.prox_w``, relative to the mean squared column norm of the scaled A) and
@@ -60,7 +60,7 @@ def fit_weights(problem: Problem, loads: np.ndarray | None = None, *, backend: s
     already fits is returned as it is; from a clipped one the fit can end worse than from ``eps``
     (a solved 400-vertex concave disk: 3.5e-6 against 7.3e-14), so callers compare.
     """
-    from .staggered import StaggeredOptions
+    from selfsupport.methods.staggered import StaggeredOptions
 
     prob = problem.scaled(loads)
     top, sc, X, lower, upper = prob.top, prob.scaling, prob.X, prob.lower, prob.upper

@@ -19,7 +19,7 @@ equilibrium built from it and needs no schedule at all. Level by level, coarsest
    triangulation of the top view (Shewchuk's Triangle, via ``igl.triangle``) with interior
    supports subsampled. The coarse problem has the fine one's load models, bounds, objective
    and constraints, evaluated on the coarse mesh.
-   A scene made by :func:`~selfsupport.design.subdivision.subdivide_scene` brings its own
+   A scene made by :func:`~selfsupport.core.subdivision.subdivide_scene` brings its own
    levels: the designer's coarser scenes it was refined from (the paper's §4 upsample, then
    polish). They are used as they are (``use_subdivision``) while the scene is unchanged since
    the subdivision. On the paper's scenes subdivided twice they converged in 2.8–3.8 s (one
@@ -62,7 +62,7 @@ objective terms built on the mesh) cannot be coarsened: it is solved on one leve
 
 Example
 -------
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> scene = make_shape("pillar_vault", n_vertices=1600)
 >>> res = Multilevel(direct_max=500).solve(scene)
 >>> [(lv["coarsening"], lv["status"]) for lv in res.parameters["multilevel"]["levels"]]
@@ -81,21 +81,21 @@ import numpy as np
 from formulations import FixedTopView, Hull, Problem
 from formulations.problem import Bounds, ObjectiveTerm
 
-from ..errors import InputError
-from ..evidence import distance_stats, roundoff_message
-from ..geometry import mean_edge_length, turning_angles
-from ..loads import CombinedLoad, SelfWeight
-from ..mesh import PolyMesh
-from ..result import SolveResult
-from ..scene import Scene
-from ..design.subdivision import subdivide_like, subdivision_parents
-from .base import as_problem, loads_or_options, term_values
-from .deadline import out_of_time
-from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
-from .prolong import START_TOL, prolong
-from .warm import WarmStart, as_warm_start, interpolate_over_top_view
-from .weight_refit import edge_bounds, refit_weights
-from .weightfit import WeightFitBackend
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import distance_stats, roundoff_message
+from selfsupport.core.geometry import mean_edge_length, turning_angles
+from selfsupport.core.loads import CombinedLoad, SelfWeight
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import SolveResult
+from selfsupport.core.scene import Scene
+from selfsupport.core.subdivision import subdivide_like, subdivision_parents
+from selfsupport.methods.base import as_problem, loads_or_options, term_values
+from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
+from selfsupport.methods.prolong import START_TOL, prolong
+from selfsupport.methods.warm import WarmStart, as_warm_start, interpolate_over_top_view
+from selfsupport.methods.weight_refit import edge_bounds, refit_weights
+from selfsupport.methods.weightfit import WeightFitBackend
 
 __all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "why_not", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
            "START_TOL"]
@@ -226,7 +226,7 @@ def _coarsen_by_clusters(scene: Scene, n_target: int, h: float, boundary_ids: np
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    from ..evidence import triangulate
+    from selfsupport.core.evidence import triangulate
 
     mesh = scene.mesh
     n = mesh.n_vertices
@@ -284,7 +284,7 @@ def _coarsen_by_clusters(scene: Scene, n_target: int, h: float, boundary_ids: np
 
 
 def _top_area(mesh: PolyMesh) -> float:
-    from ..evidence import triangulate
+    from selfsupport.core.evidence import triangulate
 
     xy = mesh.vertices[:, :2]
     t = triangulate(mesh)
@@ -302,7 +302,7 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     target) subsamples interior supports on a grid of the coarse spacing and interpolates the
     heights of its new vertices linearly over the reference's top view.
 
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> fine = make_shape("pillar_vault", n_vertices=4000)
     >>> c = coarsen(fine, 1000)
     >>> 700 < c.mesh.n_vertices < 1400, c.mesh.is_valid(), bool(c.supports.sum() > 4)
@@ -441,7 +441,7 @@ class Multilevel:
     def levels(self, scene: Scene) -> list[Scene]:
         """The scenes solved, coarsest first, ``scene`` last.
 
-        A scene refined by :func:`~selfsupport.design.subdivision.subdivide_scene` (and unchanged
+        A scene refined by :func:`~selfsupport.core.subdivision.subdivide_scene` (and unchanged
         since) has its own hierarchy: the designer's coarser scenes, from the finest one of at
         most ``direct_max`` vertices (coarsened further when even the coarsest is larger)."""
         parents = subdivision_parents(scene) if self.use_subdivision else ()

@@ -28,15 +28,15 @@ from scipy.sparse.linalg import splu
 
 from formulations import Hull, Planar, Problem, ThrustNetworkProblem
 
-from ..errors import BackendUnavailable, InputError
+from selfsupport.core.errors import BackendUnavailable, InputError
 from formulations.equilibrium import position_blocks, weight_matrix
-from .simultaneous import Simultaneous
-from .weightfit_backends import nlopt_failures
+from selfsupport.methods.simultaneous import Simultaneous
+from selfsupport.methods.weightfit_backends import nlopt_failures
 
 #: Largest number of free vertices accepted, per formulation (see the module docstring).
 MAX_FREE_VERTICES = {"reduced": 300, "full": 50}
 
-#: nlopt result name -> our status (see selfsupport.result.STATUSES). Successful returns are
+#: nlopt result name -> our status (see selfsupport.core.result.STATUSES). Successful returns are
 #: only "converged" when the constraints really hold to ``tol`` (checked separately).
 NLOPT_STATUS: dict[str, str] = {
     "SUCCESS": "converged",

@@ -1,5 +1,5 @@
 """Planar faces by a homotopy in the allowed non-planarity (paper §5; the finish of
-:func:`selfsupport.design.pq.solve_planar`).
+:func:`selfsupport.remesh.planar.solve_planar`).
 
 Start: a network in equilibrium on the quad mesh, faces not planar (the staggered method finds
 one in a fraction of a second). Each stage lowers the band ``b`` every face's non-planarity must
@@ -31,8 +31,8 @@ method with planar faces stalls:
 >>> import numpy as np
 >>> from formulations import Planar
 >>> from selfsupport import api
->>> from selfsupport.shapes import make_shape
->>> from selfsupport.design.remesh import remesh
+>>> from selfsupport.core.shapes import make_shape
+>>> from selfsupport.remesh.streamlines import remesh
 >>> net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
 >>> q = remesh(net, field="principal", spacing=0.1, relative=True).scene
 >>> eq = api.solve(q)  # in equilibrium, faces not planar
@@ -52,13 +52,13 @@ import scipy.sparse as sp
 from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
 from formulations.terms.planarity import coplanarity_rows, diagonal_distance
 
-from ..errors import InputError
-from ..geometry import mean_edge_length
-from ..result import SolveResult
-from .base import case_networks, planarity_report, term_values
-from .deadline import out_of_time
-from .polish import case_load_jacobians, polish_joint
-from .staggered import DEFAULT_OBJECTIVE
+from selfsupport.core.errors import InputError
+from selfsupport.core.geometry import mean_edge_length
+from selfsupport.core.result import SolveResult
+from selfsupport.methods.base import case_networks, planarity_report, term_values
+from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.polish import case_load_jacobians, polish_joint
+from selfsupport.methods.staggered import DEFAULT_OBJECTIVE
 
 __all__ = ["planar_homotopy", "BAND_END"]
 
@@ -120,7 +120,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first;
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
     """
-    from .warm import as_warm_start, transfer
+    from selfsupport.methods.warm import as_warm_start, transfer
 
     t0 = time.perf_counter()
     planar = problem.constraint(Planar)

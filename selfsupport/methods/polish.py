@@ -29,10 +29,10 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..linalg import spd_factor
-from ..loads import LoadCase
-from .anderson import anderson
-from .deadline import DeadlineReached, out_of_time
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.loads import LoadCase
+from selfsupport.methods.anderson import anderson
+from selfsupport.methods.deadline import DeadlineReached, out_of_time
 from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
 from formulations.nlp import ThrustNetworkProblem
 from formulations.scaling import Scaling
@@ -331,7 +331,7 @@ def max_rel_error(top: Topology, V: np.ndarray, W: np.ndarray, L: np.ndarray) ->
 #: square of the cases (4 cases on a 5,000-vertex dome: 1.6 GB against 0.16 GB for one; 60 cases on
 #: a 91-vertex dome: 2.4 GB and 20 s for one step); above this the step is found by conjugate
 #: gradients preconditioned by the groups' own blocks instead (memory linear in the cases, the
-#: step less exact: the Gauss-Newton iteration corrects it). :mod:`selfsupport.memory` counts both.
+#: step less exact: the Gauss-Newton iteration corrects it). :mod:`selfsupport.methods.memory` counts both.
 DIRECT_CASES_MAX = 4
 #: Relative residual of ``J Jᵀ y = b`` at which the conjugate gradients of :func:`min_norm_step` stop.
 MIN_NORM_RTOL = 1e-14

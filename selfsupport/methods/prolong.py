@@ -41,7 +41,7 @@ sample along the coarse edges. So:
    1–2 with the boundary edges counted in the stress after all, as they are (a fallback: on Catmull–Clark quads the boundary-free stress did not balance
    where that did, cas subdivided twice 9.5e-2, twocirc-3's clusters 2.9).
 5. Where the fine scene is the coarse one refined by Catmull–Clark (a designer's subdivided
-   design, :func:`~selfsupport.design.subdivision.subdivide_like`) and steps 1–4 fail: the
+   design, :func:`~selfsupport.core.subdivision.subdivide_like`) and steps 1–4 fail: the
    network itself subdivided by the same step, its weights carried edge by edge
    (:func:`subdivided_weights`), its supports put back where the design has them, polished as in
    step 4. A quad network has about as many edges as horizontal equations (2 per free vertex;
@@ -63,7 +63,7 @@ Example
 -------
 A constant quadratic Airy function: the edge-by-edge lifting equals the global one.
 
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> from selfsupport.analysis.construction import lifting_weights
 >>> m = make_shape("dome", n_vertices=200).mesh
 >>> xy = m.vertices[:, :2]
@@ -85,16 +85,16 @@ import numpy as np
 
 from formulations import Problem
 
-from ..analysis.airy import _J, face_orientation
-from ..analysis.construction import restore_horizontal_equilibrium
-from ..design.subdivision import Subdivision
-from ..evidence import relative_errors
-from ..geometry import edge_vectors
-from ..mesh import PolyMesh
-from ..result import Network
-from .deadline import out_of_time
-from .polish import polish
-from .warm import WarmStart, interpolate_over_top_view, transfer
+from selfsupport.analysis.airy import _J, face_orientation
+from selfsupport.analysis.construction import restore_horizontal_equilibrium
+from selfsupport.core.subdivision import Subdivision
+from selfsupport.core.evidence import relative_errors
+from selfsupport.core.geometry import edge_vectors
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.polish import polish
+from selfsupport.methods.warm import WarmStart, interpolate_over_top_view, transfer
 
 __all__ = ["face_stress", "vertex_stress", "cofactor", "quadratic_lifting_weights", "stress_weights",
            "subdivided_weights", "Prolongation", "prolong", "PROLONG_TOL"]
@@ -129,7 +129,7 @@ def face_stress(mesh: PolyMesh, xy: np.ndarray, weights: np.ndarray) -> tuple[np
     face areas. Summed with the areas it is ``Σ_e w_e e eᵀ``, the integral of the stress of a
     piecewise-linear Airy function (edges inside the mesh counted in both their faces by half).
 
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> m = make_shape("dome", n_vertices=100).mesh
     >>> xy, w = m.vertices[:, :2], np.ones(m.n_edges)
     >>> S, A = face_stress(m, xy, w)
@@ -211,7 +211,7 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     by the fine edge's top-view length (step 2 of the module docstring). NaN where the coarse
     boundary carries nothing.
 
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> m = make_shape("dome", n_vertices=200).mesh
     >>> xy = m.vertices[:, :2]
     >>> b = m.boundary_edge_mask
@@ -263,8 +263,8 @@ def subdivided_weights(coarse: PolyMesh, sub: Subdivision, weights: np.ndarray) 
     the halves of a boundary edge keep its *force* w ℓ (top-view lengths of ``coarse`` and
     ``sub.mesh``), as in :func:`boundary_weights`.
 
-    >>> from selfsupport.design.subdivision import catmull_clark
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.subdivision import catmull_clark
+    >>> from selfsupport.core.shapes import make_shape
     >>> m = make_shape("barrel_vault", n_vertices=100).mesh
     >>> w = np.arange(m.n_edges, dtype=float)
     >>> sub = catmull_clark(m)

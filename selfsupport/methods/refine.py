@@ -47,9 +47,9 @@ from formulations.equilibrium import Topology, block_diagonal, load_vector, posi
 from formulations.scaling import Scaling
 from formulations.terms import Term
 
-from ..linalg import spd_factor
-from ..loads import LoadCase
-from .polish import load_colouring, load_jacobian_xyz, polish
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.loads import LoadCase
+from selfsupport.methods.polish import load_colouring, load_jacobian_xyz, polish
 
 
 @dataclass(frozen=True)

@@ -60,17 +60,17 @@ from formulations import (TERMS, PointDistance, Problem, ReferenceDistance, Term
 from formulations.scaling import Scaling
 from formulations.terms import HullPenalty, PlanarFaces, Sum
 
-from ..errors import InputError
-from ..result import Network, SolveResult
-from ..validate import require_top_view_balance
-from ..scene import Scene
-from .anderson import Anderson
-from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
+from selfsupport.core.errors import InputError
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.methods.validate import require_top_view_balance
+from selfsupport.core.scene import Scene
+from selfsupport.methods.anderson import Anderson
+from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
                    load_cases_note, planarity_report, short_of_tol, term_values)
-from .deadline import out_of_time
-from .polish import HULL_ACTIVE_REL, JOINT_POLISH_TOL, case_load_jacobians, polish_joint
-from .polish import polish as _polish
-from .polish import max_rel_error as _max_rel_error
+from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.polish import HULL_ACTIVE_REL, JOINT_POLISH_TOL, case_load_jacobians, polish_joint
+from selfsupport.methods.polish import polish as _polish
+from selfsupport.methods.polish import max_rel_error as _max_rel_error
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
 #: consistent with the geometry.
@@ -109,7 +109,7 @@ WEIGHT_REGULARIZATION = 1e-6
 #: staggered network: with OpenBLAS's Haswell kernels IPOPT converged in every round; with its
 #: AVX-512 kernels the first round returned "acceptable" and the run ended "stalled" at 4.2e-2.)
 ACCEPTABLE_ROUND = frozenset({"Solved_To_Acceptable_Level"})
-#: IPOPT ``return_status`` -> our status (selfsupport.result.STATUSES); unknown ones are "failed".
+#: IPOPT ``return_status`` -> our status (selfsupport.core.result.STATUSES); unknown ones are "failed".
 IPOPT_STATUS: dict[str, str] = {
     "Solve_Succeeded": "converged",
     "Solved_To_Acceptable_Level": "stalled",
@@ -174,7 +174,7 @@ class SimultaneousOptions:
     time_limit
         Wall-clock limit [s] of the whole solve (IPOPT's ``max_wall_time`` gets what is left).
     warm_start
-        A previous :class:`~selfsupport.result.Network` (or :class:`~selfsupport.result.SolveResult`,
+        A previous :class:`~selfsupport.core.result.Network` (or :class:`~selfsupport.core.result.SolveResult`,
         then one weight vector per case) on the same mesh: its free positions and active weights
         start IPOPT.
     verbose
@@ -233,9 +233,9 @@ class Simultaneous:
 
     Example
     -------
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> from formulations import Problem
-    >>> from selfsupport.loads import SelfWeight
+    >>> from selfsupport.core.loads import SelfWeight
     >>> res = Simultaneous().solve(Problem.build(make_shape("dome", n_vertices=100), SelfWeight()))
     >>> res.status, res.max_relative_error < 1e-9
     ('converged', True)
@@ -244,7 +244,7 @@ class Simultaneous:
     name = "simultaneous"
     backend = "ipopt"
     #: The masonry hull is a set of hard inequality rows here (one solve decides), and a previous
-    #: network can start the solve: :func:`selfsupport.stability.solve_in_hull` asks for this.
+    #: network can start the solve: :func:`selfsupport.structure.stability.solve_in_hull` asks for this.
     hull_as_constraint = True
     #: IPOPT options (``ipopt.`` prefix added); ``tol``, ``max_iter``, ``max_wall_time`` and
     #: ``print_level`` come from the solve's options.

@@ -79,7 +79,7 @@ Finish  once the fit's max relative error is below ``finish_try``, every accepte
         predicted far beyond the slack is not polished (twocirc-3: 4 tries of 20–33 ms skipped,
         0.83× the time, the same network). A try uses Newton only: one that Newton cannot
         finish fails cheaply (the fixed-point fallbacks took 0.7 s of 1.9 s on a 1k concave
-        disk for a try that failed anyway). The linear systems are factored by CHOLMOD (:mod:`selfsupport.linalg`).
+        disk for a try that failed anyway). The linear systems are factored by CHOLMOD (:mod:`selfsupport.core.linalg`).
 Polish  once the fit's max relative error is below ``polish_tol``, the weights are frozen and
         the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
         re-estimated from the new geometry until they are consistent to round-off (Newton with
@@ -105,24 +105,24 @@ from formulations.equilibrium import Topology, block_diagonal, load_vector, posi
 from formulations.scaling import Scaling
 from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 
-from ..errors import InfeasibleDesign, InputError
-from ..evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
+from selfsupport.core.errors import InfeasibleDesign, InputError
+from selfsupport.core.evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
                         roundoff_message)
-from ..linalg import spd_factor
-from ..loads import LoadCase
-from ..options import check_options, check_range
-from ..result import Network, SolveResult
-from ..scene import Scene
-from ..validate import require_top_view_balance
-from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, cases_proportional,
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.loads import LoadCase
+from selfsupport.core.options import check_options, check_range
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
+from selfsupport.methods.validate import require_top_view_balance
+from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, cases_proportional,
                    hull_report, load_cases_note, loads_or_options, planarity_report, short_of_tol, term_values)
-from .deadline import DeadlineReached, out_of_time
-from .polish import polish as _polish
-from .polish import case_load_jacobians
-from .polish import polish_joint as _polish_joint
-from .refine import refine as _refine
-from .weightfit import WeightFitBackend, make_backend
-from .weight_refit import edge_bounds, refit_weights
+from selfsupport.methods.deadline import DeadlineReached, out_of_time
+from selfsupport.methods.polish import polish as _polish
+from selfsupport.methods.polish import case_load_jacobians
+from selfsupport.methods.polish import polish_joint as _polish_joint
+from selfsupport.methods.refine import refine as _refine
+from selfsupport.methods.weightfit import WeightFitBackend, make_backend
+from selfsupport.methods.weight_refit import edge_bounds, refit_weights
 
 #: The objective when the problem leaves it to the method: distance to the reference surface
 #: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`).
@@ -130,7 +130,7 @@ DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0}
 
 
 def _setting(default: Any, interval: str) -> Any:
-    """A numeric setting with its allowed interval (checked by :func:`selfsupport.options.check_range`)."""
+    """A numeric setting with its allowed interval (checked by :func:`selfsupport.core.options.check_range`)."""
     return field(default=default, metadata={"range": interval})
 
 
@@ -200,7 +200,7 @@ def parse_option(text: str) -> tuple[str, Any]:
     (('coupled', True), ('shrink', 0.25))
 
     Values outside the interval in the field's ``metadata["range"]`` are refused
-    (:func:`selfsupport.options.check_range`).
+    (:func:`selfsupport.core.options.check_range`).
     """
     key, sep, value = text.partition("=")
     key, value = key.strip().replace("-", "_"), value.strip()
@@ -270,8 +270,8 @@ class StaggeredLinearization:
 
     Example
     -------
-    >>> from selfsupport.loads import SelfWeight
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.loads import SelfWeight
+    >>> from selfsupport.core.shapes import make_shape
     >>> res = StaggeredLinearization().solve(make_shape("dome", n_vertices=300), SelfWeight())
     >>> res.status, res.max_relative_error < 1e-9
     ('converged', True)
@@ -388,7 +388,7 @@ class _Run:
         method.backend.reset()
         self.X_start, self.w_warm, self.warm_info = self.X0, None, None
         if warm_start is not None:  # a previous network as the starting iterate (methods/warm.py)
-            from .warm import as_warm_start, transfer
+            from selfsupport.methods.warm import as_warm_start, transfer
 
             V, w, same = transfer(as_warm_start(warm_start), self.scene)
             self.X_start = self.sc.pos(V)

@@ -20,8 +20,8 @@ Supports start on the new reference (the staggered method never moves them).
 Example
 -------
 >>> import numpy as np
->>> from selfsupport.shapes import make_shape
->>> from selfsupport.result import Network
+>>> from selfsupport.core.shapes import make_shape
+>>> from selfsupport.core.result import Network
 >>> s = make_shape("dome", n_vertices=80)
 >>> net = Network(mesh=s.mesh, weights=np.ones(s.mesh.n_edges), loads=-np.ones(80), supports=s.supports,
 ...               reference=s.mesh)
@@ -35,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import PolyMesh
-from ..result import Network, SolveResult
-from ..scene import Scene
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
 
 __all__ = ["WarmStart", "transfer", "as_warm_start", "interpolate_offsets", "interpolate_over_top_view"]
 
@@ -100,7 +100,7 @@ def interpolate_offsets(reference: PolyMesh, offsets: np.ndarray, points: np.nda
     """``offsets`` (one row per ``reference`` vertex) interpolated at top-view ``points`` (k, 2):
     C¹ cubic over the reference's top-view triangulation (:func:`interpolate_over_top_view`).
 
-    >>> from selfsupport.shapes import make_shape
+    >>> from selfsupport.core.shapes import make_shape
     >>> m = make_shape("dome", n_vertices=200).mesh
     >>> off = np.c_[np.zeros((m.n_vertices, 2)), 0.1 * m.vertices[:, 0]]  # a linear field
     >>> p = 0.5 * (m.vertices[0, :2] + m.vertices[5, :2])[None]
@@ -120,7 +120,7 @@ def interpolate_over_top_view(mesh: PolyMesh, values: np.ndarray, points: np.nda
     import matplotlib.tri as mtri
     from scipy.spatial import cKDTree
 
-    from ..evidence import triangulate
+    from selfsupport.core.evidence import triangulate
 
     xy = mesh.vertices[:, :2] if xy is None else np.asarray(xy, float)
     values = np.asarray(values, float)

@@ -3,7 +3,7 @@
 A polish solves the positions for fixed weights, and storing them as doubles moves each vertex
 by up to ``eps |v|``. Where an edge force is many times a vertex's load (a free boundary arch of
 a fine mesh: 10⁵ times) that alone leaves a relative error of ``eps |v| w / |A_i F_i|``, the
-round-off floor of :func:`~selfsupport.evidence.roundoff_floors` (2e-8 on a 256k pillar vault).
+round-off floor of :func:`~selfsupport.core.evidence.roundoff_floors` (2e-8 on a 256k pillar vault).
 The weights need no such precision: a force ``w ℓ`` stored as a double is off by ``eps w ℓ``, which
 is ``eps`` times the force ratio (2e-11 there). So the weights are moved, by the least relative
 change, to fit the positions as stored:
@@ -28,7 +28,7 @@ A dome solved at the origin, then written 10⁸ m away (site coordinates: a spac
 of 1.5e-8 m there), is out of equilibrium by its positions' rounding alone; its weights, refit
 to those positions, balance it to round-off again, moved by less than 1e-6 of themselves:
 
->>> from selfsupport.shapes import make_shape
+>>> from selfsupport.core.shapes import make_shape
 >>> from selfsupport.methods.staggered import StaggeredLinearization
 >>> res = StaggeredLinearization().solve(make_shape("dome", n_vertices=150))
 >>> far = dataclasses.replace(res.network, mesh=res.network.mesh.with_vertices(res.network.vertices + [1e8, 0, 0]))
@@ -51,9 +51,9 @@ import scipy.sparse as sp
 from formulations import Problem, ScaledProblem
 from formulations.equilibrium import Topology, load_vector, weight_matrix
 
-from ..evidence import floor_tolerance
-from ..linalg import spd_factor
-from ..result import Network
+from selfsupport.core.evidence import floor_tolerance
+from selfsupport.core.linalg import spd_factor
+from selfsupport.core.result import Network
 
 __all__ = ["refit_weights", "edge_bounds", "MAX_CHANGE"]
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..linalg import GramPattern, LowRankUpdatedFactor, SplitGram, spd_factor
-from .deadline import out_of_time
+from selfsupport.core.linalg import GramPattern, LowRankUpdatedFactor, SplitGram, spd_factor
+from selfsupport.methods.deadline import out_of_time
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class WeightFitBackend:
     def __init__(self, **options: Any) -> None:
         unknown = set(options) - set(self.defaults)
         if unknown:
-            from ..errors import InputError
+            from selfsupport.core.errors import InputError
 
             raise InputError(f"unknown option(s) {sorted(unknown)} for weight-fit backend {self.name!r}; "
                              f"known: {sorted(self.defaults)}")
@@ -120,9 +120,9 @@ class _LowerQ:
     diagonal in PDAS — so that each is a numeric refactorization only (the symbolic analysis
     is done once per pattern, and kept across fits while the pattern holds).
 
-    ``dense``: the dense rows ``U`` of :class:`~selfsupport.linalg.GramPattern`, left out of
+    ``dense``: the dense rows ``U`` of :class:`~selfsupport.core.linalg.GramPattern`, left out of
     ``Q`` (which is then ``Q_s``, the full matrix being ``Q_s + UᵀU``); each factor is then a
-    :class:`~selfsupport.linalg.LowRankUpdatedFactor` of the full matrix."""
+    :class:`~selfsupport.core.linalg.LowRankUpdatedFactor` of the full matrix."""
 
     def __init__(self, Q: sp.spmatrix, factor: Any = None, pattern: GramPattern | None = None,
                  dense: sp.csr_matrix | None = None) -> None:
@@ -452,7 +452,7 @@ class CentredAllActiveSetFit(ActiveSetFit):
 def _registry() -> dict[str, type[WeightFitBackend]]:
     classes: list[type[WeightFitBackend]] = [ActiveSetFit, CentredActiveSetFit, CentredAllActiveSetFit]
     try:  # the CasADi/nlopt adapters live beside this module
-        from .weightfit_backends import IpoptFit, NloptFit, OsqpFit
+        from selfsupport.methods.weightfit_backends import IpoptFit, NloptFit, OsqpFit
 
         classes += [IpoptFit, OsqpFit, NloptFit]
     except ImportError:  # pragma: no cover - only while that module is being written
@@ -468,7 +468,7 @@ def make_backend(name: str, **options: Any) -> WeightFitBackend:
     try:
         cls = WEIGHT_FIT_BACKENDS[name]
     except KeyError:
-        from ..errors import InputError
+        from selfsupport.core.errors import InputError
 
         raise InputError(f"unknown weight-fit backend {name!r}; choose one of {sorted(WEIGHT_FIT_BACKENDS)}") from None
     return cls(**options)

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import BackendUnavailable
-from .deadline import ipopt_stop_callback, out_of_time, remaining
-from .weightfit import WeightFit, WeightFitBackend, _objective, count_bounds
+from selfsupport.core.errors import BackendUnavailable
+from selfsupport.methods.deadline import ipopt_stop_callback, out_of_time, remaining
+from selfsupport.methods.weightfit import WeightFit, WeightFitBackend, _objective, count_bounds
 
 
 def kkt_residual(*, A: sp.spmatrix, b: np.ndarray, w: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -274,7 +274,7 @@ class NloptFit(WeightFitBackend):
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         if self.options["algorithm"] not in self.ALGORITHMS:
-            from ..errors import InputError
+            from selfsupport.core.errors import InputError
 
             raise InputError(f"nlopt algorithm {self.options['algorithm']!r} is not supported here; "
                              f"choose one of {list(self.ALGORITHMS)}")
@@ -344,7 +344,7 @@ def _register() -> None:
     """Make sure the registry in weightfit lists these backends whichever module is imported
     first (weightfit imports this module while it initialises; if this module is imported first
     that import sees a half-initialised module and the registry would miss them)."""
-    from . import weightfit
+    from selfsupport.methods import weightfit
 
     registry = getattr(weightfit, "WEIGHT_FIT_BACKENDS", None)
     if registry is not None:  # None: weightfit is importing us and will register us itself

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ..io.atomic import atomic_write_bytes, atomic_write_text
+from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["PLOTS", "ReportFiles", "summary_table", "markdown_table", "write_report"]
 

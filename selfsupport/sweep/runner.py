@@ -33,16 +33,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from ..errors import InputError, SelfSupportError
-from ..io.network_json import finite_or_none as _finite
-from ..scene import Scene
-from .spec import RunSpec, SweepSpec, split_options
-from .store import COLUMN_NAMES, ResultStore, run_key, scene_digest
+from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.io.network_json import finite_or_none as _finite
+from selfsupport.core.scene import Scene
+from selfsupport.sweep.spec import RunSpec, SweepSpec, split_options
+from selfsupport.sweep.store import COLUMN_NAMES, ResultStore, run_key, scene_digest
 
 __all__ = ["ERROR_STATUSES", "SweepOutcome", "PlannedRun", "plan_runs", "execute_run", "run_sweep",
            "default_workers", "STORE_NAME"]
 
-#: Statuses the sweep machinery itself assigns (the methods' own are in selfsupport.result.STATUSES).
+#: Statuses the sweep machinery itself assigns (the methods' own are in selfsupport.core.result.STATUSES).
 ERROR_STATUSES = ("failed", "timeout", "crashed")
 #: File name of the store inside the output folder.
 STORE_NAME = "results.sqlite"
@@ -120,8 +120,8 @@ def execute_run(scene: Scene, run: dict[str, Any]) -> dict[str, Any]:
         ``key``, ``method``, ``backend``, ``params`` (density, thickness, w_max, eps, tol,
         max_iter, objective), ``options``, ``time_budget``.
     """
-    from ..api import METHODS
-    from ..loads import SelfWeight
+    from selfsupport.api import METHODS
+    from selfsupport.core.loads import SelfWeight
 
     t_task = time.perf_counter()
     started = time.time()
@@ -444,7 +444,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, scheduler: str | None = N
 
 
 def _method_statuses() -> set[str]:
-    from ..result import STATUSES
+    from selfsupport.core.result import STATUSES
     return set(STATUSES)
 
 

@@ -5,7 +5,7 @@ the report wanted::
 
     [sweep]
     name = "small"
-    scenes = ["shape:dome?n_vertices=300",            # a built-in shape (selfsupport.shapes)
+    scenes = ["shape:dome?n_vertices=300",            # a built-in shape (selfsupport.core.shapes)
               "vault.sss",                            # a file, relative to the scene folder
               {path = "structural.obj", supports = "structural.supports", up = "-y"}]
     scene_dir = "../../shared/paper-scenes/scenes"    # relative to this file (optional)
@@ -38,7 +38,7 @@ folder is, in order of precedence: the ``scene_dir`` argument of :func:`load_spe
 ``--scenes``), the environment variable :data:`SCENES_ENV`, ``[sweep] scene_dir`` (relative to
 the sweep file), the sweep file's own folder.
 
-Every problem raises :class:`~selfsupport.errors.InputError` with the file and what to fix.
+Every problem raises :class:`~selfsupport.core.errors.InputError` with the file and what to fix.
 """
 from __future__ import annotations
 
@@ -53,8 +53,8 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 from urllib.parse import parse_qsl
 
-from ..errors import InputError, SelfSupportError
-from ..scene import Scene
+from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.core.scene import Scene
 
 __all__ = ["SCENES_ENV", "PARAMETERS", "SceneRef", "MethodRef", "PlotSpec", "ReportSpec", "RunSpec",
            "SweepSpec", "load_spec", "parse_spec", "parse_scene_ref"]
@@ -158,7 +158,7 @@ class MethodRef:
 
 
 def parse_method_ref(text: Any, where: str) -> MethodRef:
-    from ..api import METHODS
+    from selfsupport.api import METHODS
 
     if not isinstance(text, str) or not text.strip():
         raise InputError(f"{where}: a method is a string like \"staggered\" or \"staggered:osqp\", got {text!r}")
@@ -209,12 +209,12 @@ class SceneRef:
 
 
 def _load_shape(ref: SceneRef) -> Scene:
-    from ..shapes import make_shape
+    from selfsupport.core.shapes import make_shape
     return make_shape(ref.shape, **dict(ref.shape_params))
 
 
 def _load_file(ref: SceneRef) -> Scene:
-    from ..io import read_scene
+    from selfsupport.io import read_scene
     return read_scene(ref.path, up=ref.up, supports=ref.supports, name=ref.label)
 
 
@@ -230,7 +230,7 @@ def parse_scene_ref(item: Any, scene_dir: Path, where: str) -> SceneRef:
     if isinstance(item, str) and item.startswith("shape:"):
         body = item[len("shape:"):]
         name, _, query = body.partition("?")
-        from ..shapes import SHAPES
+        from selfsupport.core.shapes import SHAPES
         if name not in SHAPES:
             raise InputError(f"{where}: unknown shape {name!r} in {item!r}; known shapes: {', '.join(sorted(SHAPES))}")
         try:
@@ -250,7 +250,7 @@ def parse_scene_ref(item: Any, scene_dir: Path, where: str) -> SceneRef:
     path = path if path.is_absolute() else scene_dir / path
     supports = item.get("supports")
     if supports is not None:
-        from ..io.supports import SUPPORT_RULES
+        from selfsupport.io.supports import SUPPORT_RULES
         if supports not in SUPPORT_RULES:
             sp = Path(supports).expanduser()
             supports = str(sp if sp.is_absolute() else scene_dir / sp)
@@ -284,8 +284,8 @@ class ReportSpec:
 
 
 def _parse_report(raw: Any, where: str) -> ReportSpec:
-    from .report import PLOTS
-    from .store import COLUMN_NAMES
+    from selfsupport.sweep.report import PLOTS
+    from selfsupport.sweep.store import COLUMN_NAMES
 
     if raw is None:
         return ReportSpec()
@@ -437,7 +437,7 @@ def _param_table(raw: Any, section: str, where: str) -> tuple[tuple[str, tuple[A
 
 def _check_options(method: str, sample: dict[str, Any], where: str) -> None:
     """Build the method once with the options so that unknown names fail now, not in every run."""
-    from ..api import METHODS
+    from selfsupport.api import METHODS
 
     cls = METHODS[method].load()
     ctor, _ = split_options(cls, sample)

@@ -28,8 +28,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ..errors import InputError
-from ..scene import Scene
+from selfsupport.core.errors import InputError
+from selfsupport.core.scene import Scene
 
 __all__ = ["COLUMNS", "COLUMN_NAMES", "ResultStore", "scene_digest", "run_key", "read_export"]
 
@@ -213,7 +213,7 @@ class ResultStore:
     # ------------------------------------------------------------------ export
     def export_csv(self, path: str | Path, keys: Iterable[str] | None = None) -> Path:
         """Write the runs as CSV (floats round-trip exactly with :func:`read_export`)."""
-        from ..io.atomic import atomic_write_text
+        from selfsupport.io.atomic import atomic_write_text
 
         path = Path(path)
         atomic_write_text(path, self.frame(keys).to_csv(index=False, float_format="%.17g"))
@@ -223,7 +223,7 @@ class ResultStore:
         """Write the runs as Parquet (pyarrow)."""
         import io
 
-        from ..io.atomic import atomic_write_bytes
+        from selfsupport.io.atomic import atomic_write_bytes
 
         path = Path(path)
         buf = io.BytesIO()

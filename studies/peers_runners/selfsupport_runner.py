@@ -28,10 +28,10 @@ def main() -> None:
     try:
         import selfsupport
         from formulations import Problem
-        from selfsupport.loads import PointLoad
-        from selfsupport.mesh import PolyMesh
+        from selfsupport.core.loads import PointLoad
+        from selfsupport.core.mesh import PolyMesh
         from selfsupport.methods.staggered import StaggeredLinearization
-        from selfsupport.scene import Scene
+        from selfsupport.core.scene import Scene
 
         P = read_problem(args.problem)
         t0 = time.perf_counter()

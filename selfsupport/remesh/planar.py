@@ -1,0 +1,137 @@
+"""Planar faces in equilibrium (paper §5): one method's solve, and where it does not converge,
+two finishes from the network in equilibrium without the planarity rows — the planar homotopy
+(:mod:`selfsupport.methods.planar_homotopy`), and where that does not converge either, the
+simultaneous solve (IPOPT) with the planarity rows as equations.
+
+Why the finishes start there: the staggered method holds planarity as a penalty in Step 3 and on
+some meshes stalls with the fit error and the penalty pulling against each other (the paper's
+vault remeshed along its principal directions: max relative error 2.6e-2, non-planarity 1.2e-2;
+lilium's remeshes: 0.3-1.1). A network in equilibrium on the same mesh is a 0.05-0.3 s staggered
+solve without the rows. The homotopy lowers the non-planarity allowed in small cuts and restores
+equilibrium after each by Newton steps (lilium's parametrization remesh: planar to 7e-4 in
+equilibrium in about 20 s, where IPOPT from the same start ran into its time limit at max
+relative error 28). IPOPT stays as the last resort: on the vault's principal remesh, started from
+the network in equilibrium, it converged in 0.5 s. The best run is returned and
+``parameters["planar_finish"]`` says how each ended.
+
+A barrel vault remeshed along its relative principal directions (the staggered method stalls
+on it, the homotopy converges):
+
+>>> from selfsupport import api
+>>> from selfsupport.core.shapes import make_shape
+>>> from selfsupport.remesh.streamlines import remesh
+>>> from selfsupport.remesh.planar import solve_planar
+>>> net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+>>> r = solve_planar(remesh(net, field="principal", spacing=0.1, relative=True).scene, tol=1e-3)
+>>> r.status, r.max_relative_error < 1e-8, r.parameters["planarity"]["met"]
+('converged', True, True)
+>>> r.parameters["planar_finish"]["first"]["status"], r.parameters["planar_finish"]["returned"]
+('stalled', 'homotopy')
+"""
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import time
+from typing import Any
+
+__all__ = ["solve_planar", "finish_summary", "FINISH_METHOD"]
+
+#: The method of the finish (its planarity rows are equations, not a penalty).
+FINISH_METHOD = "ipopt"
+
+
+def _better(a: Any, b: Any) -> bool:
+    """Whether result ``a`` is better than ``b``: converged first, then the smaller max relative error."""
+    if (a.status == "converged") != (b.status == "converged"):
+        return a.status == "converged"
+    return a.max_relative_error < b.max_relative_error
+
+
+def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", finish: bool = True,
+                 time_limit: float | None = None, **solve_kw: Any) -> Any:
+    """Solve ``scene`` with planar faces (:class:`formulations.Planar`) by ``method``; when that does
+    not converge and ``finish``, by :data:`FINISH_METHOD` warm-started from the network in
+    equilibrium without the planarity rows (module docstring).
+
+    Parameters
+    ----------
+    scene
+        A scene, or anything :func:`selfsupport.api.solve` takes.
+    tol
+        Largest quad non-planarity accepted (distance of the diagonals / mean edge length).
+    method
+        The first solve's method (a name of :data:`selfsupport.api.METHODS`).
+    finish
+        Run the finish when the first solve does not converge.
+    time_limit
+        Wall-clock limit of the whole call [s]; the finish gets what is left (``None``: each solve
+        its method's own default).
+    **solve_kw
+        Passed to every :func:`selfsupport.api.solve` (loads, bounds, objective, ...).
+
+    Returns
+    -------
+    SolveResult
+        The better run (converged first, then the smaller max relative error) with the time and
+        iterations of all runs; ``parameters["planar_finish"]`` describes the finish (``None``
+        when it did not run).
+    """
+    from formulations import Planar
+
+    from selfsupport import api
+    from selfsupport.methods.planar_homotopy import planar_homotopy
+
+    t0 = time.perf_counter()
+    planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]
+    # the scene once, with the caller's supports and up-axis: every run below solves this one
+    scene = api.as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None))
+
+    def left() -> dict[str, float]:
+        return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
+
+    first = api.solve(scene, method=method, constraints=planar, **left(), **solve_kw)
+    if first.status == "converged" or not finish or first.status == "time_limit" or method == FINISH_METHOD:
+        return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
+    free = [c for c in planar if not isinstance(c, Planar)]
+    eq = api.solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
+    if eq.status != "converged":
+        note = f"no finish: the mesh has no network in equilibrium without planar faces either ({eq.status})"
+        return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
+                                   parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
+    runs = [("first", first)]
+    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(api.problem).parameters}
+    problem = api.problem(scene, constraints=planar, **problem_kw)
+    if len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None:
+        runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
+                                                 else t0 + time_limit)))
+    if runs[-1][1].status != "converged" and not (time_limit is not None and time.perf_counter() - t0 >= time_limit):
+        runs.append(("finish", api.solve(scene, method=FINISH_METHOD, constraints=planar, warm_start=eq, **left(),
+                                         **solve_kw)))
+    name, chosen = runs[0]
+    for n_, r in runs[1:]:
+        if _better(r, chosen):
+            name, chosen = n_, r
+    note = f"{method} with planar faces ended {first.status} at max relative error {first.max_relative_error:.2e}; " + \
+        "; ".join(f"{r.method} from the network in equilibrium without them ({eq.iterations} iterations) ended "
+                  f"{r.status} at {r.max_relative_error:.2e}" for _, r in runs[1:])
+    summary = {n_: {"method": r.method, "status": r.status, "max_relative_error": r.max_relative_error,
+                    "iterations": r.iterations, "wall_time": r.wall_time} for n_, r in runs}
+    return dataclasses.replace(
+        chosen, wall_time=time.perf_counter() - t0, iterations=eq.iterations + sum(r.iterations for _, r in runs),
+        message="; ".join(m for m in (chosen.message, note) if m),
+        parameters={**chosen.parameters, "planar_finish": {
+            **summary, "equilibrium": {"status": eq.status, "iterations": eq.iterations, "wall_time": eq.wall_time},
+            "returned": name}})
+
+
+def finish_summary(result: Any) -> str:
+    """One line on how :func:`solve_planar` ended: the first method alone, or it and the finish."""
+    f = result.parameters.get("planar_finish")
+    if f is None:
+        return "the first method alone"
+    if "why" in f:
+        return f["why"]
+    then = ", then ".join(f"{f[k]['method']} {f[k]['status']} ({f[k]['max_relative_error']:.1e})"
+                          for k in ("homotopy", "finish") if k in f)
+    return f"{f['first']['method']} {f['first']['status']}, then {then}; returned: the {f['returned']} run"

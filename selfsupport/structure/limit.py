@@ -1,0 +1,634 @@
+"""Limit analysis as one nonlinear program: the largest load factor, feasibility at a given load
+and the smallest thickness, each answered with a certificate (paper §4; Heyman's safe theorem).
+
+    maximise    λ                          (:func:`limit_load`)
+                − t                        (:func:`min_thickness`; h = t/2 an unknown)
+                − distance to reference    (:func:`feasible`; λ and t fixed)
+    over        offsets s_i, active weights w (one vector), λ [kg] (, h)
+    where       v_i = p_i + s_i n_i         (p_i the reference vertex, n_i its normal)
+    subject to  Σ_j w_ij (v_j − v_i) = (0, 0, L_i),   L = L_ref + λ P          (eqs. 2-3)
+                eps ≤ w ≤ w_max,   |s_i| ≤ (1 − HULL_MARGIN) h,   λ ≥ 0
+
+The equilibrium rows (relative to |L_i|) and the objective are those of
+:class:`formulations.nlp.ThrustNetworkProblem`, built by :meth:`Simultaneous.formulation
+<selfsupport.methods.simultaneous.Simultaneous.formulation>` in its scale-free units; the
+program only substitutes its unknowns into them: the positions by the offsets, the load
+parameter by ``L_ref + λ P`` (``P``: the added load per kg, spread over the loaded vertices).
+
+The hull: each free vertex moves on the line of the hull's slab at its reference vertex
+(:class:`formulations.terms.HullPenalty`: anchor ``p_i``, normal ``n_i``), so its distance to the
+reference surface is at most ``|v_i − p_i| = |s_i|`` and the bound on ``s`` holds the true hull,
+not a linearization of it: no re-anchoring, and the certificate needs no tolerance. (A vertex
+free to slide along its slab leaves the curved hull by the curvature times the slide squared;
+maximising λ drove vertices to slide as far as allowed, round after round.) With
+``slide_supports`` the supports move on their normals too: the thrust may meet the ground
+anywhere across the springing's thickness.
+
+Loads: held at the reference geometry, ``L_ref`` = the self-weight (and the scene's extras) of
+the reference — the weight of the masonry where the masonry is, which does not move when the
+thrust surface does. Re-estimating them from the network (an outer fixed point, as the
+simultaneous method does for design) was tried: with vertices sliding, the load change
+oscillated at 30-40% per round and never settled. The certificate therefore carries the
+reference's loads (plus λ P), and its JSON records them, so the independent checker checks
+equilibrium against exactly the loads the vault has.
+
+Certificate: after IPOPT, λ is held and the network polished to round-off
+(:func:`~selfsupport.methods.polish.polish_joint`). It counts only when, measured outside the
+solver, its max relative error is at most :data:`CERTIFY_TOL` (:meth:`Network.max_relative_error`),
+every weight is >= 0 and every free vertex lies within t/2 of the reference surface (libigl
+closest points, :func:`~selfsupport.methods.base.hull_excess`). If the optimum's network fails
+that, λ is backed off (:data:`BACK_OFF`) and the feasibility program solved there. "Does not
+stand" is said as *locally infeasible* only when IPOPT reported ``Infeasible_Problem_Detected``;
+otherwise the verdict says what was tried and how it ended.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+
+from formulations import Problem
+from formulations.problem import Hull
+
+from selfsupport.core.errors import InputError
+from selfsupport.core.loads import G
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
+
+__all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "CERTIFY_TOL", "HULL_MARGIN"]
+
+#: Max relative equilibrium error of a certifying network (the paper's Table 1 metric).
+CERTIFY_TOL = 1e-8
+#: The program's slabs are this fraction thinner than t/2: the slack covers the curvature the
+#: tangent slabs leave out, so the certificate holds by the true distance without a tolerance.
+HULL_MARGIN = 1e-4
+#: At most this many IPOPT runs of one program (a run that ends "acceptable" is re-solved warm).
+MAX_ROUNDS = 5
+#: Relative back-offs of λ (or of 1/t) tried, in turn, when the optimum's network is not a certificate.
+BACK_OFF = (1e-3, 1e-2, 5e-2)
+#: IPOPT statuses that mean "no point found": the program is locally infeasible.
+LOCALLY_INFEASIBLE = frozenset({"Infeasible_Problem_Detected"})
+
+
+@dataclass(frozen=True)
+class LimitResult:
+    """The answer of one limit-analysis program.
+
+    Attributes
+    ----------
+    kind
+        ``"max_load"``, ``"feasibility"`` or ``"min_thickness"``.
+    value
+        The certified value: the added mass [kg] (max load, feasibility) or the thickness [m]
+        (min thickness); ``None`` when nothing was certified.
+    optimum
+        The program's own optimum before the certificate (λ [kg] or t [m]); ``None`` if IPOPT
+        found no point.
+    certified
+        A network inside the hull, in equilibrium and compressive, was found (``certificate``).
+    certificate
+        That network (or, uncertified, the last one found, for diagnosis).
+    verdict
+        ``"certified"``, ``"locally infeasible"`` (IPOPT said so) or ``"not certified"``.
+    ipopt_status
+        IPOPT's return status in the last round.
+    message
+        One line: what was found, or what was tried and how it ended.
+    rounds
+        One record per IPOPT round and per polish / back-off.
+    binding
+        ``(vertex, d / (t/2))`` for the free vertices of the certificate (else of the last
+        network) on the hull's faces (|d| within 1% of t/2), worst first.
+    thickness
+        The hull's thickness [m] of the certificate (for min thickness: the certified one).
+    """
+
+    kind: str
+    value: float | None
+    optimum: float | None
+    certified: bool
+    certificate: SolveResult | None
+    verdict: str
+    ipopt_status: str
+    message: str
+    rounds: tuple[dict, ...] = ()
+    binding: tuple[tuple[int, float], ...] = ()
+    thickness: float | None = None
+
+
+# ------------------------------------------------------------------------------ the program
+class _Program:
+    """The limit NLP of one problem in the scale-free units of the simultaneous method."""
+
+    def __init__(self, problem: Problem, start: np.ndarray, pattern: np.ndarray, mode: str,
+                 slide_supports: bool = False) -> None:
+        from selfsupport.methods.simultaneous import Simultaneous
+
+        self.problem, self.mode, self.slide_supports = problem, mode, slide_supports
+        form, sc = Simultaneous.formulation(problem, start)
+        hull = form.hull  # the slabs at the reference vertices: their anchors and normals are the lines
+        # (λ or t is the objective of the other two; feasibility keeps the distance to the reference)
+        form = dataclasses.replace(form, hull=None, objective=form.objective if mode == "feasibility" else None)
+        self.form, self.sc, self.hull = form, sc, hull
+        top = form.topology
+        self.free, self.nf, self.ns3 = top.free, top.n_free, 3 * (top.n - top.n_free)
+        self.mesh0 = problem.scene.mesh
+        # the vertices that move along their normals: the free ones (and the supports, sliding)
+        self.move = self.free | slide_supports
+        self.order = np.r_[np.flatnonzero(self.free), np.flatnonzero(~self.free)][:int(self.move.sum())]
+        self.anchor, self.normal = hull.points[self.order], hull.normals[self.order]
+        # the masonry's weight where the masonry is: the loads of the reference geometry, held
+        self.base = sc.loads_at(problem.loads, self.mesh0, sc.pos(self.mesh0.vertices))[0]
+        # λ in units of the vault's own (free) weight, so that λ̂ is of order one
+        self.lam_unit = float(np.abs(sc.load_back(self.base[self.free])).sum() / G)
+        self.P = sc.load(pattern) * self.lam_unit  # scaled load of λ̂ = 1
+        self.h = hull.half_thickness
+        self._build()
+
+    def positions(self, s, part: slice = slice(None)):
+        """Positions (flattened, ``3 k + c``) of the moving vertices ``order[part]`` at offsets
+        ``s`` along their normals (CasADi or numpy)."""
+        a, n = self.anchor[part], self.normal[part]
+        if isinstance(s, np.ndarray):
+            return (a + s[:, None] * n).ravel()
+        return ca.vec(ca.DM(a.T) + ca.DM(n.T) * ca.repmat(s.T, 3, 1))
+
+    def _build(self) -> None:
+        form = self.form
+        d = form.nlp()  # (equilibrium rows, relative, and the objective: formulations' statement)
+        rows = ca.Function("rows", [d["x"], d["p"]], [d["g"], d["f"]])
+        nf, ns3, m = self.nf, self.ns3, form.topology.m
+        nm = len(self.order)
+        s, w, lam = ca.MX.sym("s", nm), ca.MX.sym("w", m), ca.MX.sym("lam")
+        p = ca.MX.sym("p", ns3 + 3 * nf)  # V_sup, L_sw (free), row scale, P (free)
+        loads = p[ns3:ns3 + nf] + lam * p[ns3 + 2 * nf:]
+        sup = self.positions(s[nf:], slice(nf, None)) if self.slide_supports else p[:ns3]
+        g, f = rows(ca.vertcat(self.positions(s[:nf], slice(0, nf)), w),
+                    ca.vertcat(sup, loads, p[ns3 + nf:ns3 + 2 * nf]))
+        xs = ca.vertcat(s, w, lam)
+        if self.mode == "min_thickness":
+            h = ca.MX.sym("h")
+            xs = ca.vertcat(xs, h)
+            g = ca.vertcat(g, s - h, s + h)
+            f = f + h
+        elif self.mode == "max_load":
+            f = f - lam
+        self.nlp = {"x": xs, "p": p, "f": f, "g": g}
+
+    def bounds(self, lam: tuple[float, float], h: float) -> dict[str, np.ndarray]:
+        """Bounds: |s| <= ``h`` (the hull), the weights', λ's (and, for min thickness, h >= 0)."""
+        b = self.form.bounds_args()
+        nm, n3 = len(self.order), 3 * self.nf
+        if self.mode == "min_thickness":
+            lbx = np.r_[np.full(nm, -np.inf), b["lbx"][n3:], lam[0], 0.0]
+            ubx = np.r_[np.full(nm, np.inf), b["ubx"][n3:], lam[1], np.inf]
+            lbg = np.r_[np.zeros(n3), np.full(nm, -np.inf), np.zeros(nm)]
+            ubg = np.r_[np.zeros(n3), np.zeros(nm), np.full(nm, np.inf)]
+        else:
+            lbx, ubx = np.r_[np.full(nm, -h), b["lbx"][n3:], lam[0]], np.r_[np.full(nm, h), b["ubx"][n3:], lam[1]]
+            lbg, ubg = np.zeros(n3), np.zeros(n3)
+        return {"lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+
+    def parameters(self, lam: float) -> np.ndarray:
+        form, free = self.form, self.free
+        return np.r_[form.vertices[~free].ravel(), self.base[free], form.row_scale(self.base + lam * self.P).ravel(),
+                     self.P[free]]
+
+    def offsets(self, Vs: np.ndarray) -> np.ndarray:
+        """Offsets along the normals of scaled positions (their projections onto the lines)."""
+        return np.einsum("ij,ij->i", self.normal, Vs[self.order] - self.anchor)
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float | None]:
+        nm, m = len(self.order), self.form.topology.m
+        s = x[:nm]
+        Vs = self.form.vertices.copy()
+        Vs[self.order] = self.positions(s).reshape(-1, 3)
+        h = float(x[nm + m + 1]) if self.mode == "min_thickness" else None
+        return s, Vs, x[nm:nm + m], float(x[nm + m]), h
+
+    def pack(self, s: np.ndarray, w: np.ndarray, lam: float, h: float | None) -> np.ndarray:
+        x = np.r_[s, w, lam]
+        return np.r_[x, h] if self.mode == "min_thickness" else x
+
+
+def _ipopt(prog: _Program, x0: np.ndarray, p: np.ndarray, bounds: dict, warm: dict | None, *, tol: float,
+           max_iter: int, remaining: float) -> dict:
+    """One IPOPT run with the simultaneous method's settings."""
+    from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
+
+    opts = dict(Simultaneous.defaults)
+    if warm is not None:
+        opts.update(Simultaneous.warm_defaults)
+        opts["mu_init"] = min(opts.get("mu_init", 1.0), 0.01 * tol)
+    opts.update({"tol": tol, "max_iter": int(max_iter), "max_wall_time": float(max(remaining, 1e-3)),
+                 "print_level": 0})
+    solver = ca.nlpsol("limit", "ipopt", prog.nlp, {"ipopt": opts, "print_time": False, "error_on_fail": False})
+    t0 = time.perf_counter()
+    sol = solver(**{"x0": x0, "p": p, **bounds, **(warm or {})})
+    st = solver.stats()
+    raw = str(st.get("return_status", "unknown"))
+    return {"x": np.asarray(sol["x"]).ravel(), "warm": {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]},
+            "raw": raw, "status": IPOPT_STATUS.get(raw, "failed"), "iterations": int(st.get("iter_count", 0) or 0),
+            "seconds": time.perf_counter() - t0}
+
+
+@dataclass
+class _Run:
+    """Where a program ended (scaled units)."""
+
+    prog: _Program
+    Vs: np.ndarray
+    w: np.ndarray
+    lam: float  # scaled
+    h: float | None  # scaled (min thickness)
+    raw: str
+    settled: bool
+    rounds: list
+
+
+def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fixed: bool, h_over: float | None,
+            deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None) -> _Run:
+    """The program solved; a run IPOPT ends "acceptable" is re-solved warm from its point."""
+    s = np.clip(prog.offsets(Vs), -prog.h, prog.h)
+    half = prog.h * (1 - HULL_MARGIN)
+    h = h_over
+    warm, raw, rounds, settled = None, "not run", [], False
+    for rnd in range(1, MAX_ROUNDS + 1):
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            raw = "time limit"
+            break
+        out = _ipopt(prog, prog.pack(s, w, lam, h), prog.parameters(lam),
+                     prog.bounds((lam, lam) if lam_fixed else (0.0, np.inf), half), warm, tol=tol,
+                     max_iter=max_iter, remaining=remaining)
+        raw = out["raw"]
+        rec = {"round": rnd, "stage": "ipopt", "solver_status": raw, "iterations": out["iterations"],
+               "seconds": out["seconds"]}
+        ok = np.all(np.isfinite(out["x"]))
+        if ok and out["status"] in ("converged", "stalled"):
+            s, Vs, w, lam, h = prog.unpack(out["x"])
+            rec.update({"lambda_kg": lam * prog.lam_unit, **({"thickness": 2 * h * prog.sc.length} if h else {})})
+        rounds.append(rec)
+        if progress:
+            progress(rec)
+        if out["status"] != "stalled" or not ok:
+            settled = out["status"] == "converged" and bool(ok)
+            break
+        warm = out["warm"]
+    return _Run(prog, Vs, w, lam, h, raw, settled, rounds)
+
+
+def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
+    """λ held, the network made exact to round-off for its loads, hull rows held on their faces."""
+    from selfsupport.methods.polish import polish_joint
+
+    prog = run.prog
+    form = prog.form
+    hull = dataclasses.replace(prog.hull, half_thickness=prog.h * (1 - HULL_MARGIN) if run.h is None else run.h)
+    total = (lambda Vs: (prog.base + lam * prog.P)[None, :])
+    f = dataclasses.replace(form, loads=total(run.Vs), hull=hull)
+    t0 = time.perf_counter()
+    V, W, k, err, ok = polish_joint(f, run.Vs, run.w[None, :], loads_at=total, deadline=deadline)
+    rec = {"stage": "polish", "iterations": k, "max_relative_error": err, "converged": bool(ok),
+           "seconds": time.perf_counter() - t0}
+    return V, W[0], rec
+
+
+def _network(prog: _Program, Vs: np.ndarray, w: np.ndarray, lam: float, added: np.ndarray) -> Network:
+    """The network in SI units with the loads it carries: the reference's (held) plus λ kg spread
+    as ``added`` [N/kg]."""
+    from selfsupport.methods.base import case_networks
+
+    net, _ = case_networks(prog.problem, prog.sc, Vs, [w])
+    if prog.slide_supports:  # (case_networks puts the supports back where the design has them)
+        V = net.vertices.copy()
+        V[~prog.free] = prog.sc.pos_back(Vs)[~prog.free]
+        net = dataclasses.replace(net, mesh=net.mesh.with_vertices(V))
+    return dataclasses.replace(net, loads=prog.sc.load_back(prog.base) + lam * prog.lam_unit * added)
+
+
+def _evidence(scene: Scene, net: Network, thickness: float, supports_too: bool = False) -> tuple[bool, dict]:
+    """The certificate's test, measured outside the solver: equilibrium, compression, inside t/2
+    (every free vertex; with ``supports_too`` the supports as well, which then slid)."""
+    from selfsupport.methods.base import hull_excess, hull_signed_distance
+
+    hull = hull_excess(scene, net, thickness, tol=1e-9)  # (1e-9 of t/2: round-off of the distance)
+    err = float(net.max_relative_error())
+    inside = hull["inside_all"]
+    if supports_too:
+        d = np.abs(hull_signed_distance(scene.mesh, net.vertices[scene.supports]))
+        hull["support_max_excess"] = float(max((d - 0.5 * thickness).max(initial=0.0), 0.0))
+        inside = inside and bool((d <= 0.5 * thickness * (1 + 1e-9)).all())
+    ok = bool(err <= CERTIFY_TOL and net.min_weight() >= 0 and inside)
+    return ok, {**hull, "max_relative_error": err, "certified": ok}
+
+
+def _binding(scene: Scene, hull: dict) -> tuple[tuple[int, float], ...]:
+    d = np.asarray(hull["signed_distance"]) / (0.5 * hull["thickness"])
+    free = np.flatnonzero(~scene.supports)
+    on = free[np.abs(d[free]) >= 0.99]
+    order = on[np.argsort(-np.abs(d[on]), kind="stable")]
+    return tuple((int(v), float(d[v])) for v in order)
+
+
+# ------------------------------------------------------------------------------ entry points
+def _pattern(scene: Scene, at: Sequence[int] | None) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The added load per kg [N/kg] (downward, spread evenly over ``at``) and the loaded vertices."""
+    from selfsupport.structure.stability import spread_mass
+
+    share = spread_mass(scene, at, 1.0)
+    P = np.zeros(scene.mesh.n_vertices)
+    for v, m in share.items():
+        P[v] = -G * m
+    return P, tuple(sorted(share))
+
+
+def _base_problem(scene: Scene, thickness: float, density: float, w_max: Any = None) -> Problem:
+    from selfsupport import api
+
+    return api.problem(scene, density=density, thickness=thickness, w_max=w_max,
+                       constraints=[Hull(thickness=thickness)])
+
+
+def _start(problem: Problem, start: Network | SolveResult | None, kg: float, added: np.ndarray,
+           options: Mapping[str, Any] | None, slide_supports: bool = False) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """Start positions and weights [SI, per mesh edge]: ``start``, else the staggered network
+    (:func:`~selfsupport.structure.stability.solve_in_hull`: certified, or the closest one found)."""
+    if start is None:
+        from selfsupport.structure.stability import solve_in_hull
+        from selfsupport.core.loads import PointLoad
+
+        prob = problem if kg == 0 else dataclasses.replace(
+            problem, loads=type(problem.loads)(tuple((n, c + PointLoad(kg * added)) for n, c in problem.loads.cases)))
+        start = solve_in_hull(prob, options=options)
+        how = f"the staggered network ({start.status})"
+    else:
+        how = "the given network"
+    net = start.network if isinstance(start, SolveResult) else start
+    scene = problem.scene
+    if net.mesh.n_vertices != scene.mesh.n_vertices or net.weights.shape != (scene.mesh.n_edges,):
+        raise InputError("the start network is on another mesh; start from a network of this scene")
+    V = scene.mesh.vertices.copy()
+    moved = np.ones_like(scene.free) if slide_supports else scene.free
+    V[moved] = net.vertices[moved]
+    return V, np.asarray(net.weights, float), how
+
+
+def _program_run(problem: Problem, mode: str, V: np.ndarray, W: np.ndarray | None, added: np.ndarray, *, kg: float,
+                 deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None,
+                 slide_supports: bool = False) -> _Run:
+    """Build the program at positions ``V`` [m] with weights ``W`` [N/m per mesh edge] (``None``:
+    a cold start) and run its rounds from λ = ``kg``."""
+    prog = _Program(problem, V, added, mode, slide_supports)
+    sc, act = prog.sc, problem.scene.active_edges
+    w = (np.clip(sc.weight(W[act]), prog.form.lower, prog.form.upper) if W is not None else
+         np.full(prog.form.topology.m, 0.01 * prog.form.weight_scale))
+    return _rounds(prog, sc.pos(V), w, lam=kg / prog.lam_unit, lam_fixed=mode != "max_load",
+                   h_over=prog.h if mode == "min_thickness" else None, deadline=deadline, tol=tol,
+                   max_iter=max_iter, progress=progress)
+
+
+def _si(run: _Run) -> tuple[np.ndarray, np.ndarray]:
+    """The run's positions [m] and weights [N/m per mesh edge]."""
+    prog = run.prog
+    V = prog.sc.pos_back(run.Vs)
+    W = np.zeros(prog.mesh0.n_edges)
+    W[prog.problem.scene.active_edges] = prog.sc.weight_back(run.w)
+    return V, W
+
+
+def _finish(kind: str, scene: Scene, thickness: float, run: _Run, how: str, added: np.ndarray, *,
+            t_start: float, deadline: float, extra: Mapping[str, Any] | None = None) -> tuple[bool, SolveResult, dict]:
+    """Polish at the run's λ, build the network and measure it."""
+    prog = run.prog
+    Vs, w, rec = _polish(run, run.lam, deadline)
+    run.rounds.append(rec)
+    net = _network(prog, Vs, w, run.lam, added)
+    ok, hull = _evidence(scene, net, thickness, prog.slide_supports)
+    res = SolveResult.build(net, status="converged" if ok else "infeasible", method="limit", backend="ipopt",
+                            iterations=sum(r.get("iterations", 0) for r in run.rounds),
+                            wall_time=time.perf_counter() - t_start, history=tuple(run.rounds), message="",
+                            parameters={"hull": hull, "limit": kind, "start": how,
+                                        "added_mass_kg": run.lam * prog.lam_unit, "thickness": thickness,
+                                        "ipopt_status": run.raw, **dict(extra or {})})
+    return ok, res, hull
+
+
+def _unsettled(kind: str, scene: Scene, thickness: float, run: _Run, how: str, added: np.ndarray, tried: str, *,
+               t_start: float, deadline: float) -> LimitResult:
+    """The verdict of rounds that did not settle: locally infeasible only on IPOPT's word."""
+    if run.raw in LOCALLY_INFEASIBLE:
+        verdict, message = "locally infeasible", f"locally infeasible: IPOPT reported {run.raw} ({tried})"
+    else:
+        verdict = "not certified"
+        message = f"not certified: {tried}; IPOPT ended {run.raw} after {len(run.rounds)} round(s)"
+    last, binding = None, ()
+    if run.raw not in LOCALLY_INFEASIBLE and np.all(np.isfinite(run.Vs)) and run.rounds:
+        _, last, hull = _finish(kind, scene, thickness, run, how, added, t_start=t_start, deadline=deadline)
+        last = dataclasses.replace(last, status="infeasible", message=message)
+        binding = _binding(scene, hull)
+    return LimitResult(kind, None, None, False, last, verdict, run.raw, message, tuple(run.rounds), binding, thickness)
+
+
+def _certified(kind: str, scene: Scene, value: float, optimum: float | None, res: SolveResult, run: _Run,
+               hull: dict, thickness: float, message: str) -> LimitResult:
+    return LimitResult(kind, value, optimum, True, dataclasses.replace(res, message=message), "certified", run.raw,
+                       message, tuple(run.rounds), _binding(scene, hull), thickness)
+
+
+def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: Sequence[int] | None = None,
+               w_max: Any = None, start: Network | SolveResult | None = None, start_kg: float = 0.0,
+               slide_supports: bool = False, options: Mapping[str, Any] | None = None, time_limit: float = 600.0,
+               tol: float = 1e-9, max_iter: int = 3000,
+               progress: Callable[[dict], None] | None = None) -> LimitResult:
+    """The largest added mass [kg] at ``at`` (spread evenly; default the scene's handled vertices)
+    for which a compressive network lies inside the hull "reference ± t/2", by one NLP.
+
+    Parameters
+    ----------
+    scene
+        The vault; its supports hold the network.
+    thickness, density
+        The shell's t [m] (self-weight ρ t g per unit area and the hull) and ρ [kg/m³].
+    at
+        Loaded vertices (free).
+    w_max
+        Upper weight bound [N/m] (``None``: none).
+    start
+        A network on this mesh to start from; default the staggered network under
+        ``start_kg`` (:func:`~selfsupport.structure.stability.solve_in_hull`).
+    start_kg
+        The λ [kg] the program starts from (a previous answer).
+    slide_supports
+        The supports move on their normals within the hull too (the thrust meets the ground
+        anywhere across the springing); default: held where the design has them.
+    options
+        Options of the staggered start.
+    time_limit
+        Wall-clock limit [s] of the whole analysis (every IPOPT round and the polish stop there).
+    tol
+        IPOPT's tolerance (its rows are relative residuals).
+    max_iter
+        IPOPT's iteration limit per round.
+    progress
+        Called with each round's record.
+
+    Returns
+    -------
+    LimitResult
+        ``value`` the certified mass (λ* or, if its network is not a certificate, the largest
+        backed-off λ whose feasibility program gives one), ``optimum`` the program's λ*.
+    """
+    t_start = time.perf_counter()
+    deadline = t_start + time_limit
+    added, at_ = _pattern(scene, at)
+    problem = _base_problem(scene, thickness, density, w_max)
+    V, W, how = _start(problem, start, float(start_kg), added, options, slide_supports)
+    run = _program_run(problem, "max_load", V, W, added, kg=float(start_kg), deadline=deadline, tol=tol,
+                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
+             f"{start_kg:g} kg")
+    if not run.settled:
+        return _unsettled("max_load", scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
+    unit = run.prog.lam_unit
+    optimum = run.lam * unit
+    ok, res, hull = _finish("max_load", scene, thickness, run, how, added, t_start=t_start, deadline=deadline,
+                            extra={"at": list(at_)})
+    rounds, best = run.rounds, run
+    for back in BACK_OFF if not ok else ():
+        Vb, Wb = _si(run)
+        frun = _program_run(problem, "feasibility", Vb, Wb, added, kg=optimum * (1 - back), deadline=deadline,
+                            tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+        rounds += [{**r, "back_off": back} for r in frun.rounds]
+        if not frun.settled:
+            continue
+        ok, res, hull = _finish("max_load", scene, thickness, frun, how, added, t_start=t_start, deadline=deadline,
+                                extra={"at": list(at_)})
+        best = frun
+        if ok:
+            break
+    best.rounds = rounds
+    kg = best.lam * best.prog.lam_unit
+    if ok:
+        message = (f"certified: {kg:.6g} kg at {list(at_)} (the program's optimum {optimum:.6g} kg) is carried by a "
+                   f"compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
+                   f"within t/2 = {0.5 * thickness:g} m of the reference")
+        return _certified("max_load", scene, kg, optimum, res, best, hull, thickness, message)
+    message = (f"not certified: the program's optimum {optimum:.6g} kg left a network that fails the check "
+               f"(max relative error {hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond t/2 by "
+               f"up to {hull['max_excess']:.3g} m), and so did the feasibility program at λ backed off by "
+               f"{', '.join(f'{b:g}' for b in BACK_OFF)}")
+    return LimitResult("max_load", None, optimum, False, dataclasses.replace(res, message=message), "not certified",
+                       best.raw, message, tuple(rounds), _binding(scene, hull), thickness)
+
+
+def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: float = 0.0,
+             at: Sequence[int] | None = None, w_max: Any = None, start: Network | SolveResult | None = None,
+             slide_supports: bool = False,
+             options: Mapping[str, Any] | None = None, time_limit: float = 600.0, tol: float = 1e-9,
+             max_iter: int = 3000, progress: Callable[[dict], None] | None = None) -> LimitResult:
+    """Is there a compressive network inside the hull under self-weight plus ``kg`` at ``at``?
+    The same program with λ fixed, its objective the distance to the reference vertices (the
+    certificate then sits in the middle of what the hull allows). Parameters as
+    :func:`limit_load`; ``at`` may be omitted when ``kg`` is 0 (no added load).
+
+    Returns
+    -------
+    LimitResult
+        ``kind`` ``"feasibility"``, ``value`` ``kg`` when certified.
+    """
+    t_start = time.perf_counter()
+    deadline = t_start + time_limit
+    added, at_ = _added_pattern(scene, at, kg)
+    problem = _base_problem(scene, thickness, density, w_max)
+    V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
+    run = _program_run(problem, "feasibility", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
+                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    tried = f"searched for a network inside t = {thickness:g} m under {kg:g} kg at {list(at_)} from {how}"
+    if not run.settled:
+        return _unsettled("feasibility", scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
+    ok, res, hull = _finish("feasibility", scene, thickness, run, how, added, t_start=t_start, deadline=deadline,
+                            extra={"at": list(at_)})
+    if ok:
+        message = (f"certified: a compressive network in equilibrium (max relative error "
+                   f"{hull['max_relative_error']:.1e}) within t/2 = {0.5 * thickness:g} m of the reference carries "
+                   f"{kg:g} kg at {list(at_)}")
+        return _certified("feasibility", scene, float(kg), float(kg), res, run, hull, thickness, message)
+    message = (f"not certified: {tried}; the program's network fails the check (max relative error "
+               f"{hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond t/2 by up to "
+               f"{hull['max_excess']:.3g} m)")
+    return LimitResult("feasibility", None, float(kg), False, dataclasses.replace(res, message=message),
+                       "not certified", run.raw, message, tuple(run.rounds), _binding(scene, hull), thickness)
+
+
+def _added_pattern(scene: Scene, at: Sequence[int] | None, kg: float) -> tuple[np.ndarray, tuple]:
+    """Where ``kg`` goes: no pattern for no added load at no vertex, else :func:`_pattern`."""
+    if kg == 0 and at is None:
+        return np.zeros(scene.mesh.n_vertices), ()
+    return _pattern(scene, at)
+
+
+def min_thickness(scene: Scene, *, density: float = 2000.0, guess: float, kg: float = 0.0,
+                  at: Sequence[int] | None = None, w_max: Any = None, start: Network | SolveResult | None = None,
+                  slide_supports: bool = False,
+                  options: Mapping[str, Any] | None = None, time_limit: float = 600.0, tol: float = 1e-9,
+                  max_iter: int = 3000, progress: Callable[[dict], None] | None = None) -> LimitResult:
+    """The smallest thickness t [m] whose hull holds a compressive network, by one NLP with the
+    hull's half thickness h = t/2 an unknown (minimised), then certified by :func:`feasible` at
+    ``t*`` (backed off upwards by :data:`BACK_OFF` if needed).
+
+    The program holds the loads at the thickness ``guess`` (self-weight ρ t g per unit area).
+    Under self-weight alone (``kg = 0``) that is exact: a change of t scales every load and
+    weight alike and leaves the network's shape as it is. With an added load the loads of t* differ
+    from those of ``guess``; the certificate is made with the loads of its own thickness either way.
+
+    Parameters
+    ----------
+    guess
+        A thickness [m] for the start (the staggered network in its hull) and the program's loads.
+    Others
+        As :func:`limit_load`.
+
+    Returns
+    -------
+    LimitResult
+        ``kind`` ``"min_thickness"``; ``value`` the certified t [m], ``optimum`` the program's t*.
+    """
+    t_start = time.perf_counter()
+    deadline = t_start + time_limit
+    added, at_ = _added_pattern(scene, at, kg)
+    problem = _base_problem(scene, guess, density, w_max)
+    V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
+    run = _program_run(problem, "min_thickness", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
+                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    tried = f"minimised the thickness under {kg:g} kg at {list(at_)} from {how}"
+    if not run.settled:
+        return _unsettled("min_thickness", scene, guess, run, how, added, tried, t_start=t_start, deadline=deadline)
+    t_opt = 2 * run.h * run.prog.sc.length
+    rounds = run.rounds
+    Vs, Ws = _si(run)
+    last = None
+    for back in BACK_OFF:  # (at t* itself the hull is the program's limit: IPOPT may or may not find the point)
+        t_c = t_opt * (1 + back) / (1 - HULL_MARGIN)  # (the feasibility program's slabs are (1 − margin) t/2)
+        f = feasible(scene, thickness=t_c, density=density, kg=kg, at=at if at_ else None, w_max=w_max,
+                     slide_supports=slide_supports,
+                     start=Network(mesh=scene.mesh.with_vertices(Vs), weights=Ws * (t_c / guess),
+                                   loads=np.zeros(scene.mesh.n_vertices), supports=scene.supports),
+                     time_limit=max(deadline - time.perf_counter(), 1e-3), tol=tol, max_iter=max_iter,
+                     progress=progress)
+        rounds += [{**r, "back_off": back, "thickness": t_c} for r in f.rounds]
+        last = f
+        if f.certified:
+            message = (f"certified: t = {t_c:.6g} m (the program's minimum {t_opt:.6g} m) holds a compressive network "
+                       f"in equilibrium (max relative error {f.certificate.max_relative_error:.1e}) within t/2 of "
+                       "the reference")
+            return LimitResult("min_thickness", t_c, t_opt, True, dataclasses.replace(f.certificate, message=message),
+                               "certified", f.ipopt_status, message, tuple(rounds), f.binding, t_c)
+    message = (f"not certified: the program's minimum t* = {t_opt:.6g} m; the feasibility program at t* (1 + "
+               f"{', '.join(f'{b:g}' for b in BACK_OFF)}) gave no certificate ({last.message})")
+    return LimitResult("min_thickness", None, t_opt, False, last.certificate, "not certified", last.ipopt_status,
+                       message, tuple(rounds), last.binding, None)
