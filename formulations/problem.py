@@ -324,12 +324,10 @@ class Problem:
 
     # ---------------------------------------------------------------- checks
     def validate(self) -> None:
-        """Mesh, supports and (for a flat reference) the need for ``w_max``; raises named errors."""
-        from selfsupport.methods.validate import require_rise
-
+        """Mesh and supports; raises named errors (a flat reference's need for ``w_max`` is
+        :func:`selfsupport.methods.validate.validate_problem`'s, which needs a weight fit)."""
         self.scene.mesh.validate()
         self.scene.check_supports()
-        require_rise(self.scene, 1.0 if self.bounds.has_upper else None)
 
     # ---------------------------------------------------------------- units
     def scaled(self, loads: np.ndarray | None = None) -> ScaledProblem:

@@ -32,23 +32,21 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from selfsupport.core.errors import BackendUnavailable, InputError
-from selfsupport.core.loads import G, LoadCase, SelfWeight, with_scene_extras
+from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G
+from selfsupport.io.problem import load_spec, problem, scene_loads, weight_bounds
+from selfsupport.io.scenes import as_scene, design_of
 from selfsupport.methods.choice import AUTO
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.methods.validate import load_issues, validate_scene
 
-from formulations import Bounds, Problem
-from formulations.problem import stress_w_max
+from formulations import Problem
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
            "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
-#: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
-DEFAULT_DENSITY = 2000.0
-DEFAULT_THICKNESS = 0.1
 #: Max relative error below which :func:`check` calls a surface self-supporting.
 DEFAULT_CHECK_TOL = 1e-6
 
@@ -139,192 +137,6 @@ def make_method(name: str = "staggered", backend: str | None = None, **settings:
 
 
 # ------------------------------------------------------------------------------- scenes
-def _supports_mask(spec: Any, mesh: PolyMesh, source: str) -> np.ndarray:
-    """``spec`` as a boolean mask: ``"boundary"`` / a supports file / indices / a mask."""
-    if isinstance(spec, (str, os.PathLike)):
-        from selfsupport.io.supports import resolve_supports
-
-        return np.asarray(resolve_supports(spec, mesh, source=source), bool)
-    a = np.asarray(spec)
-    if a.dtype == bool:
-        if a.shape != (mesh.n_vertices,):
-            raise InputError(f"supports mask has shape {a.shape} for {mesh.n_vertices} vertices")
-        return a.copy()
-    idx = a.astype(np.int64).ravel()
-    if idx.size and (idx.min() < 0 or idx.max() >= mesh.n_vertices):
-        raise InputError(f"support index outside 0..{mesh.n_vertices - 1}")
-    m = np.zeros(mesh.n_vertices, bool)
-    m[idx] = True
-    return m
-
-
-def as_scene(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any = None,
-             up: str | None = None) -> Scene:
-    """A :class:`Scene` from a scene, a network, a mesh or a file.
-
-    Parameters
-    ----------
-    obj
-        A :class:`Scene` (``supports`` replaces its own if given); a :class:`Network` (its current
-        geometry and supports); a :class:`PolyMesh` (needs ``supports``); or a path read with
-        :func:`selfsupport.io.read_scene` (``.sss``, ``.obj``, ``.ply``, ``.off``, ``.json``).
-    supports
-        ``"boundary"``, a supports file, vertex indices or a boolean mask.
-    up
-        The file's vertical axis (files only; ``None`` = the format's convention).
-    """
-    if isinstance(obj, (str, os.PathLike)):
-        from selfsupport.io import read_scene
-
-        if supports is None or isinstance(supports, (str, os.PathLike)):
-            return read_scene(obj, up=up, supports=None if supports is None else str(supports))
-        scene = read_scene(obj, up=up, supports="boundary")  # placeholder, replaced just below
-        return replace(scene, supports=_supports_mask(supports, scene.mesh, str(obj)))
-    if up is not None:
-        raise InputError("up= only applies to files; rotate the mesh yourself for in-memory input")
-    if isinstance(obj, Scene):
-        if supports is None:
-            return obj
-        return replace(obj, supports=_supports_mask(supports, obj.mesh, obj.name))
-    if isinstance(obj, Network):
-        sup = obj.supports if supports is None else _supports_mask(supports, obj.mesh, "network")
-        return Scene(mesh=obj.mesh, supports=sup, handles=obj.handles, name="network")
-    if isinstance(obj, PolyMesh):
-        if supports is None:
-            raise InputError("a bare mesh has no supports; pass supports='boundary', a supports file or indices")
-        return Scene(mesh=obj, supports=_supports_mask(supports, obj, "mesh"), name="mesh")
-    raise InputError(f"cannot make a scene of a {type(obj).__name__}; pass a Scene, Network, PolyMesh or a file path")
-
-
-#: scene.meta keys of a network file's stored reference and network (see design_of)
-_STORED_KEYS = ("reference_vertices", "reference_faces", "stored_network")
-
-
-def design_of(scene: Scene) -> tuple[Scene, Network | None]:
-    """The design a solve of ``scene`` is for, and the network to start it from.
-
-    A network file written by ``selfsupport solve`` stores the reference it was solved for
-    (``reference_vertices`` / ``reference_faces``) beside the network. Re-solving the file
-    solves for that reference — the design — starting from the stored network; taking the
-    network's own vertices as the reference instead would move the target on every re-solve
-    and lose the design. Any other scene is its own design and has no start.
-
-    Parameters
-    ----------
-    scene
-        A scene, e.g. from :func:`as_scene` of a ``.json`` file (its ``meta`` then holds what
-        the file stored).
-
-    Returns
-    -------
-    (Scene, Network or None)
-        The scene with the stored reference as its mesh (same supports, handles and extras:
-        they index the same vertices) and ``meta["design"]`` saying what was used; and the
-        stored network with its weights, or ``None`` when there is nothing to start from (no
-        stored reference, or a hand-made file without weights: the solve then starts from
-        the reference). A stored reference with another vertex count than the network
-        cannot carry its supports: the network's vertices stay the reference, and
-        ``meta["design"]["note"]`` says why.
-    """
-    meta = scene.meta
-    if "reference_vertices" not in meta:
-        return scene, None
-    rest = {k: v for k, v in meta.items() if k not in _STORED_KEYS}
-    source = meta.get("source", scene.name)
-    ref_v = np.asarray(meta["reference_vertices"], float)
-    n = scene.mesh.n_vertices
-    if len(ref_v) != n:
-        note = (f"{source}: its reference_vertices has {len(ref_v)} vertices and the network {n}, so the "
-                "supports cannot be carried over; solving with the network's own vertices as the reference")
-        return replace(scene, meta={**rest, "design": {"reference": "stored network", "note": note}}), None
-    reference = PolyMesh.from_faces(ref_v, meta["reference_faces"])
-    stored = meta.get("stored_network")
-    design = {"reference": "stored reference_vertices",
-              "start": "stored network" if stored is not None else "reference (the file stores no weights)"}
-    return replace(scene, mesh=reference, meta={**rest, "design": design}), stored
-
-
-def scene_loads(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS) -> LoadCase:
-    """Self-weight ρ·t·g plus the scene's extra masses and point loads."""
-    for name, v in (("density", density), ("thickness", thickness)):
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name} must be a positive number, got {v}")
-    return with_scene_extras(SelfWeight(density=float(density), thickness=float(thickness)), scene)
-
-
-# ------------------------------------------------------------------------------ problem
-def load_spec(*, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS,
-              point_loads: Mapping[int, float] | None = None, extra_mass: Mapping[int, float] | None = None,
-              load_cases: Any = None) -> Any:
-    """The load model: self-weight ρ [kg/m³], t [m]; ``point_loads`` {vertex: N, positive down}
-    and ``extra_mass`` {vertex: kg} on every case; ``load_cases`` a TOML file or a sequence of
-    :class:`~selfsupport.io.loadcases.CaseSpec` (see :mod:`selfsupport.io.loadcases`)."""
-    from selfsupport.io.loadcases import LoadSpec, read_load_cases
-
-    cases = ()
-    if load_cases is not None:
-        cases = read_load_cases(load_cases) if isinstance(load_cases, (str, os.PathLike)) else tuple(load_cases)
-    return LoadSpec(density=float(density), thickness=float(thickness), point_loads=dict(point_loads or {}),
-                    extra_mass=dict(extra_mass or {}), case_specs=cases)
-
-
-def problem(scene: Scene, *, density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS,
-            point_loads: Mapping[int, float] | None = None, extra_mass: Mapping[int, float] | None = None,
-            load_cases: Any = None, w_max: Any = None, eps: Any = None, objective: Any = None,
-            constraints: Any = (), bounds: Any = None, max_stress: float | None = None) -> Problem:
-    """The :class:`~formulations.Problem` of a scene: load cases from :func:`load_spec` (plus the
-    scene's own extras), bounds [N/m, scalar or per edge; see :func:`weight_bounds` for
-    ``bounds`` and ``max_stress``], objective (``{"name": weight}``, ``"name=weight"`` strings,
-    terms; ``None``: the method's default) and constraints (``"hull"``, ``"fixed_top_view"`` or
-    instances)."""
-    spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
-                     load_cases=load_cases)
-    return Problem.build(scene, spec.cases(scene.mesh.n_vertices), objective=objective, constraints=constraints,
-                         bounds=weight_bounds(scene, eps=eps, w_max=w_max, bounds=bounds, max_stress=max_stress,
-                                              thickness=thickness))
-
-
-def weight_bounds(scene: Scene, *, eps: Any = None, w_max: Any = None, bounds: Any = None,
-                  max_stress: float | None = None, thickness: float = DEFAULT_THICKNESS) -> Bounds:
-    """The weight bounds a designer states, per edge of ``scene``'s mesh.
-
-    Parameters
-    ----------
-    scene
-        The scene being solved (the bounds file names edges of its mesh).
-    eps, w_max
-        Lower and upper bounds [N/m], scalars or one per edge (``None``: the scale-free default
-        ε / unbounded). A lower bound of zero or below allows tension down to it.
-    bounds
-        Per-edge bounds over ``eps`` / ``w_max``: a bounds file (``.csv`` / ``.json``,
-        :func:`~selfsupport.io.bounds.read_bounds`) or a :class:`~formulations.problem.Bounds`
-        (NaN entries: not stated).
-    max_stress
-        Allowable stress σ_max [Pa]: ``w_max`` per edge from the shell ``thickness`` and each
-        edge's tributary width (:func:`~formulations.problem.stress_w_max`); not with ``w_max``.
-
-    Returns
-    -------
-    Bounds
-        What :meth:`~formulations.Problem.build` states over its scalar bounds.
-    """
-    if max_stress is not None:
-        if w_max is not None:
-            raise InputError("give either w_max (--wmax) or a maximum stress (--max-stress), not both: each "
-                             "states the upper weight bound")
-        w_max = stress_w_max(scene.mesh, max_stress, thickness)
-    base = Bounds(eps, w_max)
-    if bounds is None:
-        return base
-    if isinstance(bounds, (str, os.PathLike)):
-        from selfsupport.io.bounds import read_bounds
-
-        bounds = read_bounds(bounds, scene.mesh)
-    if not isinstance(bounds, Bounds):
-        raise InputError(f"bounds must be a bounds file or a Bounds, not a {type(bounds).__name__}")
-    return bounds.over(base)
-
-
 # -------------------------------------------------------------------------------- solve
 def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backend: str | None = None,
           density: float = DEFAULT_DENSITY, thickness: float = DEFAULT_THICKNESS, w_max: Any = None,

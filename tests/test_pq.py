@@ -222,7 +222,7 @@ def test_diagonal_distance_is_the_distance_of_the_diagonals_and_its_jacobian_mat
     """The homotopy's rows (formulations) against the distance computed here, on random quads;
     their Jacobian against central differences; and scale-free: a quad shrunk 1000× keeps it
     while the determinant rows over the reference's ℓ³ fall 10⁹×."""
-    from formulations.terms.planarity import diagonal_distance
+    from selfsupport.core.geometry import diagonal_distance
 
     rng = np.random.default_rng(3)
     V = rng.normal(size=(40, 3))

@@ -9,6 +9,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from selfsupport.core.geometry import diagonal_distance
 from selfsupport.core.mesh import PolyMesh
 
 from formulations.equilibrium import flat_selection, to_dm
@@ -107,61 +108,6 @@ class Planarity(_FaceTerm):
         J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                           shape=(d["nf"], 3 * n))
         return r, J
-
-
-def diagonal_distance(V: np.ndarray, Q: np.ndarray, *, jacobian: bool = False
-                      ) -> tuple[np.ndarray, sp.csr_matrix | None]:
-    """Per row ``(a, b, c, d)`` of ``Q``: the signed distance between the lines ``a–c`` and ``b–d``
-    (a quad's diagonals) over the mean length of the sides ``a→b→c→d→a`` — the fabrication
-    measure of a quad's non-planarity (:func:`selfsupport.core.evidence.face_nonplanarity` is its
-    absolute value). Zero exactly when the four points are coplanar (and the lines not parallel).
-    It is scale-free in the face's own size: a face shrunk by k keeps it, while
-    ``det[b − a, c − a, d − a] / ℓ³`` with ``ℓ`` of the reference (the rows of :class:`PlanarFaces`)
-    falls by k³ — held small, those rows can be met by shrinking faces instead of flattening them.
-    ``jacobian``: also ``∂/∂V`` as a sparse ``(rows, 3n)`` matrix (else ``None``); rows whose
-    diagonals are parallel read 0.
-
-    The distance is ``det / |n|`` with ``n = (c − a) × (d − b)``: ``(b − a) · n`` equals the
-    determinant because ``(b − a) · ((c − a) × (b − a)) = 0``.
-
-    >>> V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.1], [0, 1, 0.]])
-    >>> r, J = diagonal_distance(V, np.array([[0, 1, 2, 3]]), jacobian=True)
-    >>> round(float(abs(r[0])), 4), J.shape  # diagonals 0.0499 apart, sides 1.0025 long on average
-    (0.0498, (1, 12))
-    """
-    V = np.asarray(V, float)
-    Q = np.asarray(Q, np.int64).reshape(-1, 4)
-    P = [V[Q[:, k]] for k in range(4)]
-    e1, e2, e3 = P[1] - P[0], P[2] - P[0], P[3] - P[0]
-    det = np.einsum("ij,ij->i", e1, np.cross(e2, e3))
-    p, q = P[2] - P[0], P[3] - P[1]
-    n = np.cross(p, q)
-    nn = np.linalg.norm(n, axis=1)
-    sides = [P[(k + 1) % 4] - P[k] for k in range(4)]
-    lens = [np.linalg.norm(s, axis=1) for s in sides]
-    ell = sum(lens) / 4
-    ok = (nn > 0) & (ell > 0)
-    nn_, ell_ = np.where(ok, nn, 1.0), np.where(ok, ell, 1.0)
-    r = np.where(ok, det / (nn_ * ell_), 0.0)
-    if not jacobian:
-        return r, None
-    g1, g2, g3 = np.cross(e2, e3), np.cross(e3, e1), np.cross(e1, e2)  # ∂det/∂e_k
-    g_det = (-(g1 + g2 + g3), g1, g2, g3)
-    dp, dq = np.cross(q, n) / nn_[:, None], np.cross(n, p) / nn_[:, None]  # ∂|n|/∂p, ∂|n|/∂q
-    g_n = (-dp, -dq, dp, dq)
-    g_ell = [np.zeros_like(e1) for _ in range(4)]
-    for k in range(4):
-        u = sides[k] / np.where(lens[k] > 0, lens[k], 1.0)[:, None] / 4
-        g_ell[(k + 1) % 4] += u
-        g_ell[k] -= u
-    a, b, c = 1.0 / (nn_ * ell_), det / (nn_ ** 2 * ell_), det / (nn_ * ell_ ** 2)
-    grads = [np.where(ok[:, None], a[:, None] * gd - b[:, None] * gn - c[:, None] * gl, 0.0)
-             for gd, gn, gl in zip(g_det, g_n, g_ell)]
-    k = len(Q)
-    rows = np.tile(np.repeat(np.arange(k), 3), 4)
-    cols = np.concatenate([(3 * Q[:, j][:, None] + np.arange(3)).ravel() for j in range(4)])
-    J = sp.csr_matrix((np.concatenate([g.ravel() for g in grads]), (rows, cols)), shape=(k, 3 * V.shape[0]))
-    return r, J
 
 
 def coplanarity_rows(mesh: PolyMesh, fixed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -192,28 +192,11 @@ def add_load_arguments(p: argparse.ArgumentParser, *, default: bool = True) -> N
 
 
 def load_scene(spec: str, *, supports: str | None = None, up: str | None = None):
-    """A :class:`~selfsupport.core.scene.Scene` from a ``SCENE`` argument (file or ``shape:NAME[:N]``)."""
-    from selfsupport.api import as_scene
+    """A :class:`~selfsupport.core.scene.Scene` from a ``SCENE`` argument (file or ``shape:NAME[:N]``;
+    :func:`selfsupport.io.scenes.load_scene`)."""
+    from selfsupport.io import scenes
 
-    if spec.startswith("shape:"):
-        from selfsupport.core.shapes import make_shape
-
-        parts = spec.split(":")
-        if len(parts) not in (2, 3) or not parts[1]:
-            raise InputError(f"{spec!r}: write a built-in shape as shape:NAME or shape:NAME:VERTICES")
-        n = None
-        if len(parts) == 3:
-            try:
-                n = positive_int(parts[2])
-            except argparse.ArgumentTypeError as e:
-                raise InputError(f"{spec!r}: vertex count {e}") from None
-        if up is not None:
-            raise InputError("--up applies to files only; built-in shapes are z up")
-        scene = make_shape(parts[1], n_vertices=n)
-        return as_scene(scene, supports=supports)
-    if not Path(spec).exists():
-        raise InputError(f"{spec}: no such file; give a scene/mesh file or shape:NAME[:VERTICES]")
-    return as_scene(spec, supports=supports, up=up)
+    return scenes.load_scene(spec, supports=supports, up=up)
 
 
 def stdout_console():
@@ -542,7 +525,7 @@ def _run_solve(args: argparse.Namespace) -> int:
         design = api.design_of(scene)[0]
         # (the refined mesh's size, refused before it is built: each step quadruples it)
         check_memory(subdivided_vertex_count(design.mesh, args.subdivide), method, args.max_memory)
-        scene = subdivide_scene(design, args.subdivide, max_memory=args.max_memory)
+        scene = subdivide_scene(design, args.subdivide)
         if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
             info = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
             scene = replace(scene, meta={**scene.meta, "design": info})

@@ -6,7 +6,7 @@ import atexit
 
 import numpy as np
 
-from selfsupport.core.geometry import bbox_diagonal
+from selfsupport.core.geometry import bbox_diagonal, diagonal_distance
 from selfsupport.core.mesh import PolyMesh
 
 
@@ -367,8 +367,6 @@ def face_nonplanarity(mesh: PolyMesh) -> np.ndarray:
     >>> round(float(face_nonplanarity(m)[0]), 4)  # diagonals 0.0499 apart, edges 1.0025 long
     0.0498
     """
-    from formulations.terms.planarity import diagonal_distance
-
     out = np.full(mesh.n_faces, np.nan)
     quads = np.flatnonzero(mesh.face_sizes == 4)
     if quads.size:

@@ -160,8 +160,7 @@ def catmull_clark(mesh: PolyMesh, *, crease: np.ndarray | None = None, corner: n
     return Subdivision(mesh=new, crease=crease_new, corner=corner_new, n_old=n, n_edges=m, n_faces=F)
 
 
-def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = True,
-                    max_memory: float | None = None) -> Scene:
+def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = True) -> Scene:
     """``levels`` Catmull–Clark steps of a scene's mesh, carrying supports and creases.
 
     Edges between two supports are creases (``crease_supports``); support vertices that do not
@@ -183,10 +182,6 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
     """
     if int(levels) < 0:
         raise InputError(f"subdivision levels must be >= 0, got {levels}")
-    from selfsupport.methods.memory import check_memory
-
-    check_memory(subdivided_vertex_count(scene.mesh, levels), "multilevel", max_memory,
-                 what=f"subdividing {levels} times gives a mesh whose solve")
     mesh, sup = scene.mesh, np.asarray(scene.supports, bool)
     extras = {k: getattr(scene, k) for k in ("handles", "extra_mass", "point_loads")}
     crease = corner = None

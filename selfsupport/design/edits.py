@@ -49,6 +49,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from selfsupport.core.errors import InputError
+from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS
+from selfsupport.core.subdivision import subdivide_scene
+from selfsupport.io.problem import problem as stated_problem
+from selfsupport.methods.memory import check_subdivision
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.design.laplacian import MODES, LaplacianEditor, ring_region
@@ -67,19 +71,17 @@ class Design:
     record; warm starts transfer by position and do not need it."""
 
     scene: Scene
-    density: float = 2000.0
-    thickness: float = 0.1
+    density: float = DEFAULT_DENSITY
+    thickness: float = DEFAULT_THICKNESS
     w_max: float | None = None
     origin: np.ndarray | None = None
     objective: Mapping[str, float] | None = None  # term name -> weight; None: the method's default
 
     def problem(self, **kw: Any):
         """The :class:`~formulations.Problem` of this design (self-weight plus the scene's extras)."""
-        from selfsupport.api import problem
-
         if self.objective is not None:
             kw.setdefault("objective", dict(self.objective))
-        return problem(self.scene, density=self.density, thickness=self.thickness, w_max=self.w_max, **kw)
+        return stated_problem(self.scene, density=self.density, thickness=self.thickness, w_max=self.w_max, **kw)
 
 
 # ------------------------------------------------------------------------- selections
@@ -476,8 +478,7 @@ class Subdivide(Edit):
     op: ClassVar[str] = "subdivide"
 
     def apply(self, design: Design) -> Design:
-        from selfsupport.core.subdivision import subdivide_scene
-
+        check_subdivision(design.scene.mesh, int(self.levels))
         sc = subdivide_scene(design.scene, int(self.levels))
         n_old = design.scene.mesh.n_vertices
         origin = np.r_[np.arange(n_old), -np.ones(sc.mesh.n_vertices - n_old, np.int64)]

@@ -41,6 +41,7 @@ from typing import Any, Callable, Mapping
 
 from selfsupport.core.errors import InputError
 from selfsupport.design.edits import Design, Edit, _check_value, edit_from_dict
+from selfsupport.io.scenes import load_scene
 
 __all__ = ["EditScript", "Stage", "replay", "dumps_toml"]
 
@@ -136,8 +137,6 @@ class Stage:
 
 
 def _start_scene(script: EditScript, scene: Any) -> Any:
-    from selfsupport.cli.common import load_scene
-
     if scene is not None:
         return load_scene(str(scene)) if isinstance(scene, (str, Path)) else scene
     if script.scene is None:

@@ -35,7 +35,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import G, ExtraMass, LoadCase, PointLoad, SelfWeight
+from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G, ExtraMass, LoadCase, PointLoad, SelfWeight
 
 
 def parse_vertex_value(text: str, what: str) -> tuple[int, float]:
@@ -137,8 +137,6 @@ class LoadSpec:
     @classmethod
     def from_description(cls, d: Mapping[str, Any]) -> "LoadSpec":
         """The inverse of :meth:`describe` (missing keys: defaults)."""
-        from selfsupport.api import DEFAULT_DENSITY, DEFAULT_THICKNESS
-
         return cls(density=float(d.get("density", DEFAULT_DENSITY)), thickness=float(d.get("thickness", DEFAULT_THICKNESS)),
                    point_loads=_vertex_map(d.get("point_loads", {}), "point_loads"),
                    extra_mass=_vertex_map(d.get("extra_mass", {}), "extra_mass"),

@@ -22,8 +22,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
+
 from selfsupport.core.errors import TooLarge
+from selfsupport.core.linalg import DENSE_ROW_MIN
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.subdivision import subdivided_vertex_count
 from selfsupport.methods.choice import AUTO
+from selfsupport.methods.polish import DIRECT_CASES_MAX
 
 GIB = 1024.0 ** 3
 #: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
@@ -49,8 +55,6 @@ def case_factor(n_cases: int) -> float:
     >>> case_factor(1), case_factor(2), case_factor(4), case_factor(5)
     (1.0, 7.5, 25.0, 6.25)
     """
-    from selfsupport.methods.polish import DIRECT_CASES_MAX
-
     c = max(int(n_cases), 1)
     if c == 1:
         return 1.0
@@ -61,10 +65,6 @@ def dense_row_bytes(edges, n_vertices: int) -> float:
     """Memory [bytes] of the weight fit's dense rows (:data:`~selfsupport.core.linalg.DENSE_ROW_MIN`)
     for a mesh with these ``edges``: three rows per vertex of higher valence, each kept as an
     ``n_edges × k`` block (``k`` the dense rows) in a few copies, with a ``k × k`` matrix."""
-    import numpy as np
-
-    from selfsupport.core.linalg import DENSE_ROW_MIN
-
     edges = np.asarray(edges).reshape(-1, 2)
     k = 3 * int(np.sum(np.bincount(edges.ravel(), minlength=n_vertices) > DENSE_ROW_MIN))
     return 4 * 8.0 * k * (len(edges) + k)
@@ -138,3 +138,10 @@ def check_scene_spec(spec: str, method: str = "staggered", max_memory: float | N
     parts = spec.split(":")
     if spec.startswith("shape:") and len(parts) == 3 and parts[2].strip().isdigit():
         check_memory(int(parts[2]), method, max_memory)
+
+
+def check_subdivision(mesh: PolyMesh, levels: int, max_memory: float | None = None) -> float:
+    """:func:`check_memory` of a solve of ``mesh`` subdivided ``levels`` times
+    (:func:`~selfsupport.core.subdivision.subdivide_scene`), before any step."""
+    return check_memory(subdivided_vertex_count(mesh, levels), "multilevel", max_memory,
+                        what=f"subdividing {levels} times gives a mesh whose solve")

@@ -4,7 +4,7 @@
 Start: a network in equilibrium on the quad mesh, faces not planar (the staggered method finds
 one in a fraction of a second). Each stage lowers the band ``b`` every face's non-planarity must
 stay within (distance of the diagonals over the mean side length,
-:func:`formulations.terms.planarity.diagonal_distance`) and restores equilibrium with it by the
+:func:`selfsupport.core.geometry.diagonal_distance`) and restores equilibrium with it by the
 joint minimum-norm Gauss–Newton polish (:func:`~selfsupport.methods.polish.polish_joint`:
 positions and free weights together, loads of the moving geometry). A face inside the band is
 free; a face at or past it is held on it (an active set, re-read at every step). A stage that
@@ -50,7 +50,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
-from formulations.terms.planarity import coplanarity_rows, diagonal_distance
+from formulations.terms.planarity import coplanarity_rows
+from selfsupport.core.geometry import diagonal_distance
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import mean_edge_length

@@ -62,7 +62,7 @@ from formulations.terms import HullPenalty, PlanarFaces, Sum
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.result import Network, SolveResult
-from selfsupport.methods.validate import require_top_view_balance
+from selfsupport.methods.validate import require_top_view_balance, validate_problem
 from selfsupport.core.scene import Scene
 from selfsupport.methods.anderson import Anderson
 from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
@@ -327,7 +327,7 @@ class Simultaneous:
         opts = SimultaneousOptions.of(options, **option_kw)
         deadline = t_start + opts.time_limit if deadline is None else deadline
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
-        problem.validate()
+        validate_problem(problem)
         self._check_problem(problem)
         if self.continuation:
             return self._continue(problem, opts, deadline, progress, t_start)

@@ -113,7 +113,7 @@ from selfsupport.core.loads import LoadCase
 from selfsupport.core.options import check_options, check_range
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
-from selfsupport.methods.validate import require_top_view_balance
+from selfsupport.methods.validate import require_top_view_balance, validate_problem
 from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, cases_proportional,
                    hull_report, load_cases_note, loads_or_options, planarity_report, short_of_tol, term_values)
 from selfsupport.methods.deadline import DeadlineReached, out_of_time
@@ -352,7 +352,7 @@ class _Run:
         self.t_start = time.perf_counter()
         # the one deadline every inner loop is given (see selfsupport.methods.deadline)
         self.deadline = self.t_start + opt.time_limit if deadline is None else deadline
-        problem.validate()  # mesh, supports; a flat reference needs w_max, else no nearest network exists
+        validate_problem(problem)  # mesh, supports; a flat reference needs w_max, else no nearest network exists
         self.method, self.problem, self.opt, self.progress = method, problem, opt, progress
         self.scene, self.loads = problem.scene, problem.loads
         self.mesh0 = self.scene.mesh

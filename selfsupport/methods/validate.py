@@ -67,7 +67,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 
 __all__ = ["Issue", "CHECKS", "ISSUE_CODES", "validate_scene", "scene_issues", "top_view_areas", "top_view_winding",
-           "unbalanceable_vertices", "require_rise", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT", "FLAT"]
+           "unbalanceable_vertices", "require_rise", "validate_problem", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT", "FLAT"]
 
 #: Vertices closer than this fraction of the bounding-box diagonal coincide.
 COINCIDENT = 1e-10
@@ -662,6 +662,14 @@ def _cotangent_weights(mesh: PolyMesh, X: np.ndarray) -> np.ndarray:
         cot = (u * v).sum(axis=1) / np.where(np.abs(cross) > 0, np.abs(cross), np.nan)
         np.add.at(w, he_edge[:, k], 0.5 * np.nan_to_num(cot, nan=-np.inf))
     return w
+
+
+def validate_problem(problem: Any) -> None:
+    """What every method checks before it solves ``problem`` (a :class:`~formulations.Problem`): its
+    mesh and supports, and that a flat reference has an upper weight bound (:func:`require_rise`);
+    raises named errors."""
+    problem.validate()
+    require_rise(problem.scene, 1.0 if problem.bounds.has_upper else None)
 
 
 def validate_scene(scene: Scene) -> list[Issue]:

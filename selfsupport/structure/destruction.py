@@ -24,6 +24,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from selfsupport.core.errors import InputError
+from selfsupport.io.problem import problem as stated_problem
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
@@ -147,7 +148,6 @@ def destroy(scene: Scene, remove: Sequence[int] = (), *, thickness: float, densi
     all faces, or ``faces`` (original face ids: what a previous sequence left, so that removals
     can follow each other); the sequence ends with a stage that stands, an empty stage, or after
     ``max_stages``."""
-    from selfsupport import api
     from selfsupport.structure.stability import solve_in_hull
 
     n, nf = scene.mesh.n_vertices, scene.mesh.n_faces
@@ -166,7 +166,7 @@ def destroy(scene: Scene, remove: Sequence[int] = (), *, thickness: float, densi
         sc, used = sub_scene(scene, faces)
         if sc.supports.all():
             return sc, used, None, "stands"  # nothing free: it rests on the ground
-        prob = api.problem(sc, density=density, thickness=thickness, constraints=["hull"])
+        prob = stated_problem(sc, density=density, thickness=thickness, constraints=["hull"])
         res = solve_in_hull(prob, method=method, options=options)
         return sc, used, res, "stands" if res.parameters["hull"]["certified"] else "fails"
 

@@ -55,6 +55,7 @@ from formulations import Problem
 from formulations.problem import Hull
 
 from selfsupport.core.errors import InputError
+from selfsupport.io.problem import problem as stated_problem
 from selfsupport.core.loads import G
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
@@ -348,9 +349,7 @@ def _pattern(scene: Scene, at: Sequence[int] | None) -> tuple[np.ndarray, tuple[
 
 
 def _base_problem(scene: Scene, thickness: float, density: float, w_max: Any = None) -> Problem:
-    from selfsupport import api
-
-    return api.problem(scene, density=density, thickness=thickness, w_max=w_max,
+    return stated_problem(scene, density=density, thickness=thickness, w_max=w_max,
                        constraints=[Hull(thickness=thickness)])
 
 

@@ -32,6 +32,7 @@ from formulations import Problem
 from formulations.problem import Hull
 
 from selfsupport.core.errors import InputError
+from selfsupport.io.problem import problem as stated_problem
 from selfsupport.methods.base import HULL_TOL, hull_report
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
@@ -217,9 +218,7 @@ class LoadStep:
 
 def _problem(scene: Scene, *, thickness: float, density: float, mass: Mapping[int, float],
              constraints_extra: Sequence[Any] = ()) -> Problem:
-    from selfsupport import api
-
-    return api.problem(scene, density=density, thickness=thickness, extra_mass=dict(mass),
+    return stated_problem(scene, density=density, thickness=thickness, extra_mass=dict(mass),
                        constraints=[Hull(thickness=thickness), *constraints_extra])
 
 
