@@ -1,8 +1,9 @@
 # selfsupport — build, demo and tests. Needs only python3 (>= 3.11) and pip.
 #   make demo        create .venv, install the project from the lock, solve the built-in demo -> demo-out/
-#   make test        create .venv, install the project and its test and docs extras from the lock, build the
-#                    documentation, run the fast suite
+#   make test        create .venv, install the project and its test, docs and lint extras from the lock,
+#                    build the documentation, lint, run the fast suite
 #   make docs        build the documentation site (MkDocs, --strict) into site/
+#   make lint        ruff and the import-linter layer contracts (make test runs it)
 #   make test-slow   run the tests marked slow
 #   make fuzz        property-based fuzzing with the large hypothesis profile
 #   make bench       run the studies behind the documentation's numbers -> benchmarks/results/*.csv and the
@@ -29,7 +30,7 @@ SCENES   ?= ../shared/paper-scenes/scenes
 ORIGINAL ?= ../build/original
 CHECKER  ?= ../shared/tools/check_network.py
 
-.PHONY: demo test test-slow test-all test-latest fuzz lock clean venv docs bench
+.PHONY: demo lint test test-slow test-all test-latest fuzz lock clean venv docs bench
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -55,9 +56,15 @@ demo: $(STAMP_RUN)
 docs: $(STAMP_TEST)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
-# The documentation is built first (docs). -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
+# ruff (pyflakes, sorted imports, heavy libraries imported only where used) and import-linter (the
+# layers of the package, pyproject.toml's [tool.importlinter]): a violation fails the build.
+lint: $(STAMP_TEST)
+	$(BIN)/ruff check --quiet .
+	$(BIN)/lint-imports --no-cache
+
+# The documentation is built first (docs), then the lint (lint). -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
 # drag against the design server's answers, which a busy second worker would delay.
-test: docs
+test: docs lint
 	$(BIN)/pytest $(PYTEST_FAST)
 	$(BIN)/pytest -q -m "browser and not slow"
 
@@ -78,7 +85,7 @@ fuzz: $(STAMP_TEST)
 lock: | $(BIN)/python
 	$(BIN)/python -m pip install --quiet uv==$(UV_VERSION)
 	$(BIN)/uv pip compile $(LOCK_FLAGS) pyproject.toml requirements/build.in -o requirements/run.lock
-	$(BIN)/uv pip compile $(LOCK_FLAGS) --extra test --extra docs pyproject.toml requirements/build.in -o requirements/test.lock
+	$(BIN)/uv pip compile $(LOCK_FLAGS) --extra test --extra docs --extra lint pyproject.toml requirements/build.in -o requirements/test.lock
 
 # The suite against the newest release of every dependency pyproject.toml admits: the packages
 # that moved past the lock are listed first, then the suite's failures are what broke.
@@ -86,7 +93,7 @@ test-latest:
 	rm -rf $(LATEST)
 	$(PYTHON) -m venv $(LATEST)
 	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
-	$(LATEST)/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[test,docs]"
+	$(LATEST)/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[test,docs,lint]"
 	$(LATEST)/bin/python requirements/drift.py requirements/test.lock
 	$(LATEST)/bin/pytest $(PYTEST_FAST) -p no:cacheprovider
 

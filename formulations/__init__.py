@@ -12,11 +12,33 @@
 from formulations.equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds
 from formulations.loadcases import DEFAULT_CASE, LoadCases
 from formulations.nlp import ThrustNetworkProblem
-from formulations.problem import (CONSTRAINTS, Bounds, FixedTopView, Hull, ObjectiveTerm, Planar, Problem, ScaledProblem,
-                      parse_objective)
+from formulations.problem import (
+                      CONSTRAINTS,
+                      Bounds,
+                      FixedTopView,
+                      Hull,
+                      ObjectiveTerm,
+                      Planar,
+                      Problem,
+                      ScaledProblem,
+                      parse_objective,
+)
 from formulations.scaling import Scaling, default_eps
-from formulations.terms import (TERMS, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity, PlanarityVolume, PointDistance,
-                    ReferenceDistance, Scaled, Sum, Term, TermContext)
+from formulations.terms import (
+                      TERMS,
+                      Fairness,
+                      HullPenalty,
+                      NormalDrift,
+                      PlanarFaces,
+                      Planarity,
+                      PlanarityVolume,
+                      PointDistance,
+                      ReferenceDistance,
+                      Scaled,
+                      Sum,
+                      Term,
+                      TermContext,
+)
 
 __all__ = ["Problem", "ScaledProblem", "Bounds", "Hull", "FixedTopView", "Planar", "CONSTRAINTS", "ObjectiveTerm",
            "parse_objective", "LoadCases", "DEFAULT_CASE", "GROUP_NAMES", "Equilibrium", "Topology", "WeightBounds",

@@ -42,11 +42,10 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from selfsupport.core.errors import InputError
-
 from formulations.equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds, symbol_type
 from formulations.terms import Term
 from formulations.terms.hull import HullPenalty
+from selfsupport.core.errors import InputError
 
 #: Floor of the default row scale, relative to the mean |load| (guards free vertices without load).
 ROW_SCALE_FLOOR = 1e-3

@@ -30,13 +30,12 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from selfsupport.core.errors import InputError
-
 from formulations.equilibrium import Topology
 from formulations.loadcases import LoadCases
 from formulations.scaling import Scaling, default_eps
 from formulations.terms import TERMS, Scaled, Sum, Term, TermContext
-
+from selfsupport.core.errors import InputError
+from selfsupport.core.geometry import edge_tributary_widths, edge_vectors
 
 #: Largest nodal load magnitude [N] the arithmetic takes: forces are squared in norms and in the
 #: fits (1e150² = 1e300, below the double range 1.8e308); its inverse is the smallest.
@@ -163,7 +162,6 @@ def stress_w_max(mesh, max_stress: float, thickness: float) -> np.ndarray:
     numpy.ndarray
         One bound per mesh edge [N/m].
     """
-    from selfsupport.core.geometry import edge_tributary_widths, edge_vectors
 
     for name, v in (("the maximum stress", max_stress), ("the thickness", thickness)):
         if not (np.isfinite(v) and v > 0):

@@ -31,17 +31,24 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from formulations import Problem
+from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
 from selfsupport.core.errors import BackendUnavailable, InputError
 from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G
-from selfsupport.io.problem import load_spec, problem, scene_loads, weight_bounds
-from selfsupport.io.scenes import as_scene, design_of
-from selfsupport.methods.choice import AUTO
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io import read_mesh
+from selfsupport.io.loadcases import LoadSpec
+from selfsupport.io.network_json import load_case_entries
+from selfsupport.io.problem import load_spec, problem, scene_loads, weight_bounds
+from selfsupport.io.scenes import as_scene, design_of
+from selfsupport.methods.choice import AUTO
+from selfsupport.methods.deadline import finish_reserve
+from selfsupport.methods.fixed_fit import fit_weights
+from selfsupport.methods.memory import check_memory, dense_row_bytes
+from selfsupport.methods.sensitivity import sensitivity as _sensitivity
 from selfsupport.methods.validate import load_issues, validate_scene
-
-from formulations import Problem
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
@@ -100,11 +107,11 @@ class MethodSpec:
 METHODS: dict[str, MethodSpec] = {
     "staggered": MethodSpec("selfsupport.methods.staggered", "StaggeredLinearization",
                             "the paper's staggered linearization (§3): weights and positions in turn",
-                            backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
+                            backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "multilevel": MethodSpec("selfsupport.methods.multilevel", "Multilevel",
                              "the staggered method on coarsened top views first, each level warm-starting "
                              "the next (big meshes)",
-                             backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
+                             backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "ipopt": MethodSpec("selfsupport.methods.simultaneous", "Simultaneous",
                         "all positions and weights at once with IPOPT (CasADi, MUMPS)"),
     "nlopt": MethodSpec("selfsupport.methods.nlopt_methods", "NloptSimultaneous",
@@ -123,7 +130,7 @@ def method_class(name: str) -> type:
 
 def make_method(name: str = "staggered", backend: str | None = None, **settings: Any) -> Any:
     """An instance of method ``name``; ``backend`` picks its inner solver where it has a choice
-    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``);
+    (the staggered method's Step 2: see ``selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS``);
     ``settings`` are further keywords of its constructor."""
     cls = method_class(name)
     if backend is None:
@@ -222,9 +229,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     cpu_entry = time.process_time()  # (the origin of the history records' "cpu_s" stamps)
     scene, stored = design_of(as_scene(scene_or_path, supports=supports, up=up))
     start = warm_start if warm_start is not None else stored
-    from selfsupport.methods.memory import check_memory
 
-    from selfsupport.methods.memory import dense_row_bytes
 
     spec = load_spec(density=density, thickness=thickness, point_loads=point_loads, extra_mass=extra_mass,
                      load_cases=load_cases)
@@ -247,14 +252,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         if method not in ("staggered", "multilevel"):
             raise InputError(f"method options {sorted(options)} apply to the staggered method (and multilevel) "
                              f"only, not {method!r}")
-        from selfsupport.methods.staggered import StaggeredOptions
         from selfsupport.core.options import check_options
+        from selfsupport.methods.staggered import StaggeredOptions
 
         check_options(StaggeredOptions, options)  # before the work, with the allowed interval
     solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit
-    from selfsupport.methods.deadline import finish_reserve
 
     until = {} if time_limit is None else {
         "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices, len(spec.case_specs))}
@@ -361,7 +365,6 @@ class CheckReport:
         ``"not_self_supporting"``), ``method`` ``"check"``, the evidence, the loads checked
         (``parameters.load_model``, so that checking the file again uses them) and, with several
         load cases, each case's fitted weights (``load_cases``)."""
-        from selfsupport.io.network_json import load_case_entries
 
         d: dict[str, Any] = {
             "status": "self_supporting" if self.self_supporting else "not_self_supporting", "method": "check",
@@ -421,8 +424,6 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     eps, w_max, backend
         Weight bounds [N/m] and the Step-2 backend, as in the staggered method.
     """
-    from selfsupport.io.loadcases import LoadSpec
-    from selfsupport.methods.fixed_fit import fit_weights
 
     t0 = time.perf_counter()
     stored: Network | None = None
@@ -514,7 +515,6 @@ def sensitivity(result: Any, parameter: str, *, problem: Problem | None = None) 
     :class:`~selfsupport.methods.sensitivity.Sensitivity` (SI units). ``problem``: the solved
     problem (default: rebuilt from the result's parameters). See
     :func:`selfsupport.methods.sensitivity.sensitivity`."""
-    from selfsupport.methods.sensitivity import sensitivity as _sensitivity
 
     return _sensitivity(result, parameter, problem=problem)
 
@@ -537,8 +537,6 @@ def koebe(source: PolyMesh | str | os.PathLike = "enneper", *, alpha: float = 1.
     >>> fam.network.max_relative_error() < 1e-10
     True
     """
-    from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
-    from selfsupport.io import read_mesh
 
     if isinstance(source, PolyMesh):
         mesh = source

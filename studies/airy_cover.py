@@ -31,8 +31,8 @@ from studies.common import Column, read_study_scene, study_scenes_or_exit, write
 
 def averaged_residuals(net, res) -> dict[str, float]:
     """Max relative residuals of eq. (6) and of the cell identity with φ averaged across cuts."""
-    from selfsupport.analysis.reciprocal import mixed_cell_areas
     from formulations.equilibrium import Topology, stress_laplacian
+    from selfsupport.analysis.reciprocal import mixed_cell_areas
 
     mesh = net.mesh
     face_of, _, _ = mesh.corner_data

@@ -103,11 +103,11 @@ def compare_lilium(published: Path, scenes: Path, out: Path) -> dict[str, Any]:
     from selfsupport import api
     from selfsupport.analysis import airy, curvatures, face_principal_directions, reciprocal, write_vector_fields
     from selfsupport.cli.airy import airy_document
+    from selfsupport.core.result import Network
     from selfsupport.io import write_mesh
     from selfsupport.io.atomic import atomic_write_text
     from selfsupport.io.axes import to_ours
     from selfsupport.io.network_json import to_jsonable
-    from selfsupport.core.result import Network
 
     sc = _published_scene(published, scenes, "lilium-n")
     t0 = time.perf_counter()

@@ -187,8 +187,8 @@ def _browser_rows(url: str, steps: int, step: float) -> list[dict]:
 def run(scene: str, *, steps: int = 30, step: float = 0.001, root: Path | None = None,
         browser: bool = False) -> list[dict]:
     """Start a server on ``scene`` and measure (see the module docstring)."""
-    from selfsupport.cli.design import open_session
     from selfsupport.app.server import DesignServer, bind_loopback, create_app, new_token, serve
+    from selfsupport.cli.design import open_session
 
     log = open_session(scene)
     sock = bind_loopback(0)

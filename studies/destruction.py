@@ -28,7 +28,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -148,9 +148,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "or the scene's reference surface")
     args = ap.parse_args(argv)
 
-    from selfsupport.structure.destruction import destroy
     from selfsupport.figures.hull import stage_strip
     from selfsupport.io import read_scene, write_network
+    from selfsupport.structure.destruction import destroy
 
     scenes = Path(args.scenes)
     pub = Path(args.published) if args.published else scenes.parent / "published"

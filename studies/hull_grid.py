@@ -35,10 +35,10 @@ COLUMNS = [Column("vertices", "V"), Column("apex_load", "apex load / weight", "{
 def run_case(n: int, frac: float, t: float, method: str) -> dict[str, Any]:
     from formulations import Hull, Problem
     from selfsupport.core.loads import PointLoad, SelfWeight
+    from selfsupport.core.shapes import make_shape
     from selfsupport.methods.base import HULL_TOL, hull_signed_distance
     from selfsupport.methods.simultaneous import Simultaneous
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.core.shapes import make_shape
 
     scene = make_shape("dome", n_vertices=n)
     V = scene.mesh.vertices

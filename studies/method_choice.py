@@ -28,8 +28,20 @@ import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from .common import (Column, PAPER_TABLE1, REPO, exit_on_sigterm, load_average, read_study_scene, run_isolated,
-                     run_stamp, safe_ratio, study_scenes, write_csv, write_markdown)
+from .common import (
+    PAPER_TABLE1,
+    REPO,
+    Column,
+    exit_on_sigterm,
+    load_average,
+    read_study_scene,
+    run_isolated,
+    run_stamp,
+    safe_ratio,
+    study_scenes,
+    write_csv,
+    write_markdown,
+)
 
 DEFAULT_SHAPES = ("dome", "pillar_vault", "concave_disk")
 DEFAULT_SIZES = (1000, 4000, 16000)
@@ -95,10 +107,10 @@ def solve_row(*, source: str, method: str, time_limit: float, scenes_dir: str | 
     (``staggered``, ``multilevel`` with at least one coarser level, or ``auto`` through
     :func:`selfsupport.api.solve`); runs in a spawned process (:func:`studies.common.run_isolated`)."""
     from selfsupport import api
+    from selfsupport.core.shapes import make_shape
     from selfsupport.methods.choice import choose_method
     from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel
     from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.core.shapes import make_shape
 
     scene = _scene(source, scenes_dir)
     n = scene.mesh.n_vertices

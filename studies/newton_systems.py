@@ -103,8 +103,8 @@ def record(shape: str, n_vertices: int, fits: Sequence[int]) -> tuple[Any, list]
     """Run the staggered method on ``make_shape(shape, n_vertices)`` until the last fit in ``fits``;
     return the scene and its captured systems (:func:`capture_newton_systems`)."""
     from selfsupport.api import scene_loads
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.shapes import make_shape
+    from selfsupport.methods.staggered import StaggeredLinearization
 
     scene = make_shape(shape, n_vertices=n_vertices)
     with capture_newton_systems(fits) as (backend, systems):

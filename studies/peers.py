@@ -49,8 +49,22 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .common import (DEFAULT_CHECKER, REPO, STAMP_COLUMNS, Column, equilibrium_errors, json_network_arrays, load_average,
-                     run_checker, run_stamp, safe_ratio, scene_read_args, study_scenes, write_csv, write_markdown)
+from .common import (
+    DEFAULT_CHECKER,
+    REPO,
+    STAMP_COLUMNS,
+    Column,
+    equilibrium_errors,
+    json_network_arrays,
+    load_average,
+    run_checker,
+    run_stamp,
+    safe_ratio,
+    scene_read_args,
+    study_scenes,
+    write_csv,
+    write_markdown,
+)
 
 RUNNERS = Path(__file__).resolve().parent / "peers_runners"
 

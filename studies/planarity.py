@@ -22,8 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import (STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv,
-                     write_markdown)
+from .common import STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv, write_markdown
 
 COLUMNS = [Column("scene", "scene"), Column("objective", "objective"), Column("refine", "refine"),
            Column("status", "status"), Column("nonplanar_max", "non-planarity max", "{:.2e}"),
@@ -39,8 +38,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], terms: Sequence[str], weig
         refine: int, time_limit: float) -> list[dict[str, Any]]:
     from formulations import Problem
     from selfsupport.core.evidence import face_nonplanarity
-    from selfsupport.io import write_network
     from selfsupport.core.loads import SelfWeight
+    from selfsupport.io import write_network
     from selfsupport.methods.staggered import StaggeredLinearization
 
     stamp = run_stamp()

@@ -24,8 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import (STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv,
-                     write_markdown)
+from .common import STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv, write_markdown
 
 COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
            Column("irregular", "interior valence ≠ 4"), Column("status", "status"),
@@ -49,12 +48,12 @@ def _nonplanarity(mesh) -> tuple[float, float]:
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
         finish: bool = True, remeshers: Sequence[str] = ("streamlines",)) -> list[dict[str, Any]]:
     from selfsupport import api
-    from selfsupport.remesh.planar import finish_summary, solve_planar
-    from selfsupport.remesh.streamlines import remesh
     from selfsupport.core.errors import SelfSupportError
     from selfsupport.core.evidence import distance_stats
-    from selfsupport.io import read_mesh, write_network
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io import read_mesh, write_network
+    from selfsupport.remesh.planar import finish_summary, solve_planar
+    from selfsupport.remesh.streamlines import remesh
 
     stamp = run_stamp()
     out.mkdir(parents=True, exist_ok=True)

@@ -63,8 +63,22 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .common import (STAMP_COLUMNS, Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
-                     median_time, peak_rss_mib, run_isolated, run_stamp, safe_ratio, write_csv, write_markdown)
+from .common import (
+    STAMP_COLUMNS,
+    Column,
+    Stopwatch,
+    current_rss_mib,
+    exit_on_sigterm,
+    json_max_relative_error,
+    load_average,
+    median_time,
+    peak_rss_mib,
+    run_isolated,
+    run_stamp,
+    safe_ratio,
+    write_csv,
+    write_markdown,
+)
 
 DEFAULT_SIZES = (1000, 4000, 16000, 64000)
 DEFAULT_SHAPES = ("concave_disk", "pillar_vault")
@@ -89,7 +103,7 @@ def _multilevel() -> Any:
 
 
 #: method name -> (factory, default time limit [s]); ``staggered/BACKEND`` names the staggered
-#: method with another Step-2 backend (:data:`selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS`)
+#: method with another Step-2 backend (:data:`selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS`)
 METHODS: dict[str, tuple[Callable[[], Any], float]] = {
     "staggered": (_staggered, 1200.0),
     "multilevel": (_multilevel, 1200.0),
@@ -105,7 +119,7 @@ def method_entry(method: str) -> tuple[Callable[[], Any], float]:
     """
     base, _, backend = method.partition("/")
     if backend and base == "staggered":
-        from selfsupport.methods.weightfit import WEIGHT_FIT_BACKENDS
+        from selfsupport.methods.weightfit_backends import WEIGHT_FIT_BACKENDS
 
         if backend not in WEIGHT_FIT_BACKENDS:
             raise KeyError(method)
@@ -152,8 +166,8 @@ def _floor_measurements(result, scene) -> dict[str, float]:
 
     from formulations.equilibrium import Topology, position_blocks, weight_matrix
     from formulations.scaling import Scaling
-    from selfsupport.methods.weightfit import _LowerQ
     from selfsupport.core.linalg import spd_factor
+    from selfsupport.methods.weightfit import _LowerQ
 
     net = result.network
     active = scene.active_edges
@@ -234,8 +248,8 @@ def scaling_row(*, shape: str, n_vertices: int, method: str, time_limit: float, 
                 warmup: bool = True) -> dict[str, Any]:
     """Worker (own process): generate the shape, solve it, save the network, return the numbers."""
     from selfsupport.api import scene_loads
-    from selfsupport.io import write_network
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io import write_network
 
     factory = method_entry(method)[0]
     scene = make_shape(shape, n_vertices=n_vertices)

@@ -40,9 +40,21 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from .common import (Column, Stopwatch, current_rss_mib, exit_on_sigterm, json_max_relative_error, load_average,
-                     peak_rss_mib, read_study_scene, run_checker, run_isolated, study_scenes_or_exit,
-                     write_csv, write_markdown)
+from .common import (
+    Column,
+    Stopwatch,
+    current_rss_mib,
+    exit_on_sigterm,
+    json_max_relative_error,
+    load_average,
+    peak_rss_mib,
+    read_study_scene,
+    run_checker,
+    run_isolated,
+    study_scenes_or_exit,
+    write_csv,
+    write_markdown,
+)
 from .variants import VARIANTS, variant_scene
 
 #: method names; ``multilevel`` solves the designer's coarser scenes first (the subdivision's own
@@ -61,9 +73,9 @@ def solve_row(*, scenes_dir: str, scene_name: str, levels: int, method: str, out
               warmup: bool = True, variant: str = "none") -> dict[str, Any]:
     """Worker (own process): subdivide the scene, solve it, save the network, return the row."""
     from selfsupport.api import scene_loads
+    from selfsupport.core.shapes import make_shape
     from selfsupport.core.subdivision import subdivide_scene
     from selfsupport.io import write_network
-    from selfsupport.core.shapes import make_shape
 
     design = variant_scene(read_study_scene(scenes_dir, scene_name), variant)
     scene = subdivide_scene(design, levels) if levels else design

@@ -34,8 +34,8 @@ def _spec_text(shape: str, vertices: int, runs: int) -> str:
 
 def _direct(shape: str, vertices: int, runs: int) -> list[float]:
     from selfsupport.core.loads import SelfWeight
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.shapes import make_shape
+    from selfsupport.methods.staggered import StaggeredLinearization
 
     scene = make_shape(shape, n_vertices=vertices)
     StaggeredLinearization().solve(scene, SelfWeight())  # warm-up: imports, caches

@@ -49,10 +49,28 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .common import (PAPER_TABLE1, PUBLISHED_UP, STAMP_COLUMNS, Column, Stopwatch, current_rss_mib, equilibrium_errors,
-                     exit_on_sigterm, json_network_arrays, load_average, peak_rss_mib,
-                     read_study_scene, run_checker, run_isolated, run_stamp, safe_ratio, scene_file, study_scenes_or_exit, write_csv,
-                     write_markdown)
+from .common import (
+    PAPER_TABLE1,
+    PUBLISHED_UP,
+    STAMP_COLUMNS,
+    Column,
+    Stopwatch,
+    current_rss_mib,
+    equilibrium_errors,
+    exit_on_sigterm,
+    json_network_arrays,
+    load_average,
+    peak_rss_mib,
+    read_study_scene,
+    run_checker,
+    run_isolated,
+    run_stamp,
+    safe_ratio,
+    scene_file,
+    study_scenes_or_exit,
+    write_csv,
+    write_markdown,
+)
 
 
 # ------------------------------------------------------------------------------ variants
@@ -229,9 +247,9 @@ def published_row(*, scenes_dir: str, scene_name: str, published: str, out_json:
     its distance to the reference, saved as JSON like the solver rows."""
     from selfsupport.api import check
     from selfsupport.core.evidence import distance_stats
-    from selfsupport.io import read_mesh, write_network
     from selfsupport.core.result import Network
     from selfsupport.core.scene import Scene
+    from selfsupport.io import read_mesh, write_network
 
     scene = read_study_scene(scenes_dir, scene_name)
     pub = read_mesh(published, up=PUBLISHED_UP)

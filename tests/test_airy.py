@@ -12,10 +12,10 @@ from selfsupport.analysis import airy, construct, curvatures, reciprocal, write_
 from selfsupport.analysis.construction import lifting_weights, lower_hull
 from selfsupport.analysis.curvature import relative_principal, vertex_hessians
 from selfsupport.analysis.reciprocal import vertex_face_rings
-from selfsupport.io.axes import to_ours
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
 from selfsupport.core.shapes import disk_points, make_shape
+from selfsupport.io.axes import to_ours
 from tests.conftest import SHARED
 
 
@@ -289,8 +289,8 @@ def holed_dome() -> Network:
     """A dome with an off-centre hole whose rim is pinned and one pinned interior vertex, solved:
     both sources have a non-zero period and their cuts run through free vertices."""
     from selfsupport.core.loads import SelfWeight
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.scene import Scene
+    from selfsupport.methods.staggered import StaggeredLinearization
 
     m = make_shape("dome", rings=10).mesh
     V = m.vertices

@@ -65,9 +65,9 @@ def test_the_polish_and_ipopts_load_rounds_share_the_accelerator(monkeypatch):
     load rounds both mix through :class:`Anderson`."""
     from formulations import Problem
     from selfsupport.core.loads import SelfWeight
+    from selfsupport.core.shapes import make_shape
     from selfsupport.methods.polish import polish
     from selfsupport.methods.simultaneous import Simultaneous
-    from selfsupport.core.shapes import make_shape
 
     seen: list[int] = []
     real = Anderson.next

@@ -8,10 +8,10 @@ import pytest
 
 from selfsupport import api
 from selfsupport.core.errors import BackendUnavailable, InputError, SupportError
-from selfsupport.io import write_network
 from selfsupport.core.loads import G
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_network
 from tests.conftest import relative_residuals
 
 

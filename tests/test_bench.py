@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import report, run
-from studies import common, design_latency, pq, planarity, peers, scaling, table1, warm_resolve
+from studies import common, design_latency, peers, planarity, pq, scaling, table1, warm_resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 STAMP = {"commit": "abc1234", "date": "2030-01-02T03:04:05Z", "cpu_model": "Test CPU 9000", "cores": 2,
@@ -111,8 +111,8 @@ def test_design_latency_writes_its_rows_stamped_with_the_scenes_size(tmp_path):
 
 
 def test_warm_resolve_writes_its_rows_stamped(tmp_path):
-    from selfsupport.io.sss import write_scene_sss
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io.sss import write_scene_sss
 
     write_scene_sss(tmp_path / "dome.sss", make_shape("dome", n_vertices=80))
     warm_resolve.main(["--scenes", str(tmp_path), "--scene", "dome", "--repeat", "1", "--out", str(tmp_path / "o")])

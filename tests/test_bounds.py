@@ -13,13 +13,13 @@ import json
 import numpy as np
 import pytest
 
-from formulations import Bounds, Problem
+from formulations import Bounds
 from formulations.problem import stress_w_max
 from selfsupport import api, cli
 from selfsupport.core.errors import InputError
-from selfsupport.io.bounds import read_bounds, write_bounds
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.shapes import make_shape
+from selfsupport.io.bounds import read_bounds, write_bounds
 from tests.conftest import independent_check, requires_checker
 from tests.test_cli import assert_one_line_error
 

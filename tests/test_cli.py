@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfsupport import cli
 import selfsupport.cli.common as cli_main
-from selfsupport.io import write_mesh
+from selfsupport import cli
 from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_mesh
 from tests.conftest import SHARED, document_check, independent_check, requires_checker
 
 G = 9.81
@@ -171,8 +171,8 @@ def test_a_stalled_big_mesh_is_pointed_to_the_multilevel_method(tmp_path, capsys
     """Above the multilevel method's one-level size, a stalled staggered solve's line suggests it
     (subdivided paper scenes, 28k quads, stalled there and converge by levels); below, not."""
     from selfsupport import api
-    from selfsupport.methods.multilevel import DIRECT_MAX
     from selfsupport.core.result import Network, SolveResult
+    from selfsupport.methods.multilevel import DIRECT_MAX
 
     scene = make_shape("dome", n_vertices=n)
     assert (scene.mesh.n_vertices > DIRECT_MAX) == suggested

@@ -257,8 +257,8 @@ def test_a_free_cluster_cut_off_from_the_supports_by_zero_weights_is_found():
     On a constructed network: all weights positive → none ungrounded; zero the weights of every
     edge leaving the ring around the centre → that inner cluster (and only it) is ungrounded, and
     the stress Laplacian restricted to it is singular (its rows sum to zero)."""
-    from selfsupport.analysis.construction import _ungrounded
     from formulations.equilibrium import Topology, stress_laplacian
+    from selfsupport.analysis.construction import _ungrounded
 
     net = construct(disk_points(4), "paraboloid", load=-1.0)
     e, sup = net.mesh.edges, np.asarray(net.supports, bool)

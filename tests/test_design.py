@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.shapes import make_shape
+from selfsupport.core.subdivision import catmull_clark, subdivide_scene
 from selfsupport.design.edits import Cut, Delete, Design, Pillar, Select, cut_along
 from selfsupport.design.laplacian import LaplacianEditor, laplacian_matrix, ring_region
 from selfsupport.design.script import EditScript, replay
-from selfsupport.core.subdivision import catmull_clark, subdivide_scene
-from selfsupport.core.mesh import PolyMesh
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.core.shapes import make_shape
 from tests.conftest import independent_check, requires_checker
 
 

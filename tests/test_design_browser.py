@@ -28,8 +28,8 @@ pytestmark = [
 
 @pytest.fixture()
 def server(tmp_path):
-    from selfsupport.cli.design import open_session
     from selfsupport.app.server import DesignServer, bind_loopback, create_app, new_token, serve
+    from selfsupport.cli.design import open_session
 
     log = open_session("shape:pillar_vault:300")
     sock = bind_loopback(0)

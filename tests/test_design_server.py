@@ -6,26 +6,23 @@ import asyncio
 import json
 import os
 import re
-import socket
 import subprocess
 import sys
 import threading
 import time
+import warnings  # noqa: E402
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-import warnings  # noqa: E402
 
 with warnings.catch_warnings():  # starlette 1.x prefers "httpx2" for its test client; httpx works
     warnings.simplefilter("ignore")
     from starlette.testclient import TestClient  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
+from selfsupport.app.server import COOKIE, DesignServer, bind_loopback, create_app, new_token, safe_path, serve  # noqa: E402
 from selfsupport.cli.design import open_session  # noqa: E402
-from selfsupport.app.server import (COOKIE, DesignServer, bind_loopback, create_app, new_token,  # noqa: E402
-                                       safe_path, serve)
 from selfsupport.core.errors import InputError  # noqa: E402
 from tests.conftest import independent_check, load_factor, requires_checker  # noqa: E402
 

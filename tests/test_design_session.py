@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from selfsupport.design.edits import Design, Load, Material, Move, Objective, Pin, Select, Unpin
-from selfsupport.design.script import EditScript
 from selfsupport.app.session import SOLVE_DEFAULTS, EditLog, SolveWorker
 from selfsupport.core.errors import InputError
 from selfsupport.core.shapes import make_shape
+from selfsupport.design.edits import Design, Load, Material, Move, Objective, Pin, Select, Unpin
+from selfsupport.design.script import EditScript
 from tests.conftest import max_relative_error
 
 

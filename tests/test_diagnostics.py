@@ -2,12 +2,10 @@
 warnings of ``parameters.input_issues`` (each once), and a network outside the masonry hull."""
 from __future__ import annotations
 
-import pytest
-
 from selfsupport import api, cli
-from selfsupport.methods.diagnostics import FAR_FROM_REFERENCE, HULL_MAJORITY, solve_warnings
-from selfsupport.io import write_mesh
 from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_mesh
+from selfsupport.methods.diagnostics import FAR_FROM_REFERENCE, HULL_MAJORITY, solve_warnings
 
 
 def _warnings(err: str) -> list[str]:

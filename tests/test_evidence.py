@@ -136,8 +136,8 @@ def test_a_network_far_from_the_origin_is_in_equilibrium_to_its_roundoff_floor()
     not (its error is ~100× the floor). Moved 10⁶ m (error ~3e-8) it is within its floor but
     above FLOOR_CAP, which the floor never relaxes a tolerance past."""
     from selfsupport.core.evidence import FLOOR_CAP, FLOOR_MARGIN
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.result import Network
+    from selfsupport.methods.staggered import StaggeredLinearization
 
     net = StaggeredLinearization().solve(make_shape("pillar_vault", n_vertices=400)).network
     assert net.in_equilibrium(1e-9) and net.max_relative_error() <= 1e-11

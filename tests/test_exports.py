@@ -16,8 +16,8 @@ import pytest
 
 from selfsupport import cli
 from selfsupport.core.errors import InputError
-from selfsupport.io import read_network, write_mesh, write_network_as
 from selfsupport.core.result import Network
+from selfsupport.io import read_network, write_mesh, write_network_as
 from tests.conftest import document_check, independent_check, relative_residuals
 from tests.test_cli import assert_one_line_error
 from tests.test_io import mixed_mesh, same_mesh

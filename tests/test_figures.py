@@ -7,19 +7,27 @@ from __future__ import annotations
 import io
 import json
 
+import matplotlib.image as mpimg  # noqa: E402
 import numpy as np
 import pytest
-
-import matplotlib.image as mpimg  # noqa: E402
 
 from selfsupport.core.errors import InputError  # noqa: E402
 from selfsupport.core.loads import SelfWeight  # noqa: E402
 from selfsupport.core.mesh import PolyMesh  # noqa: E402
-from selfsupport.methods.staggered import StaggeredLinearization  # noqa: E402
 from selfsupport.core.result import Network  # noqa: E402
 from selfsupport.core.shapes import make_shape  # noqa: E402
-from selfsupport.figures.render import (_CBAR_RECT, _MAIN_RECT, FIGURES, FigureInput, edge_forces,  # noqa: E402
-                                        make_figure, render, render_png_bytes, signed_distances)
+from selfsupport.figures.render import (  # noqa: E402
+    _CBAR_RECT,
+    _MAIN_RECT,
+    FIGURES,
+    FigureInput,
+    edge_forces,
+    make_figure,
+    render,
+    render_png_bytes,
+    signed_distances,
+)
+from selfsupport.methods.staggered import StaggeredLinearization  # noqa: E402
 
 DPI = 80  # 640 x 480 images: enough for the checks, fast to draw
 

@@ -5,12 +5,26 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from formulations import (GROUP_NAMES, TERMS, Equilibrium, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity,
-                          PlanarityVolume, PointDistance, ReferenceDistance, Scaled, Sum, ThrustNetworkProblem,
-                          WeightBounds)
+from formulations import (
+    GROUP_NAMES,
+    TERMS,
+    Equilibrium,
+    Fairness,
+    HullPenalty,
+    NormalDrift,
+    PlanarFaces,
+    Planarity,
+    PlanarityVolume,
+    PointDistance,
+    ReferenceDistance,
+    Scaled,
+    Sum,
+    ThrustNetworkProblem,
+    WeightBounds,
+)
+from formulations import equilibrium as assembly
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
-from formulations import equilibrium as assembly
 
 
 # ----------------------------------------------------------------------------- meshes

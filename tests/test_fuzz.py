@@ -34,12 +34,12 @@ from hypothesis import strategies as st
 
 from selfsupport import api
 from selfsupport.core.errors import SelfSupportError
-from selfsupport.io import write_network
+from selfsupport.core.evidence import floor_tolerance
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import STATUSES
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import disk
-from selfsupport.core.evidence import floor_tolerance
+from selfsupport.io import write_network
 from tests.conftest import document_errors, document_floors
 
 G = 9.81

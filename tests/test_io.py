@@ -13,13 +13,12 @@ import numpy as np
 import pytest
 
 from selfsupport.core.errors import InputError, MeshError, SupportError
-from selfsupport.io import (network_to_dict, read_mesh, read_network, read_scene, write_mesh, write_network,
-                            write_scene_sss)
-from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
-from selfsupport.io.axes import UP_AXES, to_file, to_ours
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io import network_to_dict, read_mesh, read_network, read_scene, write_mesh, write_network, write_scene_sss
+from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
+from selfsupport.io.axes import UP_AXES, to_file, to_ours
 from tests.conftest import SHARED, independent_check, load_factor, requires_checker
 
 SCENES = SHARED / "paper-scenes" / "scenes"
@@ -671,8 +670,8 @@ def test_network_schema_states_the_writer_and_reader_contract():
     statuses are the results' (one list each, the schema follows them)."""
     import jsonschema
 
-    from selfsupport.io.network_json import NETWORK_KEYS
     from selfsupport.core.result import STATUSES
+    from selfsupport.io.network_json import NETWORK_KEYS
 
     schema = network_schema()
     jsonschema.Draft202012Validator.check_schema(schema)

@@ -14,14 +14,25 @@ import numpy as np
 import pytest
 
 from selfsupport.analysis.construction import lifting_weights
-from selfsupport.analysis.koebe import (KINDS, KOEBE_EXAMPLES, LOAD_RULES, MOBIUS_MAPS, as_airy, christoffel_dual,
-                                        family, koebe_mesh, minimal_partner, paraboloid_gaps, polar_mesh,
-                                        quad_dual_scalars)
+from selfsupport.analysis.koebe import (
+    KINDS,
+    KOEBE_EXAMPLES,
+    LOAD_RULES,
+    MOBIUS_MAPS,
+    as_airy,
+    christoffel_dual,
+    family,
+    koebe_mesh,
+    minimal_partner,
+    paraboloid_gaps,
+    polar_mesh,
+    quad_dual_scalars,
+)
 from selfsupport.core.errors import NotKoenigs
 from selfsupport.core.evidence import face_nonplanarity
-from selfsupport.io import write_mesh, write_network
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
+from selfsupport.io import write_mesh, write_network
 
 from .conftest import CHECKER, requires_checker
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.structure.limit import CERTIFY_TOL, feasible, limit_load, min_thickness
 from selfsupport.core.loads import G
 from selfsupport.core.shapes import make_shape
+from selfsupport.structure.limit import CERTIFY_TOL, feasible, limit_load, min_thickness
 from tests.conftest import independent_check, max_relative_error, requires_checker
 from tests.test_stability import distance_to_mesh
 

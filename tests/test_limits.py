@@ -16,11 +16,12 @@ import pytest
 
 from selfsupport import api, cli
 from selfsupport.core.loads import SelfWeight
-from selfsupport.methods import weightfit
-from selfsupport.methods.deadline import DeadlineReached, finish_reserve, out_of_time
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods import weightfit, weightfit_backends
+from selfsupport.methods.deadline import DeadlineReached, finish_reserve, out_of_time
 
 from .conftest import load_factor, time_limit_bound
+
 
 def _bound(limit: float) -> float:
     """A run with time limit T ends within 10% + 1 s of T (stretched by the machine's load)."""
@@ -78,10 +79,11 @@ def test_interior_point_returns_an_interior_point_at_its_deadline():
 
 
 def test_step_3_cg_and_the_polishes_honour_a_passed_deadline():
+    import scipy.sparse as sp
+
     from formulations import Problem
     from selfsupport.methods.polish import polish, polish_joint
     from selfsupport.methods.staggered import _solve_blocks
-    import scipy.sparse as sp
 
     rng = np.random.default_rng(0)
     H = sp.diags(np.linspace(1.0, 1e2, 50)).tocsr()
@@ -118,11 +120,11 @@ def test_other_step_2_backends_stop_at_a_passed_deadline(backend):
 
     rng = np.random.default_rng(2)
     A = sp.random(40, 60, density=0.2, random_state=rng, format="csc") + sp.eye(40, 60)
-    fit = weightfit.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
+    fit = weightfit_backends.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
                                               upper=np.full(60, np.inf), w0=np.ones(60),
                                               deadline=time.perf_counter() - 1.0)
     assert fit.status == "time_limit"
-    later = weightfit.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
+    later = weightfit_backends.make_backend(backend).fit(A=A, b=rng.normal(size=40), lower=np.full(60, 1e-3),
                                                 upper=np.full(60, np.inf), w0=np.ones(60),
                                                 deadline=time.perf_counter() + 60.0)
     assert later.status in ("optimal", "max_iter")  # a deadline far off changes nothing
@@ -136,7 +138,7 @@ def test_ipopt_fit_stops_inside_its_iterations():
     rng = np.random.default_rng(3)
     A = sp.random(400, 600, density=0.02, random_state=rng, format="csc") + sp.eye(400, 600)
     b = rng.normal(size=400)
-    be = weightfit.make_backend("ipopt")
+    be = weightfit_backends.make_backend("ipopt")
     kw = dict(A=A, b=b, lower=np.full(600, 1e-3), upper=np.full(600, np.inf), w0=np.ones(600))
     assert be.fit(**kw).status == "optimal"  # builds the solver
     be._stop.deadline = None
@@ -162,8 +164,8 @@ def test_absurd_built_in_shapes_are_refused_up_front(capsys):
 
 
 def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
-    from selfsupport.methods import memory
     from selfsupport.core.errors import TooLarge
+    from selfsupport.methods import memory
 
     # pretend the machine has 100 MB free: the refusal must come from the estimate, not an allocation
     monkeypatch.setattr(memory, "available_bytes", lambda: 100e6)
@@ -299,9 +301,9 @@ def test_a_high_valence_vertex_solves_in_bounded_memory_and_time(tmp_path):
 def test_dense_rows_split_off_give_the_weights_of_the_full_gram_matrix(tmp_path, monkeypatch):
     import scipy.sparse as sp
 
+    from formulations.equilibrium import Topology, weight_matrix
     from selfsupport.core import linalg
     from selfsupport.io import read_mesh
-    from formulations.equilibrium import Topology, weight_matrix
 
     mesh = read_mesh(_fan(tmp_path, 400))
     free = np.zeros(mesh.n_vertices, bool)
@@ -337,10 +339,10 @@ def test_a_ring_count_beyond_the_mesh_ends_with_the_connected_region(tmp_path):
 def test_subdividing_goes_through_the_size_guard(monkeypatch):
     """An edit script's or the design page's ``subdivide`` is refused before it is built, as
     ``solve --subdivide`` is (levels=10 ended in MemoryError at 5.2 GB)."""
-    from selfsupport.methods import memory
+    from selfsupport.core.errors import TooLarge
     from selfsupport.design import subdivision
     from selfsupport.design.edits import Design, Subdivide
-    from selfsupport.core.errors import TooLarge
+    from selfsupport.methods import memory
 
     monkeypatch.setattr(memory, "available_bytes", lambda: 300e6)
     monkeypatch.setattr(subdivision, "catmull_clark", lambda *a, **k: pytest.fail("subdivided"))

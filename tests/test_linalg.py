@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from formulations.equilibrium import Topology, position_blocks
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.shapes import make_shape
-from formulations.equilibrium import Topology, position_blocks
 
 
 def _stress_matrix(n_vertices=400, seed=0):

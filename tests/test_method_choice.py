@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from selfsupport import api, cli
-from selfsupport.methods.memory import estimate_solve_bytes
-from selfsupport.methods import choice
-from selfsupport.methods.choice import LEVELS_ABOVE, choose_method
-from selfsupport.methods.multilevel import DIRECT_MAX
 from selfsupport.core.result import Network
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods import choice
+from selfsupport.methods.choice import LEVELS_ABOVE, choose_method
+from selfsupport.methods.memory import estimate_solve_bytes
+from selfsupport.methods.multilevel import DIRECT_MAX
 from studies.common import PAPER_TABLE1
 from studies.method_choice import paid, threshold_interval
 
@@ -86,7 +86,6 @@ def test_a_subdivided_design_goes_up_its_levels_and_a_start_decides_where_from()
 def test_a_mesh_without_boundary_keeps_one_level():
     """Coarsening needs the top view's outline: a closed mesh is solved on one level."""
     from formulations import Problem
-
     from selfsupport.core.loads import SelfWeight
     from selfsupport.core.mesh import PolyMesh
     from selfsupport.core.scene import Scene

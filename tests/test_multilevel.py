@@ -11,11 +11,11 @@ import pytest
 from selfsupport import api
 from selfsupport.core.evidence import distance_stats
 from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from selfsupport.methods.multilevel import RECLAIM, RECLAIM_STEPS, START_TOL, Multilevel, coarsen
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.warm import interpolate_offsets
-from selfsupport.core.scene import Scene
-from selfsupport.core.shapes import make_shape
 
 from .conftest import independent_check, time_limit_bound
 
@@ -173,8 +173,8 @@ def test_a_level_that_ends_farther_from_equilibrium_than_its_prolonged_start_ret
     import dataclasses
 
     import selfsupport.methods.prolong as prolong_module
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.result import SolveResult
+    from selfsupport.methods.staggered import StaggeredLinearization
 
     scene, _, _, _ = vault_runs
     monkeypatch.setattr(prolong_module, "PROLONG_TOL", 0.0)

@@ -13,12 +13,24 @@ import pytest
 from formulations import Problem
 from selfsupport.core.geometry import vertex_areas
 from selfsupport.core.loads import PointLoad
-from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.staggered import StaggeredLinearization
 from studies.common import read_csv_rows
-from studies.peers import (ORIGINAL_STOP, align_weights, cpu_to_reach, export_problem, find_original_driver, main,
-                           network_metrics, original_input, original_row, parse_original_result, problem_scene,
-                           read_original_trace, selfsupport_cpu_points)
+from studies.peers import (
+    ORIGINAL_STOP,
+    align_weights,
+    cpu_to_reach,
+    export_problem,
+    find_original_driver,
+    main,
+    network_metrics,
+    original_input,
+    original_row,
+    parse_original_result,
+    problem_scene,
+    read_original_trace,
+    selfsupport_cpu_points,
+)
 
 
 @pytest.fixture(scope="module")

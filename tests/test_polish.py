@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from selfsupport.core.loads import SelfWeight
-from selfsupport.methods.polish import load_colouring, load_jacobian
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.polish import load_colouring, load_jacobian
 
 
 @pytest.mark.parametrize("shape", ["pillar_vault", "concave_disk", "dome"])
@@ -56,10 +56,10 @@ def test_coloured_jacobian_equals_column_by_column_differences(shape):
 def test_polish_with_loads_independent_of_the_geometry_is_one_linear_solve():
     """Fixed point loads: J = 0, so the Newton step is the exact stress-Laplacian solve and
     the polish ends after it (a second round only confirms); the result is in equilibrium."""
-    from selfsupport.core.loads import PointLoad
-    from formulations.equilibrium import load_vector, weight_matrix
-    from selfsupport.methods.polish import polish
     from formulations import Problem
+    from formulations.equilibrium import load_vector, weight_matrix
+    from selfsupport.core.loads import PointLoad
+    from selfsupport.methods.polish import polish
     from selfsupport.methods.staggered import StaggeredLinearization
 
     scene = make_shape("pillar_vault", n_vertices=200)

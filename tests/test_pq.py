@@ -10,11 +10,11 @@ import pytest
 
 from formulations import Planar
 from selfsupport import api
-from selfsupport.remesh.streamlines import MERGE, remesh
 from selfsupport.core.evidence import distance_stats, distance_to_surface
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
+from selfsupport.remesh.streamlines import MERGE, remesh
 from tests.conftest import independent_check, requires_checker
 
 
@@ -338,9 +338,9 @@ def test_param_of_a_dome_is_seamless_its_lines_end_only_at_the_boundary(dome):
     middle (no T-junction)."""
     from shapely.geometry import Point
 
+    from selfsupport.core.evidence import triangulate
     from selfsupport.remesh.param import frame_parametrization, isolines
     from selfsupport.remesh.streamlines import _domain, _fill_doubled, principal_line_fields
-    from selfsupport.core.evidence import triangulate
 
     scene, net = dome
     xy = net.vertices[:, :2]

@@ -17,14 +17,14 @@ import pytest
 from formulations import FixedTopView, Hull, Problem
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import vertex_normals
-from selfsupport.io import write_network
 from selfsupport.core.loads import PointLoad, SelfWeight
+from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_network
 from selfsupport.methods.base import HULL_TOL, hull_signed_distance, term_values
 from selfsupport.methods.nlopt_methods import NloptSimultaneous
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.core.scene import Scene
-from selfsupport.core.shapes import make_shape
 
 from .conftest import CHECKER, document_errors, independent_check, kkt_residual
 

@@ -10,15 +10,15 @@ import pytest
 
 from formulations import FixedTopView
 from selfsupport.analysis.construction import lifting_weights
-from selfsupport.core.subdivision import subdivide_like, subdivide_scene, subdivision_parents
 from selfsupport.core.evidence import distance_stats
 from selfsupport.core.loads import SelfWeight
+from selfsupport.core.shapes import make_shape
+from selfsupport.core.subdivision import subdivide_like, subdivide_scene, subdivision_parents
 from selfsupport.methods.base import as_problem
 from selfsupport.methods.multilevel import coarse_problem, coarsen
 from selfsupport.methods.prolong import PROLONG_TOL, boundary_weights, cofactor, face_stress, prolong, stress_weights
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.warm import WarmStart, transfer
-from selfsupport.core.shapes import make_shape
 
 from .conftest import independent_check
 

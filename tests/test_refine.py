@@ -4,18 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
-from selfsupport.core.evidence import closest_points
-from selfsupport.io import write_network
-from selfsupport.core.loads import SelfWeight
-from formulations.equilibrium import load_vector, weight_matrix
-from selfsupport.methods.polish import load_colouring
-from selfsupport.methods import refine as refine_module
-from selfsupport.methods.refine import _linearize, _sqp_step
 from formulations import Fairness, Problem, ReferenceDistance
-from selfsupport.methods.staggered import StaggeredLinearization
+from formulations.equilibrium import load_vector, weight_matrix
+from selfsupport.core.evidence import closest_points
+from selfsupport.core.loads import SelfWeight
 from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_network
+from selfsupport.methods import refine as refine_module
+from selfsupport.methods.polish import load_colouring
+from selfsupport.methods.refine import _linearize, _sqp_step
+from selfsupport.methods.staggered import StaggeredLinearization
 from tests.conftest import independent_check, requires_checker
 
 

@@ -32,10 +32,10 @@ import pytest
 
 from selfsupport import api, cli
 from selfsupport.core.errors import InfeasibleDesign, InputError, MeshError, SelfSupportError, SupportError
-from selfsupport.io import network_to_dict, write_mesh
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import disk, make_shape
+from selfsupport.io import network_to_dict, write_mesh
 from selfsupport.methods.validate import scene_issues, top_view_winding, unbalanceable_vertices, validate_scene
 from tests.conftest import SHARED, document_errors, independent_check, network_errors
 
@@ -154,8 +154,8 @@ def _two_components_obj() -> str:
 
 def _network_json() -> str:
     """A network file as ``solve`` writes it (its numbers do not matter: it gets cut short)."""
-    from selfsupport.io.network_json import dumps_network
     from selfsupport.core.result import Network
+    from selfsupport.io.network_json import dumps_network
 
     d = small_dome()
     net = Network(mesh=d.mesh, weights=np.ones(d.mesh.n_edges), loads=-np.ones(d.mesh.n_vertices),
@@ -1037,7 +1037,8 @@ def test_coordinates_far_from_the_origin_are_reported():
 
 
 def test_issue_codes_are_documented():
-    from selfsupport.methods.validate import ISSUE_CODES, __doc__ as doc
+    from selfsupport.methods.validate import ISSUE_CODES
+    from selfsupport.methods.validate import __doc__ as doc
 
     for code in ISSUE_CODES:
         assert f"``{code}``" in doc, code

@@ -30,9 +30,9 @@ from formulations import Problem
 from selfsupport import api
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
+from selfsupport.core.shapes import make_shape
 from selfsupport.methods.sensitivity import parse_parameter, sensitivity
 from selfsupport.methods.simultaneous import Simultaneous
-from selfsupport.core.shapes import make_shape
 
 from .test_simultaneous import dome_scene
 

@@ -9,8 +9,17 @@ import pytest
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import face_areas, face_normals
-from selfsupport.core.shapes import (SHAPES, barrel_vault, concave_disk, cross_vault, disk, disk_points, dome,
-                                make_shape, pillar_vault)
+from selfsupport.core.shapes import (
+    SHAPES,
+    barrel_vault,
+    concave_disk,
+    cross_vault,
+    disk,
+    disk_points,
+    dome,
+    make_shape,
+    pillar_vault,
+)
 
 NAMES = sorted(SHAPES)
 

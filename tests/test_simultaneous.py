@@ -12,10 +12,10 @@ from selfsupport.core.errors import BackendUnavailable, InputError
 from selfsupport.core.geometry import face_areas
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.mesh import PolyMesh
-from selfsupport.methods.nlopt_methods import NloptSimultaneous
-from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.core.result import STATUSES
 from selfsupport.core.scene import Scene
+from selfsupport.methods.nlopt_methods import NloptSimultaneous
+from selfsupport.methods.simultaneous import Simultaneous
 from tests.conftest import network_errors
 
 LOADS = SelfWeight(density=2000.0, thickness=0.1)
@@ -152,8 +152,7 @@ def test_nlopt_refuses_large_problems():
 
 
 def test_scene_extras_are_added_once():
-    from selfsupport.core.loads import ExtraMass
-    from selfsupport.core.loads import with_scene_extras
+    from selfsupport.core.loads import ExtraMass, with_scene_extras
 
     base = dome_scene(5)
     mass = np.zeros(base.mesh.n_vertices)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from selfsupport import api
-from selfsupport.structure.destruction import destroy, sub_scene
 from selfsupport.core.errors import InputError
-from selfsupport.methods.base import HULL_TOL
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.base import HULL_TOL
+from selfsupport.structure.destruction import destroy, sub_scene
 from selfsupport.structure.stability import max_load, solve_in_hull, stability_series
 from tests.conftest import independent_check, requires_checker
 

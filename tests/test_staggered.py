@@ -7,9 +7,9 @@ import pytest
 from selfsupport.core.geometry import face_areas, vertex_areas
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.mesh import PolyMesh
-from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.staggered import StaggeredLinearization
 from tests.conftest import hidden_displacement, max_relative_error
 
 
@@ -343,10 +343,9 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     anchor-dominated) or the stress term dominates."""
     import scipy.sparse as sp
 
-    from formulations.equilibrium import Topology, position_blocks
-    from formulations.equilibrium import block_diagonal
-    from selfsupport.methods.staggered import _solve_blocks
+    from formulations.equilibrium import Topology, block_diagonal, position_blocks
     from selfsupport.core.geometry import vertex_normals
+    from selfsupport.methods.staggered import _solve_blocks
 
     scene = make_shape("pillar_vault", n_vertices=400)
     m = scene.mesh

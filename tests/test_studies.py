@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfsupport.io import write_mesh
 from selfsupport.core.shapes import make_shape
+from selfsupport.io import write_mesh
 from studies import common, scaling, table1
 from tests.conftest import CHECKER, SHARED, document_errors
 

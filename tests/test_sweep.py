@@ -16,7 +16,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
@@ -25,7 +24,6 @@ from selfsupport.sweep import parse_spec, read_export, run_key, scene_digest
 from selfsupport.sweep.runner import STORE_NAME, plan_runs
 from selfsupport.sweep.store import COLUMN_NAMES, ResultStore
 from tests.conftest import SHARED
-
 
 # Two shapes that the staggered method solves to round-off in well under a second each.
 SHAPES = ['"shape:dome?n_vertices=200"', '"shape:cross_vault?n_vertices=200"']
@@ -68,8 +66,8 @@ def test_expansion_counts_and_defaults(tmp_path):
 
 def test_objective_grid_is_read_by_name_and_reaches_the_solve(tmp_path, monkeypatch):
     """A sweep varies the objective like any parameter; names come from the term registry."""
-    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.core.shapes import make_shape
+    from selfsupport.methods.staggered import StaggeredLinearization
     from selfsupport.sweep.runner import execute_run
 
     text = sweep_text(grid='objective = ["default", "reference=1, planarity=10"]')
@@ -95,8 +93,8 @@ def test_objective_grid_is_read_by_name_and_reaches_the_solve(tmp_path, monkeypa
 
 
 def test_keys_depend_on_content_and_parameters_only(tmp_path):
-    from selfsupport.io import write_mesh
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io import write_mesh
 
     scene = make_shape("dome", n_vertices=150)
     a, b = tmp_path / "a" / "one.obj", tmp_path / "b" / "two.obj"

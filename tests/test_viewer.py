@@ -13,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-
 from selfsupport.core.errors import InputError  # noqa: E402
 from selfsupport.core.evidence import residuals  # noqa: E402
+from selfsupport.core.loads import SelfWeight  # noqa: E402
+from selfsupport.core.shapes import make_shape  # noqa: E402
 from selfsupport.figures.render import edge_forces  # noqa: E402
 from selfsupport.figures.viewer import LAYERS, build_view, view_html, write_view  # noqa: E402
-from selfsupport.core.loads import SelfWeight  # noqa: E402
 from selfsupport.methods.staggered import StaggeredLinearization  # noqa: E402
-from selfsupport.core.shapes import make_shape  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 

@@ -10,10 +10,10 @@ import scipy.sparse.linalg as spla
 import selfsupport.methods.staggered as staggered_module
 from formulations.equilibrium import Topology, load_vector, position_blocks
 from selfsupport.core.loads import SelfWeight
-from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.methods.weight_refit import refit_weights
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.staggered import StaggeredLinearization
+from selfsupport.methods.weight_refit import refit_weights
 
 from .conftest import independent_check
 

@@ -6,12 +6,13 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
-from selfsupport.core.loads import SelfWeight
 from formulations.equilibrium import Topology, load_vector, weight_matrix
 from formulations.scaling import Scaling, default_eps
-from selfsupport.methods.weightfit import ActiveSetFit, make_backend
 from selfsupport.core.errors import InputError
+from selfsupport.core.loads import SelfWeight
 from selfsupport.core.shapes import make_shape
+from selfsupport.methods.weightfit import ActiveSetFit
+from selfsupport.methods.weightfit_backends import make_backend
 
 
 def kkt_violation(A, b, w, lo, up, prox, w0):
@@ -232,8 +233,8 @@ def test_the_lsmr_correction_stops_once_it_stalls(monkeypatch):
     took 24,922 LSMR iterations (0.85 s) that way before, for the same 2.3e-13; a jittered
     2,000-vertex dome ran to the limit, 120,000 iterations (16 s), and gained 20%."""
     from selfsupport import api
-    from selfsupport.methods.fixed_fit import LSMR_CHUNK
     from selfsupport.core.shapes import make_shape
+    from selfsupport.methods.fixed_fit import LSMR_CHUNK
 
     res = api.solve(make_shape("pillar_vault", n_vertices=600))
     calls = _lsmr_counted(monkeypatch)

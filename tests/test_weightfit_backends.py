@@ -149,9 +149,9 @@ def failing_optimize(monkeypatch, make_exc, *, evaluations: int, times: int | No
 def dome_fit(n_vertices: int = 150, seed: int = 0):
     """Step 2's fit as the staggered method poses it (rows scaled by 1/|L_i|), on a generated dome
     with its free vertices moved off the reference."""
-    from selfsupport.core.loads import SelfWeight
-    from formulations.equilibrium import load_vector, weight_matrix
     from formulations import Problem
+    from formulations.equilibrium import load_vector, weight_matrix
+    from selfsupport.core.loads import SelfWeight
     from selfsupport.core.shapes import make_shape
 
     scene = make_shape("dome", n_vertices=n_vertices)
@@ -201,9 +201,10 @@ def test_staggered_solve_survives_nlopt_failures_in_step_2(monkeypatch, tmp_path
     """End to end through the CLI on a generated dome: the first three Step-2 fits raise nlopt's
     runtime_error after a few evaluations; the solve carries on to a network in equilibrium."""
     import nlopt
+
     from selfsupport import cli
-    from selfsupport.io import write_mesh
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io import write_mesh
     from tests.conftest import document_errors
 
     scene = make_shape("dome", n_vertices=150)

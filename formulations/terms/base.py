@@ -30,10 +30,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from formulations.equilibrium import to_dm
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
-
-from formulations.equilibrium import to_dm
 
 
 def vertex_indices(mask: np.ndarray | None, n: int) -> np.ndarray:

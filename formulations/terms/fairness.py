@@ -9,10 +9,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.core.mesh import PolyMesh
-
 from formulations.equilibrium import to_dm
 from formulations.terms.base import Term, TermContext, points_array, vertex_indices
+from selfsupport.core.mesh import PolyMesh
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,10 +10,11 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.core.errors import InputError
-
 from formulations.equilibrium import to_dm
 from formulations.terms.base import OnPoints, Term, TermContext, normal_rows, points_array
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import closest_points
+from selfsupport.core.geometry import vertex_normals
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,7 +51,6 @@ class HullPenalty(OnPoints, Term):
 
     @classmethod
     def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "HullPenalty":
-        from selfsupport.core.geometry import vertex_normals
 
         t = params.pop("thickness", ctx.thickness)
         if t is None:
@@ -65,7 +65,6 @@ class HullPenalty(OnPoints, Term):
         surface's interpolated normal (the direction is ill-defined near the surface)."""
         if self.reference is None:
             return self
-        from selfsupport.core.evidence import closest_points
 
         V = np.asarray(V, float)
         p, d, nrm = projection if projection is not None else closest_points(V, self.reference)

@@ -6,9 +6,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from selfsupport.core.mesh import PolyMesh
-
 from formulations.terms.base import PlaneDistance, TermContext
+from selfsupport.core.geometry import vertex_normals
+from selfsupport.core.mesh import PolyMesh
 
 
 @dataclass(frozen=True, eq=False)
@@ -21,7 +21,6 @@ class NormalDrift(PlaneDistance):
     @classmethod
     def from_mesh(cls, mesh: PolyMesh, vertices: np.ndarray | None = None, *, mask: np.ndarray | None = None,
                   weight: float = 1.0) -> "NormalDrift":
-        from selfsupport.core.geometry import vertex_normals
 
         v = mesh.vertices if vertices is None else np.asarray(vertices, float)
         return cls(points=v, normals=vertex_normals(mesh, v), mask=mask, weight=weight)

@@ -9,11 +9,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.core.geometry import diagonal_distance
-from selfsupport.core.mesh import PolyMesh
-
 from formulations.equilibrium import flat_selection, to_dm
 from formulations.terms.base import Term, TermContext
+from selfsupport.core.mesh import PolyMesh
 
 
 def _face_lengths(mesh: PolyMesh, faces: np.ndarray) -> np.ndarray:

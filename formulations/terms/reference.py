@@ -7,9 +7,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from selfsupport.core.mesh import PolyMesh
-
 from formulations.terms.base import PlaneDistance, TermContext
+from selfsupport.core.evidence import closest_points
+from selfsupport.core.geometry import vertex_normals
+from selfsupport.core.mesh import PolyMesh
 
 #: Default tangential hold τ: sliding along the reference costs this fraction of moving off it.
 TANGENTIAL = 0.05
@@ -31,14 +32,12 @@ class ReferenceDistance(PlaneDistance):
     @classmethod
     def from_reference(cls, vertices: np.ndarray, reference: PolyMesh, *, mask: np.ndarray | None = None,
                        weight: float = 1.0, tangential: float = 0.0) -> "ReferenceDistance":
-        from selfsupport.core.evidence import closest_points
 
         p, _, nrm = closest_points(np.asarray(vertices, float), reference)
         return cls(points=p, normals=nrm, mask=mask, weight=weight, tangential=tangential, reference=reference)
 
     @classmethod
     def build(cls, ctx: TermContext, weight: float = 1.0, **params: Any) -> "ReferenceDistance":
-        from selfsupport.core.geometry import vertex_normals
 
         params.setdefault("tangential", TANGENTIAL)
         if np.array_equal(ctx.vertices, ctx.reference.vertices):
@@ -50,7 +49,6 @@ class ReferenceDistance(PlaneDistance):
     def at(self, V: np.ndarray, projection: tuple | None = None) -> "ReferenceDistance":
         if self.reference is None:
             return self
-        from selfsupport.core.evidence import closest_points
 
         p, _, nrm = projection if projection is not None else closest_points(np.asarray(V, float), self.reference)
         return dataclasses.replace(self, points=p, normals=nrm)

@@ -12,8 +12,15 @@ True
 True
 """
 from selfsupport.analysis.airy import AiryResult, Period, airy
-from selfsupport.analysis.construction import (AREA_RULES, PHI_FUNCTIONS, Construction, construct, construct_detailed, lifting_weights,
-                           lower_hull)
+from selfsupport.analysis.construction import (
+                           AREA_RULES,
+                           PHI_FUNCTIONS,
+                           Construction,
+                           construct,
+                           construct_detailed,
+                           lifting_weights,
+                           lower_hull,
+)
 from selfsupport.analysis.curvature import Curvatures, curvatures, face_principal_directions, write_vector_fields
 from selfsupport.analysis.reciprocal import ReciprocalDiagram, reciprocal
 

@@ -64,6 +64,7 @@ Example
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -72,12 +73,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components, dijkstra
 
+from selfsupport.analysis.stars import Stars, accumulate_along, vertex_stars
 from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import force_sums, stress_sums
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
-from selfsupport.analysis.stars import Stars, accumulate_along, vertex_stars
 
 __all__ = ["AiryResult", "Period", "airy", "INTEGRATIONS", "face_orientation", "top_view_jumps", "face_planes_through"]
 
@@ -89,7 +90,6 @@ SUPPORT_EDGE_COST = 1e-3
 # ---------------------------------------------------------------------------------- results
 def freeze_arrays(obj: Any) -> None:
     """Make every numpy array field of a (frozen) dataclass read-only: results are immutable."""
-    import dataclasses
 
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)

@@ -43,16 +43,17 @@ from typing import Callable, Sequence, Union
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import ConvexHull, QhullError
 
+from formulations.equilibrium import Topology, stress_laplacian
+from selfsupport.analysis.airy import _J, face_orientation, face_planes_through, freeze_arrays
 from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import force_sums, stress_sums
-from selfsupport.core.geometry import vertex_areas
+from selfsupport.core.geometry import face_areas, vertex_areas
+from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.mesh import PolyMesh
-from formulations.equilibrium import Topology, stress_laplacian
 from selfsupport.core.result import Network
-from selfsupport.core.linalg import spd_factor
-from selfsupport.analysis.airy import _J, face_orientation, face_planes_through, freeze_arrays
 
 __all__ = ["PHI_FUNCTIONS", "AREA_RULES", "Construction", "construct", "construct_detailed", "lower_hull",
            "lifting_weights", "phi_function"]
@@ -78,7 +79,6 @@ def _voronoi_areas(mesh: PolyMesh) -> np.ndarray:
 
 def _barycentric_areas(mesh: PolyMesh) -> np.ndarray:
     v = np.c_[mesh.vertices[:, :2], np.zeros(mesh.n_vertices)]
-    from selfsupport.core.geometry import face_areas
 
     fa = face_areas(mesh, v)
     face_of, _, _ = mesh.corner_data
@@ -141,7 +141,6 @@ def lower_hull(points: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
         Points that are not vertices of the lower hull (φ above the hull there: not convex,
         or duplicate points).
     """
-    from scipy.spatial import ConvexHull, QhullError
 
     pts = np.c_[points, values]
     span = np.ptp(pts, axis=0)

@@ -39,15 +39,15 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.core.errors import InputError
-from selfsupport.io.atomic import atomic_write_text
-from selfsupport.io.axes import to_file
-from selfsupport.core.mesh import PolyMesh
 from formulations.equilibrium import Topology, stress_laplacian
-from selfsupport.core.result import Network
 from selfsupport.analysis.airy import AiryResult, airy, face_planes_through, freeze_arrays
 from selfsupport.analysis.construction import AREA_RULES
 from selfsupport.analysis.reciprocal import cover_cells
+from selfsupport.core.errors import InputError
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.axes import to_file
 
 #: A free vertex counts as flat (K_Φ = 0, eq. (6) reads 0 · ∞ = F) when 2 |A*_i| and |Δ_φ φ| are below
 #: this fraction of its cell scale (Σ_j |w_ij| |e'_ij|)²: e.g. a straight free boundary, two collinear edges.

@@ -66,15 +66,15 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
+from selfsupport.analysis.airy import face_orientation, face_planes_through, freeze_arrays
+from selfsupport.analysis.construction import lifting_weights
+from selfsupport.analysis.reciprocal import cell_areas, vertex_face_rings
+from selfsupport.analysis.stars import accumulate_along
 from selfsupport.core.errors import InputError, MeshError, NotKoenigs
 from selfsupport.core.evidence import stress_sums
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
-from selfsupport.analysis.airy import face_orientation, face_planes_through, freeze_arrays
-from selfsupport.analysis.construction import lifting_weights
-from selfsupport.analysis.reciprocal import cell_areas, vertex_face_rings
-from selfsupport.analysis.stars import accumulate_along
 
 __all__ = ["ChristoffelDual", "christoffel_dual", "quad_dual_scalars", "PolarMesh", "polar_mesh",
            "MinimalPartner", "minimal_partner", "KoebeFamily", "family", "koebe_mesh", "KOEBE_EXAMPLES",

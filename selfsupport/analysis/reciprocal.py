@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from selfsupport.core.mesh import PolyMesh
-from selfsupport.core.result import Network
 from selfsupport.analysis.airy import AiryResult, _cross2, airy, freeze_arrays
 from selfsupport.analysis.stars import vertex_stars
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network
 
 __all__ = ["ReciprocalDiagram", "reciprocal", "vertex_face_rings", "cell_areas", "mixed_cell_areas", "CoverCells",
            "cover_cells"]

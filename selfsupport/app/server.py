@@ -45,15 +45,22 @@ import hmac
 import json
 import os
 import secrets
+import socket
 import threading
 import time
+from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from selfsupport.app.session import EditLog, SolveWorker
 from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.design.edits import check_values, edit_from_dict
-from selfsupport.app.session import EditLog, SolveWorker
+from selfsupport.figures.render import FigureInput, render
+from selfsupport.io import write_network
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.safety import same_file, write_target
+from selfsupport.io.sss import write_scene_sss
 
 __all__ = ["DesignServer", "create_app", "bind_loopback", "serve", "new_token", "safe_path", "STATIC_FILES", "COOKIE"]
 
@@ -287,8 +294,6 @@ class DesignServer:
         or ``overwrite`` names it (relative to :attr:`root`); otherwise the reply is an error
         listing the files in ``exists`` and nothing is written. The files the session was opened
         from are never replaced."""
-        from selfsupport.io.atomic import atomic_write_text
-        from selfsupport.io.safety import same_file, write_target
 
         if what not in SAVE_KINDS:
             raise InputError(f"save: 'what' is one of {', '.join(SAVE_KINDS)}")
@@ -316,7 +321,6 @@ class DesignServer:
         if what == "script":
             atomic_write_text(path, self.log.script().dumps())
         elif what == "scene":
-            from selfsupport.io.sss import write_scene_sss
 
             write_scene_sss(path, self.log.design.scene)
         else:
@@ -324,11 +328,9 @@ class DesignServer:
             if res is None or self.worker.last_seq != self.log.seq:
                 raise InputError("save: the current design is not solved yet; wait for its frame")
             if what == "network":
-                from selfsupport.io import write_network
 
                 write_network(path, res, design={"edits": [e.to_dict() for e in self.log.edits]})
             else:
-                from selfsupport.figures.render import FigureInput, render
 
                 written = []
                 for kind, p in zip(_FIGURES, targets):
@@ -383,7 +385,6 @@ def create_app(server: DesignServer, token: str, *, port: int | None = None) -> 
     """The Starlette application of ``server`` guarded by ``token`` (see the module docstring).
     ``port``: the port the ``Host`` and ``Origin`` headers must name (``None``: any port on
     127.0.0.1 / localhost, for tests)."""
-    from contextlib import asynccontextmanager
 
     from starlette.applications import Starlette
     from starlette.responses import FileResponse, HTMLResponse, PlainTextResponse
@@ -509,7 +510,6 @@ def bind_loopback(port: int = 0) -> Any:
     """A listening TCP socket on 127.0.0.1:``port`` (0: a free port) — the loopback address
     only, never all interfaces. SO_REUSEADDR: a restart on the same port binds while the last
     run's connections linger in TIME_WAIT (on Linux it never lets two servers listen on a port)."""
-    import socket
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     try:

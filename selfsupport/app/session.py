@@ -46,10 +46,17 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.core.evidence import triangulate
+from selfsupport.design.edits import Design, Edit, Objective, check_values
+from selfsupport.design.script import EditScript
+from selfsupport.figures.render import airy_of, edge_forces, reciprocal_segments
 from selfsupport.io.network_json import finite_or_none as _finite
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.design.edits import Design, Edit, check_values
-from selfsupport.design.script import EditScript
+from selfsupport.methods.multilevel import solve_warm
+from selfsupport.methods.staggered import StaggeredLinearization
+from selfsupport.methods.validate import validate_scene
+from selfsupport.methods.warm import WarmStart
+from selfsupport.structure.stability import max_load
 
 __all__ = ["EditLog", "SolveWorker", "Superseded", "frame_payload", "analysis_payload", "SOLVE_DEFAULTS"]
 
@@ -223,7 +230,6 @@ class EditLog:
 
 
 def _objective_edit(weights: Mapping[str, float]) -> Edit:
-    from selfsupport.design.edits import Objective
 
     return Objective(weights=dict(weights))
 
@@ -267,7 +273,6 @@ class SolveWorker:
 
     def __init__(self, emit: Callable[[dict], None], *, options: Mapping[str, Any] | None = None,
                  analysis: bool = True, analysis_delay: float = 0.15, max_stale: float = 1.0) -> None:
-        from selfsupport.methods.staggered import StaggeredLinearization
 
         opts = {**SOLVE_DEFAULTS, **dict(options or {})}
         self.warm = bool(opts.pop("warm", True))
@@ -366,9 +371,6 @@ class SolveWorker:
                 self._after_cancel = cancelled
 
     def _solve(self, job: _Job) -> None:
-        from selfsupport.methods.multilevel import solve_warm
-        from selfsupport.methods.warm import WarmStart
-        from selfsupport.methods.validate import validate_scene
 
         t0 = job.t0 if job.t0 is not None else time.perf_counter()
         design = job.design
@@ -420,7 +422,6 @@ class SolveWorker:
                 self.emit({"type": "error", "seq": seq, "what": "analysis", "message": f"{type(e).__name__}: {e}"})
 
     def _run_probe(self, job: _Job) -> None:
-        from selfsupport.structure.stability import max_load
 
         a = dict(job.args or {})
         v = a.pop("vertex")
@@ -451,8 +452,6 @@ def _flat(a: np.ndarray, digits: int = 6) -> list:
 def frame_payload(result: Any, design: Design, *, seq: int) -> dict[str, Any]:
     """The page's frame of a solve: network positions, edges, forces [N], supports, loads [N],
     the reference (vertices and triangles), status, iterations and the max relative error."""
-    from selfsupport.core.evidence import triangulate
-    from selfsupport.figures.render import edge_forces
 
     net = result.network
     ref = design.scene.mesh
@@ -485,7 +484,6 @@ def analysis_payload(network: Any, design: Design, *, seq: int) -> dict[str, Any
     """Airy surface φ [N·m] per vertex and the reciprocal diagram's segments [N] of ``network``;
     when they cannot be computed, why. (The hull band, reference ± t/2 along the normals, is drawn
     by the page from the frame's reference.)"""
-    from selfsupport.figures.render import airy_of, reciprocal_segments
 
     out: dict[str, Any] = {"type": "analysis", "seq": seq}
     try:

@@ -1,8 +1,19 @@
 """The ``selfsupport`` command line: :mod:`selfsupport.cli.common` holds the parser, the shared
 helpers and ``solve``/``check``/``demo``; every other module of this package adds its commands
 (its ``COMMANDS`` dict)."""
-from selfsupport.cli.common import (COMMANDS, EXIT_CODES, IPOPT_HINT_MAX, STATUS_EXIT, STATUS_HINT, Command,
-                                  build_parser, discover_commands, load_scene, main, summary_rows)
+from selfsupport.cli.common import (
+                                  COMMANDS,
+                                  EXIT_CODES,
+                                  IPOPT_HINT_MAX,
+                                  STATUS_EXIT,
+                                  STATUS_HINT,
+                                  Command,
+                                  build_parser,
+                                  discover_commands,
+                                  load_scene,
+                                  main,
+                                  summary_rows,
+)
 
 __all__ = ["COMMANDS", "EXIT_CODES", "IPOPT_HINT_MAX", "STATUS_EXIT", "STATUS_HINT", "Command", "build_parser",
            "discover_commands", "load_scene", "main", "summary_rows"]

@@ -31,9 +31,24 @@ import time
 from pathlib import Path
 from typing import Any
 
-from selfsupport.cli.common import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
-                  positive_float, positive_int, print_table, tolerance, write_network_out,
-                  add_network_out_arguments, check_network_out)
+import numpy as np
+
+from selfsupport.cli.common import (
+    EXIT_CODES,
+    STATUS_EXIT,
+    Command,
+    _err,
+    add_network_out_arguments,
+    built_status,
+    check_network_out,
+    not_in_equilibrium_line,
+    number_in,
+    positive_float,
+    positive_int,
+    print_table,
+    tolerance,
+    write_network_out,
+)
 from selfsupport.core.errors import InputError
 
 __all__ = ["COMMANDS", "PHI_NAMES", "INTEGRATION_NAMES", "add_airy_arguments", "run_airy", "add_construct_arguments", "run_construct", "airy_document"]
@@ -134,7 +149,6 @@ def airy_document(network, res, rd, cv) -> dict[str, Any]:
 
 def run_airy(args: argparse.Namespace) -> int:
     """Analyse a network file and write ``AIRY.json`` (plus the optional meshes)."""
-    import numpy as np
 
     from selfsupport.analysis import airy, curvatures, reciprocal, write_vector_fields
     from selfsupport.api import DEFAULT_CHECK_TOL
@@ -142,7 +156,6 @@ def run_airy(args: argparse.Namespace) -> int:
     from selfsupport.io.atomic import atomic_write_text
     from selfsupport.io.axes import rotation
     from selfsupport.io.network_json import to_jsonable
-
     from selfsupport.io.safety import check_outputs
 
     rotation(args.up, what="--up")  # fail before the work, with the valid names
@@ -181,7 +194,6 @@ def run_airy(args: argparse.Namespace) -> int:
     if args.vector_fields:
         write_vector_fields(args.vector_fields, net, cv, up=args.up)
         written.append(args.vector_fields)
-    s = doc["summary"]
     rows = [("vertices / faces", f"{net.mesh.n_vertices} / {net.mesh.n_faces}"),
             ("in equilibrium (max rel. error)", f"{'yes' if balanced else 'NO'} ({net.max_relative_error():.2e}, "
                                                 f"tol {tol:g})"),

@@ -416,7 +416,7 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                         "mesh large enough) then solves the design and each step in turn, each from the one before")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
-                        "one of selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS, default active-set)")
+                        "one of selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS, default active-set)")
     add_load_arguments(p)
     p.add_argument("--wmax", type=positive_float, default=None, metavar="W", help="upper weight bound [N/m]")
     p.add_argument("--eps", "--w-min", type=number_in("(-inf, inf)"), default=None, metavar="E", dest="eps",
@@ -502,10 +502,9 @@ def _run_solve(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # --time-limit counts from here: reading the input is part of the run
     from selfsupport import api
     from selfsupport.core.progress import ProgressDisplay
-
     from selfsupport.io.safety import check_output_dir, check_outputs, interrupted_path
-    from selfsupport.methods.staggered import parse_option
     from selfsupport.methods.memory import check_scene_spec
+    from selfsupport.methods.staggered import parse_option
 
     out = Path(args.out)
     inputs = scene_inputs(args) + [("--load-cases file", args.load_cases), ("--bounds file", args.bounds)]
@@ -650,11 +649,10 @@ def _demo_args(p: argparse.ArgumentParser) -> None:
 
 def _run_demo(args: argparse.Namespace) -> int:
     from selfsupport import api
-    from selfsupport.io import read_network, write_network
     from selfsupport.core.progress import ProgressDisplay
     from selfsupport.core.shapes import make_shape
+    from selfsupport.io import read_network, write_network
     from selfsupport.io.atomic import atomic_write_text
-
     from selfsupport.io.safety import check_output_dir
 
     out = Path(args.out)

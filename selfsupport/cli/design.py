@@ -39,10 +39,10 @@ def add_design_arguments(p: argparse.ArgumentParser) -> None:
 def open_session(spec: str, *, up: str | None = None, supports: str | None = None, density: float | None = None,
                  thickness: float | None = None):
     """The :class:`~selfsupport.app.session.EditLog` of a ``SCENE`` argument (see the module docstring)."""
+    from selfsupport.app.session import SOLVE_DEFAULTS, EditLog
     from selfsupport.cli.common import load_scene
     from selfsupport.design.edits import Design
     from selfsupport.design.script import EditScript, _start_scene
-    from selfsupport.app.session import SOLVE_DEFAULTS, EditLog
 
     if spec.endswith(".toml") and not spec.startswith("shape:"):
         script = EditScript.read(spec)

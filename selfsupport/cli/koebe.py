@@ -23,9 +23,22 @@ import argparse
 import os
 import time
 
-from selfsupport.cli.common import (EXIT_CODES, STATUS_EXIT, Command, _err, built_status, not_in_equilibrium_line, number_in,
-                  positive_float, positive_int, print_table, tolerance, write_network_out,
-                  add_network_out_arguments, check_network_out)
+from selfsupport.cli.common import (
+    EXIT_CODES,
+    STATUS_EXIT,
+    Command,
+    _err,
+    add_network_out_arguments,
+    built_status,
+    check_network_out,
+    not_in_equilibrium_line,
+    number_in,
+    positive_float,
+    positive_int,
+    print_table,
+    tolerance,
+    write_network_out,
+)
 
 __all__ = ["COMMANDS", "EXAMPLE_NAMES", "KIND_NAMES", "MOBIUS_NAMES", "LOAD_RULE_NAMES", "add_koebe_arguments",
            "run_koebe"]

@@ -22,9 +22,22 @@ from __future__ import annotations
 
 import argparse
 
-from selfsupport.cli.common import (EXIT_CODES, STATUS_EXIT, Command, _err, _not_converged_line, add_load_arguments, number_in,
-                  positive_float, print_table, summary_rows, tolerance, write_network_out,
-                  add_network_out_arguments, check_network_out)
+from selfsupport.cli.common import (
+    EXIT_CODES,
+    STATUS_EXIT,
+    Command,
+    _err,
+    _not_converged_line,
+    add_load_arguments,
+    add_network_out_arguments,
+    check_network_out,
+    number_in,
+    positive_float,
+    print_table,
+    summary_rows,
+    tolerance,
+    write_network_out,
+)
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
@@ -56,9 +69,9 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
+    from selfsupport.io.network_json import read_network
     from selfsupport.remesh.planar import finish_summary, solve_planar
     from selfsupport.remesh.streamlines import remesh
-    from selfsupport.io.network_json import read_network
 
     check_network_out(args.out, args.format, [("network", args.network)])
     net = read_network(args.network)

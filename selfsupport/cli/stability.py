@@ -23,9 +23,16 @@ import json
 import sys
 from pathlib import Path
 
-
-from selfsupport.cli.common import (EXIT_CODES, Command, add_scene_arguments, load_scene, number_in, positive_float, positive_int,
-                  print_table)
+from selfsupport.cli.common import (
+    EXIT_CODES,
+    Command,
+    add_scene_arguments,
+    load_scene,
+    number_in,
+    positive_float,
+    positive_int,
+    print_table,
+)
 from selfsupport.core.errors import InputError
 
 __all__ = ["COMMANDS", "parse_vertices", "parse_loads"]
@@ -155,10 +162,10 @@ def _destroy_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_destroy(args: argparse.Namespace) -> int:
-    from selfsupport.structure.destruction import destroy
     from selfsupport.io import write_network
     from selfsupport.io.atomic import atomic_write_text
     from selfsupport.io.safety import check_output_dir
+    from selfsupport.structure.destruction import destroy
 
     out = Path(args.out)
     check_output_dir(out, files=["destruction.json", "stages.png"],

@@ -6,7 +6,7 @@ import atexit
 
 import numpy as np
 
-from selfsupport.core.geometry import bbox_diagonal, diagonal_distance
+from selfsupport.core.geometry import bbox_diagonal, diagonal_distance, vertex_normals
 from selfsupport.core.mesh import PolyMesh
 
 
@@ -280,7 +280,6 @@ class _ReferenceIndex:
     def __init__(self, mesh: PolyMesh) -> None:
         import igl
 
-        from selfsupport.core.geometry import vertex_normals
 
         V = mesh.vertices
         self.centre, self.scale = V.mean(axis=0), max(bbox_diagonal(V), 1e-300)

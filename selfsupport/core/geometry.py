@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import ConvexHull, QhullError
 
 from selfsupport.core.mesh import PolyMesh
 
@@ -50,7 +51,6 @@ def plan_box_diagonal(vertices: np.ndarray) -> float:
     >>> bool(abs(plan_box_diagonal(sq @ R.T) - 6 ** 0.5) < 1e-12), bbox_diagonal(sq @ R.T) > 2.6
     (True, True)
     """
-    from scipy.spatial import ConvexHull, QhullError
 
     v = np.asarray(vertices, float)
     try:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
+from scipy.sparse.linalg import splu
 
 try:  # cvxopt bundles CHOLMOD; without it the QDLDL path below still works
     from cvxopt import cholmod as _cholmod
@@ -98,7 +99,6 @@ class SPDFactor:
         self._M = M
 
     def _superlu(self, M: sp.csc_matrix) -> None:
-        from scipy.sparse.linalg import splu
 
         shift = 1e-12 * max(float(np.abs(M.diagonal()).max()), 1e-300)
         self._f = splu(M + shift * sp.identity(M.shape[0], format="csc"))

@@ -19,6 +19,8 @@ from functools import cached_property
 from typing import Iterable, Sequence
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from selfsupport.core.errors import MeshError
 
@@ -203,8 +205,6 @@ class PolyMesh:
     @cached_property
     def connected_components(self) -> np.ndarray:
         """Component label per vertex (edge connectivity)."""
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
 
         e = self.edges
         n = self.n_vertices

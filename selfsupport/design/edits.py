@@ -47,15 +47,18 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 
+from formulations.terms import TERMS
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.options import check_range
+from selfsupport.core.scene import Scene
 from selfsupport.core.subdivision import subdivide_scene
+from selfsupport.design.laplacian import MODES, LaplacianEditor, ring_region
 from selfsupport.io.problem import problem as stated_problem
 from selfsupport.methods.memory import check_subdivision
-from selfsupport.core.mesh import PolyMesh
-from selfsupport.core.scene import Scene
-from selfsupport.design.laplacian import MODES, LaplacianEditor, ring_region
 
 __all__ = ["Design", "Select", "Edit", "EDITS", "Move", "Raise", "Lower", "Pillar", "Pin", "Unpin", "Delete",
            "Cut", "Material", "Objective", "Load", "Subdivide", "remove_faces", "cut_along", "edge_path", "edit_from_dict",
@@ -431,7 +434,6 @@ class Objective(Edit):
     op: ClassVar[str] = "objective"
 
     def apply(self, design: Design) -> Design:
-        from formulations.terms import TERMS
 
         cur = dict(design.objective) if design.objective is not None else {"reference": 1.0}
         for k, v in dict(self.weights or {}).items():
@@ -586,7 +588,6 @@ def _reindexed(design: Design, mesh: PolyMesh, origin: np.ndarray) -> Design:
 
 def edge_path(mesh: PolyMesh, waypoints: list[int]) -> list[int]:
     """Vertices of the shortest edge paths (Euclidean lengths) through ``waypoints`` in order."""
-    from scipy.sparse.csgraph import dijkstra
 
     e = mesh.edges
     V = mesh.vertices
@@ -710,7 +711,6 @@ def _diagonal(mesh: PolyMesh) -> float:
 def _known(cls: type, d: Mapping[str, Any], what: str) -> dict[str, Any]:
     """``d`` as keywords of ``cls``: every key one of its fields, every value of the field's type
     (:func:`_check_value`) and inside its ``metadata["range"]`` (:func:`selfsupport.core.options.check_range`)."""
-    from selfsupport.core.options import check_range
 
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(d) - set(fields)

@@ -42,6 +42,9 @@ from typing import Any, Callable, Mapping
 from selfsupport.core.errors import InputError
 from selfsupport.design.edits import Design, Edit, _check_value, edit_from_dict
 from selfsupport.io.scenes import load_scene
+from selfsupport.methods.multilevel import solve_warm
+from selfsupport.methods.staggered import StaggeredLinearization
+from selfsupport.methods.warm import WarmStart
 
 __all__ = ["EditScript", "Stage", "replay", "dumps_toml"]
 
@@ -163,9 +166,6 @@ def replay(script: EditScript, scene: Any = None, *, on_stage: Callable[[Stage],
     warm
         Override the script's ``[solve] warm``.
     """
-    from selfsupport.methods.multilevel import solve_warm
-    from selfsupport.methods.staggered import StaggeredLinearization
-    from selfsupport.methods.warm import WarmStart
 
     opts = dict(script.solve)
     use_warm = bool(opts.pop("warm", True)) if warm is None else bool(warm)

@@ -2,6 +2,7 @@
 and a strip of destruction stages. Built on :mod:`selfsupport.figures.render`."""
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from selfsupport.core.result import Network
 from selfsupport.figures.render import FORCE_CMAP, FigureInput, _figure, _norm, edge_forces, signed_distances
+from selfsupport.io.atomic import atomic_write_bytes
 
 __all__ = ["hull_figure", "stage_strip"]
 
@@ -39,7 +41,6 @@ def hull_figure(network: Network, path: str | Path, *, thickness: float, referen
     hull band ±t/2 (shaded), vertices outside the band in red."""
     from matplotlib.cm import ScalarMappable
 
-    from selfsupport.io.atomic import atomic_write_bytes
 
     ref = reference if reference is not None else network.reference
     inp = FigureInput(network=network, reference=ref, thickness=thickness, size=(12.0, 5.0), dpi=110)
@@ -71,7 +72,6 @@ def hull_figure(network: Network, path: str | Path, *, thickness: float, referen
     ax2.legend(fontsize=8, loc="best")
     fig.suptitle(title or "network over the masonry hull", fontsize=10)
     path = Path(path)
-    import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=inp.dpi, facecolor="white")
@@ -82,9 +82,7 @@ def hull_figure(network: Network, path: str | Path, *, thickness: float, referen
 def stage_strip(stages: Sequence[Any], path: str | Path, *, thickness: float) -> Path:
     """One top-view panel per destruction stage: the remaining network coloured by force (red
     vertices: outside the hull), with the stage's status."""
-    import io
 
-    from selfsupport.io.atomic import atomic_write_bytes
 
     k = max(len(stages), 1)
     inp = FigureInput(network=next(s.result.network for s in stages if s.result is not None),

@@ -28,8 +28,10 @@ Example
 """
 from __future__ import annotations
 
+import importlib
 import io
 import math
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -40,6 +42,9 @@ from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import closest_points, triangulate
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
+from selfsupport.core.scene import Scene
+from selfsupport.io.atomic import atomic_write_bytes
+from selfsupport.methods.base import hull_excess
 
 __all__ = ["FigureInput", "FIGURES", "HISTORY_SERIES", "Unit", "make_figure", "render", "render_png_bytes",
            "edge_forces", "signed_distances",
@@ -171,7 +176,6 @@ def _set_title(fig, text: str, *, fontsize: float = 10.0):
     matplotlib.text.Text
         The title artist.
     """
-    import textwrap
 
     renderer = fig.canvas.get_renderer()
     pad = _TITLE_PAD_PT * fig.dpi / 72.0
@@ -404,8 +408,6 @@ def figure_deviation(inp: FigureInput):
     _reference_surface(ax, ref, alpha=0.1)
     cmap = colormaps[DEVIATION_CMAP]
     if inp.thickness is not None:
-        from selfsupport.methods.base import hull_excess
-        from selfsupport.core.scene import Scene
 
         half = 0.5 * inp.thickness
         cmap = cmap.with_extremes(over=ABOVE_HULL, under=BELOW_HULL)
@@ -439,7 +441,6 @@ def figure_deviation(inp: FigureInput):
 # ---------------------------------------------------------------------------------- analysis
 def _analysis(name: str):
     """``selfsupport.analysis.<name>``, imported lazily (figures of forces do not need it)."""
-    import importlib
 
     try:
         return importlib.import_module(f"selfsupport.analysis.{name}")
@@ -728,7 +729,6 @@ def render_png_bytes(kind: str, inp: FigureInput) -> bytes:
 
 def render(kind: str, inp: FigureInput, path: str | Path) -> Path:
     """Render ``kind`` to the PNG file ``path`` (written atomically) and return the path."""
-    from selfsupport.io.atomic import atomic_write_bytes
 
     path = Path(path)
     if path.suffix.lower() != ".png":

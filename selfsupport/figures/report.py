@@ -21,6 +21,9 @@ import numpy as np
 
 from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.core.result import Network, SolveResult
+from selfsupport.figures.render import FIGURES, FigureInput, airy_of, directions_of, render_png_bytes
+from selfsupport.figures.viewer import write_view
+from selfsupport.io.atomic import atomic_write_bytes
 
 __all__ = ["REPORT_KINDS", "ReportFiles", "write_report", "stored_thickness", "network_title"]
 
@@ -97,9 +100,6 @@ def write_report(result: SolveResult | Network, directory: str | Path, *, name: 
     -------
     ReportFiles
     """
-    from selfsupport.io.atomic import atomic_write_bytes
-    from selfsupport.figures.render import FIGURES, FigureInput, airy_of, directions_of, render_png_bytes
-    from selfsupport.figures.viewer import write_view
 
     unknown = [k for k in kinds if k not in FIGURES]
     if unknown:

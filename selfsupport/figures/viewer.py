@@ -26,7 +26,9 @@ Example
 """
 from __future__ import annotations
 
+import html
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,6 +41,7 @@ from selfsupport.core.geometry import bbox_diagonal
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
 from selfsupport.figures.render import Unit, airy_of, edge_forces, reciprocal_segments
+from selfsupport.io.atomic import atomic_write_text
 
 __all__ = ["LAYERS", "PRESETS", "ViewInfo", "build_view", "view_html", "write_view"]
 
@@ -325,8 +328,6 @@ def _airy_layers(fig, add, net: Network, airy: Any) -> None:
 def view_html(fig, title: str | None = None) -> str:
     """The complete HTML page of a view, plotly.js inlined (works offline), with a ``<title>``
     (``title``, else the figure's own title without its subtitle)."""
-    import html
-    import re
 
     page = fig.to_html(include_plotlyjs=True, full_html=True, include_mathjax=False, div_id=_DIV_ID,
                        config={"displaylogo": False, "responsive": True, "scrollZoom": True})
@@ -340,7 +341,6 @@ def view_html(fig, title: str | None = None) -> str:
 def write_view(path: str | Path, network: Network, *, reference: PolyMesh | None = None,
                title: str | None = None, airy: Any = None, with_analysis: bool = True) -> ViewInfo:
     """Write the interactive view of ``network`` to ``path`` (HTML, atomically); see :func:`build_view`."""
-    from selfsupport.io.atomic import atomic_write_text
 
     path = Path(path)
     if path.suffix.lower() not in (".html", ".htm"):

@@ -27,11 +27,17 @@ import numpy as np
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
-from selfsupport.core.scene import Scene
 from selfsupport.core.result import Network
-from selfsupport.io.compas_mesh import write_compas
+from selfsupport.core.scene import Scene
 from selfsupport.io.meshfiles import MESH_READERS, MESH_WRITERS, LoadedMesh
-from selfsupport.io.network_files import read_ply_network, read_with_side_files, side_files, write_ply_network, write_with_side_files
+from selfsupport.io.network_files import (
+    read_ply_network,
+    read_with_side_files,
+    side_files,
+    write_compas,
+    write_ply_network,
+    write_with_side_files,
+)
 from selfsupport.io.network_json import network_to_dict, read_json_scene, write_network
 from selfsupport.io.network_json import read_network as read_json_network
 from selfsupport.io.sss import read_sss, read_sss_network, write_network_sss, write_scene_sss

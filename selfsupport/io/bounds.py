@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from formulations.problem import Bounds
-
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.io.atomic import atomic_write_text
 from selfsupport.io.meshfiles import Source, strip_comment
+from selfsupport.io.network_json import load_json
 
 __all__ = ["BOUNDS_SUFFIXES", "read_bounds", "write_bounds"]
 
@@ -157,7 +157,6 @@ def _vertex(src: Source, text: str, line: int) -> int:
 
 
 def _json_rows(src: Source):
-    from selfsupport.io.network_json import load_json
 
     d = load_json(src)
     edges = d.get("edges")

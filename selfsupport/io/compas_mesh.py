@@ -19,16 +19,12 @@ cases) goes into the mesh's ``attributes``, so the file reads back to the same n
 """
 from __future__ import annotations
 
-import json
 import uuid
-from pathlib import Path
 from typing import Any
 
-from selfsupport.core.result import Network, SolveResult
-from selfsupport.io.atomic import atomic_write_text
 from selfsupport.io.meshfiles import Source
 
-__all__ = ["COMPAS_MESH_DTYPE", "compas_mesh_data", "write_compas", "is_compas_mesh", "network_document"]
+__all__ = ["COMPAS_MESH_DTYPE", "compas_mesh_data", "is_compas_mesh", "network_document"]
 
 #: The ``dtype`` COMPAS 2.x writes for a mesh.
 COMPAS_MESH_DTYPE = "compas.datastructures/Mesh"
@@ -56,15 +52,6 @@ def compas_mesh_data(doc: dict[str, Any]) -> dict[str, Any]:
         "max_face": len(doc["faces"]) - 1,
     }
     return {"dtype": COMPAS_MESH_DTYPE, "data": data, "guid": str(uuid.uuid4())}
-
-
-def write_compas(path: str | Path, result_or_network: Network | SolveResult, **extra: Any) -> None:
-    """Write a network (or a solve result, with its status and evidence) as a COMPAS mesh JSON,
-    atomically; ``extra`` keys go into the mesh's attributes."""
-    from selfsupport.io.network_json import network_to_dict
-
-    doc = compas_mesh_data(network_to_dict(result_or_network, **extra))
-    atomic_write_text(path, json.dumps(doc, allow_nan=False) + "\n")
 
 
 def is_compas_mesh(d: Any) -> bool:

@@ -35,7 +35,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G, ExtraMass, LoadCase, PointLoad, SelfWeight
+from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, ExtraMass, G, LoadCase, PointLoad, SelfWeight
 
 
 def parse_vertex_value(text: str, what: str) -> tuple[int, float]:

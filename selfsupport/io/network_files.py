@@ -13,6 +13,7 @@ network and the COMPAS mesh JSON keep them).
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +21,9 @@ import numpy as np
 
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.compas_mesh import compas_mesh_data
 from selfsupport.io.meshfiles import MESH_READERS, MESH_WRITERS, Source, read_ply_elements, write_ply
-from selfsupport.io.network_json import edge_weights, network_from_arrays
+from selfsupport.io.network_json import edge_weights, network_from_arrays, network_to_dict
 
 __all__ = ["SIDE_SUFFIXES", "side_files", "write_with_side_files", "read_with_side_files", "write_ply_network",
            "read_ply_network"]
@@ -162,3 +164,10 @@ def read_ply_network(path: str | Path, up: str | None = None) -> Network:
     return network_from_arrays(src, loaded.mesh, e.astype(np.int64), columns["weight"].astype(float),
                                columns["load"].astype(float), sup.astype(bool), edges_key="element 'edge'",
                                weights_key="edge property 'weight'", loads_key="vertex property 'load'")
+
+
+def write_compas(path: str | Path, result_or_network: Network | SolveResult, **extra: Any) -> None:
+    """Write a network (or a solve result, with its status and evidence) as a COMPAS mesh JSON,
+    atomically; ``extra`` keys go into the mesh's attributes."""
+    doc = compas_mesh_data(network_to_dict(result_or_network, **extra))
+    atomic_write_text(path, json.dumps(doc, allow_nan=False) + "\n")

@@ -28,6 +28,7 @@ from selfsupport.core.errors import InputError, MeshError
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.compas_mesh import is_compas_mesh, network_document
 from selfsupport.io.meshfiles import LoadedMesh, Source
 
 __all__ = ["NETWORK_KEYS", "to_jsonable", "network_to_dict", "write_network", "read_network", "read_json_scene",
@@ -349,7 +350,6 @@ def load_json(src: Source) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise src.error(f"holds a JSON {type(d).__name__}, not an object", "a network file is a JSON object "
                         "with vertices, faces, edges, weights, loads, supports")
-    from selfsupport.io.compas_mesh import is_compas_mesh, network_document
 
     return network_document(src, d) if is_compas_mesh(d) else d  # a COMPAS mesh reads as the network it holds
 

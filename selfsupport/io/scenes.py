@@ -15,6 +15,7 @@ from selfsupport.core.result import Network
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
 from selfsupport.io import read_scene
+from selfsupport.io.supports import resolve_supports
 
 __all__ = ["as_scene", "design_of", "load_scene"]
 
@@ -22,7 +23,6 @@ __all__ = ["as_scene", "design_of", "load_scene"]
 def _supports_mask(spec: Any, mesh: PolyMesh, source: str) -> np.ndarray:
     """``spec`` as a boolean mask: ``"boundary"`` / a supports file / indices / a mask."""
     if isinstance(spec, (str, os.PathLike)):
-        from selfsupport.io.supports import resolve_supports
 
         return np.asarray(resolve_supports(spec, mesh, source=source), bool)
     a = np.asarray(spec)

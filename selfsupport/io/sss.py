@@ -36,6 +36,7 @@ from selfsupport.core.scene import Scene
 from selfsupport.io.atomic import atomic_write_text
 from selfsupport.io.axes import rotation
 from selfsupport.io.meshfiles import LoadedMesh, RawMesh, Source, faces_to_csr, finish_mesh
+from selfsupport.io.network_json import edge_weights, network_from_arrays
 
 __all__ = ["SSS_UP", "read_sss", "write_scene_sss", "write_network_sss", "read_sss_network"]
 
@@ -197,7 +198,6 @@ def write_network_sss(path: str | Path, result_or_network: Network | SolveResult
     vertex, where the original tool caches its 9.8·(ρ·A·t + extra) (it recomputes that on every
     solve). Status and evidence (``extra``) have no place in the format.
     """
-    from selfsupport.io.network_json import edge_weights
 
     net = getattr(result_or_network, "network", result_or_network)
     _write_sss(path, net.mesh, -np.asarray(net.loads, dtype=float), net.supports, net.handles, edge_weights(net))
@@ -235,7 +235,6 @@ def read_sss_network(path: str | Path, up: str | None = None) -> Network:
         :func:`read_sss`'s errors, and ``e`` records that are not exactly the faces' edges with
         a weight each (a scene never solved has none: solve it first).
     """
-    from selfsupport.io.network_json import network_from_arrays
 
     loaded = read_sss(path, up)
     ew = loaded.meta["sss_edge_weights"]

@@ -10,10 +10,13 @@ from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-from formulations import Problem, TermContext
+from formulations import Planar, Problem, TermContext
+from formulations.loadcases import LoadCases
 from formulations.scaling import Scaling
-
-from selfsupport.core.evidence import DEGENERATE_LOAD, degenerate
+from formulations.terms.planarity import coplanarity_rows
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import DEGENERATE_LOAD, closest_points, degenerate, face_nonplanarity
+from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 
@@ -38,7 +41,6 @@ def as_problem(problem: Problem | Scene, loads: Any = None, *, eps: Any = None, 
         extra = {k: v for k, v in (("loads", loads), ("eps", eps), ("w_max", w_max), ("objective", objective))
                  if v is not None}
         if extra or constraints:
-            from selfsupport.core.errors import InputError
 
             raise InputError(f"{sorted(extra) + (['constraints'] if constraints else [])} are part of the problem; "
                              "pass them to Problem.build instead")
@@ -49,9 +51,7 @@ def as_problem(problem: Problem | Scene, loads: Any = None, *, eps: Any = None, 
 def loads_or_options(options: Any, loads: Any = None) -> tuple[Any, Any]:
     """``(loads, options)`` of a short-form call ``solve(scene, LOADS)``: a second positional
     argument that is a load model, a set of them or a mapping name -> load model is the loads."""
-    from formulations.loadcases import LoadCases
 
-    from selfsupport.core.loads import LoadCase
 
     if isinstance(options, (LoadCase, LoadCases)) or (isinstance(options, Mapping) and options
                                                        and all(isinstance(v, LoadCase) for v in options.values())):
@@ -91,7 +91,6 @@ def hull_signed_distance(reference, vertices: np.ndarray) -> np.ndarray:
     ``|d| <= t/2``. (The solvers' hull term uses the tangent plane at the reference vertex
     instead, its linearization.)
     """
-    from selfsupport.core.evidence import closest_points
 
     V = np.asarray(vertices, float)
     C, dist, nrm = closest_points(V, reference)
@@ -135,10 +134,7 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     corners are not counted (their plane is the supports'; see
     :func:`~formulations.terms.planarity.coplanarity_rows`): ``exempt_faces`` says how many there
     are and ``max_nonplanarity_exempt`` how far from planar they are."""
-    from formulations import Planar
-    from formulations.terms.planarity import coplanarity_rows
 
-    from selfsupport.core.evidence import face_nonplanarity
 
     planar = problem.constraint(Planar)
     if planar is None:

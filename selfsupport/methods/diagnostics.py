@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from selfsupport.methods.base import hull_excess
+
 #: A converged network whose mean distance to the reference exceeds this fraction of the
 #: bounding-box diagonal is reported: equilibrium was reached by moving far from the design.
 FAR_FROM_REFERENCE = 0.1
@@ -56,6 +58,5 @@ def _hull(result: Any, scene: Any) -> dict | None:
     t = (result.parameters.get("loads") or {}).get("thickness")
     if not t:
         return None
-    from selfsupport.methods.base import hull_excess
 
     return hull_excess(scene, result.network, t)

@@ -9,11 +9,12 @@ from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import lsmr
 
 from formulations import Problem
 from formulations.equilibrium import load_vector, weight_matrix
-
-from selfsupport.methods.weightfit import make_backend
+from selfsupport.methods.staggered import StaggeredOptions
+from selfsupport.methods.weightfit_backends import make_backend
 
 #: :func:`fit_weights` starts with the staggered method's proximal weight
 #: (``StaggeredOptions.prox_w``, relative to the mean squared column norm of the scaled A) and
@@ -60,7 +61,6 @@ def fit_weights(problem: Problem, loads: np.ndarray | None = None, *, backend: s
     already fits is returned as it is; from a clipped one the fit can end worse than from ``eps``
     (a solved 400-vertex concave disk: 3.5e-6 against 7.3e-14), so callers compare.
     """
-    from selfsupport.methods.staggered import StaggeredOptions
 
     prob = problem.scaled(loads)
     top, sc, X, lower, upper = prob.top, prob.scaling, prob.X, prob.lower, prob.upper
@@ -115,7 +115,6 @@ def lsmr_correction(A: sp.spmatrix, b: np.ndarray, w: np.ndarray, lower: np.ndar
     surface stands is a question of compression, ε only keeps the fit away from degenerate
     zero weights. The corrected weights are kept only if they lower the max error.
     """
-    from scipy.sparse.linalg import lsmr
 
     A = sp.csc_matrix(A)
     fixed = (w <= lower) | (w >= upper)

@@ -77,12 +77,13 @@ import time
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from formulations import FixedTopView, Hull, Problem
 from formulations.problem import Bounds, ObjectiveTerm
-
 from selfsupport.core.errors import InputError
-from selfsupport.core.evidence import distance_stats, roundoff_message
+from selfsupport.core.evidence import distance_stats, roundoff_message, triangulate
 from selfsupport.core.geometry import mean_edge_length, turning_angles
 from selfsupport.core.loads import CombinedLoad, SelfWeight
 from selfsupport.core.mesh import PolyMesh
@@ -91,8 +92,8 @@ from selfsupport.core.scene import Scene
 from selfsupport.core.subdivision import subdivide_like, subdivision_parents
 from selfsupport.methods.base import as_problem, loads_or_options, term_values
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from selfsupport.methods.prolong import START_TOL, prolong
+from selfsupport.methods.staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from selfsupport.methods.warm import WarmStart, as_warm_start, interpolate_over_top_view
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
 from selfsupport.methods.weightfit import WeightFitBackend
@@ -223,10 +224,7 @@ def _coarsen_by_clusters(scene: Scene, n_target: int, h: float, boundary_ids: np
     diagonals a network solved on a Delaunay coarsening stalled at fit error 0.17 when prolonged,
     from this one it converged (16k pillar vault: 13 iterations, cold 26).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
 
-    from selfsupport.core.evidence import triangulate
 
     mesh = scene.mesh
     n = mesh.n_vertices
@@ -284,7 +282,6 @@ def _coarsen_by_clusters(scene: Scene, n_target: int, h: float, boundary_ids: np
 
 
 def _top_area(mesh: PolyMesh) -> float:
-    from selfsupport.core.evidence import triangulate
 
     xy = mesh.vertices[:, :2]
     t = triangulate(mesh)

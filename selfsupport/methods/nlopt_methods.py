@@ -27,9 +27,8 @@ import numpy as np
 from scipy.sparse.linalg import splu
 
 from formulations import Hull, Planar, Problem, ThrustNetworkProblem
-
-from selfsupport.core.errors import BackendUnavailable, InputError
 from formulations.equilibrium import position_blocks, weight_matrix
+from selfsupport.core.errors import BackendUnavailable, InputError
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.weightfit_backends import nlopt_failures
 

@@ -51,15 +51,14 @@ import scipy.sparse as sp
 
 from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
 from formulations.terms.planarity import coplanarity_rows
-from selfsupport.core.geometry import diagonal_distance
-
 from selfsupport.core.errors import InputError
-from selfsupport.core.geometry import mean_edge_length
+from selfsupport.core.geometry import diagonal_distance, mean_edge_length
 from selfsupport.core.result import SolveResult
 from selfsupport.methods.base import case_networks, planarity_report, term_values
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.polish import case_load_jacobians, polish_joint
 from selfsupport.methods.staggered import DEFAULT_OBJECTIVE
+from selfsupport.methods.warm import as_warm_start, transfer
 
 __all__ = ["planar_homotopy", "BAND_END"]
 
@@ -121,7 +120,6 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first;
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
     """
-    from selfsupport.methods.warm import as_warm_start, transfer
 
     t0 = time.perf_counter()
     planar = problem.constraint(Planar)

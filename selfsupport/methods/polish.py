@@ -28,15 +28,16 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.optimize import NoConvergence, newton_krylov
+from scipy.sparse.linalg import LinearOperator, cg, splu
 
+from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
+from formulations.nlp import ThrustNetworkProblem
+from formulations.scaling import Scaling
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import LoadCase
 from selfsupport.methods.anderson import anderson
 from selfsupport.methods.deadline import DeadlineReached, out_of_time
-from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
-from formulations.nlp import ThrustNetworkProblem
-from formulations.scaling import Scaling
-
 
 #: Anderson's rounds tried before Newton (each one load evaluation and one solve with the stress
 #: Laplacian's factor). From a start near equilibrium they converge where Newton first spends a
@@ -116,7 +117,6 @@ def _newton(K: sp.csc_matrix, zs: np.ndarray, loads_at: Callable, chol, z: np.nd
     convergence test (``f ≤ ftol``). J is refreshed when the chord contracts slowly or a step
     fails; a step that fails with a fresh J ends the method, and so does ``deadline`` (checked before each step with the duration of the
     last). Returns z, steps, converged."""
-    from scipy.sparse.linalg import splu
 
     def state(zc: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         Lc = loads_at(zc)
@@ -237,7 +237,6 @@ def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: f
     """scipy's Newton–Krylov on ``z − G(z)``; returns whichever of its result and ``z_best``
     has the smaller fixed-point residual, and the number of evaluations of G it made
     (``z_best`` when ``deadline`` passes during the run)."""
-    from scipy.optimize import NoConvergence, newton_krylov
 
     count = [0]
 
@@ -373,7 +372,6 @@ def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct:
         y = fac.solve(b)
         y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
         return J.T @ y
-    from scipy.sparse.linalg import LinearOperator, cg
 
     bounds = np.r_[0, np.cumsum(groups)]
     factors = []

@@ -82,16 +82,16 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from formulations import Problem
-
 from selfsupport.analysis.airy import _J, face_orientation
 from selfsupport.analysis.construction import restore_horizontal_equilibrium
-from selfsupport.core.subdivision import Subdivision
 from selfsupport.core.evidence import relative_errors
 from selfsupport.core.geometry import edge_vectors
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
+from selfsupport.core.subdivision import Subdivision
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.polish import polish
 from selfsupport.methods.warm import WarmStart, interpolate_over_top_view, transfer
@@ -219,7 +219,6 @@ def boundary_weights(coarse: PolyMesh, coarse_xy: np.ndarray, coarse_weights: np
     >>> bool(np.allclose(boundary_weights(m, xy, w, m, xy)[b], w[b]))  # the same mesh: the same weights
     True
     """
-    from scipy.spatial import cKDTree
 
     def mids(mesh: PolyMesh, xy: np.ndarray) -> np.ndarray:
         return 0.5 * (xy[mesh.edges[:, 0]] + xy[mesh.edges[:, 1]])

@@ -42,11 +42,11 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, cg
 
 from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from formulations.scaling import Scaling
 from formulations.terms import Term
-
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import LoadCase
 from selfsupport.methods.polish import load_colouring, load_jacobian_xyz, polish
@@ -145,7 +145,7 @@ def _sqp_step(lin: tuple, w: np.ndarray, lower: np.ndarray, upper: np.ndarray, r
     if Winv is not None:
         CWC = Cx @ Winv @ Cx.T  # the positions' part of the Schur complement (the same for both attempts)
         rhs = r - Cx @ (Winv @ g)
-    factor = None
+    factor = M = lam = release = None  # (the second attempt's: set by the first)
     for attempt in range(2):  # (a second release is left to the next step)
         Cw = A[:, free_w]
         Rinv = sp.diags(w[free_w] ** 2 / rho)
@@ -183,7 +183,6 @@ def _released_solve(factor, M: sp.spmatrix, B: sp.spmatrix, d: np.ndarray, rhs: 
     ``M`` (or 1e-12 of ``rhs``) in :data:`RELEASE_CG_MAX` iterations. ``B diag(d) Bᵀ`` is PSD
     of rank ≤ B's columns, so CG on the preconditioned system ends in that many + 1 steps
     (exact arithmetic)."""
-    from scipy.sparse.linalg import LinearOperator, cg
 
     n = M.shape[0]
     op = LinearOperator((n, n), matvec=lambda x: M @ x + B @ (d * (B.T @ x)), dtype=float)

@@ -68,12 +68,13 @@ from scipy.sparse.linalg import LinearOperator, onenormest, splu
 from formulations import FixedTopView, Hull, ObjectiveTerm, Problem
 from formulations.nlp import ThrustNetworkProblem
 from formulations.scaling import Scaling
-
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import CombinedLoad, LoadCase, PointLoad, SelfWeight
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io.loadcases import LoadSpec
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, HULL_ACTIVE_REL, load_colouring
+from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE, Simultaneous, SimultaneousRun
 
 #: Relative stationarity residual (with least-squares multipliers on the active set) above which
 #: the point is not a KKT point of the NLP and no sensitivity is given (a staggered result: O(1)).
@@ -290,7 +291,6 @@ class ObjectiveWeight(Parameter):
         return self.term
 
     def value(self, problem: Problem) -> float:
-        from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE
 
         spec = problem.objective if problem.objective is not None else (ObjectiveTerm(DEFAULT_OBJECTIVE),)
         hits = [o for o in spec if isinstance(o, ObjectiveTerm) and o.name == self.term]
@@ -379,7 +379,6 @@ def problem_of(result: SolveResult) -> Problem:
     """The :class:`Problem` of a result written by :func:`selfsupport.api.solve` (its
     ``parameters``: load model, bounds, objective, constraints), checked against the result: the
     rebuilt load model must give the stored loads of every case at the result's geometry."""
-    from selfsupport.io.loadcases import LoadSpec
 
     params = result.parameters
     desc, model = params.get("problem"), params.get("load_model")
@@ -431,7 +430,6 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
         The result is not a converged simultaneous optimum (not a KKT point), the parameter is
         not part of the problem, or the KKT matrix is singular at that active set.
     """
-    from selfsupport.methods.simultaneous import Simultaneous, SimultaneousRun
 
     answer = None
     if isinstance(result_or_run, SimultaneousRun):

@@ -55,22 +55,29 @@ from typing import Any, Callable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from formulations import (TERMS, PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem,
-                          WeightBounds)
+from formulations import TERMS, PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.scaling import Scaling
 from formulations.terms import HullPenalty, PlanarFaces, Sum
-
 from selfsupport.core.errors import InputError
 from selfsupport.core.result import Network, SolveResult
-from selfsupport.methods.validate import require_top_view_balance, validate_problem
 from selfsupport.core.scene import Scene
 from selfsupport.methods.anderson import Anderson
-from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
-                   load_cases_note, planarity_report, short_of_tol, term_values)
+from selfsupport.methods.base import (
+    HULL_TOL,
+    as_problem,
+    case_networks,
+    cases_in_equilibrium,
+    cases_max_error,
+    load_cases_note,
+    planarity_report,
+    short_of_tol,
+    term_values,
+)
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.polish import HULL_ACTIVE_REL, JOINT_POLISH_TOL, case_load_jacobians, polish_joint
-from selfsupport.methods.polish import polish as _polish
 from selfsupport.methods.polish import max_rel_error as _max_rel_error
+from selfsupport.methods.polish import polish as _polish
+from selfsupport.methods.validate import require_top_view_balance, validate_problem
 
 #: Relative (max-norm) change of the loads between rounds below which they count as
 #: consistent with the geometry.

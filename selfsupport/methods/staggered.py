@@ -100,29 +100,47 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from formulations import LoadCases, Problem, TermContext, ThrustNetworkProblem, WeightBounds
+from formulations import LoadCases, Planar, Problem, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
 from formulations.scaling import Scaling
-from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
-
+from formulations.terms import TERMS, HullPenalty, PlanarFaces, PlaneDistance, Sum, Term
 from selfsupport.core.errors import InfeasibleDesign, InputError
-from selfsupport.core.evidence import (FLOOR_CAP, FLOOR_MARGIN, closest_points, fit_floor_tolerance, roundoff_floors,
-                        roundoff_message)
+from selfsupport.core.evidence import (
+    FLOOR_CAP,
+    FLOOR_MARGIN,
+    closest_points,
+    fit_floor_tolerance,
+    roundoff_floors,
+    roundoff_message,
+)
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.options import check_options, check_range
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
-from selfsupport.methods.validate import require_top_view_balance, validate_problem
-from selfsupport.methods.base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, cases_proportional,
-                   hull_report, load_cases_note, loads_or_options, planarity_report, short_of_tol, term_values)
+from selfsupport.methods.base import (
+    HULL_TOL,
+    as_problem,
+    case_networks,
+    cases_in_equilibrium,
+    cases_max_error,
+    cases_proportional,
+    hull_report,
+    load_cases_note,
+    loads_or_options,
+    planarity_report,
+    short_of_tol,
+    term_values,
+)
 from selfsupport.methods.deadline import DeadlineReached, out_of_time
-from selfsupport.methods.polish import polish as _polish
 from selfsupport.methods.polish import case_load_jacobians
+from selfsupport.methods.polish import polish as _polish
 from selfsupport.methods.polish import polish_joint as _polish_joint
 from selfsupport.methods.refine import refine as _refine
-from selfsupport.methods.weightfit import WeightFitBackend, make_backend
+from selfsupport.methods.validate import require_top_view_balance, validate_problem
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
+from selfsupport.methods.weightfit import WeightFitBackend
+from selfsupport.methods.weightfit_backends import make_backend
 
 #: The objective when the problem leaves it to the method: distance to the reference surface
 #: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`).
@@ -235,7 +253,6 @@ def _couples_first(problem: Problem) -> str | None:
     """Why the default Step 3 is the coupled one, or None: planar faces (one load case), or
     load cases that are not proportional (no hull, on meshes of at most 2·COUPLE_MAX/(1 + C)
     vertices); both with a free top view."""
-    from formulations import Planar
 
     C = len(problem.loads)
     if problem.fixed_top_view:
@@ -995,7 +1012,6 @@ HULL_PIN = 1e6
 def _hull_faces(hull: HullPenalty, X: np.ndarray, active: np.ndarray) -> Term:
     """Pins of the ``active`` vertices' normal coordinates to the hull face they are nearest (on
     the side ``X`` is on), as a plane-distance term of weight :data:`HULL_PIN`."""
-    from formulations.terms import PlaneDistance
 
     n = hull.normals[active]
     side = np.sign(np.einsum("ij,ij->i", n, X[active] - hull.points[active]))

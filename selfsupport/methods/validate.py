@@ -60,11 +60,14 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from selfsupport.core.errors import InputError, MeshError, SelfSupportError, SupportError
+from formulations.equilibrium import Topology, weight_matrix
+from selfsupport.core.errors import InfeasibleDesign, InputError, MeshError, SelfSupportError, SupportError
 from selfsupport.core.geometry import bbox_diagonal, face_areas
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
+from selfsupport.methods.weightfit_backends import make_backend
 
 __all__ = ["Issue", "CHECKS", "ISSUE_CODES", "validate_scene", "scene_issues", "top_view_areas", "top_view_winding",
            "unbalanceable_vertices", "require_rise", "validate_problem", "COINCIDENT", "FOLD_FRACTION", "COORD_LIMIT", "FLAT"]
@@ -291,7 +294,6 @@ def require_top_view_balance(scene: Scene, vertices: np.ndarray) -> None:
     """
     one_sided = unbalanceable_vertices(scene, vertices)[1]
     if one_sided.size:
-        from selfsupport.core.errors import InfeasibleDesign
 
         raise InfeasibleDesign(
             f"with the top view fixed, {one_sided.size} free vertices have all their neighbours on one side of them "
@@ -459,7 +461,6 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
 
 
 def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
-    from scipy.spatial import cKDTree
 
     # (an unbalanced tree builds 2x faster; the pairs within the radius are the same, sorted below)
     pairs = cKDTree(ctx.vertices(), balanced_tree=False, compact_nodes=False).query_pairs(COINCIDENT * (1.0 if ctx.V is not None else ctx.diag),
@@ -589,7 +590,6 @@ def require_rise(scene: Scene, w_max: float | None) -> None:
     diag = 1.0
     if (float(np.abs(d @ normal).max()) <= FLAT * diag and abs(float(normal[2])) > VERTICAL
             and _top_view_balanceable(scene)):
-        from selfsupport.core.errors import InfeasibleDesign
 
         raise InfeasibleDesign(
             f"the reference is flat (all vertices within {FLAT:g} of the bounding-box diagonal of one plane) and no "
@@ -612,8 +612,6 @@ def _top_view_balanceable(scene: Scene, rtol: float = 1e-8) -> bool:
     weights of the top view, which balance every interior vertex of a Delaunay triangulation.
     Failing those, one Step-2 fit of the horizontal rows (weights ≥ 1, zero right-hand side)
     up to :data:`BALANCE_FIT_LIMIT` weights; above it ``False`` (not proven balanceable)."""
-    from formulations.equilibrium import Topology, weight_matrix
-    from selfsupport.methods.weightfit import make_backend
 
     mesh = scene.mesh
     active = scene.active_edges

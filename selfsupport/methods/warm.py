@@ -34,7 +34,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from selfsupport.core.evidence import triangulate
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
@@ -80,7 +82,6 @@ def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, boo
     if same:
         X, w = R + offset_old, np.asarray(net.weights, float).copy()
     else:
-        from scipy.spatial import cKDTree
 
         X = R + interpolate_offsets(net.mesh.with_vertices(old_ref), offset_old, R[:, :2])
         Eo, En = net.mesh.edges, mesh.edges
@@ -118,9 +119,7 @@ def interpolate_over_top_view(mesh: PolyMesh, values: np.ndarray, points: np.nda
     a top view matplotlib cannot triangulate (degenerate triangles), take the value of the
     nearest vertex."""
     import matplotlib.tri as mtri
-    from scipy.spatial import cKDTree
 
-    from selfsupport.core.evidence import triangulate
 
     xy = mesh.vertices[:, :2] if xy is None else np.asarray(xy, float)
     values = np.asarray(values, float)

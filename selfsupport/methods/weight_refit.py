@@ -50,7 +50,6 @@ import scipy.sparse as sp
 
 from formulations import Problem, ScaledProblem
 from formulations.equilibrium import Topology, load_vector, weight_matrix
-
 from selfsupport.core.evidence import floor_tolerance
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.result import Network

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from selfsupport.core.errors import InputError
 from selfsupport.core.linalg import GramPattern, LowRankUpdatedFactor, SplitGram, spd_factor
 from selfsupport.methods.deadline import out_of_time
 
@@ -45,7 +46,6 @@ class WeightFitBackend:
     def __init__(self, **options: Any) -> None:
         unknown = set(options) - set(self.defaults)
         if unknown:
-            from selfsupport.core.errors import InputError
 
             raise InputError(f"unknown option(s) {sorted(unknown)} for weight-fit backend {self.name!r}; "
                              f"known: {sorted(self.defaults)}")
@@ -447,28 +447,3 @@ class CentredAllActiveSetFit(ActiveSetFit):
 
     name = "active-set-centred-all"
     defaults = {**ActiveSetFit.defaults, "centred_back": 5, "centred_loose": True}
-
-
-def _registry() -> dict[str, type[WeightFitBackend]]:
-    classes: list[type[WeightFitBackend]] = [ActiveSetFit, CentredActiveSetFit, CentredAllActiveSetFit]
-    try:  # the CasADi/nlopt adapters live beside this module
-        from selfsupport.methods.weightfit_backends import IpoptFit, NloptFit, OsqpFit
-
-        classes += [IpoptFit, OsqpFit, NloptFit]
-    except ImportError:  # pragma: no cover - only while that module is being written
-        pass
-    return {c.name: c for c in classes}
-
-
-WEIGHT_FIT_BACKENDS: dict[str, type[WeightFitBackend]] = _registry()
-
-
-def make_backend(name: str, **options: Any) -> WeightFitBackend:
-    """Instantiate a Step-2 backend by name."""
-    try:
-        cls = WEIGHT_FIT_BACKENDS[name]
-    except KeyError:
-        from selfsupport.core.errors import InputError
-
-        raise InputError(f"unknown weight-fit backend {name!r}; choose one of {sorted(WEIGHT_FIT_BACKENDS)}") from None
-    return cls(**options)

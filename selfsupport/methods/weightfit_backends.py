@@ -22,9 +22,18 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from selfsupport.core.errors import BackendUnavailable
+from selfsupport.core.errors import BackendUnavailable, InputError
+from selfsupport.methods import weightfit
 from selfsupport.methods.deadline import ipopt_stop_callback, out_of_time, remaining
-from selfsupport.methods.weightfit import WeightFit, WeightFitBackend, _objective, count_bounds
+from selfsupport.methods.weightfit import (
+    ActiveSetFit,
+    CentredActiveSetFit,
+    CentredAllActiveSetFit,
+    WeightFit,
+    WeightFitBackend,
+    _objective,
+    count_bounds,
+)
 
 
 def kkt_residual(*, A: sp.spmatrix, b: np.ndarray, w: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -246,7 +255,6 @@ class OsqpFit(WeightFitBackend):
         import osqp
 
         n = H.shape[0]
-        rows = C.shape[0]
         # OSQP has no variable bounds: add them as identity rows
         Aq = sp.vstack([C, sp.hstack([sp.identity(m), sp.csc_matrix((m, n - m))])], format="csc")
         l = np.r_[b, lower]
@@ -274,7 +282,6 @@ class NloptFit(WeightFitBackend):
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         if self.options["algorithm"] not in self.ALGORITHMS:
-            from selfsupport.core.errors import InputError
 
             raise InputError(f"nlopt algorithm {self.options['algorithm']!r} is not supported here; "
                              f"choose one of {list(self.ALGORITHMS)}")
@@ -344,7 +351,6 @@ def _register() -> None:
     """Make sure the registry in weightfit lists these backends whichever module is imported
     first (weightfit imports this module while it initialises; if this module is imported first
     that import sees a half-initialised module and the registry would miss them)."""
-    from selfsupport.methods import weightfit
 
     registry = getattr(weightfit, "WEIGHT_FIT_BACKENDS", None)
     if registry is not None:  # None: weightfit is importing us and will register us itself
@@ -353,3 +359,18 @@ def _register() -> None:
 
 
 _register()
+
+
+#: Step-2 backend name (``--backend``) -> class: the active-set fits of
+#: :mod:`selfsupport.methods.weightfit` and the solver adapters of this module.
+WEIGHT_FIT_BACKENDS: dict[str, type[WeightFitBackend]] = {
+    c.name: c for c in (ActiveSetFit, CentredActiveSetFit, CentredAllActiveSetFit, IpoptFit, OsqpFit, NloptFit)}
+
+
+def make_backend(name: str, **options: Any) -> WeightFitBackend:
+    """Instantiate a Step-2 backend by name."""
+    try:
+        cls = WEIGHT_FIT_BACKENDS[name]
+    except KeyError:
+        raise InputError(f"unknown weight-fit backend {name!r}; choose one of {sorted(WEIGHT_FIT_BACKENDS)}") from None
+    return cls(**options)

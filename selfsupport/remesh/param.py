@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.spatial import cKDTree
 
 from selfsupport.core.errors import InputError
 
@@ -454,7 +455,6 @@ def isolines(xy: np.ndarray, tris: np.ndarray, uv: np.ndarray, *, snap: float = 
     two lists: the lines that are mostly iso-``u``, and the rest. Pieces are joined where they
     meet across triangles (within ``snap`` × the mean edge length), across seams too, where an
     iso-``u`` line may go on as an iso-``v`` line."""
-    from scipy.spatial import cKDTree
 
     xy = np.asarray(xy, float)
     P = xy[tris]

@@ -35,6 +35,10 @@ import inspect
 import time
 from typing import Any
 
+from formulations import Planar
+from selfsupport import api
+from selfsupport.methods.planar_homotopy import planar_homotopy
+
 __all__ = ["solve_planar", "finish_summary", "FINISH_METHOD"]
 
 #: The method of the finish (its planarity rows are equations, not a penalty).
@@ -77,10 +81,7 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         iterations of all runs; ``parameters["planar_finish"]`` describes the finish (``None``
         when it did not run).
     """
-    from formulations import Planar
 
-    from selfsupport import api
-    from selfsupport.methods.planar_homotopy import planar_homotopy
 
     t0 = time.perf_counter()
     planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]

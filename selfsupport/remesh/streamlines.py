@@ -73,12 +73,14 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
+from selfsupport.analysis.curvature import curvatures
 from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import triangulate
 from selfsupport.core.geometry import turning_angles
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
 from selfsupport.core.scene import Scene
+from selfsupport.remesh.param import frame_parametrization, isolines
 
 #: Nodes closer than this fraction of the spacing are merged (slivers where lines meet the boundary).
 MERGE = 0.25
@@ -134,7 +136,6 @@ class Remesh:
 def principal_line_fields(network: Network) -> np.ndarray:
     """``(n, 2, 2)`` per vertex the two relative principal directions of the top view (``[:, :, k]``
     the k-th, unit; NaN where undefined: supports, Φ not strictly convex)."""
-    from selfsupport.analysis.curvature import curvatures
 
     d = curvatures(network).principal_directions
     return np.asarray(d, float)
@@ -499,7 +500,6 @@ def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     """Integer iso-lines of a global parametrization along the two fields (:mod:`.param`),
     each end extended a little past the boundary (the arrangement clips it there; an end a
     round-off short of the boundary would be a dangle)."""
-    from selfsupport.remesh.param import frame_parametrization, isolines
 
     ang = np.stack([0.5 * np.arctan2(d[:, 1], d[:, 0]) for d in st.doubled], axis=1)  # (n, 2)
     D = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (n, 2, 2), columns the two directions

@@ -24,10 +24,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from selfsupport.core.errors import InputError
-from selfsupport.io.problem import problem as stated_problem
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io.problem import problem as stated_problem
+from selfsupport.structure.stability import solve_in_hull
 
 __all__ = ["Stage", "sub_scene", "ring_faces", "clean_faces", "destroy"]
 
@@ -148,7 +149,6 @@ def destroy(scene: Scene, remove: Sequence[int] = (), *, thickness: float, densi
     all faces, or ``faces`` (original face ids: what a previous sequence left, so that removals
     can follow each other); the sequence ends with a stage that stands, an empty stage, or after
     ``max_stages``."""
-    from selfsupport.structure.stability import solve_in_hull
 
     n, nf = scene.mesh.n_vertices, scene.mesh.n_faces
     remove = sorted({int(v) for v in remove})

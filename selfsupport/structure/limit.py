@@ -53,12 +53,15 @@ import numpy as np
 
 from formulations import Problem
 from formulations.problem import Hull
-
 from selfsupport.core.errors import InputError
-from selfsupport.io.problem import problem as stated_problem
 from selfsupport.core.loads import G
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io.problem import problem as stated_problem
+from selfsupport.methods.base import case_networks, hull_excess, hull_signed_distance
+from selfsupport.methods.polish import polish_joint
+from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
+from selfsupport.structure.stability import spread_mass
 
 __all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "CERTIFY_TOL", "HULL_MARGIN"]
 
@@ -127,7 +130,6 @@ class _Program:
 
     def __init__(self, problem: Problem, start: np.ndarray, pattern: np.ndarray, mode: str,
                  slide_supports: bool = False) -> None:
-        from selfsupport.methods.simultaneous import Simultaneous
 
         self.problem, self.mode, self.slide_supports = problem, mode, slide_supports
         form, sc = Simultaneous.formulation(problem, start)
@@ -219,7 +221,6 @@ class _Program:
 def _ipopt(prog: _Program, x0: np.ndarray, p: np.ndarray, bounds: dict, warm: dict | None, *, tol: float,
            max_iter: int, remaining: float) -> dict:
     """One IPOPT run with the simultaneous method's settings."""
-    from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
 
     opts = dict(Simultaneous.defaults)
     if warm is not None:
@@ -285,7 +286,6 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
 
 def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
     """λ held, the network made exact to round-off for its loads, hull rows held on their faces."""
-    from selfsupport.methods.polish import polish_joint
 
     prog = run.prog
     form = prog.form
@@ -302,7 +302,6 @@ def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndar
 def _network(prog: _Program, Vs: np.ndarray, w: np.ndarray, lam: float, added: np.ndarray) -> Network:
     """The network in SI units with the loads it carries: the reference's (held) plus λ kg spread
     as ``added`` [N/kg]."""
-    from selfsupport.methods.base import case_networks
 
     net, _ = case_networks(prog.problem, prog.sc, Vs, [w])
     if prog.slide_supports:  # (case_networks puts the supports back where the design has them)
@@ -315,7 +314,6 @@ def _network(prog: _Program, Vs: np.ndarray, w: np.ndarray, lam: float, added: n
 def _evidence(scene: Scene, net: Network, thickness: float, supports_too: bool = False) -> tuple[bool, dict]:
     """The certificate's test, measured outside the solver: equilibrium, compression, inside t/2
     (every free vertex; with ``supports_too`` the supports as well, which then slid)."""
-    from selfsupport.methods.base import hull_excess, hull_signed_distance
 
     hull = hull_excess(scene, net, thickness, tol=1e-9)  # (1e-9 of t/2: round-off of the distance)
     err = float(net.max_relative_error())
@@ -339,7 +337,6 @@ def _binding(scene: Scene, hull: dict) -> tuple[tuple[int, float], ...]:
 # ------------------------------------------------------------------------------ entry points
 def _pattern(scene: Scene, at: Sequence[int] | None) -> tuple[np.ndarray, tuple[int, ...]]:
     """The added load per kg [N/kg] (downward, spread evenly over ``at``) and the loaded vertices."""
-    from selfsupport.structure.stability import spread_mass
 
     share = spread_mass(scene, at, 1.0)
     P = np.zeros(scene.mesh.n_vertices)
@@ -358,8 +355,8 @@ def _start(problem: Problem, start: Network | SolveResult | None, kg: float, add
     """Start positions and weights [SI, per mesh edge]: ``start``, else the staggered network
     (:func:`~selfsupport.structure.stability.solve_in_hull`: certified, or the closest one found)."""
     if start is None:
-        from selfsupport.structure.stability import solve_in_hull
         from selfsupport.core.loads import PointLoad
+        from selfsupport.structure.stability import solve_in_hull
 
         prob = problem if kg == 0 else dataclasses.replace(
             problem, loads=type(problem.loads)(tuple((n, c + PointLoad(kg * added)) for n, c in problem.loads.cases)))

@@ -30,12 +30,11 @@ import numpy as np
 
 from formulations import Problem
 from formulations.problem import Hull
-
 from selfsupport.core.errors import InputError
-from selfsupport.io.problem import problem as stated_problem
-from selfsupport.methods.base import HULL_TOL, hull_report
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.io.problem import problem as stated_problem
+from selfsupport.methods.base import HULL_TOL, hull_report
 
 __all__ = ["PENALTY_LADDER", "HULL_TOL", "solve_in_hull", "stands_line", "LoadStep", "stability_series",
            "max_load", "spread_mass", "MaxLoad"]

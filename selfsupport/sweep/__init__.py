@@ -18,6 +18,8 @@ Modules: :mod:`.spec` (definition), :mod:`.store` (SQLite store, keys, exports),
 :mod:`.runner` (dask execution), :mod:`.report` (table and plots). The CLI is
 ``selfsupport sweep SWEEP.toml --out DIR`` (:mod:`selfsupport.cli.sweep`).
 """
+from selfsupport.sweep.report import write_report
+from selfsupport.sweep.runner import run_sweep
 from selfsupport.sweep.spec import PARAMETERS, RunSpec, SceneRef, SweepSpec, load_spec, parse_spec
 from selfsupport.sweep.store import ResultStore, read_export, run_key, scene_digest
 
@@ -28,9 +30,7 @@ __all__ = ["PARAMETERS", "RunSpec", "SceneRef", "SweepSpec", "load_spec", "parse
 def __getattr__(name: str):
     # dask and matplotlib load only when a sweep actually runs or reports
     if name == "run_sweep":
-        from selfsupport.sweep.runner import run_sweep
         return run_sweep
     if name == "write_report":
-        from selfsupport.sweep.report import write_report
         return write_report
     raise AttributeError(name)

@@ -15,10 +15,13 @@ reports can be written from any thread or process.
 """
 from __future__ import annotations
 
+import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
+
+import numpy as np
 
 from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
 
@@ -147,13 +150,11 @@ def _plot_line(df, p, path: Path) -> None:
 
 
 def _plot_time_vs_size(df, p, path: Path) -> None:
-    from dataclasses import replace
     _plot_line(df, replace(p, x=p.x or "n_vertices", y=p.y or "solve_time", hue=p.hue or "method",
                            title=p.title or "solve time vs size"), path)
 
 
 def _plot_success_rate(df, p, path: Path) -> None:
-    import numpy as np
 
     x = p.x or "method"
     hue = p.hue
@@ -183,7 +184,6 @@ def _plot_success_rate(df, p, path: Path) -> None:
 
 
 def _plot_status(df, p, path: Path) -> None:
-    import numpy as np
 
     x = p.x or "method"
     d = df.assign(_x=_labels(df[x].rename(x)))
@@ -219,7 +219,6 @@ def _legend(axes, title: str | None = None) -> None:
 
 
 def _save(fig, path: Path) -> None:
-    import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import resource
 import socket
 import threading
 import time
@@ -33,9 +34,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from selfsupport.api import METHODS
 from selfsupport.core.errors import InputError, SelfSupportError
-from selfsupport.io.network_json import finite_or_none as _finite
+from selfsupport.core.loads import SelfWeight
+from selfsupport.core.result import STATUSES
 from selfsupport.core.scene import Scene
+from selfsupport.io.network_json import finite_or_none as _finite
 from selfsupport.sweep.spec import RunSpec, SweepSpec, split_options
 from selfsupport.sweep.store import COLUMN_NAMES, ResultStore, run_key, scene_digest
 
@@ -88,7 +92,6 @@ class _PeakRss:
                             return int(line.split()[1]) / 1024.0
             except OSError:
                 pass
-        import resource
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -120,8 +123,6 @@ def execute_run(scene: Scene, run: dict[str, Any]) -> dict[str, Any]:
         ``key``, ``method``, ``backend``, ``params`` (density, thickness, w_max, eps, tol,
         max_iter, objective), ``options``, ``time_budget``.
     """
-    from selfsupport.api import METHODS
-    from selfsupport.core.loads import SelfWeight
 
     t_task = time.perf_counter()
     started = time.time()
@@ -444,7 +445,6 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, scheduler: str | None = N
 
 
 def _method_statuses() -> set[str]:
-    from selfsupport.core.result import STATUSES
     return set(STATUSES)
 
 

@@ -53,8 +53,15 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 from urllib.parse import parse_qsl
 
+from formulations import parse_objective
+from selfsupport.api import METHODS
 from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import SHAPES, make_shape
+from selfsupport.io import read_scene
+from selfsupport.io.supports import SUPPORT_RULES
+from selfsupport.sweep.report import PLOTS
+from selfsupport.sweep.store import COLUMN_NAMES
 
 __all__ = ["SCENES_ENV", "PARAMETERS", "SceneRef", "MethodRef", "PlotSpec", "ReportSpec", "RunSpec",
            "SweepSpec", "load_spec", "parse_spec", "parse_scene_ref"]
@@ -99,7 +106,6 @@ def _objective(name: str, v: Any) -> str | None:
         raise InputError(f"parameter {name} must be a string such as \"reference=1 planarity=10\", got {v!r}")
     if v.strip().lower() in _NONE_WORDS | {"default"}:
         return None
-    from formulations import parse_objective
 
     terms = parse_objective(v.replace(",", " ").split())
     return " ".join(f"{t.name}={t.weight:g}" for t in terms)
@@ -158,7 +164,6 @@ class MethodRef:
 
 
 def parse_method_ref(text: Any, where: str) -> MethodRef:
-    from selfsupport.api import METHODS
 
     if not isinstance(text, str) or not text.strip():
         raise InputError(f"{where}: a method is a string like \"staggered\" or \"staggered:osqp\", got {text!r}")
@@ -209,12 +214,10 @@ class SceneRef:
 
 
 def _load_shape(ref: SceneRef) -> Scene:
-    from selfsupport.core.shapes import make_shape
     return make_shape(ref.shape, **dict(ref.shape_params))
 
 
 def _load_file(ref: SceneRef) -> Scene:
-    from selfsupport.io import read_scene
     return read_scene(ref.path, up=ref.up, supports=ref.supports, name=ref.label)
 
 
@@ -230,7 +233,6 @@ def parse_scene_ref(item: Any, scene_dir: Path, where: str) -> SceneRef:
     if isinstance(item, str) and item.startswith("shape:"):
         body = item[len("shape:"):]
         name, _, query = body.partition("?")
-        from selfsupport.core.shapes import SHAPES
         if name not in SHAPES:
             raise InputError(f"{where}: unknown shape {name!r} in {item!r}; known shapes: {', '.join(sorted(SHAPES))}")
         try:
@@ -250,7 +252,6 @@ def parse_scene_ref(item: Any, scene_dir: Path, where: str) -> SceneRef:
     path = path if path.is_absolute() else scene_dir / path
     supports = item.get("supports")
     if supports is not None:
-        from selfsupport.io.supports import SUPPORT_RULES
         if supports not in SUPPORT_RULES:
             sp = Path(supports).expanduser()
             supports = str(sp if sp.is_absolute() else scene_dir / sp)
@@ -284,8 +285,6 @@ class ReportSpec:
 
 
 def _parse_report(raw: Any, where: str) -> ReportSpec:
-    from selfsupport.sweep.report import PLOTS
-    from selfsupport.sweep.store import COLUMN_NAMES
 
     if raw is None:
         return ReportSpec()
@@ -437,7 +436,6 @@ def _param_table(raw: Any, section: str, where: str) -> tuple[tuple[str, tuple[A
 
 def _check_options(method: str, sample: dict[str, Any], where: str) -> None:
     """Build the method once with the options so that unknown names fail now, not in every run."""
-    from selfsupport.api import METHODS
 
     cls = METHODS[method].load()
     ctor, _ = split_options(cls, sample)

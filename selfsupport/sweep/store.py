@@ -18,6 +18,7 @@ Exports: :meth:`ResultStore.export_csv`, :meth:`ResultStore.export_parquet` (ato
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import sqlite3
@@ -30,6 +31,7 @@ import numpy as np
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.scene import Scene
+from selfsupport.io.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["COLUMNS", "COLUMN_NAMES", "ResultStore", "scene_digest", "run_key", "read_export"]
 
@@ -213,7 +215,6 @@ class ResultStore:
     # ------------------------------------------------------------------ export
     def export_csv(self, path: str | Path, keys: Iterable[str] | None = None) -> Path:
         """Write the runs as CSV (floats round-trip exactly with :func:`read_export`)."""
-        from selfsupport.io.atomic import atomic_write_text
 
         path = Path(path)
         atomic_write_text(path, self.frame(keys).to_csv(index=False, float_format="%.17g"))
@@ -221,9 +222,7 @@ class ResultStore:
 
     def export_parquet(self, path: str | Path, keys: Iterable[str] | None = None) -> Path:
         """Write the runs as Parquet (pyarrow)."""
-        import io
 
-        from selfsupport.io.atomic import atomic_write_bytes
 
         path = Path(path)
         buf = io.BytesIO()

@@ -11,7 +11,6 @@ import sys
 import time
 
 import numpy as np
-
 from runner_io import fail, installed_version, parse_args, read_problem, write_result
 
 TOOL = "jax-fdm"

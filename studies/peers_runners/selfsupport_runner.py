@@ -9,11 +9,9 @@ Run by the project's interpreter with the repository on ``PYTHONPATH``.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
 import numpy as np
-
 from runner_io import fail, read_problem, write_result
 
 
@@ -30,8 +28,8 @@ def main() -> None:
         from formulations import Problem
         from selfsupport.core.loads import PointLoad
         from selfsupport.core.mesh import PolyMesh
-        from selfsupport.methods.staggered import StaggeredLinearization
         from selfsupport.core.scene import Scene
+        from selfsupport.methods.staggered import StaggeredLinearization
 
         P = read_problem(args.problem)
         t0 = time.perf_counter()
