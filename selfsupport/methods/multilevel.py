@@ -89,9 +89,10 @@ from ..mesh import PolyMesh
 from ..result import SolveResult
 from ..scene import Scene
 from ..design.subdivision import subdivide_like, subdivision_parents
+from . import Capabilities
 from .base import as_problem, loads_or_options, term_values
 from .deadline import out_of_time
-from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
+from .staggered import DEFAULT_OBJECTIVE, StaggeredLinearization, StaggeredOptions
 from .prolong import START_TOL, prolong
 from .warm import WarmStart, as_warm_start, interpolate_over_top_view
 from .weight_refit import edge_bounds, refit_weights
@@ -425,6 +426,7 @@ class Multilevel:
     """
 
     name = "multilevel"
+    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, levels=True, bytes_per_vertex=16e3)
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", *, direct_max: int = DIRECT_MAX,
                  factor: float = FACTOR, prolongation: str = "stress", use_subdivision: bool = True,

@@ -73,6 +73,7 @@ from ..errors import InputError
 from ..loads import CombinedLoad, LoadCase, PointLoad, SelfWeight
 from ..result import SolveResult
 from ..scene import Scene
+from . import METHODS, capabilities
 from .polish import BOUND_ACTIVE_REL, HULL_ACTIVE_REL, load_colouring
 
 #: Relative stationarity residual (with least-squares multipliers on the active set) above which
@@ -440,7 +441,8 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
         result = result_or_run
     else:
         raise InputError(f"sensitivity needs a SolveResult or a SimultaneousRun, got {type(result_or_run).__name__}")
-    if result.method != "simultaneous" or result.status != "converged":
+    simultaneous = result.method in METHODS and capabilities(result.method).simultaneous
+    if not simultaneous or result.status != "converged":
         raise InputError(f"sensitivities are of a converged simultaneous (IPOPT) optimum; this result is "
                          f"{result.method} / {result.status}: solve with method='ipopt'")
     if problem is None:

@@ -64,6 +64,7 @@ from ..errors import InputError
 from ..result import Network, SolveResult
 from ..validate import require_top_view_balance
 from ..scene import Scene
+from . import Capabilities
 from .anderson import Anderson
 from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error,
                    load_cases_note, planarity_report, short_of_tol, term_values)
@@ -241,11 +242,12 @@ class Simultaneous:
     ('converged', True)
     """
 
-    name = "simultaneous"
+    name = "ipopt"
     backend = "ipopt"
-    #: The masonry hull is a set of hard inequality rows here (one solve decides), and a previous
-    #: network can start the solve: :func:`selfsupport.stability.solve_in_hull` asks for this.
-    hull_as_constraint = True
+    #: The hull and planar faces are hard rows here (one solve decides); a previous network can
+    #: start the solve.
+    capabilities = Capabilities(warm_start=True, hull_as_rows=True, planar_rows=True, simultaneous=True,
+                                bytes_per_vertex=100e3)
     #: IPOPT options (``ipopt.`` prefix added); ``tol``, ``max_iter``, ``max_wall_time`` and
     #: ``print_level`` come from the solve's options.
     defaults: dict[str, Any] = {

@@ -114,6 +114,7 @@ from ..options import check_options, check_range
 from ..result import Network, SolveResult
 from ..scene import Scene
 from ..validate import require_top_view_balance
+from . import Capabilities
 from .base import (HULL_TOL, as_problem, case_networks, cases_in_equilibrium, cases_max_error, cases_proportional,
                    hull_report, load_cases_note, loads_or_options, planarity_report, short_of_tol, term_values)
 from .deadline import DeadlineReached, out_of_time
@@ -278,6 +279,7 @@ class StaggeredLinearization:
     """
 
     name = "staggered"
+    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, bytes_per_vertex=16e3)
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
         self.backend = make_backend(backend) if isinstance(backend, str) else backend
