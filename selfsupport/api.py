@@ -16,13 +16,11 @@ Two calls cover the usual jobs::
   Step 2 (same scaling, same bounds, same backend) and says whether the surface stands:
   a :class:`CheckReport`.
 
-Methods are named in :data:`METHODS` and imported only when used (the IPOPT method pulls in
-CasADi; a method whose module is not installed yet raises
-:class:`~selfsupport.core.errors.BackendUnavailable` with the reason instead of breaking the import).
+Methods are named in :data:`~selfsupport.methods.METHODS` (re-exported here) and imported only
+when used; what each can do is its :class:`~selfsupport.methods.Capabilities`.
 """
 from __future__ import annotations
 
-import importlib
 import os
 import time
 from dataclasses import dataclass, replace
@@ -33,9 +31,10 @@ import numpy as np
 
 from formulations import Problem
 from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
-from selfsupport.core.errors import BackendUnavailable, InputError
+from selfsupport.core.errors import InputError
 from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G
 from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.options import check_options
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io import read_mesh
@@ -43,6 +42,7 @@ from selfsupport.io.loadcases import LoadSpec
 from selfsupport.io.network_json import load_case_entries
 from selfsupport.io.problem import load_spec, problem, scene_loads, weight_bounds
 from selfsupport.io.scenes import as_scene, design_of
+from selfsupport.methods import METHODS, MethodSpec, capabilities, make_method, method_class
 from selfsupport.methods.choice import AUTO
 from selfsupport.methods.deadline import finish_reserve
 from selfsupport.methods.fixed_fit import fit_weights
@@ -56,91 +56,6 @@ __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solv
 
 #: Max relative error below which :func:`check` calls a surface self-supporting.
 DEFAULT_CHECK_TOL = 1e-6
-
-
-# ------------------------------------------------------------------------------ methods
-@dataclass(frozen=True)
-class MethodSpec:
-    """Where a method class lives, so that it is imported only when asked for.
-
-    Attributes
-    ----------
-    module, attr
-        ``importlib.import_module(module).<attr>`` is the method class; its instances have
-        ``solve(scene, loads, *, eps, w_max, progress, tol, max_iter, time_limit) -> SolveResult``.
-    summary
-        One line for ``--help``.
-    backends
-        Name of a module-level dict of backend names in ``backend_module`` (the method's
-        constructor then takes ``backend=NAME``); empty when the method has no backend choice.
-    """
-
-    module: str
-    attr: str
-    summary: str
-    backend_module: str = ""
-    backends: str = ""
-
-    def load(self) -> type:
-        """Import and return the method class; :class:`BackendUnavailable` if it is not there."""
-        try:
-            mod = importlib.import_module(self.module)
-        except ModuleNotFoundError as e:
-            # Only a missing *method* module is "unavailable"; a missing dependency inside an
-            # existing module is reported the same way, with its name, so the user can install it.
-            raise BackendUnavailable(f"method module {self.module} cannot be imported ({e}); "
-                                     f"choose another --method (one of {', '.join(METHODS)})") from None
-        try:
-            return getattr(mod, self.attr)
-        except AttributeError:
-            raise BackendUnavailable(f"{self.module} has no {self.attr} yet; choose another --method "
-                                     f"(one of {', '.join(METHODS)})") from None
-
-    def backend_names(self) -> tuple[str, ...]:
-        """Backend names the method accepts (empty: no choice)."""
-        if not self.backends:
-            return ()
-        return tuple(getattr(importlib.import_module(self.backend_module), self.backends))
-
-
-#: Method name (``--method``) -> where its class lives.
-METHODS: dict[str, MethodSpec] = {
-    "staggered": MethodSpec("selfsupport.methods.staggered", "StaggeredLinearization",
-                            "the paper's staggered linearization (§3): weights and positions in turn",
-                            backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
-    "multilevel": MethodSpec("selfsupport.methods.multilevel", "Multilevel",
-                             "the staggered method on coarsened top views first, each level warm-starting "
-                             "the next (big meshes)",
-                             backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
-    "ipopt": MethodSpec("selfsupport.methods.simultaneous", "Simultaneous",
-                        "all positions and weights at once with IPOPT (CasADi, MUMPS)"),
-    "nlopt": MethodSpec("selfsupport.methods.nlopt_methods", "NloptSimultaneous",
-                        "all positions and weights at once with nlopt SLSQP (small problems only)"),
-}
-
-
-def method_class(name: str) -> type:
-    """The method class registered as ``name`` in :data:`METHODS` (imported now)."""
-    try:
-        spec = METHODS[name]
-    except KeyError:
-        raise InputError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}") from None
-    return spec.load()
-
-
-def make_method(name: str = "staggered", backend: str | None = None, **settings: Any) -> Any:
-    """An instance of method ``name``; ``backend`` picks its inner solver where it has a choice
-    (the staggered method's Step 2: see ``selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS``);
-    ``settings`` are further keywords of its constructor."""
-    cls = method_class(name)
-    if backend is None:
-        return cls(**settings)
-    names = METHODS[name].backend_names()
-    if not names:
-        raise InputError(f"method {name!r} has no backend choice; leave --backend out")
-    if backend not in names:
-        raise InputError(f"unknown backend {backend!r} for method {name!r}; choose one of {', '.join(names)}")
-    return cls(backend=backend, **settings)
 
 
 # ------------------------------------------------------------------------------- scenes
@@ -248,14 +163,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         choice = choose_method(prob, warm_start=start)
         method, settings = choice.method, dict(choice.settings)
     stops = {k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("time_limit", time_limit)) if v is not None}
+    caps = capabilities(method)
     if options:
-        if method not in ("staggered", "multilevel"):
-            raise InputError(f"method options {sorted(options)} apply to the staggered method (and multilevel) "
+        if caps.options_type is None:
+            takes = [n for n in METHODS if capabilities(n).options_type is not None]
+            raise InputError(f"method options {sorted(options)} apply to the {' and '.join(takes)} methods "
                              f"only, not {method!r}")
-        from selfsupport.core.options import check_options
-        from selfsupport.methods.staggered import StaggeredOptions
-
-        check_options(StaggeredOptions, options)  # before the work, with the allowed interval
+        check_options(caps.options_type, options)  # before the work, with the allowed interval
     solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit
@@ -263,7 +177,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     until = {} if time_limit is None else {
         "deadline": t_entry + float(time_limit) - finish_reserve(scene.mesh.n_vertices, len(spec.case_specs))}
     design = dict(scene.meta.get("design", {}))
-    start_kw, started = _start_keywords(method, start, hull=prob.hull_thickness() is not None,
+    start_kw, started = _start_keywords(method, caps, start, hull=prob.hull_thickness() is not None,
                                         name="stored network" if start is stored else "warm_start network")
     if start is not None:
         design["start"] = started
@@ -273,8 +187,6 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
 
         result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress,
                                **start_kw)
-    elif method == "ipopt":
-        result = solver.solve(prob, {**dict(options or {}), **stops, **start_kw}, progress=progress, **until)
     else:
         result = solver.solve(prob, {**dict(options or {}), **stops}, progress=progress, **start_kw, **until)
     load_model = {"type": "self_weight", "density": float(density), "thickness": float(thickness), "g": G}
@@ -289,16 +201,16 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
                                        "input_issues": [i.as_dict() for i in issues], "cpu": cpu, **extra})
 
 
-def _start_keywords(method: str, start: Any, *, hull: bool, name: str) -> tuple[dict[str, Any], str]:
-    """How ``method`` is handed the starting network ``start`` (``warm_start=``, an option for
-    IPOPT), and what the solve then starts from, in words for ``parameters["design"]``
-    (``name``: what ``start`` is)."""
+def _start_keywords(method: str, caps: Any, start: Any, *, hull: bool, name: str) -> tuple[dict[str, Any], str]:
+    """How ``method`` (with capabilities ``caps``) is handed the starting network ``start``
+    (``warm_start=``), and what the solve then starts from, in words for ``parameters["design"]``
+    (``name``: what ``start`` is). Under the hull only a method that holds it as hard rows keeps
+    the start (the penalty search starts from the reference)."""
     if start is None:
         return {}, "reference"
-    if (method in ("staggered", "multilevel") and not hull) or method == "ipopt":
+    if caps.warm_start and (caps.hull_as_rows or not hull):
         return {"warm_start": start}, name
-    why = ("the staggered hull search starts there" if method in ("staggered", "multilevel")
-           else f"{method} takes no start")
+    why = f"the {method} hull search starts there" if caps.warm_start else f"{method} takes no start"
     return {}, f"reference ({why})"
 
 

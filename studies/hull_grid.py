@@ -36,9 +36,8 @@ def run_case(n: int, frac: float, t: float, method: str) -> dict[str, Any]:
     from formulations import Hull, Problem
     from selfsupport.core.loads import PointLoad, SelfWeight
     from selfsupport.core.shapes import make_shape
+    from selfsupport.methods import make_method
     from selfsupport.methods.base import HULL_TOL, hull_signed_distance
-    from selfsupport.methods.simultaneous import Simultaneous
-    from selfsupport.methods.staggered import StaggeredLinearization
 
     scene = make_shape("dome", n_vertices=n)
     V = scene.mesh.vertices
@@ -46,7 +45,7 @@ def run_case(n: int, frac: float, t: float, method: str) -> dict[str, Any]:
     f = np.zeros(len(V))
     f[int(np.argmax(V[:, 2]))] = frac * weight.nodal(scene.mesh, V).sum()
     problem = Problem.build(scene, weight + PointLoad(f), constraints=[Hull(t)])
-    solver = StaggeredLinearization() if method == "staggered" else Simultaneous()
+    solver = make_method(method)
     t0 = time.perf_counter()
     res = solver.solve(problem)
     seconds = time.perf_counter() - t0

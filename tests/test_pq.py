@@ -194,7 +194,8 @@ def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_me
     homotopy reaches both (it is returned), and so does IPOPT with the planarity rows as
     equations (the last resort of solve_planar). Measured: staggered stalled, the
     homotopy converged in 0.3 s, IPOPT in ~1 s."""
-    from selfsupport.remesh.planar import FINISH_METHOD, finish_summary, solve_planar
+
+    from selfsupport.remesh.planar import finish_method, finish_summary, solve_planar
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
     scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
@@ -204,7 +205,7 @@ def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_me
     res = solve_planar(scene.mesh, supports=scene.supports, tol=1e-3)
     assert np.array_equal(res.network.supports, scene.supports)
     eq = api.solve(scene)
-    ipopt = api.solve(scene, method=FINISH_METHOD, constraints=[Planar(tol=1e-3)], warm_start=eq)
+    ipopt = api.solve(scene, method=finish_method(), constraints=[Planar(tol=1e-3)], warm_start=eq)
     for r in (res, ipopt):
         assert r.status == "converged", r.message
         assert r.max_relative_error <= 1e-8

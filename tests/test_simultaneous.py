@@ -49,7 +49,7 @@ def result(scene):
 def test_converges_to_equilibrium(scene, result):
     net = result.network
     assert result.status == "converged", result.message
-    assert result.method == "simultaneous" and result.backend == "ipopt"
+    assert result.method == "ipopt" and result.backend == "ipopt"
     assert float(network_errors(net).max()) <= 1e-8
     active = ~(scene.supports[net.edges[:, 0]] & scene.supports[net.edges[:, 1]])
     eps = result.parameters["eps"]

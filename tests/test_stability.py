@@ -276,7 +276,7 @@ def test_the_default_load_points_are_the_free_handled_vertices():
 
 # ------------------------------------------------------------------ the hard hull rows (IPOPT)
 def test_ipopt_holds_the_hull_as_hard_rows_warm_started_from_the_previous_load():
-    """A method that states the hull as inequality rows (``hull_as_constraint``) is asked once
+    """A method that states the hull as inequality rows (capability ``hull_as_rows``) is asked once
     per load, with the hull hard, and every load after the first starts from the previous
     certified network; the penalty ladder is for the other methods."""
     from selfsupport.methods.simultaneous import Simultaneous

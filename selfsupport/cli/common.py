@@ -48,6 +48,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from selfsupport import __version__
 from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.methods import METHODS, capabilities, find_method
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
            "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
@@ -316,15 +317,18 @@ def _not_converged_line(result) -> str:
             else HULL_HINT if in_hull else STATUS_HINT.get(result.status, "try the other method"))
     n = result.network.mesh.n_vertices
     # (not after --method auto: it chose one level because no coarser level could carry the problem)
-    if (result.status == "stalled" and result.method == "staggered" and hint == STATUS_HINT["stalled"]
+    caps = capabilities(result.method) if result.method in METHODS else None
+    one_level = caps is not None and not caps.levels and not caps.simultaneous
+    if (result.status == "stalled" and one_level and hint == STATUS_HINT["stalled"]
             and "method_choice" not in result.parameters):
         from selfsupport.methods.multilevel import DIRECT_MAX
 
         if n > DIRECT_MAX:
             # (lilium and lilium-pillar subdivided twice, 28k quads: the single level stalled at
             # max relative error 7.8 and 2.6, the multilevel solve converged in 47 and 53 s)
-            hint = f"try --method multilevel (a mesh this large, e.g. a subdivided design); otherwise {hint}"
-    if result.method == "simultaneous":  # (IPOPT or nlopt ran already: the other method to try is the staggered one)
+            hint = (f"try --method {find_method(levels=True)} (a mesh this large, e.g. a subdivided design); "
+                    f"otherwise {hint}")
+    if caps is not None and caps.simultaneous:  # (IPOPT or nlopt ran already: the other one to try is staggered)
         hint = hint.replace("--method ipopt", "--method staggered")
     elif n > IPOPT_HINT_MAX:
         for phrase, instead in _NO_IPOPT:

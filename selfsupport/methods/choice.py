@@ -47,10 +47,12 @@ from selfsupport.methods.warm import as_warm_start
 if TYPE_CHECKING:
     from formulations import Problem
 
-__all__ = ["AUTO", "LEVELS_ABOVE", "MethodChoice", "choose_method"]
+__all__ = ["AUTO", "CANDIDATES", "LEVELS_ABOVE", "MethodChoice", "choose_method"]
 
 #: The method name (``--method``) that leaves the choice to :func:`choose_method`.
 AUTO = "auto"
+#: The methods :func:`choose_method` picks from.
+CANDIDATES = ("staggered", "multilevel")
 #: Meshes with more vertices than this are solved by levels where they can be: above the paper's
 #: scenes (up to 2,348 vertices, see the module docstring) and below 4k, where the levels paid on
 #: every measured shape (the dome lost by them up to 3k; the vaults gained from 2k).

@@ -13,7 +13,8 @@ staggered   200k        2.16 GB      9.7 KB per vertex
 ipopt       2k / 8k     212 / 654 MB 74 KB per vertex
 ==========  ==========  ===========  ======================
 
-:data:`BYTES_PER_VERTEX` rounds those rates up; an estimate above the memory available (or
+Each method's :class:`~selfsupport.methods.Capabilities` ``bytes_per_vertex`` rounds those rates
+up; an estimate above the memory available (or
 ``--max-memory``) is refused with one line instead of ending in an out-of-memory kill (the
 kernel killed ``shape:dome:1000000000`` at ~21 GB after 63 s, without a word).
 """
@@ -28,14 +29,11 @@ from selfsupport.core.errors import TooLarge
 from selfsupport.core.linalg import DENSE_ROW_MIN
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.subdivision import subdivided_vertex_count
-from selfsupport.methods.choice import AUTO
+from selfsupport.methods import capabilities
+from selfsupport.methods.choice import AUTO, CANDIDATES
 from selfsupport.methods.polish import DIRECT_CASES_MAX
 
 GIB = 1024.0 ** 3
-#: Peak bytes per vertex of a solve, by method (measured rates, rounded up; see the module docstring).
-BYTES_PER_VERTEX: dict[str, float] = {"staggered": 16e3, "multilevel": 16e3, "ipopt": 100e3, "nlopt": 100e3}
-#: ``--method auto`` runs one of these two (selfsupport.methods.choice): the larger of their rates.
-BYTES_PER_VERTEX[AUTO] = max(BYTES_PER_VERTEX["staggered"], BYTES_PER_VERTEX["multilevel"])
 #: The interpreter and libraries before any mesh (measured: 96 MB).
 BASE_BYTES = 150e6
 
@@ -78,8 +76,15 @@ def estimate_solve_bytes(n_vertices: int, method: str = "staggered", n_cases: in
     >>> round(estimate_solve_bytes(200_000) / 1e9, 2)  # measured: 2.16 GB
     3.35
     """
-    rate = BYTES_PER_VERTEX.get(method, max(BYTES_PER_VERTEX.values()))
+    rate = bytes_per_vertex(method)
     return BASE_BYTES + rate * float(n_vertices) * case_factor(n_cases) + float(extra_bytes)
+
+
+def bytes_per_vertex(method: str) -> float:
+    """Peak bytes per vertex of a one-case solve by the registered ``method``; ``"auto"``: the
+    larger rate of the methods it picks from."""
+    names = CANDIDATES if method == AUTO else (method,)
+    return max(capabilities(name).bytes_per_vertex for name in names)
 
 
 def available_bytes() -> float:

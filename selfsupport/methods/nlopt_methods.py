@@ -29,6 +29,7 @@ from scipy.sparse.linalg import splu
 from formulations import Hull, Planar, Problem, ThrustNetworkProblem
 from formulations.equilibrium import position_blocks, weight_matrix
 from selfsupport.core.errors import BackendUnavailable, InputError
+from selfsupport.methods import Capabilities
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.weightfit_backends import nlopt_failures
 
@@ -60,9 +61,10 @@ class NloptSimultaneous(Simultaneous):
     tolerance of the reduced problem, scale-free units: below it a stop counts as converged).
     """
 
-    name = "simultaneous"
+    name = "nlopt"
     backend = "nlopt"
-    hull_as_constraint = False  # (it refuses the hull's inequality rows)
+    #: one load case, no hull, no planar rows (refused by :meth:`_check_problem`); starts from the reference
+    capabilities = Capabilities(load_cases=False, simultaneous=True, bytes_per_vertex=100e3)
     #: bound-constrained algorithms for the reduced (weights-only) problem (LD_MMA was tried:
     #: it does not converge on a 5×5 grid in 13,000 evaluations)
     REDUCED = ("LD_LBFGS",)
@@ -86,7 +88,8 @@ class NloptSimultaneous(Simultaneous):
         """Refuse what this backend cannot state: several load cases, the hull's inequality rows,
         planar faces, a fixed top view (the reduced formulation computes x, y from the weights); and problems
         above :data:`MAX_FREE_VERTICES` (:class:`BackendUnavailable`)."""
-        for unsupported, what in ((len(problem.loads) > 1, f"{len(problem.loads)} load cases"),
+        several = len(problem.loads) > 1 and not self.capabilities.load_cases
+        for unsupported, what in ((several, f"{len(problem.loads)} load cases"),
                                   (problem.constraint(Hull) is not None, "the masonry-hull constraint"),
                                   (problem.constraint(Planar) is not None, "the planar-faces constraint"),
                                   (problem.fixed_top_view, "a fixed top view")):

@@ -73,6 +73,7 @@ from selfsupport.core.loads import CombinedLoad, LoadCase, PointLoad, SelfWeight
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.loadcases import LoadSpec
+from selfsupport.methods import METHODS, capabilities
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, HULL_ACTIVE_REL, load_colouring
 from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE, Simultaneous, SimultaneousRun
 
@@ -438,7 +439,8 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
         result = result_or_run
     else:
         raise InputError(f"sensitivity needs a SolveResult or a SimultaneousRun, got {type(result_or_run).__name__}")
-    if result.method != "simultaneous" or result.status != "converged":
+    simultaneous = result.method in METHODS and capabilities(result.method).simultaneous
+    if not simultaneous or result.status != "converged":
         raise InputError(f"sensitivities are of a converged simultaneous (IPOPT) optimum; this result is "
                          f"{result.method} / {result.status}: solve with method='ipopt'")
     if problem is None:

@@ -118,6 +118,7 @@ from selfsupport.core.loads import LoadCase
 from selfsupport.core.options import check_options, check_range
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.methods import Capabilities
 from selfsupport.methods.base import (
     HULL_TOL,
     as_problem,
@@ -295,6 +296,7 @@ class StaggeredLinearization:
     """
 
     name = "staggered"
+    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, bytes_per_vertex=16e3)
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
         self.backend = make_backend(backend) if isinstance(backend, str) else backend

@@ -37,12 +37,16 @@ from typing import Any
 
 from formulations import Planar
 from selfsupport import api
+from selfsupport.methods import capabilities, find_method
 from selfsupport.methods.planar_homotopy import planar_homotopy
 
-__all__ = ["solve_planar", "finish_summary", "FINISH_METHOD"]
+__all__ = ["solve_planar", "finish_summary", "finish_method"]
 
-#: The method of the finish (its planarity rows are equations, not a penalty).
-FINISH_METHOD = "ipopt"
+
+def finish_method() -> str:
+    """The method of the finish: the first registered one whose planarity rows are equations,
+    not a penalty, and that starts from a given network."""
+    return find_method(planar_rows=True, warm_start=True)
 
 
 def _better(a: Any, b: Any) -> bool:
@@ -55,7 +59,7 @@ def _better(a: Any, b: Any) -> bool:
 def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", finish: bool = True,
                  time_limit: float | None = None, **solve_kw: Any) -> Any:
     """Solve ``scene`` with planar faces (:class:`formulations.Planar`) by ``method``; when that does
-    not converge and ``finish``, by :data:`FINISH_METHOD` warm-started from the network in
+    not converge and ``finish``, by :func:`finish_method` warm-started from the network in
     equilibrium without the planarity rows (module docstring).
 
     Parameters
@@ -92,7 +96,8 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
 
     first = api.solve(scene, method=method, constraints=planar, **left(), **solve_kw)
-    if first.status == "converged" or not finish or first.status == "time_limit" or method == FINISH_METHOD:
+    if (first.status == "converged" or not finish or first.status == "time_limit"
+            or capabilities(method).planar_rows):  # (the finish would solve the same rows again)
         return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
     free = [c for c in planar if not isinstance(c, Planar)]
     eq = api.solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
@@ -107,7 +112,7 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
                                                  else t0 + time_limit)))
     if runs[-1][1].status != "converged" and not (time_limit is not None and time.perf_counter() - t0 >= time_limit):
-        runs.append(("finish", api.solve(scene, method=FINISH_METHOD, constraints=planar, warm_start=eq, **left(),
+        runs.append(("finish", api.solve(scene, method=finish_method(), constraints=planar, warm_start=eq, **left(),
                                          **solve_kw)))
     name, chosen = runs[0]
     for n_, r in runs[1:]:

@@ -7,7 +7,7 @@ the hull "reference mid-surface ± t/2" (:func:`~selfsupport.methods.base.hull_r
 it). A network found inside certifies the vault; failing to find one proves nothing by itself.
 
 :func:`solve_in_hull` searches for such a network. With a method that holds the hull as hard
-inequality rows (``hull_as_constraint``: IPOPT) one solve decides. The staggered method holds the hull as hard bounds
+inequality rows (capability ``hull_as_rows``: IPOPT) one solve decides. The staggered method holds the hull as hard bounds
 too (an active set in Step 3, :mod:`selfsupport.methods.staggered`), but its descent can stall
 where a network exists; the search therefore first solves without the hull (the network nearest
 to the reference — if it is already inside, that certifies the vault), then with it. Only when
@@ -34,6 +34,7 @@ from selfsupport.core.errors import InputError
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
+from selfsupport.methods import capabilities
 from selfsupport.methods.base import HULL_TOL, hull_report
 
 __all__ = ["PENALTY_LADDER", "HULL_TOL", "solve_in_hull", "stands_line", "LoadStep", "stability_series",
@@ -72,9 +73,9 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
     problem
         The design problem with its hull.
     method
-        A method instance (default: the staggered method). A method whose class says
-        ``hull_as_constraint = True`` (IPOPT) treats the hull as hard rows, warm-started from
-        ``warm_start``: one solve decides; any other method climbs ``penalties``.
+        A method instance (default: the staggered method). A method whose capabilities say
+        ``hull_as_rows`` (IPOPT) treats the hull as hard rows, warm-started from ``warm_start``
+        where it takes a start: one solve decides; any other method climbs ``penalties``.
     options
         The method's options for every solve.
     penalties
@@ -83,7 +84,8 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
     tol
         Max relative equilibrium error of a certifying network.
     warm_start
-        A previous network on the same mesh, passed to methods that accept one (IPOPT).
+        A previous network on the same mesh, passed to a method that holds the hull as rows and
+        takes a start (IPOPT); the penalty search starts from the reference.
     progress
         Called with each solve's history records.
 
@@ -104,9 +106,10 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
         method = StaggeredLinearization()
     t0 = time.perf_counter()
     opts = dict(options or {})
-    hard = bool(getattr(method, "hull_as_constraint", False))
-    if hard and warm_start is not None:
-        opts["warm_start"] = warm_start  # (the staggered method starts from the reference)
+    caps = capabilities(method)
+    hard = caps.hull_as_rows
+    if hard and caps.warm_start and warm_start is not None:
+        opts["warm_start"] = warm_start
     ladder = [None] if hard else list(penalties)
     tried: list[tuple[dict, SolveResult, dict]] = []
     for pen in ladder:
@@ -136,7 +139,7 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
             f"reported {res.status!r}: {res.message})")
     else:
         where = ", ".join(f"{v} ({e:.3g} m)" for v, e in zip(hull["outside_vertices"][:8], hull["outside_excess"][:8]))
-        how = "hard hull rows (IPOPT)" if hard else f"hull penalties {', '.join(f'{p:g}' for p in ladder)}"
+        how = f"hard hull rows ({getattr(method, 'name', type(method).__name__)})" if hard else f"hull penalties {', '.join(f'{p:g}' for p in ladder)}"
         if _in_equilibrium(res, tol):
             message = (f"no compressive network in equilibrium inside the masonry hull (t = {t:g} m) was found with "
                        f"{how}; the closest one found leaves {hull['outside']} free vertices outside by up to "
