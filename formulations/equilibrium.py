@@ -120,7 +120,11 @@ def weight_matrix(top: Topology, vertices: np.ndarray) -> sp.csc_matrix:
 
 
 def load_vector(top: Topology, loads: np.ndarray) -> np.ndarray:
-    """``b``: ``(0, 0, A_i F_i)`` stacked over free vertices."""
+    """``b``: ``(0, 0, A_i F_i)`` stacked over free vertices (or the rows of ``(n, 3)`` loads with
+    horizontal components)."""
+    loads = np.asarray(loads, float)
+    if loads.ndim == 2:
+        return loads[top.free].ravel()
     b = np.zeros((top.n_free, 3))
     b[:, 2] = loads[top.free]
     return b.ravel()

@@ -50,6 +50,10 @@ class LoadCases:
         for n, c in self.cases:
             if not isinstance(c, LoadCase):
                 raise InputError(f"load case {n!r} is a {type(c).__name__}, not a load model")
+            if c.has_horizontal:  # (nodal() is the vertical part: a method would drop the rest unseen)
+                raise InputError(f"load case {n!r} has horizontal loads: the form-finding methods balance vertical "
+                                 "loads only; assess a horizontal acceleration with 'selfsupport stability "
+                                 "--max-horizontal' (selfsupport.structure.limit.max_horizontal)")
 
     @classmethod
     def of(cls, loads: "LoadCase | LoadCases | Mapping[str, LoadCase] | None", scene=None) -> "LoadCases":

@@ -80,7 +80,8 @@ def time_limit_bound(limit: float, overshoot: float = 1.0) -> float:
 def relative_residuals(V: Any, E: Any, w: Any, L: Any, sup: Any) -> np.ndarray:
     """Per non-support vertex ``‖Σ_j w_ij (v_j − v_i) − (0, 0, L_i)‖ / |L_i|`` (eqs. 2-3, the
     paper's Table 1 metric). ``L`` is the signed vertical load per vertex, ``sup`` a boolean
-    mask. A zero load gives inf/nan, which fails any ``<=`` comparison."""
+    mask. A zero load gives inf/nan, which fails any ``<=`` comparison. ``L`` may also be one load
+    vector per vertex ``(n, 3)`` (horizontal loads): then ``‖Σ_j w_ij (v_j − v_i) − L_i‖ / ‖L_i‖``."""
     V = np.asarray(V, float)
     E = np.asarray(E, int)
     w = np.asarray(w, float)
@@ -90,9 +91,14 @@ def relative_residuals(V: Any, E: Any, w: Any, L: Any, sup: Any) -> np.ndarray:
     f = w[:, None] * (V[E[:, 1]] - V[E[:, 0]])
     np.add.at(r, E[:, 0], f)
     np.add.at(r, E[:, 1], -f)
-    r[:, 2] -= L
+    if L.ndim == 2:
+        r -= L
+        size = np.linalg.norm(L, axis=1)
+    else:
+        r[:, 2] -= L
+        size = np.abs(L)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.linalg.norm(r[free], axis=1) / np.abs(L[free])
+        return np.linalg.norm(r[free], axis=1) / size[free]
 
 
 def max_relative_error(V: Any, E: Any, w: Any, L: Any, sup: Any) -> float:

@@ -309,7 +309,7 @@ def test_registry_and_errors(solved, tmp_path):
     from selfsupport.cli.figures import FIGURE_KINDS
 
     assert set(FIGURES) == set(FIGURE_KINDS) == {"network", "deviation", "airy", "reciprocal", "directions",
-                                                 "history"}
+                                                 "history", "reactions"}
     with pytest.raises(InputError, match="unknown figure kind"):
         make_figure("nope", FigureInput(solved.network))
     with pytest.raises(InputError, match="PNG"):
@@ -394,7 +394,7 @@ def _drawn_texts(fig, renderer) -> list[tuple[str, object]]:
 
 
 def _available_kinds() -> list[str]:
-    kinds = ["network", "deviation", "history", "reciprocal", "airy", "directions"]
+    kinds = ["network", "deviation", "history", "reciprocal", "airy", "directions", "reactions"]
     if not _analysis_available():
         kinds = [k for k in kinds if k not in ("airy", "reciprocal", "directions")]
     elif not _directions_available():

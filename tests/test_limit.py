@@ -8,11 +8,29 @@ import re
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
+from formulations import Problem
+from formulations.equilibrium import Topology, load_vector, weight_matrix
 from selfsupport import api
-from selfsupport.core.loads import G
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import support_reactions
+from selfsupport.core.loads import G, HorizontalAcceleration, SelfWeight, plan_direction
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
-from selfsupport.structure.limit import CERTIFY_TOL, feasible, limit_load, min_thickness
+from selfsupport.io import read_network, write_network
+from selfsupport.methods.weight_refit import edge_bounds
+from selfsupport.structure.limit import (
+    CERTIFY_TOL,
+    HULL_MARGIN,
+    _base_problem,
+    feasible,
+    limit_load,
+    max_horizontal,
+    min_thickness,
+    thrust_range,
+)
 from tests.conftest import independent_check, max_relative_error, requires_checker
 from tests.test_stability import distance_to_mesh
 
@@ -106,3 +124,173 @@ def test_stability_cli_max_load_is_the_limit_program(tmp_path, capsys):
     assert doc["parameters"]["hull"]["certified"] and doc["parameters"]["limit"] == "max_load"
     assert independent_check(tmp_path / "max-load.json").ok
     assert not (tmp_path / "max-load-probes.json").exists()
+
+
+# ------------------------------------------------------------------ horizontal loads and thrust
+def pyramid(c: float = 4.0, f: float = 3.0) -> Scene:
+    """One free apex at height f over four supports at plan distance c (on the x and y axes):
+    four bars, whose forces the apex's equilibrium fixes. Under its weight W and a horizontal
+    load a W along x, with the apex at height z: w₁ − w₂ = a W / c, w₃ = w₄, Σ w = W / z. With
+    every weight at least ε the largest a is c (1 / z − 4 ε / W), at the lowest z the hull allows;
+    along 45° it is that over √2. The thrust (Σ of the horizontal reactions w_k c) is c W / z:
+    least at the highest z, greatest at the lowest."""
+    V = np.array([[0, 0, f], [c, 0, 0], [0, c, 0], [-c, 0, 0], [0, -c, 0.0]])
+    mesh = PolyMesh.from_faces(V, [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]])
+    return Scene(mesh=mesh, supports=np.array([False, True, True, True, True]), name="pyramid")
+
+
+def lowest_weight(scene: Scene, t: float) -> float:
+    """ε [N/m]: the lower weight bound the limit program holds (the scale-free default)."""
+    lo, _ = edge_bounds(_base_problem(scene, t, 2000.0))
+    return float(lo[scene.active_edges].min())
+
+
+@requires_checker
+@pytest.mark.parametrize("direction, factor", [("x", 1.0), ("45", np.sqrt(2.0)), ("-y", 1.0)])
+def test_max_horizontal_acceleration_of_the_pyramid_is_its_closed_form(direction, factor):
+    c, f = 4.0, 3.0
+    scene = pyramid(c, f)
+    found = []
+    for t in (0.01, 0.2, 1.0):
+        r = max_horizontal(scene, thickness=t, direction=direction, density=2000.0)
+        assert r.certified and r.verdict == "certified"
+        net = r.certificate.network
+        W = -net.loads[0, 2]
+        z = f - (1 - HULL_MARGIN) * t / 2  # the apex at the bottom of its slab (its normal is vertical)
+        expected = c * (1 / z - 4 * lowest_weight(scene, t) / W) / factor
+        assert r.value == pytest.approx(expected, rel=1e-6)
+        # (IPOPT relaxes bounds by 1e-8 of the scale, ~1e-7 m here: HULL_MARGIN's slack holds the true hull)
+        assert net.vertices[0, 2] == pytest.approx(z, abs=1e-6) and abs(net.vertices[0, 2] - f) <= t / 2
+        # the loads: every vertex's weight times a, along the direction, and the vertical weight unchanged
+        d = plan_direction(direction)
+        np.testing.assert_allclose(net.loads[:, :2], r.value * -net.loads[:, 2:] * d, rtol=1e-12)
+        assert max_relative_error(net.vertices, net.edges, net.weights, net.loads, net.supports) <= CERTIFY_TOL
+        assert independent_check(r.certificate).ok
+        found.append(r.value)
+    assert found[0] < found[1] < found[2]  # more thickness, more of the weight's line may lean
+
+
+def test_max_horizontal_acceleration_tends_to_the_fixed_geometry_lp_as_the_hull_thins():
+    """A shallow cap at its reference positions (a network already: its self-weight balanced by
+    compressive weights). An independent LP over the weights at those fixed positions (scipy's
+    HiGHS: max a s.t. A(V) w = b + a h, w ≥ ε) bounds the program from below at every t > 0 (the
+    reference lies in every hull), and the program's answer falls to it as t → 0, increasing with t."""
+    from scipy.optimize import linprog
+
+    scene = make_shape("dome", n_vertices=170, height=1.5)
+    V, E, act, sup = scene.mesh.vertices, scene.mesh.edges, scene.active_edges, scene.supports
+    top = Topology.build(len(V), E[act], sup)
+    values, lp = [], None
+    for t in (1e-4, 1e-3, 1e-2, 5e-2):
+        L = SelfWeight(density=2000.0, thickness=t).nodal(scene.mesh, V)
+        h = np.zeros((len(V), 3))
+        h[:, 0] = -L  # along x
+        A = sp.hstack([weight_matrix(top, V), -sp.csr_matrix(h[~sup].ravel()[:, None])]).tocsr()
+        eps = lowest_weight(scene, t)
+        res = linprog(np.r_[np.zeros(int(act.sum())), -1.0], A_eq=A, b_eq=load_vector(top, L),
+                      bounds=[(eps, None)] * int(act.sum()) + [(0, None)], method="highs")
+        assert res.status == 0
+        lp = -res.fun if lp is None else lp
+        assert -res.fun == pytest.approx(lp, rel=1e-9)  # (scale-free: the same a at every t)
+        r = max_horizontal(scene, thickness=t, direction="x", density=2000.0)
+        assert r.certified
+        values.append(r.value)
+    assert lp <= values[0] < values[1] < values[2] < values[3]
+    assert values[0] - lp < 0.2 * (values[1] - lp)  # falling to the LP, about linearly in t
+
+
+def test_thrust_range_of_the_pyramid_is_its_closed_form_and_shrinks_to_a_point():
+    c, f = 4.0, 3.0
+    scene = pyramid(c, f)
+    widths = []
+    for t in (1.0, 0.2, 0.01):
+        lo, hi = thrust_range(scene, thickness=t, density=2000.0)
+        assert lo.certified and hi.certified
+        W = -lo.certificate.network.loads[0]
+        half = (1 - HULL_MARGIN) * t / 2
+        assert lo.value == pytest.approx(c * W / (f + half), rel=1e-7)
+        assert hi.value == pytest.approx(c * W / (f - half), rel=1e-7)
+        # the value is the certificate's own: its reactions, recomputed
+        for r in (lo, hi):
+            net = r.certificate.network
+            R = support_reactions(vertices=net.vertices, edges=net.edges, weights=net.weights, loads=net.loads,
+                                  supports=net.supports)
+            assert r.value == pytest.approx(np.linalg.norm(R[:, :2], axis=1).sum(), rel=1e-12)
+        widths.append((hi.value - lo.value) / (c * W / f))
+    assert widths[0] > widths[1] > widths[2] and widths[2] < 0.01  # → the point c W / f as t → 0
+
+
+def test_thrust_range_holds_the_staggered_network_and_grows_with_t():
+    """A shallow cap whose reference is a network (the staggered solve stays on it, with the same
+    loads the program holds): its thrust lies in every range, and the ranges, per unit weight,
+    are nested: the thicker hull's holds the thinner one's."""
+    scene = make_shape("dome", n_vertices=91, height=1.5)
+    ranges = []
+    for t in (0.01, 0.2):
+        st = api.solve(scene, thickness=t, density=2000.0)
+        assert st.converged and st.distance_max < 1e-12
+        W = -st.network.loads.sum()
+        lo, hi = thrust_range(scene, thickness=t, density=2000.0)
+        assert lo.certified and hi.certified
+        assert -lo.certificate.network.loads.sum() == pytest.approx(W, rel=1e-12)
+        ranges.append((lo.value / W, hi.value / W))
+        assert lo.value <= st.network.reaction_summary()["thrust"] <= hi.value
+    for (a, b), (c, d) in zip(ranges, ranges[1:]):
+        assert c < a and b < d
+
+
+def test_horizontal_loads_are_refused_where_only_vertical_loads_apply(tmp_path):
+    from selfsupport.analysis.airy import airy
+
+    scene = make_shape("dome", n_vertices=100)
+    case = SelfWeight() + HorizontalAcceleration(0.1, "x", SelfWeight())
+    with pytest.raises(InputError, match="horizontal loads: the form-finding methods balance vertical loads only"):
+        Problem.build(scene, {"quake": case})  # (every method's problem: none would drop the horizontal part)
+    net = max_horizontal(pyramid(), thickness=0.2).certificate.network
+    with pytest.raises(InputError, match="apply to vertical loads only") as e:
+        airy(net)
+    assert "\n" not in str(e.value)
+    # a network with 3D loads round-trips through its file, which the schema accepts
+    p = tmp_path / "h.json"
+    write_network(p, net)
+    back = read_network(p)
+    np.testing.assert_array_equal(back.loads, net.loads)
+    from importlib.resources import files
+
+    import jsonschema
+
+    schema = json.loads(files("selfsupport.io").joinpath("network.schema.json").read_text(encoding="utf-8"))
+    jsonschema.validate(json.loads(p.read_text()), schema, cls=jsonschema.Draft202012Validator)
+
+
+@requires_checker
+def test_stability_cli_max_horizontal_and_thrust_lines(tmp_path, capsys):
+    from selfsupport.cli import main
+
+    rc = main(["stability", "shape:dome:127", "--thickness", "0.2", "--density", "2000", "--max-horizontal", "y",
+               "--out", str(tmp_path / "h")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    a = float(re.fullmatch(r"max horizontal acceleration: (\S+) g",
+                           [ln for ln in out.splitlines() if ln.startswith("max horizontal")][0]).group(1))
+    doc = json.loads((tmp_path / "h" / "max-horizontal.json").read_text())
+    assert doc["horizontal_acceleration_g"] == pytest.approx(a, rel=1e-5) and doc["parameters"]["hull"]["certified"]
+    L = np.asarray(doc["loads"])
+    np.testing.assert_allclose(L[:, 1], -a * L[:, 2], rtol=1e-5)
+    assert np.all(L[:, 0] == 0)
+    assert independent_check(tmp_path / "h" / "max-horizontal.json").ok
+    rc = main(["stability", "shape:dome:127", "--thickness", "0.2", "--density", "2000", "--thrust",
+               "--out", str(tmp_path / "t")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    m = re.fullmatch(r"thrust: min (\S+) kN, max (\S+) kN", [ln for ln in out.splitlines() if ln.startswith("thrust:")][0])
+    lo, hi = float(m.group(1)), float(m.group(2))
+    for name, value in (("min", lo), ("max", hi)):
+        doc = json.loads((tmp_path / "t" / f"thrust-{name}.json").read_text())
+        assert doc["support_reactions"]["thrust"] / 1e3 == pytest.approx(value, rel=1e-5)
+    assert lo < hi
+    rc = main(["stability", "shape:dome:127", "--thickness", "0.2", "--max-horizontal", "north",
+               "--out", str(tmp_path / "bad")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "direction 'north'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad").exists()

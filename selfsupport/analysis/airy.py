@@ -75,7 +75,7 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components, dijk
 
 from selfsupport.analysis.stars import Stars, accumulate_along, vertex_stars
 from selfsupport.core.errors import InputError
-from selfsupport.core.evidence import force_sums, stress_sums
+from selfsupport.core.evidence import force_sums, load_vectors, stress_sums
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
@@ -560,6 +560,11 @@ def airy(network: Network, *, tol: float = 1e-9, planarity_tol: float = 1e-8, in
     """
     t0 = time.perf_counter()
     network = getattr(network, "network", network)
+    horizontal = float(np.abs(load_vectors(network.loads)[:, :2]).max(initial=0.0))
+    if horizontal > 0:
+        raise InputError(f"the Airy stress function and the reciprocal diagram apply to vertical loads only, and this "
+                         f"network carries horizontal loads (up to {horizontal:.3g} N at a vertex); analyse a network "
+                         "under vertical loads")
     mesh = network.mesh
     n, m, F = mesh.n_vertices, mesh.n_edges, mesh.n_faces
     w = np.asarray(network.weights, float)

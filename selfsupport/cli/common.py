@@ -48,6 +48,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from selfsupport import __version__
 from selfsupport.core.errors import InputError, SelfSupportError
+from selfsupport.core.evidence import reaction_line
 from selfsupport.methods import METHODS, capabilities, find_method
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
@@ -266,6 +267,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
             ("min weight", f"{result.min_weight:.4g} N/m"),
             *tension_rows(result),
             ("total load", f"{float(net.loads.sum()):.6g} N"),
+            ("support reactions", reaction_line(net.reaction_summary())),
             ("distance to reference mean", f"{result.distance_mean:.3e} of bbox diagonal "
                                            f"({result.distance_mean * diag:.3g} m)"),
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "

@@ -21,7 +21,7 @@ __all__ = ["COMMANDS", "add_render_arguments", "run_render", "add_view_arguments
 
 #: figure kinds offered by ``--what`` (kept here so that ``--help`` does not import matplotlib;
 #: a test checks it equals ``selfsupport.figures.render.FIGURES``)
-FIGURE_KINDS = ("network", "deviation", "airy", "reciprocal", "directions", "history")
+FIGURE_KINDS = ("network", "deviation", "airy", "reciprocal", "directions", "history", "reactions")
 
 
 def load_document(path: str | Path) -> tuple[Any, dict[str, Any]]:

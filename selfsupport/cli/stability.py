@@ -3,18 +3,23 @@
 ::
 
     selfsupport stability SCENE --thickness T [--load-at V[,V...]] [--loads 0,5000,10000,20000]
-                          [--density RHO] [--method staggered|ipopt] --out DIR [--max-load [--time-limit S]]
+                          [--density RHO] [--method staggered|ipopt] --out DIR
+                          [--max-load | --max-horizontal DIRECTION | --thrust] [--time-limit S]
     selfsupport destroy SCENE --remove V [--remove V ...] --thickness T [--density RHO] --out DIR
 
 ``stability`` writes ``DIR/load-<kg>kg.json`` per added load (the network: certified, or the
 closest one found) and ``DIR/stability.json`` (the table); with ``--max-load`` it solves the limit program
 (:func:`selfsupport.structure.stability.max_load`, :mod:`selfsupport.structure.limit`), writes ``DIR/max-load.json``
 (the certifying network) and ``DIR/max-load-program.json`` (the program's rounds, optimum and
-binding vertices) and prints one line ``max load: N kg``. ``destroy`` writes ``DIR/stage-<k>.json``
+binding vertices) and prints one line ``max load: N kg``. ``--max-horizontal DIRECTION``
+(:func:`selfsupport.structure.limit.max_horizontal`) writes ``DIR/max-horizontal.json`` and
+``DIR/max-horizontal-program.json`` and prints ``max horizontal acceleration: X g``; ``--thrust``
+(:func:`selfsupport.structure.limit.thrust_range`) writes ``DIR/thrust-min.json``, ``DIR/thrust-max.json`` and
+``DIR/thrust-program.json`` and prints ``thrust: min X kN, max Y kN``. ``destroy`` writes ``DIR/stage-<k>.json``
 (network, original vertex ids, faces removed, stage status), ``DIR/destruction.json`` and
 ``DIR/stages.png``. Exit 0 when the runs completed (the verdicts are findings), 2 bad input,
-4 when ``--max-load`` certifies no load (the verdict, on stderr, says "locally infeasible" only
-when IPOPT reported it).
+4 when ``--max-load`` / ``--max-horizontal`` / ``--thrust`` certifies nothing (the verdict, on
+stderr, says "locally infeasible" only when IPOPT reported it).
 """
 from __future__ import annotations
 
@@ -22,7 +27,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from selfsupport.api import DEFAULT_DENSITY, make_method
 from selfsupport.cli.common import (
     EXIT_CODES,
     Command,
@@ -34,6 +41,18 @@ from selfsupport.cli.common import (
     print_table,
 )
 from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import load_vectors, reaction_line
+from selfsupport.core.loads import plan_direction
+from selfsupport.figures.hull import stage_strip
+from selfsupport.io import write_network
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.safety import check_output_dir
+from selfsupport.structure.destruction import destroy
+from selfsupport.structure.limit import max_horizontal, thrust_range
+from selfsupport.structure.stability import max_load, stability_series
+
+if TYPE_CHECKING:
+    from selfsupport.structure.limit import LimitResult
 
 __all__ = ["COMMANDS", "parse_vertices", "parse_loads"]
 
@@ -61,7 +80,6 @@ def parse_loads(text: str) -> list[float]:
 
 
 def _method(name: str):
-    from selfsupport.api import make_method
 
     return make_method(name)
 
@@ -72,7 +90,6 @@ def _kg_name(kg: float) -> str:
 
 # ------------------------------------------------------------------------------ stability
 def _stability_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
 
     add_scene_arguments(p)
     p.add_argument("--thickness", type=positive_float, required=True, metavar="T",
@@ -83,11 +100,19 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
                    help="vertices carrying the added mass, spread evenly (default: the scene's handled vertices)")
     p.add_argument("--loads", default="0,5000,10000,20000", metavar="KG[,KG...]",
                    help="added masses [kg] (default 0,5000,10000,20000)")
-    p.add_argument("--max-load", action="store_true",
-                   help="instead, the largest added mass with a network inside the hull: one limit program (IPOPT), "
-                        "certified by its network")
+    limit = p.add_mutually_exclusive_group()
+    limit.add_argument("--max-load", action="store_true",
+                       help="instead, the largest added mass with a network inside the hull: one limit program (IPOPT), "
+                            "certified by its network")
+    limit.add_argument("--max-horizontal", default=None, metavar="DIRECTION",
+                       help="instead, the largest horizontal acceleration a·g (each vertex's weight times a, along "
+                            "DIRECTION: x, y, -x, -y or an angle in degrees from x) with a network inside the hull")
+    limit.add_argument("--thrust", action="store_true",
+                       help="instead, the least and greatest thrust (sum of the supports' horizontal reactions) of "
+                            "networks inside the hull under self-weight")
     p.add_argument("--time-limit", type=positive_float, default=600.0, metavar="S",
-                   help="--max-load: wall-clock limit of the whole analysis [s] (default 600)")
+                   help="--max-load, --max-horizontal, --thrust: wall-clock limit of the whole analysis [s] "
+                        "(default 600)")
     p.add_argument("--method", choices=["staggered", "ipopt"], default="staggered",
                    help="staggered (no hull, then the hull as an active set) or ipopt (hard hull rows; warm-started from the "
                         "previous load)")
@@ -95,21 +120,27 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_stability(args: argparse.Namespace) -> int:
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.io.safety import check_output_dir
-    from selfsupport.structure.stability import max_load, stability_series
 
     out = Path(args.out)
     loads = parse_loads(args.loads)
     at = parse_vertices(args.load_at) if args.load_at else None
-    files = (["max-load.json", "max-load-program.json"] if args.max_load
-             else [f"load-{_kg_name(k)}kg.json" for k in loads] + ["stability.json"])
+    if args.max_horizontal is not None:
+        plan_direction(args.max_horizontal)  # (a bad direction is refused before anything is solved)
+        files = ["max-horizontal.json", "max-horizontal-program.json"]
+    elif args.thrust:
+        files = ["thrust-min.json", "thrust-max.json", "thrust-program.json"]
+    else:
+        files = (["max-load.json", "max-load-program.json"] if args.max_load
+                 else [f"load-{_kg_name(k)}kg.json" for k in loads] + ["stability.json"])
     check_output_dir(out, files=files, inputs=[("scene", None if args.scene.startswith("shape:") else args.scene)])
     scene = load_scene(args.scene, supports=args.supports, up=args.up)
     method = _method(args.method)
     out.mkdir(parents=True, exist_ok=True)
     info = {"name": scene.name, "input": args.scene, "thickness": args.thickness, "density": args.density}
+    if args.max_horizontal is not None:
+        return _max_horizontal(scene, args, out, info)
+    if args.thrust:
+        return _thrust(scene, args, out, info)
     if args.max_load:
         m = max_load(scene, thickness=args.thickness, density=args.density, at=at, time_limit=args.time_limit)
         r = m.limit
@@ -145,9 +176,63 @@ def _run_stability(args: argparse.Namespace) -> int:
     return EXIT_CODES["ok"]
 
 
+def _program_record(r: LimitResult) -> dict:
+    """What a limit program's ``*-program.json`` holds: the verdict, value, optimum, rounds and
+    the binding vertices."""
+    return {"kind": r.kind, "verdict": r.verdict, "value": r.value, "optimum": r.optimum,
+            "ipopt_status": r.ipopt_status, "message": r.message, "rounds": list(r.rounds),
+            "binding": [{"vertex": v, "distance_over_half_thickness": d} for v, d in r.binding]}
+
+
+def _binding_text(r: LimitResult) -> str:
+    return (", ".join(f"{v} ({d:+.4f} t/2)" for v, d in r.binding[:8]) +
+            (f", ... ({len(r.binding)} in all)" if len(r.binding) > 8 else ""))
+
+
+def _max_horizontal(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
+    """``--max-horizontal``: the limit program with λ the horizontal acceleration [g]."""
+
+    d = plan_direction(args.max_horizontal)
+    r = max_horizontal(scene, thickness=args.thickness, density=args.density, direction=args.max_horizontal,
+                       time_limit=args.time_limit)
+    info = {**info, "direction": args.max_horizontal, "direction_vector": d.tolist()}
+    atomic_write_text(out / "max-horizontal-program.json", json.dumps(
+        {"scene": info, **_program_record(r), "max_horizontal_acceleration_g": r.value}, indent=1, default=float) + "\n")
+    if not r.certified:
+        print(f"selfsupport: no max horizontal acceleration: {r.message}", file=sys.stderr)
+        return EXIT_CODES["not_converged"]
+    write_network(out / "max-horizontal.json", r.certificate, scene=info, horizontal_acceleration_g=r.value,
+                  program_optimum_g=r.optimum)
+    print_table(f"selfsupport stability --max-horizontal {args.max_horizontal} -> {out}", [
+        ("verdict", r.message), ("binding", _binding_text(r)),
+        ("support reactions", reaction_line(r.certificate.network.reaction_summary()))])
+    print(f"max horizontal acceleration: {r.value:.6g} g")
+    return EXIT_CODES["ok"]
+
+
+def _thrust(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
+    """``--thrust``: the limit program with λ = 0, the thrust minimised and maximised."""
+
+    lo, hi = thrust_range(scene, thickness=args.thickness, density=args.density, time_limit=args.time_limit)
+    atomic_write_text(out / "thrust-program.json", json.dumps(
+        {"scene": info, "min": _program_record(lo), "max": _program_record(hi),
+         "thrust_min_N": lo.value, "thrust_max_N": hi.value}, indent=1, default=float) + "\n")
+    for name, r in (("min", lo), ("max", hi)):
+        if r.certified:
+            write_network(out / f"thrust-{name}.json", r.certificate, scene=info, thrust_N=r.value)
+    failed = [r for r in (lo, hi) if not r.certified]
+    if failed:
+        print(f"selfsupport: no thrust range: {'; '.join(f'{r.kind}: {r.message}' for r in failed)}", file=sys.stderr)
+        return EXIT_CODES["not_converged"]
+    print_table(f"selfsupport stability --thrust -> {out}", [
+        ("min thrust", lo.message), ("max thrust", hi.message),
+        ("total load", f"{-float(load_vectors(lo.certificate.network.loads)[:, 2].sum()) / 1e3:.6g} kN")])
+    print(f"thrust: min {lo.value / 1e3:.6g} kN, max {hi.value / 1e3:.6g} kN")
+    return EXIT_CODES["ok"]
+
+
 # ------------------------------------------------------------------------------ destroy
 def _destroy_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
 
     add_scene_arguments(p)
     p.add_argument("--remove", action="append", type=number_in("[0, inf)", integer=True, what="a vertex index"),
@@ -162,10 +247,6 @@ def _destroy_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_destroy(args: argparse.Namespace) -> int:
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.io.safety import check_output_dir
-    from selfsupport.structure.destruction import destroy
 
     out = Path(args.out)
     check_output_dir(out, files=["destruction.json", "stages.png"],
@@ -184,7 +265,6 @@ def _run_destroy(args: argparse.Namespace) -> int:
                                                             "thickness": args.thickness, "density": args.density,
                                                             "stages": rows}, indent=1, default=float) + "\n")
     if not args.no_figure:
-        from selfsupport.figures.hull import stage_strip
 
         stage_strip(stages, out / "stages.png", thickness=args.thickness)
     print_table(f"selfsupport destroy -> {out}", [

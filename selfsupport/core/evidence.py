@@ -31,12 +31,86 @@ def force_sums(*, edges: np.ndarray, weights: np.ndarray, values: np.ndarray) ->
     return _sum_at_ends(edges, m, m, len(values))
 
 
+def load_vectors(loads: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` nodal load vectors [N] of ``loads``: signed vertical loads ``(n,)`` become
+    ``(0, 0, A_i F_i)``; ``(n, 3)`` loads (with horizontal components) are returned as they are.
+
+    >>> load_vectors(np.array([-2.0, 0.0])).tolist()
+    [[0.0, 0.0, -2.0], [0.0, 0.0, 0.0]]
+    """
+    L = np.asarray(loads, float)
+    if L.ndim == 2:
+        return L
+    out = np.zeros((len(L), 3))
+    out[:, 2] = L
+    return out
+
+
+def load_magnitudes(loads: np.ndarray) -> np.ndarray:
+    """``|L_i|`` per vertex of vertical ``(n,)`` or 3D ``(n, 3)`` loads (the scale of a relative error)."""
+    L = np.asarray(loads, float)
+    return np.linalg.norm(L, axis=1) if L.ndim == 2 else np.abs(L)
+
+
 def residuals(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray,
               loads: np.ndarray) -> np.ndarray:
-    """``(n, 3)``: ``Σ_j w_ij (v_j − v_i) − (0, 0, A_i F_i)`` at every vertex (supports included)."""
+    """``(n, 3)``: ``Σ_j w_ij (v_j − v_i) − L_i`` at every vertex (supports included); ``L_i`` is
+    ``(0, 0, A_i F_i)`` for vertical loads ``(n,)``, or the rows of 3D loads ``(n, 3)``."""
     r = stress_sums(edges=edges, weights=weights, values=vertices)
-    r[:, 2] -= loads
+    L = np.asarray(loads, float)
+    if L.ndim == 2:
+        return r - L
+    r[:, 2] -= L
     return r
+
+
+def support_reactions(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray, loads: np.ndarray,
+                      supports: np.ndarray) -> np.ndarray:
+    """``(k, 3)`` force [N] the ground exerts on each support (in vertex order), from the network:
+    ``R_i = Σ_j w_ij (v_j − v_i) − L_i``, the :func:`residuals` at the support, so that the
+    support is in equilibrium under its edges' forces, its own load and ``R_i``.
+
+    Summed over the supports, ``Σ R_i = −Σ_i L_i`` over every vertex (the edge terms cancel
+    pairwise) up to the free vertices' residuals. With compression (w ≥ 0) the network pushes
+    its supports outward and down; the reaction is the ground pushing back, inward and up.
+
+    >>> V = np.array([[-2.0, 0, 0], [0.0, 0, 1], [2.0, 0, 0]])   # two bars, apex load 10 N
+    >>> R = support_reactions(vertices=V, edges=np.array([[0, 1], [1, 2]]), weights=np.array([5.0, 5.0]),
+    ...                       loads=np.array([0.0, -10.0, 0.0]), supports=np.array([True, False, True]))
+    >>> R.tolist()   # thrust H = P L / (4 f) = 10 * 4 / 4 = 10 N, each side carries 5 N up
+    [[10.0, 0.0, 5.0], [-10.0, 0.0, 5.0]]
+    """
+    sup = np.asarray(supports, bool)
+    return residuals(vertices=vertices, edges=edges, weights=weights, loads=loads)[sup]
+
+
+def reaction_summary(reactions: np.ndarray, loads: np.ndarray, support_vertices: np.ndarray) -> dict:
+    """What foundations are designed from, in N: the total reaction (a 3-vector), its vertical
+    part beside the total load, the largest horizontal reaction at one support (its vertex) and
+    the thrust (the sum of the supports' horizontal reaction magnitudes)."""
+    R = np.asarray(reactions, float).reshape(-1, 3)
+    h = np.linalg.norm(R[:, :2], axis=1)
+    k = int(np.argmax(h)) if h.size else -1
+    L = load_vectors(loads)
+    return {"total": R.sum(axis=0), "vertical": float(R[:, 2].sum()), "total_load": L.sum(axis=0),
+            "max_horizontal": float(h[k]) if h.size else 0.0,
+            "max_horizontal_vertex": int(np.asarray(support_vertices)[k]) if h.size else None,
+            "thrust": float(h.sum())}
+
+
+def reaction_line(summary: dict) -> str:
+    """One summary line on :func:`reaction_summary`, in kN: the vertical reactions beside the load
+    they carry, the largest horizontal reaction and its support vertex, and the thrust (the sum
+    of the horizontal reaction magnitudes).
+
+    >>> reaction_line(reaction_summary(np.array([[1e3, 0, 2e3], [-1e3, 0, 2e3]]), np.array([0, -4e3, 0]), [0, 2]))
+    'vertical 4 kN (load 4 kN), max horizontal 1 kN at 0, thrust 2 kN'
+    """
+    if summary["max_horizontal_vertex"] is None:
+        return "no supports"
+    return (f"vertical {summary['vertical'] / 1e3:.6g} kN (load {-summary['total_load'][2] / 1e3:.6g} kN), max "
+            f"horizontal {summary['max_horizontal'] / 1e3:.4g} kN at {summary['max_horizontal_vertex']}, thrust "
+            f"{summary['thrust'] / 1e3:.4g} kN")
 
 
 def _sum_at_ends(edges: np.ndarray, at_first: np.ndarray, at_second: np.ndarray, n: int) -> np.ndarray:
@@ -58,7 +132,7 @@ def relative_errors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
     """Per non-support vertex: ``‖residual‖ / |A_i F_i|`` (paper's Table 1 definition)."""
     r = residuals(vertices=vertices, edges=edges, weights=weights, loads=loads)
     free = ~np.asarray(supports, bool)
-    return np.linalg.norm(r[free], axis=1) / np.maximum(np.abs(loads[free]), 1e-300)
+    return np.linalg.norm(r[free], axis=1) / np.maximum(load_magnitudes(loads)[free], 1e-300)
 
 
 #: A vertex whose relative error is at most this many times its round-off floor
@@ -130,7 +204,7 @@ def roundoff_floors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
     a = np.abs(np.asarray(weights, float))[:, None] * (V[edges[:, 0]] + V[edges[:, 1]])
     S = _sum_at_ends(edges, a, a, len(V))
     free = ~np.asarray(supports, bool)
-    return np.finfo(float).eps * np.linalg.norm(S[free], axis=1) / np.maximum(np.abs(loads[free]), 1e-300)
+    return np.finfo(float).eps * np.linalg.norm(S[free], axis=1) / np.maximum(load_magnitudes(loads)[free], 1e-300)
 
 
 def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarray, loads: np.ndarray,
@@ -175,7 +249,7 @@ def roundoff_limit(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndarr
     if np.all(rel[over] <= floor_tolerance(floors[over])) or np.any(rel[over] > FLOOR_MARGIN * floors[over]):
         return None  # in equilibrium (at the floor, within the cap), or off it for other reasons
     free = ~np.asarray(supports, bool)
-    load = np.abs(np.asarray(loads, float)[free])
+    load = load_magnitudes(loads)[free]
     if np.any(degenerate(load)[over]):
         return None  # a vertex with next to no load: slid onto its neighbours, a degenerate network
     V = np.asarray(vertices, float)

@@ -1,5 +1,7 @@
 """Load cases (paper Step 1). Each case maps a geometry to signed vertical nodal loads
-``A_i F_i`` in newtons (negative = down); cases add up with ``+``.
+``A_i F_i`` in newtons (negative = down); cases add up with ``+``. A case may also put
+horizontal loads on the vertices (:meth:`LoadCase.horizontal`: a pseudo-static horizontal
+acceleration, :class:`HorizontalAcceleration`); :func:`load_vectors_of` gives both as 3-vectors.
 
 Example
 -------
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import vertex_areas
 from selfsupport.core.mesh import PolyMesh
 
@@ -47,6 +50,15 @@ class LoadCase:
         """The vertices that carry a point load or an extra mass (sorted indices)."""
         return np.zeros(0, dtype=np.int64)
 
+    def horizontal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
+        """``(n, 2)`` horizontal (x, y) nodal loads [N]; none for a vertical load."""
+        return np.zeros((mesh.n_vertices, 2))
+
+    @property
+    def has_horizontal(self) -> bool:
+        """Does the case put horizontal loads on the vertices?"""
+        return False
+
     def __add__(self, other: "LoadCase") -> "CombinedLoad":
         return CombinedLoad((self, other))
 
@@ -67,6 +79,16 @@ class CombinedLoad(LoadCase):
 
     def concentrated_at(self) -> np.ndarray:
         return np.unique(np.concatenate([c.concentrated_at() for c in self.cases] + [np.zeros(0, np.int64)]))
+
+    def horizontal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
+        out = np.zeros((mesh.n_vertices, 2))
+        for c in self.cases:
+            out = out + c.horizontal(mesh, vertices)
+        return out
+
+    @property
+    def has_horizontal(self) -> bool:
+        return any(c.has_horizontal for c in self.cases)
 
     def __add__(self, other: LoadCase) -> "CombinedLoad":
         return CombinedLoad(self.cases + (other,))
@@ -118,6 +140,75 @@ class ExtraMass(LoadCase):
 
     def concentrated_at(self) -> np.ndarray:
         return np.flatnonzero(np.asarray(self.mass, float) != 0)
+
+
+def plan_direction(spec: str | float) -> np.ndarray:
+    """The unit plan vector of a direction: ``"x"``, ``"y"``, ``"-x"``, ``"-y"`` or an angle in
+    degrees from the x axis towards the y axis (a number, or its text).
+
+    >>> plan_direction("y").tolist(), plan_direction("-x").tolist(), np.round(plan_direction("45"), 6).tolist()
+    ([0.0, 1.0], [-1.0, 0.0], [0.707107, 0.707107])
+    """
+    named = {"x": 0.0, "y": 90.0, "-x": 180.0, "-y": 270.0, "+x": 0.0, "+y": 90.0}
+    text = str(spec).strip().lower()
+    if text in named:
+        deg = named[text]
+    else:
+        try:
+            deg = float(text)
+        except ValueError:
+            raise InputError(f"direction {spec!r}: give x, y, -x, -y or an angle in degrees from the x axis") from None
+        if not np.isfinite(deg):
+            raise InputError(f"direction {spec!r}: give a finite angle in degrees")
+    a = np.deg2rad(deg)
+    d = np.array([np.cos(a), np.sin(a)])
+    d[np.abs(d) < 1e-15] = 0.0  # (cos 90° is 6e-17: "y" is exactly y)
+    return d
+
+
+@dataclass(frozen=True)
+class HorizontalAcceleration(LoadCase):
+    """A pseudo-static horizontal acceleration ``a g`` in a plan direction (the seismic check of
+    masonry): every vertex gets the horizontal load ``a`` × its weight under ``of`` (the vertical
+    loads that are masses accelerated with the vault: its self-weight, extra masses), along
+    ``direction``. It adds no vertical load; combine it with ``of`` for the whole case.
+
+    >>> from selfsupport.core.mesh import PolyMesh
+    >>> m = PolyMesh.from_faces(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.]]), [[0, 1, 2]])
+    >>> sw = SelfWeight(density=1000.0, thickness=0.1)
+    >>> h = HorizontalAcceleration(0.2, "x", sw).horizontal(m, m.vertices)
+    >>> bool(np.allclose(h[:, 0], 0.2 * -sw.nodal(m, m.vertices)) and np.all(h[:, 1] == 0))
+    True
+    """
+
+    acceleration: float  # in units of g
+    direction: str | float = "x"
+    of: LoadCase = SelfWeight()
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.acceleration) and self.acceleration >= 0):
+            raise InputError(f"horizontal acceleration {self.acceleration}: give a finite number >= 0 (in g)")
+        plan_direction(self.direction)
+
+    def nodal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
+        return np.zeros(mesh.n_vertices)
+
+    def horizontal(self, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
+        weight = np.maximum(-np.asarray(self.of.nodal(mesh, vertices), float), 0.0)  # (upward loads carry no mass)
+        return self.acceleration * weight[:, None] * plan_direction(self.direction)[None, :]
+
+    @property
+    def has_horizontal(self) -> bool:
+        return self.acceleration > 0
+
+    @property
+    def depends_on_geometry(self) -> bool:
+        return self.of.depends_on_geometry
+
+
+def load_vectors_of(case: LoadCase, mesh: PolyMesh, vertices: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` nodal load vectors [N] of a case: its horizontal loads and its vertical ones."""
+    return np.column_stack([case.horizontal(mesh, vertices), case.nodal(mesh, vertices)])
 
 
 def with_scene_extras(loads: LoadCase, scene) -> LoadCase:

@@ -6,7 +6,15 @@ from typing import Any
 
 import numpy as np
 
-from selfsupport.core.evidence import distance_stats, floor_tolerance, relative_errors, roundoff_floors, roundoff_limit
+from selfsupport.core.evidence import (
+    distance_stats,
+    floor_tolerance,
+    reaction_summary,
+    relative_errors,
+    roundoff_floors,
+    roundoff_limit,
+    support_reactions,
+)
 from selfsupport.core.mesh import PolyMesh
 
 #: Statuses a method may report.
@@ -18,7 +26,8 @@ class Network:
     """A thrust network: geometry, one weight per mesh edge, loads, supports.
 
     ``weights[k]`` belongs to ``mesh.edges[k]``; edges between two supports carry no unknown
-    and have weight 0. ``loads`` are signed vertical nodal loads [N] for every vertex.
+    and have weight 0. ``loads`` are signed vertical nodal loads [N] for every vertex, ``(n,)``,
+    or nodal load vectors ``(n, 3)`` where loads have horizontal components.
     """
 
     mesh: PolyMesh
@@ -91,6 +100,22 @@ class Network:
     def active_edges(self) -> np.ndarray:
         e = self.edges
         return ~(self.supports[e[:, 0]] & self.supports[e[:, 1]])
+
+    def support_reactions(self) -> np.ndarray:
+        """``(k, 3)`` force [N] the ground exerts on each support, in vertex order
+        (:func:`~.evidence.support_reactions`; read-only, computed once per network)."""
+        r = self.__dict__.get("_support_reactions")
+        if r is None:
+            r = support_reactions(vertices=self.vertices, edges=self.edges, weights=self.weights, loads=self.loads,
+                                  supports=self.supports)
+            r.setflags(write=False)
+            self.__dict__["_support_reactions"] = r
+        return r
+
+    def reaction_summary(self) -> dict:
+        """Total, vertical, largest horizontal and summed horizontal reactions [N]
+        (:func:`~.evidence.reaction_summary`)."""
+        return reaction_summary(self.support_reactions(), self.loads, np.flatnonzero(self.supports))
 
     def min_weight(self) -> float:
         w = self.weights[self.active_edges]

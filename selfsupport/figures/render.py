@@ -438,6 +438,56 @@ def figure_deviation(inp: FigureInput):
     return fig
 
 
+def reaction_arrows(network: Network) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The top view of the support reactions: each support's plan position ``(k, 2)``, its
+    horizontal reaction ``(k, 2)`` [N] and its vertical reaction ``(k,)`` [N]
+    (:meth:`~selfsupport.core.result.Network.support_reactions`: the ground's force on the network)."""
+    R = network.support_reactions()
+    return network.vertices[network.supports][:, :2], R[:, :2], R[:, 2]
+
+
+def figure_reactions(inp: FigureInput):
+    """Top view: the network in grey and, at each support, an arrow of its horizontal reaction
+    (length ∝ force; the ground pushing on the vault, so inward where the vault thrusts outward),
+    the support dot coloured by the vertical reaction; the totals in the title."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.collections import LineCollection
+
+    net = inp.network
+    if not net.supports.any():
+        raise InputError("the reactions figure needs supports; the network has none")
+    P, H, Z = reaction_arrows(net)
+    fig = _figure(inp)
+    ax = fig.add_axes(_MAIN_RECT_2D)
+    ax.add_collection(LineCollection(net.vertices[net.edges][:, :, :2], colors="0.75", linewidths=0.5))
+    span = float(np.ptp(net.vertices[:, :2], axis=0).max()) or 1.0
+    h = np.linalg.norm(H, axis=1)
+    scale = 0.15 * span / max(float(h.max()), 1e-300)  # the largest arrow 15% of the plan
+    unit = Unit.for_magnitude(max(float(np.abs(Z).max()), float(h.max())), "N")
+    ax.quiver(P[:, 0], P[:, 1], H[:, 0] * scale, H[:, 1] * scale, angles="xy", scale_units="xy", scale=1.0,
+              color="tab:red", width=0.004, zorder=4, label="horizontal reaction")
+    cmap = colormaps["viridis"]
+    norm = _norm(Z)
+    ax.scatter(P[:, 0], P[:, 1], s=float(np.clip(600.0 / len(P), 4.0, 24.0)), c=cmap(norm(Z)), zorder=5,
+               edgecolors="black", linewidths=0.3, label="support (vertical reaction)")
+    # the arrows reach beyond the plan: the limits take them in
+    ends = np.vstack([net.vertices[:, :2], P + H * scale])
+    ax.update_datalim(ends)
+    _equal_2d(ax)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.tick_params(labelsize=8)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, fontsize=7, frameon=False)
+    _colorbar(fig, ScalarMappable(norm=norm, cmap=cmap), "vertical reaction", unit=unit)
+    s = net.reaction_summary()
+    detail = (f"vertical {s['vertical'] / unit.scale:.4g} {unit.symbol}, max horizontal "
+              f"{s['max_horizontal'] / unit.scale:.4g} {unit.symbol} (longest arrow), thrust "
+              f"{s['thrust'] / unit.scale:.4g} {unit.symbol}")
+    _set_title(fig, _summary_title(inp, "support reactions (top view)", detail))
+    return fig
+
+
 # ---------------------------------------------------------------------------------- analysis
 def _analysis(name: str):
     """``selfsupport.analysis.<name>``, imported lazily (figures of forces do not need it)."""
@@ -701,6 +751,7 @@ FIGURES: dict[str, Callable[[FigureInput], Any]] = {
     "reciprocal": figure_reciprocal,
     "directions": figure_directions,
     "history": figure_history,
+    "reactions": figure_reactions,
 }
 
 

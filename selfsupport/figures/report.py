@@ -28,7 +28,7 @@ from selfsupport.io.atomic import atomic_write_bytes
 __all__ = ["REPORT_KINDS", "ReportFiles", "write_report", "stored_thickness", "network_title"]
 
 #: figure kinds written by default, in this order; file name = ``<kind>.png``
-REPORT_KINDS: tuple[str, ...] = ("network", "deviation", "history", "airy", "reciprocal", "directions")
+REPORT_KINDS: tuple[str, ...] = ("network", "deviation", "history", "airy", "reciprocal", "directions", "reactions")
 #: kinds that need the Airy analysis / the principal directions
 _NEEDS_AIRY = ("airy", "reciprocal")
 _NEEDS_DIRECTIONS = ("directions",)

@@ -32,7 +32,7 @@ from selfsupport.io.compas_mesh import is_compas_mesh, network_document
 from selfsupport.io.meshfiles import LoadedMesh, Source
 
 __all__ = ["NETWORK_KEYS", "to_jsonable", "network_to_dict", "write_network", "read_network", "read_json_scene",
-           "edge_weights", "load_case_entries", "network_from_arrays"]
+           "edge_weights", "load_case_entries", "network_from_arrays", "reactions_entry", "read_reactions"]
 
 #: keys every network file has
 NETWORK_KEYS = ("vertices", "faces", "edges", "weights", "loads", "supports")
@@ -117,8 +117,57 @@ def load_case_entries(cases: Any) -> list[dict[str, Any]]:
     """The ``load_cases`` key of a network file: per ``(name, network)`` of ``cases``, its weights
     (:func:`edge_weights`), loads and evidence (max relative error, min weight)."""
     return [{"name": name, "weights": edge_weights(net), "loads": np.asarray(net.loads, float),
-             "max_relative_error": net.max_relative_error(), "min_weight": net.min_weight()}
+             "max_relative_error": net.max_relative_error(), "min_weight": net.min_weight(),
+             "support_reactions": reactions_entry(net)}
             for name, net in cases]
+
+
+def reactions_entry(net: Network, *, arrays: bool = False) -> dict[str, Any]:
+    """The ``support_reactions`` key of a network file: the force [N] the ground exerts on each
+    support (``vertices``, ``forces`` rows in that order; :meth:`Network.support_reactions`) and
+    their summary (``total``, ``vertical``, ``max_horizontal`` at ``max_horizontal_vertex``,
+    ``thrust``: the sum of the horizontal magnitudes)."""
+    R = np.asarray(net.support_reactions(), float)
+    s = net.reaction_summary()
+    d = {"unit": "N", "vertices": np.flatnonzero(net.supports), "forces": R, "total": s["total"],
+         "vertical": s["vertical"], "max_horizontal": s["max_horizontal"],
+         "max_horizontal_vertex": s["max_horizontal_vertex"], "thrust": s["thrust"]}
+    return d if arrays else to_jsonable(d, "support_reactions")
+
+
+def read_reactions(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The support reactions a network file stores: ``(vertices, forces (k, 3) [N])``, or ``None``
+    for a file written without them (they are recomputed from the network:
+    :meth:`Network.support_reactions`).
+
+    Raises
+    ------
+    InputError
+        The key is there but malformed (not the supports' vertices, not one 3-vector per support).
+    """
+    src = Source(path)
+    d = load_json(src)
+    net = _network_of(src, d)
+    return _reactions(src, d, net.supports)
+
+
+def _reactions(src: Source, d: dict, supports: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``d["support_reactions"]`` checked against the file's supports, or ``None`` when absent."""
+    entry = d.get("support_reactions")
+    if entry is None:
+        return None
+    if not isinstance(entry, dict):
+        raise src.error("key 'support_reactions' is not an object", "write {\"vertices\": [...], \"forces\": [[x, y, z], ...]} "
+                        "or leave the key out (it is recomputed from the network)")
+    fix = "leave the key out (it is recomputed from the network) or fix it"
+    try:
+        idx = _numbers(src, entry, "vertices", integer=True, width=None)
+        forces = _numbers(src, entry, "forces", integer=False, width=3)
+    except InputError as e:  # (the message names the inner key: say where it is)
+        raise src.error(f"key 'support_reactions': {str(e).split(': ', 1)[-1].split(';')[0]}", fix) from None
+    if not np.array_equal(idx, np.flatnonzero(supports)) or len(forces) != len(idx):
+        raise src.error("key 'support_reactions' does not list one force per support, in the order of 'supports'", fix)
+    return idx, forces
 
 
 def edge_weights(net: Network) -> np.ndarray:
@@ -189,6 +238,7 @@ def _document(network: Network | SolveResult, extra: dict[str, Any], *, arrays: 
         "loads": numbers(np.asarray(net.loads, dtype=float), "loads"),
         "supports": numbers(np.flatnonzero(sup), "supports"),
     }
+    d["support_reactions"] = reactions_entry(net, arrays=arrays)
     if net.handles is not None and np.any(net.handles):
         d["handles"] = numbers(np.flatnonzero(np.asarray(net.handles, dtype=bool)), "handles")
     if net.reference is not None:
@@ -462,6 +512,14 @@ def read_network(path: str | Path, up: str | None = None) -> Network:
     return _network_of(src, load_json(src))
 
 
+def _loads(src: Source, d: dict) -> np.ndarray:
+    """``d["loads"]``: signed vertical loads ``(n,)``, or load vectors ``(n, 3)`` (horizontal loads)."""
+    value = d.get("loads")
+    if isinstance(value, list) and value and isinstance(value[0], list):
+        return _numbers(src, d, "loads", integer=False, width=3)
+    return _numbers(src, d, "loads", integer=False, width=None)
+
+
 def _is_network(d: dict) -> bool:
     """A solved network, not a hand-made ``{"vertices", "faces", "supports"}`` scene."""
     return "weights" in d or "edges" in d
@@ -475,13 +533,14 @@ def _network_of(src: Source, d: dict) -> Network:
     mesh = _mesh(src, v, faces)
     e = _numbers(src, d, "edges", integer=True, width=2)
     w = _numbers(src, d, "weights", integer=False, width=None)
-    loads = _numbers(src, d, "loads", integer=False, width=None)
+    loads = _loads(src, d)
     supports = _mask(src, d, "supports", n)
     if supports is None:
         raise src.error("missing key 'supports'", f"a network file needs {', '.join(NETWORK_KEYS)}")
     handles = _mask(src, d, "handles", n)
     ref_v, ref_f = _reference(src, d, faces)
     reference = None if ref_v is None else PolyMesh.from_faces(ref_v, ref_f)
+    _reactions(src, d, supports)
     return network_from_arrays(src, mesh, e, w, loads, supports, handles=handles, reference=reference)
 
 

@@ -50,7 +50,7 @@ import scipy.sparse as sp
 
 from formulations import Problem, ScaledProblem
 from formulations.equilibrium import Topology, load_vector, weight_matrix
-from selfsupport.core.evidence import floor_tolerance
+from selfsupport.core.evidence import floor_tolerance, load_magnitudes
 from selfsupport.core.linalg import spd_factor
 from selfsupport.core.result import Network
 
@@ -80,7 +80,7 @@ def refit_weights(network: Network, tol: float, *, lower: np.ndarray | float = 0
     up = np.broadcast_to(np.asarray(upper, float), w0.shape)
     L = np.asarray(network.loads, float)
     allow = np.maximum(tol, floor_tolerance(network.roundoff_floors()))
-    rows = np.repeat(1.0 / np.maximum(np.abs(L[top.free]) * allow, 1e-300), 3)
+    rows = np.repeat(1.0 / np.maximum(load_magnitudes(L)[top.free] * allow, 1e-300), 3)
     A = weight_matrix(top, V)
     SA = (sp.diags(rows) @ A).tocsc()
     b = load_vector(top, L)

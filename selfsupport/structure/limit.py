@@ -50,20 +50,25 @@ from typing import Any, Callable, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 
 from formulations import Problem
+from formulations.equilibrium import to_dm
 from formulations.problem import Hull
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import G
+from selfsupport.core.evidence import load_vectors
+from selfsupport.core.loads import G, PointLoad, plan_direction
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
 from selfsupport.methods.base import case_networks, hull_excess, hull_signed_distance
 from selfsupport.methods.polish import polish_joint
 from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
-from selfsupport.structure.stability import spread_mass
+from selfsupport.methods.weight_refit import edge_bounds, refit_weights
+from selfsupport.structure.stability import solve_in_hull, spread_mass
 
-__all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "CERTIFY_TOL", "HULL_MARGIN"]
+__all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "max_horizontal", "thrust_range", "CERTIFY_TOL",
+           "HULL_MARGIN"]
 
 #: Max relative equilibrium error of a certifying network (the paper's Table 1 metric).
 CERTIFY_TOL = 1e-8
@@ -74,6 +79,9 @@ HULL_MARGIN = 1e-4
 MAX_ROUNDS = 5
 #: Relative back-offs of λ (or of 1/t) tried, in turn, when the optimum's network is not a certificate.
 BACK_OFF = (1e-3, 1e-2, 5e-2)
+#: The relative error to which the weights of a network under horizontal loads are refit at its
+#: positions (the joint polish balances vertical loads only); well below :data:`CERTIFY_TOL`.
+REFIT_TOL = 1e-11
 #: IPOPT statuses that mean "no point found": the program is locally infeasible.
 LOCALLY_INFEASIBLE = frozenset({"Infeasible_Problem_Detected"})
 
@@ -126,10 +134,14 @@ class LimitResult:
 
 # ------------------------------------------------------------------------------ the program
 class _Program:
-    """The limit NLP of one problem in the scale-free units of the simultaneous method."""
+    """The limit NLP of one problem in the scale-free units of the simultaneous method.
+
+    ``horizontal`` (a unit plan vector): λ scales a horizontal load instead, λ g the acceleration
+    of the vault's weight in that direction (λ in g). The thrust modes hold λ at 0 and minimise
+    or maximise the thrust: the sum of the supports' horizontal reaction magnitudes."""
 
     def __init__(self, problem: Problem, start: np.ndarray, pattern: np.ndarray, mode: str,
-                 slide_supports: bool = False) -> None:
+                 slide_supports: bool = False, horizontal: np.ndarray | None = None) -> None:
 
         self.problem, self.mode, self.slide_supports = problem, mode, slide_supports
         form, sc = Simultaneous.formulation(problem, start)
@@ -146,9 +158,14 @@ class _Program:
         self.anchor, self.normal = hull.points[self.order], hull.normals[self.order]
         # the masonry's weight where the masonry is: the loads of the reference geometry, held
         self.base = sc.loads_at(problem.loads, self.mesh0, sc.pos(self.mesh0.vertices))[0]
-        # λ in units of the vault's own (free) weight, so that λ̂ is of order one
-        self.lam_unit = float(np.abs(sc.load_back(self.base[self.free])).sum() / G)
+        # λ in units of the vault's own (free) weight, so that λ̂ is of order one (an acceleration: in g)
+        self.horizontal = horizontal is not None
+        self.lam_unit = 1.0 if self.horizontal else float(np.abs(sc.load_back(self.base[self.free])).sum() / G)
         self.P = sc.load(pattern) * self.lam_unit  # scaled load of λ̂ = 1
+        # the horizontal load of λ̂ = 1: each vertex's weight (its downward load) along the direction
+        self.H = np.zeros((len(self.base), 3))
+        if self.horizontal:
+            self.H[:, :2] = np.maximum(-self.base, 0.0)[:, None] * np.asarray(horizontal, float)[None, :2]
         self.h = hull.half_thickness
         self._build()
 
@@ -167,20 +184,53 @@ class _Program:
         nf, ns3, m = self.nf, self.ns3, form.topology.m
         nm = len(self.order)
         s, w, lam = ca.MX.sym("s", nm), ca.MX.sym("w", m), ca.MX.sym("lam")
-        p = ca.MX.sym("p", ns3 + 3 * nf)  # V_sup, L_sw (free), row scale, P (free)
-        loads = p[ns3:ns3 + nf] + lam * p[ns3 + 2 * nf:]
+        p = ca.MX.sym("p", ns3 + 6 * nf)  # V_sup, L_sw (free), row scale, P (free), H (free, x y z)
+        loads = p[ns3:ns3 + nf] + lam * p[ns3 + 2 * nf:ns3 + 3 * nf]
         sup = self.positions(s[nf:], slice(nf, None)) if self.slide_supports else p[:ns3]
-        g, f = rows(ca.vertcat(self.positions(s[:nf], slice(0, nf)), w),
-                    ca.vertcat(sup, loads, p[ns3 + nf:ns3 + 2 * nf]))
+        X = self.positions(s[:nf], slice(0, nf))
+        scale = p[ns3 + nf:ns3 + 2 * nf]
+        g, f = rows(ca.vertcat(X, w), ca.vertcat(sup, loads, scale))
+        if self.horizontal:  # the rows are relative residuals: the horizontal load scaled as the vertical one
+            g = g - lam * p[ns3 + 3 * nf:] * ca.vec(ca.repmat(scale.T, 3, 1))
         xs = ca.vertcat(s, w, lam)
         if self.mode == "min_thickness":
             h = ca.MX.sym("h")
             xs = ca.vertcat(xs, h)
             g = ca.vertcat(g, s - h, s + h)
             f = f + h
-        elif self.mode == "max_load":
+        elif self.mode in ("max_load", "max_horizontal"):
             f = f - lam
+        elif self.mode in ("min_thrust", "max_thrust"):
+            f = f + (1.0 if self.mode == "min_thrust" else -1.0) * self.thrust_expr(X, w, sup)
         self.nlp = {"x": xs, "p": p, "f": f, "g": g}
+
+    def thrust_expr(self, X, w, sup):
+        """The thrust Σ_s ‖R_s,h‖ over the supports (smoothed at 0 by 1e-9 of the load unit), in
+        units of the vault's free weight: ``R_s = Σ_j w_sj (v_j − v_s) − L_s``, its x and y."""
+        M = self.form.equilibrium._matrices  # (the constant matrices of eqs. 2-3, stated once there)
+        d = ca.mtimes(to_dm(M["Df"]), X) + ca.mtimes(to_dm(M["Ds"]), sup)
+        force = ca.mtimes(to_dm(M["R"]), w) * d
+        Rh = ca.mtimes(to_dm(self.support_assembly()), force)  # (2 n_sup): x, y per support (no horizontal loads)
+        unit = float(np.abs(self.base[self.free]).sum())
+        sq = Rh[0::2] ** 2 + Rh[1::2] ** 2
+        return ca.sum1(ca.sqrt(sq + (1e-9 * unit) ** 2)) / unit
+
+    def support_assembly(self) -> sp.csc_matrix:
+        """``(2 n_sup, 3 m)``: x and y of each support's sum of edge forces ``w_k (v_j − v_i)``
+        (+ at an edge's first end, − at its second), supports in vertex order."""
+        top = self.form.topology
+        e = top.edges
+        sup_index = -np.ones(top.n, dtype=np.int64)
+        sup_index[~top.free] = np.arange(int((~top.free).sum()))
+        rows, cols, vals = [], [], []
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            k = np.flatnonzero(sup_index[e[:, end]] >= 0)
+            for c in range(2):
+                rows.append(2 * sup_index[e[k, end]] + c)
+                cols.append(3 * k + c)
+                vals.append(np.full(len(k), sign))
+        return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(2 * int((~top.free).sum()), 3 * top.m))
 
     def bounds(self, lam: tuple[float, float], h: float) -> dict[str, np.ndarray]:
         """Bounds: |s| <= ``h`` (the hull), the weights', λ's (and, for min thickness, h >= 0)."""
@@ -199,7 +249,7 @@ class _Program:
     def parameters(self, lam: float) -> np.ndarray:
         form, free = self.form, self.free
         return np.r_[form.vertices[~free].ravel(), self.base[free], form.row_scale(self.base + lam * self.P).ravel(),
-                     self.P[free]]
+                     self.P[free], self.H[free].ravel()]
 
     def offsets(self, Vs: np.ndarray) -> np.ndarray:
         """Offsets along the normals of scaled positions (their projections onto the lines)."""
@@ -273,7 +323,8 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
         ok = np.all(np.isfinite(out["x"]))
         if ok and out["status"] in ("converged", "stalled"):
             s, Vs, w, lam, h = prog.unpack(out["x"])
-            rec.update({"lambda_kg": lam * prog.lam_unit, **({"thickness": 2 * h * prog.sc.length} if h else {})})
+            rec.update({"acceleration_g" if prog.horizontal else "lambda_kg": lam * prog.lam_unit,
+                        **({"thickness": 2 * h * prog.sc.length} if h else {})})
         rounds.append(rec)
         if progress:
             progress(rec)
@@ -288,6 +339,8 @@ def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndar
     """λ held, the network made exact to round-off for its loads, hull rows held on their faces."""
 
     prog = run.prog
+    if prog.horizontal:  # (the joint polish balances vertical loads: the weights are refit instead, in _finish)
+        return run.Vs, run.w, {"stage": "polish", "skipped": "horizontal loads: the weights are refit at the positions"}
     form = prog.form
     hull = dataclasses.replace(prog.hull, half_thickness=prog.h * (1 - HULL_MARGIN) if run.h is None else run.h)
     total = (lambda Vs: (prog.base + lam * prog.P)[None, :])
@@ -308,7 +361,11 @@ def _network(prog: _Program, Vs: np.ndarray, w: np.ndarray, lam: float, added: n
         V = net.vertices.copy()
         V[~prog.free] = prog.sc.pos_back(Vs)[~prog.free]
         net = dataclasses.replace(net, mesh=net.mesh.with_vertices(V))
-    return dataclasses.replace(net, loads=prog.sc.load_back(prog.base) + lam * prog.lam_unit * added)
+    loads = prog.sc.load_back(prog.base) + lam * prog.lam_unit * added
+    if prog.horizontal:
+        loads = load_vectors(loads)
+        loads[:, :2] += lam * prog.lam_unit * prog.sc.load_back(prog.H[:, :2])
+    return dataclasses.replace(net, loads=loads)
 
 
 def _evidence(scene: Scene, net: Network, thickness: float, supports_too: bool = False) -> tuple[bool, dict]:
@@ -355,8 +412,6 @@ def _start(problem: Problem, start: Network | SolveResult | None, kg: float, add
     """Start positions and weights [SI, per mesh edge]: ``start``, else the staggered network
     (:func:`~selfsupport.structure.stability.solve_in_hull`: certified, or the closest one found)."""
     if start is None:
-        from selfsupport.core.loads import PointLoad
-        from selfsupport.structure.stability import solve_in_hull
 
         prob = problem if kg == 0 else dataclasses.replace(
             problem, loads=type(problem.loads)(tuple((n, c + PointLoad(kg * added)) for n, c in problem.loads.cases)))
@@ -376,14 +431,15 @@ def _start(problem: Problem, start: Network | SolveResult | None, kg: float, add
 
 def _program_run(problem: Problem, mode: str, V: np.ndarray, W: np.ndarray | None, added: np.ndarray, *, kg: float,
                  deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None,
-                 slide_supports: bool = False) -> _Run:
+                 slide_supports: bool = False, horizontal: np.ndarray | None = None) -> _Run:
     """Build the program at positions ``V`` [m] with weights ``W`` [N/m per mesh edge] (``None``:
-    a cold start) and run its rounds from λ = ``kg``."""
-    prog = _Program(problem, V, added, mode, slide_supports)
+    a cold start) and run its rounds from λ = ``kg`` (with ``horizontal``, λ is the horizontal
+    acceleration in g in that plan direction)."""
+    prog = _Program(problem, V, added, mode, slide_supports, horizontal)
     sc, act = prog.sc, problem.scene.active_edges
     w = (np.clip(sc.weight(W[act]), prog.form.lower, prog.form.upper) if W is not None else
          np.full(prog.form.topology.m, 0.01 * prog.form.weight_scale))
-    return _rounds(prog, sc.pos(V), w, lam=kg / prog.lam_unit, lam_fixed=mode != "max_load",
+    return _rounds(prog, sc.pos(V), w, lam=kg / prog.lam_unit, lam_fixed=mode not in ("max_load", "max_horizontal"),
                    h_over=prog.h if mode == "min_thickness" else None, deadline=deadline, tol=tol,
                    max_iter=max_iter, progress=progress)
 
@@ -404,12 +460,18 @@ def _finish(kind: str, scene: Scene, thickness: float, run: _Run, how: str, adde
     Vs, w, rec = _polish(run, run.lam, deadline)
     run.rounds.append(rec)
     net = _network(prog, Vs, w, run.lam, added)
+    if prog.horizontal:  # the weights moved by the least change to balance the positions to round-off
+        lo, up = edge_bounds(prog.problem)
+        fit = refit_weights(net, REFIT_TOL, lower=lo, upper=up)
+        net = fit if fit is not None else net
+        rec["refit"] = fit is not None
     ok, hull = _evidence(scene, net, thickness, prog.slide_supports)
+    value = ({"horizontal_acceleration_g": run.lam * prog.lam_unit} if prog.horizontal else
+             {"added_mass_kg": run.lam * prog.lam_unit})
     res = SolveResult.build(net, status="converged" if ok else "infeasible", method="limit", backend="ipopt",
                             iterations=sum(r.get("iterations", 0) for r in run.rounds),
                             wall_time=time.perf_counter() - t_start, history=tuple(run.rounds), message="",
-                            parameters={"hull": hull, "limit": kind, "start": how,
-                                        "added_mass_kg": run.lam * prog.lam_unit, "thickness": thickness,
+                            parameters={"hull": hull, "limit": kind, "start": how, **value, "thickness": thickness,
                                         "ipopt_status": run.raw, **dict(extra or {})})
     return ok, res, hull
 
@@ -484,42 +546,155 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     added, at_ = _pattern(scene, at)
     problem = _base_problem(scene, thickness, density, w_max)
     V, W, how = _start(problem, start, float(start_kg), added, options, slide_supports)
-    run = _program_run(problem, "max_load", V, W, added, kg=float(start_kg), deadline=deadline, tol=tol,
-                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
     tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
              f"{start_kg:g} kg")
+    return _maximise("max_load", scene, thickness, problem, added, V, W, how, tried, start=float(start_kg),
+                     quantity=lambda x: f"{x:.6g} kg at {list(at_)}", extra={"at": list(at_)}, t_start=t_start,
+                     deadline=deadline, tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+
+
+def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added: np.ndarray, V: np.ndarray,
+              W: np.ndarray | None, how: str, tried: str, *, start: float, quantity: Callable[[float], str],
+              extra: Mapping[str, Any], t_start: float, deadline: float, tol: float, max_iter: int,
+              progress: Callable[[dict], None] | None, slide_supports: bool,
+              horizontal: np.ndarray | None = None) -> LimitResult:
+    """λ maximised (``kind`` ``"max_load"``: λ kg added at ``added``; ``"max_horizontal"``: λ g
+    along ``horizontal``), then certified: the optimum's network, else the feasibility program's
+    at λ backed off by :data:`BACK_OFF`. ``quantity`` writes a λ for the messages."""
+    run = _program_run(problem, kind, V, W, added, kg=start, deadline=deadline, tol=tol, max_iter=max_iter,
+                       progress=progress, slide_supports=slide_supports, horizontal=horizontal)
     if not run.settled:
-        return _unsettled("max_load", scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
-    unit = run.prog.lam_unit
-    optimum = run.lam * unit
-    ok, res, hull = _finish("max_load", scene, thickness, run, how, added, t_start=t_start, deadline=deadline,
-                            extra={"at": list(at_)})
+        return _unsettled(kind, scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
+    optimum = run.lam * run.prog.lam_unit
+    ok, res, hull = _finish(kind, scene, thickness, run, how, added, t_start=t_start, deadline=deadline, extra=extra)
     rounds, best = run.rounds, run
     for back in BACK_OFF if not ok else ():
         Vb, Wb = _si(run)
         frun = _program_run(problem, "feasibility", Vb, Wb, added, kg=optimum * (1 - back), deadline=deadline,
-                            tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+                            tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports,
+                            horizontal=horizontal)
         rounds += [{**r, "back_off": back} for r in frun.rounds]
         if not frun.settled:
             continue
-        ok, res, hull = _finish("max_load", scene, thickness, frun, how, added, t_start=t_start, deadline=deadline,
-                                extra={"at": list(at_)})
+        ok, res, hull = _finish(kind, scene, thickness, frun, how, added, t_start=t_start, deadline=deadline,
+                                extra=extra)
         best = frun
         if ok:
             break
     best.rounds = rounds
-    kg = best.lam * best.prog.lam_unit
+    value = best.lam * best.prog.lam_unit
     if ok:
-        message = (f"certified: {kg:.6g} kg at {list(at_)} (the program's optimum {optimum:.6g} kg) is carried by a "
+        what = "a horizontal acceleration of " if kind == "max_horizontal" else ""
+        message = (f"certified: {what}{quantity(value)} (the program's optimum {quantity(optimum)}) is carried by a "
                    f"compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
                    f"within t/2 = {0.5 * thickness:g} m of the reference")
-        return _certified("max_load", scene, kg, optimum, res, best, hull, thickness, message)
-    message = (f"not certified: the program's optimum {optimum:.6g} kg left a network that fails the check "
+        return _certified(kind, scene, value, optimum, res, best, hull, thickness, message)
+    message = (f"not certified: the program's optimum {quantity(optimum)} left a network that fails the check "
                f"(max relative error {hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond t/2 by "
                f"up to {hull['max_excess']:.3g} m), and so did the feasibility program at λ backed off by "
                f"{', '.join(f'{b:g}' for b in BACK_OFF)}")
-    return LimitResult("max_load", None, optimum, False, dataclasses.replace(res, message=message), "not certified",
+    return LimitResult(kind, None, optimum, False, dataclasses.replace(res, message=message), "not certified",
                        best.raw, message, tuple(rounds), _binding(scene, hull), thickness)
+
+
+def max_horizontal(scene: Scene, *, thickness: float, direction: str | float = "x", density: float = 2000.0,
+                   w_max: Any = None, start: Network | SolveResult | None = None, slide_supports: bool = False,
+                   options: Mapping[str, Any] | None = None, time_limit: float = 600.0, tol: float = 1e-9,
+                   max_iter: int = 3000, progress: Callable[[dict], None] | None = None) -> LimitResult:
+    """The largest pseudo-static horizontal acceleration a [g] along ``direction`` for which a
+    compressive network lies inside the hull "reference ± t/2": the loads are the self-weight
+    (and the scene's extras) W_i, vertical, plus a W_i along the direction at every vertex
+    (:class:`~selfsupport.core.loads.HorizontalAcceleration`), by the same NLP as :func:`limit_load`
+    with λ = a.
+
+    The certificate carries 3D loads (``Network.loads`` ``(n, 3)``); the joint polish balances
+    vertical loads only, so its weights are refit at IPOPT's positions instead
+    (:func:`~selfsupport.methods.weight_refit.refit_weights`, to :data:`REFIT_TOL`).
+
+    Parameters
+    ----------
+    direction
+        ``"x"``, ``"y"``, ``"-x"``, ``"-y"`` or an angle in degrees from the x axis
+        (:func:`~selfsupport.core.loads.plan_direction`).
+    Others
+        As :func:`limit_load`.
+
+    Returns
+    -------
+    LimitResult
+        ``kind`` ``"max_horizontal"``; ``value`` the certified acceleration [g], ``optimum`` the
+        program's.
+    """
+    t_start = time.perf_counter()
+    deadline = t_start + time_limit
+    d = plan_direction(direction)
+    added = np.zeros(scene.mesh.n_vertices)
+    problem = _base_problem(scene, thickness, density, w_max)
+    V, W, how = _start(problem, start, 0.0, added, options, slide_supports)
+    tried = (f"maximised the horizontal acceleration along ({d[0]:.4g}, {d[1]:.4g}) over networks inside "
+             f"t = {thickness:g} m from {how}")
+    return _maximise("max_horizontal", scene, thickness, problem, added, V, W, how, tried, start=0.0,
+                     quantity=lambda a: f"{a:.6g} g", extra={"direction": d.tolist()},
+                     t_start=t_start, deadline=deadline, tol=tol, max_iter=max_iter, progress=progress,
+                     slide_supports=slide_supports, horizontal=d)
+
+
+def thrust_range(scene: Scene, *, thickness: float, density: float = 2000.0, w_max: Any = None,
+                 start: Network | SolveResult | None = None, slide_supports: bool = False,
+                 options: Mapping[str, Any] | None = None, time_limit: float = 600.0, tol: float = 1e-9,
+                 max_iter: int = 3000, progress: Callable[[dict], None] | None = None
+                 ) -> tuple[LimitResult, LimitResult]:
+    """The least and the greatest thrust of compressive networks inside the hull "reference ± t/2"
+    under self-weight (and the scene's extras): the thrust is the sum over the supports of their
+    horizontal reaction magnitudes ‖R_s,h‖ (:meth:`Network.reaction_summary`), minimised and
+    maximised by the limit NLP with λ = 0, from the same start.
+
+    Each answer's value is the thrust [N] of its certificate, measured outside the solver from the
+    polished network's reactions (:func:`~selfsupport.core.evidence.support_reactions`).
+
+    Parameters
+    ----------
+    Others
+        As :func:`limit_load` (``time_limit`` covers both programs).
+
+    Returns
+    -------
+    (LimitResult, LimitResult)
+        ``kind`` ``"min_thrust"`` and ``"max_thrust"``; ``value`` [N], ``optimum`` the program's
+        thrust before the polish [N].
+    """
+    t_start = time.perf_counter()
+    deadline = t_start + time_limit
+    added = np.zeros(scene.mesh.n_vertices)
+    problem = _base_problem(scene, thickness, density, w_max)
+    V, W, how = _start(problem, start, 0.0, added, options, slide_supports)
+    out = []
+    for kind in ("min_thrust", "max_thrust"):
+        word = "minimised" if kind == "min_thrust" else "maximised"
+        tried = f"{word} the thrust over networks inside t = {thickness:g} m from {how}"
+        run = _program_run(problem, kind, V, W, added, kg=0.0, deadline=deadline, tol=tol, max_iter=max_iter,
+                           progress=progress, slide_supports=slide_supports)
+        if not run.settled:
+            out.append(_unsettled(kind, scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline))
+            continue
+        Vr, Wr = _si(run)  # the program's own thrust, before the polish
+        optimum = Network(mesh=scene.mesh.with_vertices(Vr), weights=Wr,
+                          loads=run.prog.sc.load_back(run.prog.base), supports=scene.supports
+                          ).reaction_summary()["thrust"]
+        ok, res, hull = _finish(kind, scene, thickness, run, how, added, t_start=t_start, deadline=deadline)
+        thrust = res.network.reaction_summary()["thrust"]
+        if ok:
+            message = (f"certified: thrust {thrust / 1e3:.6g} kN ({word}; the program's {optimum / 1e3:.6g} kN) of a "
+                       f"compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
+                       f"within t/2 = {0.5 * thickness:g} m of the reference")
+            out.append(_certified(kind, scene, thrust, optimum, res, run, hull, thickness, message))
+            continue
+        message = (f"not certified: {tried}; the program's network (thrust {optimum / 1e3:.6g} kN) fails the check "
+                   f"(max relative error {hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond "
+                   f"t/2 by up to {hull['max_excess']:.3g} m)")
+        out.append(LimitResult(kind, None, optimum, False, dataclasses.replace(res, message=message), "not certified",
+                               run.raw, message, tuple(run.rounds), _binding(scene, hull), thickness))
+    return out[0], out[1]
 
 
 def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: float = 0.0,
