@@ -36,7 +36,7 @@ t_start = time.perf_counter()
 import numpy as np
 from selfsupport import api, cli, result
 from selfsupport.io import network_json as nj
-from selfsupport.methods import staggered
+from selfsupport.methods.staggered import run as staggered
 t_imported = time.perf_counter()
 times = {}
 extra = {}
