@@ -37,7 +37,7 @@ import numpy as np
 from selfsupport import api, cli
 from selfsupport.core import result
 from selfsupport.io import network_json as nj
-from selfsupport.methods import staggered
+from selfsupport.methods.staggered import run as staggered
 t_imported = time.perf_counter()
 times = {}
 extra = {}

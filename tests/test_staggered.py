@@ -264,7 +264,7 @@ def test_polish_without_fallbacks_returns_newtons_point(pillar):
 def test_a_stalled_polish_is_retried_from_a_tighter_fit(monkeypatch):
     """If the polish misses equilibrium (its load fixed point stalls), the iteration goes on to a
     100× tighter fit and polishes again, rather than returning a 'converged' network that is not."""
-    import selfsupport.methods.staggered as st
+    import selfsupport.methods.staggered.run as st  # (where the solve calls the polish)
 
     real = st._polish
     calls = []
@@ -580,7 +580,7 @@ def test_rejected_coupled_steps_hold_the_weights_harder(monkeypatch):
     step at the default hold on the weights over-promised (rejected, the plain step taken
     instead) and the run stalled too. Raising the hold after a rejected coupled step (×10, and
     halved back after an accepted one) lets the coupled steps through: converged."""
-    import selfsupport.methods.staggered as stg
+    import selfsupport.methods.staggered.run as stg  # (where the solve reads DAMPING_MAX)
 
     scene, cases = _two_cases("concave_disk", 0.165)
     # (coupled=False: the plain step first, as before cases that are not proportional took the

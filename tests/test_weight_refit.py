@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-import selfsupport.methods.staggered as staggered_module
+import selfsupport.methods.staggered.run as staggered_module  # (where the solve calls refit_weights)
 from formulations.equilibrium import Topology, load_vector, position_blocks
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.scene import Scene

@@ -1,109 +1,17 @@
-"""The paper's staggered linearization (§3, Steps 0–4), in scale-free units.
-
-Step 1  loads from the current geometry.
-Step 2  weights with positions fixed: a box-constrained sparse least-squares fit of the
-        relative residual ``(A w − b)_i / |A_i F_i|`` (pluggable backend, warm-started). While
-        the fit error is above ``finish_try`` the backend may stop at a KKT tolerance of
-        ``fit_rtol`` = 1e-3: those fits only steer the iteration. A loose fit overstates
-        min_w E, so it may reject a step that lowers it; a rejection is therefore confirmed by an
-        exact fit (without that, a 4k concave disk stalled at its first step), and when the exact
-        fit overturns it the tolerance is tightened tenfold for the rest of the solve (a 64k
-        disk, whose E falls by ~0.1% per step, otherwise paid an exact fit on every step).
-        Measured against 1e-6 on 37 solves (paper scenes, rotated/scaled and jittered variants,
-        generated shapes): all converge, 7 end closer to the reference (up to 30%), 4 farther
-        (up to 6%); lilium takes 0.71-0.83x the time (two alternating measurements). The fits
-        the finish and the polish use are exact (a loosely fitted iterate waits one step for
-        its exact fit before the finish is tried).
-Step 3  positions with weights fixed: a sparse SPD linear least-squares problem
-
-            Σ_c Σ_i ‖r_c,i / d_i‖² + α Σ_t μ_t ‖r_t + J_t Δx‖² + Σ_h μ_h ‖r_h + J_h Δx‖² + β ‖Δx‖²
-
-        the equilibrium residual of every load case ``c`` (rows scaled by ``1 / |A_i F_i|``, the
-        error the fit measures), plus the problem's objective terms (:mod:`formulations.terms`,
-        each Gauss–Newton-linearized at the iterate, weight ``μ_t``) relaxed by α, plus a
-        proximal step β; the masonry hull is held as hard bounds (vertices a step carries out are
-        pinned to its face and the step solved again, then projected). The penalties
-        are multiplied by the mean ``(d_i / |A_i F_i|)²``, ``d_i = Σ_j w_ij``, which turns the
-        relative residual into a length. Without an objective in the problem the method uses
-        :data:`DEFAULT_OBJECTIVE`: the distance to the reference surface (tangent-plane
-        linearization at the closest point ``p_i``, normal ``n_i``, re-projected as the vertex
-        slides, with a weak tangential hold τ). Whatever the objective, the step also asks for a
-        smooth displacement (option ``smoothing``: γ ‖U (v − v_ref)‖², U the umbrella Laplacian,
-        γ/α = 100, the :class:`~formulations.terms.Fairness` term). It belongs to the method, not
-        to the problem: it keeps vertices whose weights sit at ε from being thrown far away
-        along the penalty path (with the vertex-distance objective alone a concave disk ended
-        1.5 diagonals away), as the original tool's smoothing did; the refinement and the
-        reported objective use the problem's terms only. All terms are lengths relative to the
-        bounding-box diagonal, so the weights are dimensionless.
-        Terms that act on x, y, z alike (fairness, vertex distance) enter one n×n matrix; terms
-        whose rows each involve one vertex (reference distance, hull) enter 3×3 blocks; the
-        system is solved by CG preconditioned with one n×n factorization (:func:`_solve_blocks`).
-        Other terms (planarity) couple neighbouring vertices' coordinates: then the 3n×3n system
-        is factored. With a fixed top view only the heights move (an n×n system).
-Step 4  repeat. A trial position is accepted only if Steps 1-2 there give a smaller fit error
-        (the merit is E(X) = min_w E(X, w), so the iteration is a descent method); otherwise β is
-        multiplied by 4 and the step retried (a trust region). After an accepted step α and β
-        shrink, α in proportion to the square root of the error reduction, so the iteration goes
-        from "stay on the reference" towards "satisfy equilibrium" as fast as the error allows.
-        From the third rejection in a row α shrinks too: by then the steps are short, and what
-        stops the descent is the anchor itself (the positions sit at a stationary point of the
-        Step-3 objective for this α). A flat disk with ``w_max`` stalled this way (w_max 3e3 and
-        1e4 of 1e2...1e5; 1e2 fails in IPOPT too); on the paper's scenes no step is rejected.
-        Once α is at ``alpha_min`` the reference no longer holds the network; if the fit error
-        then does not halve within ``stall_window`` iterations the design is taken as
-        infeasible and the solve stops "stalled" (the paper's scenes spend at most 2 iterations
-        at ``alpha_min``; without the rule a 1200-vertex vault with one pillar base freed ran on
-        to the 200-iteration limit, the network drifting further all the while). Before it
-        stalls, the run tries the finish once more (below). If the fit error does not halve in
-        ``creep_window`` iterations there, Step 3 turns coupled (below) for the rest of the run:
-        with the weights held it creeps under a point load, whose cone needs both to move.
-Coupled (option ``coupled``) Step 3 may also move the weights that are not at a bound, with a
-        damping ∝ 1/(w − ε)² so that weights near ε hardly move: a Gauss-Newton step on the
-        reduced error min_w E(X, w) instead of on E(X, w_k). It follows the penalty path more
-        faithfully (measured: up to 1.65× closer to the reference on the paper's scenes) but costs a
-        (3n + C·m)-sized factorization per step (C load cases, each moving its own weights); a
-        rejected coupled step falls back to the plain one, and when that one is taken the
-        damping is raised tenfold for the next coupled step (halved after an accepted one, down
-        to ``coupled_damping``, up to :data:`DAMPING_MAX`). Not the default: slower, and its
-        weights are less reproducible under rotations and scalings of the input (up to ~1.5% of
-        the weight moves, against < 1% for the plain step) — except with planar faces or load
-        cases that are not proportional, where it is tried first (:func:`_couples_first`).
-Finish  once the fit's max relative error is below ``finish_try``, every accepted step tries the
-        polish below with the current weights and keeps it when the polished network is in
-        equilibrium and its mean distance to the reference exceeds the iterate's by at most
-        ``finish_slack``: finishing then costs (almost) no closeness, and iterating on could only
-        drift. Once α is at ``alpha_min`` nothing pulls the iterate towards the reference any
-        more, and the slack is ``finish_slack_released``. A try is screened first: positions in
-        equilibrium with the weights and the iterate's loads (one stress-Laplacian solve)
-        predict the polished distance, and a try
-        predicted far beyond the slack is not polished (twocirc-3: 4 tries of 20–33 ms skipped,
-        0.83× the time, the same network). A try uses Newton only: one that Newton cannot
-        finish fails cheaply (the fixed-point fallbacks took 0.7 s of 1.9 s on a 1k concave
-        disk for a try that failed anyway). The linear systems are factored by CHOLMOD (:mod:`selfsupport.core.linalg`).
-Polish  once the fit's max relative error is below ``polish_tol``, the weights are frozen and
-        the positions solved exactly from (2)-(3) — a stress-Laplacian system — with the loads
-        re-estimated from the new geometry until they are consistent to round-off (Newton with
-        a coloured finite-difference load Jacobian; :mod:`~selfsupport.methods.polish`). The
-        result is in equilibrium to machine precision with loads of its own geometry. With
-        several load cases, or a fixed top view, frozen weights cannot balance every case (or
-        x and y) by moving the positions alone: the polish is then a minimum-norm Newton
-        iteration on positions and the weights off their bounds together
-        (:func:`~selfsupport.methods.polish.polish_joint`).
-"""
+"""One staggered solve: the problem in scaled units, the state of the iteration and its steps."""
 from __future__ import annotations
 
-import dataclasses
 import time
-from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Callable, Mapping
+from dataclasses import asdict
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
 
-from formulations import LoadCases, Planar, Problem, TermContext, ThrustNetworkProblem, WeightBounds
-from formulations.equilibrium import Topology, block_diagonal, load_vector, position_blocks, residual, weight_matrix
+from formulations import Problem, TermContext, ThrustNetworkProblem, WeightBounds
+from formulations.equilibrium import load_vector, position_blocks, weight_matrix
 from formulations.scaling import Scaling
-from formulations.terms import TERMS, HullPenalty, PlanarFaces, PlaneDistance, Sum, Term
+from formulations.terms import TERMS, HullPenalty, PlanarFaces, Sum, Term
 from selfsupport.core.errors import InfeasibleDesign, InputError
 from selfsupport.core.evidence import (
     FLOOR_CAP,
@@ -113,22 +21,14 @@ from selfsupport.core.evidence import (
     roundoff_floors,
     roundoff_message,
 )
-from selfsupport.core.linalg import spd_factor
-from selfsupport.core.loads import LoadCase
-from selfsupport.core.options import check_options, check_range
 from selfsupport.core.result import Network, SolveResult
-from selfsupport.core.scene import Scene
-from selfsupport.methods import Capabilities
 from selfsupport.methods.base import (
     HULL_TOL,
-    as_problem,
     case_networks,
     cases_in_equilibrium,
     cases_max_error,
-    cases_proportional,
     hull_report,
     load_cases_note,
-    loads_or_options,
     planarity_report,
     short_of_tol,
     term_values,
@@ -138,228 +38,16 @@ from selfsupport.methods.polish import case_load_jacobians
 from selfsupport.methods.polish import polish as _polish
 from selfsupport.methods.polish import polish_joint as _polish_joint
 from selfsupport.methods.refine import refine as _refine
+from selfsupport.methods.staggered.finish import _try_finish
+from selfsupport.methods.staggered.options import DEFAULT_OBJECTIVE, StaggeredOptions
+from selfsupport.methods.staggered.schedule import DAMPING_MAX, _coupled_fits
+from selfsupport.methods.staggered.step3 import _hull_faces, _into_hull, _position_step
 from selfsupport.methods.validate import require_top_view_balance, validate_problem
+from selfsupport.methods.warm import as_warm_start, transfer
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
-from selfsupport.methods.weightfit import WeightFitBackend
-from selfsupport.methods.weightfit_backends import make_backend
 
-#: The objective when the problem leaves it to the method: distance to the reference surface
-#: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`).
-DEFAULT_OBJECTIVE: dict[str, float] = {"reference": 1.0}
-
-
-def _setting(default: Any, interval: str) -> Any:
-    """A numeric setting with its allowed interval (checked by :func:`selfsupport.core.options.check_range`)."""
-    return field(default=default, metadata={"range": interval})
-
-
-@dataclass(frozen=True)
-class StaggeredOptions:
-    """Settings of the staggered method (general: no per-scene tuning). Each numeric setting
-    carries its allowed interval (``--option`` values outside it are refused)."""
-
-    alpha0: float = _setting(1.0, "(0, inf)")  # weight of the objective (distance to the reference, ...) at the start
-    beta0: float = _setting(0.01, "(0, inf)")  # proximal penalty at the start
-    shrink: float = _setting(0.5, "(0, 1)")  # factor applied to α, β after an iteration that reduced the error
-    # (and to α from the third rejected step in a row)
-    alpha_min: float = _setting(1e-8, "(0, inf)")
-    beta_min: float = _setting(1e-8, "(0, inf)")
-    max_rejections: int = _setting(12, "[1, inf)")  # consecutive rejected position steps before "stalled"
-    creep_window: int = _setting(10, "[0, inf)")  # iterations at alpha_min in which the fit error must halve,
-    # else Step 3 turns coupled for the rest of the run (free top view; 0: never)
-    stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
-    # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
-    smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
-    # term on v − v_ref, the original tool's smoothing; see the module docstring)
-    reproject_every: int = _setting(1, "[0, inf)")  # closest-point re-projection onto the reference (0: never)
-    prox_w: float = _setting(1e-8, "(0, inf)")  # proximal weight of the Step-2 fit relative to its diagonal:
-    # makes the weights unique (A has more columns than rows) and reproducible during the iteration
-    prox_w_final: float = _setting(1e-12, "(0, inf)")  # ... and for the last fit before the polish
-    polish_tol: float = _setting(1e-3, "(0, inf)")  # fit error below which the weights are frozen, positions solved
-    joint_polish_tol: float = _setting(1e-2, "(0, inf)")  # ... and the joint polish is tried (several load
-    # cases, a fixed top view, a hull): it moves the weights with the positions, a Newton iteration that
-    # converges from farther (a pillar vault with a fixed top view stalled at fit error 1.15e-3 otherwise)
-    coupled: bool | None = None  # Step 3 moves the free weights with the positions (Gauss-Newton on min_w E):
-    # up to 1.65x closer to the reference on the paper's scenes, 1.5-4x slower, and less reproducible
-    # under rotation/scaling of the input (weights shift by up to ~1.5%); hence opt-in. None (default):
-    # off, except with planar faces required (one case, free top view), where it is tried first (see
-    # StaggeredLinearization.solve)
-    coupled_damping: float = _setting(1e-4, "[0, inf)")  # coupled step: how strongly weights near ε are held
-    finish_try: float = _setting(0.1, "[0, inf)")  # fit error below which the polish is tried after every step
-    warm_accept: float = _setting(0.5, "[0, inf)")  # a warm start whose first fit error is above finish_try but
-    # below this gets one finish try as it is (a top-view move of 0.2% of lilium's diagonal: 0.11), and the
-    # solve starts cold when that fails (iterating on from such a start measured slower than cold: 1.0-1.9x)
-    warm_iterate: bool = False  # a warm start above warm_accept is iterated from (not restarted cold):
-    # a prolongation from a coarser level (methods/multilevel.py), near the solution yet not in equilibrium
-    finish_slack: float = _setting(0.05, "[0, inf)")  # ... kept if its mean distance grows by at most this
-    finish_slack_released: float = _setting(0.25, "[0, inf)")  # ... once α is at alpha_min: the reference no
-    # longer holds the iterate, and iterating on buys little closeness (a 1k pillar vault with a point load of
-    # 10% of its weight: a try 5.9% farther was refused, 30 more iterations gained 8% and ended "stalled")
-    finish_screen: float = _setting(0.25, "[0, inf]")  # ... and not even polished when one stress-Laplacian
-    # solve with the iterate's loads already moves the mean distance up by more than this (see _try_finish)
-    try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
-    fit_rtol: float = _setting(1e-3, "(0, inf)")  # KKT tolerance a Step-2 backend may stop at while the fit
-    # error is above finish_try (those fits only steer the iteration; the fits the finish uses are exact)
-    refine: int = _setting(0, "[0, inf)")  # at most this many SQP steps towards the objective's optimum after
-    # convergence (refine.py; 0: the paper's method as it is)
-    refine_concentrated: int = _setting(20, "[0, inf)")  # ... the steps when ``refine`` is 0 and a load case
-    # holds point loads or extra masses: the penalty path carries such a load by a spike far from the reference
-    # (the 100-vertex vault, 30% of its weight on one vertex: 0.51 of the diagonal, refined 0.02)
-    refine_gain: float = _setting(1e-2, "[0, 1)")  # ... stopping after two steps that each lower the objective
-    # by less than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
-    tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network
-    max_iter: int = _setting(200, "[1, inf)")
-    time_limit: float = _setting(600.0, "[0, inf)")  # (0: stop after the first fit, with the network so far)
-
-
-def parse_option(text: str) -> tuple[str, Any]:
-    """``"KEY=VALUE"`` → a typed :class:`StaggeredOptions` setting (the CLI's ``--option``).
-
-    >>> parse_option("coupled=true"), parse_option("shrink=0.25")
-    (('coupled', True), ('shrink', 0.25))
-
-    Values outside the interval in the field's ``metadata["range"]`` are refused
-    (:func:`selfsupport.core.options.check_range`).
-    """
-    key, sep, value = text.partition("=")
-    key, value = key.strip().replace("-", "_"), value.strip()
-    fields = StaggeredOptions.__dataclass_fields__
-    if not sep or key not in fields:
-        raise InputError(f"--option needs KEY=VALUE with KEY one of {sorted(fields)}, got {text!r}")
-    kind = str(fields[key].type)
-    try:
-        if kind in ("bool", "bool | None"):
-            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError(value)
-            return key, value.lower() in ("true", "1", "yes")
-        number = int(value) if kind == "int" else float(value)
-    except ValueError:
-        raise InputError(f"--option {key} needs a {kind} value, got {value!r}") from None
-    if not np.isfinite(number):
-        raise InputError(f"--option {key} must be finite, got {value!r}")
-    check_range(key, number, fields[key].metadata.get("range"))  # the interval next to the field
-    return key, number
-
-
-def _options(base: StaggeredOptions, overrides: Mapping[str, Any]) -> StaggeredOptions:
-    unknown = set(overrides) - set(StaggeredOptions.__dataclass_fields__)
-    if unknown:
-        raise InputError(f"unknown staggered option(s) {sorted(unknown)}; known: "
-                         f"{sorted(StaggeredOptions.__dataclass_fields__)}")
-    check_options(StaggeredOptions, overrides)
-    return replace(base, **overrides) if overrides else base
-
-
-def _couples_first(problem: Problem) -> str | None:
-    """Why the default Step 3 is the coupled one, or None: planar faces (one load case), or
-    load cases that are not proportional (no hull, on meshes of at most 2·COUPLE_MAX/(1 + C)
-    vertices); both with a free top view."""
-
-    C = len(problem.loads)
-    if problem.fixed_top_view:
-        return None
-    if any(isinstance(c, Planar) for c in problem.constraints):
-        return "planar faces" if C == 1 else None
-    if (C > 1 and problem.hull_thickness() is None and _coupled_fits(problem.scene.mesh.n_vertices, C)
-            and not cases_proportional(problem)):
-        return "load cases that are not proportional"
-    return None
-
-
-#: Largest mesh (vertices) on which a creeping fit of one load case turns Step 3 coupled
-#: (``creep_window``): the coupled step factors a (3n + m) system (a 16k pillar vault: 67 s with
-#: the switch, 66 s without), beyond this the memory of that factor, not the iterations, would
-#: decide. With C load cases the system is 3n + C·m (m ≈ 3n): the limit is scaled by 2 / (1 + C).
-COUPLE_MAX = 24_000
-
-
-def _coupled_fits(n_vertices: int, n_cases: int) -> bool:
-    """Is the mesh small enough for the coupled step to be taken unasked (:data:`COUPLE_MAX`)?"""
-    return n_vertices * (1 + n_cases) <= 2 * COUPLE_MAX
-
-#: Strongest hold on the weights the coupled step's damping is raised to after rejected steps
-#: (relative to the mean diagonal of the weights' Gram block, at the median gap to the bound):
-#: beyond it the coupled step is the plain one in all but cost.
-DAMPING_MAX = 1.0
-
-
-class StaggeredLinearization:
-    """The paper's method. ``backend`` names the Step-2 solver (see ``WEIGHT_FIT_BACKENDS``).
-
-    Example
-    -------
-    >>> from selfsupport.core.loads import SelfWeight
-    >>> from selfsupport.core.shapes import make_shape
-    >>> res = StaggeredLinearization().solve(make_shape("dome", n_vertices=300), SelfWeight())
-    >>> res.status, res.max_relative_error < 1e-9
-    ('converged', True)
-    """
-
-    name = "staggered"
-    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, bytes_per_vertex=16e3)
-
-    def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
-        self.backend = make_backend(backend) if isinstance(backend, str) else backend
-        self.options = _options(StaggeredOptions(), options)
-
-    def solve(self, problem: Problem | Scene, options: Mapping[str, Any] | LoadCase | LoadCases | None = None, *,
-              progress: Callable[[dict], None] | None = None, loads: Any = None, eps: Any = None,
-              w_max: Any = None, objective: Any = None, warm_start: Any = None, deadline: float | None = None,
-              **overrides: Any) -> SolveResult:
-        """Solve for the thrust network of ``problem`` (see :mod:`formulations.problem`).
-
-        Parameters
-        ----------
-        problem
-            A :class:`~formulations.Problem`, or a :class:`Scene` (the short form: then ``loads``
-            — also accepted as the second positional argument — ``eps``, ``w_max`` [N/m] and
-            ``objective`` build the problem, see :func:`~selfsupport.methods.base.as_problem`).
-        options
-            :class:`StaggeredOptions` fields for this solve only (also as keywords).
-        progress
-            Called with the history record of each iteration.
-        warm_start
-            A previous network (:class:`~selfsupport.methods.warm.WarmStart`, a network or a solve
-            result): its offset from its reference and its weights are the starting iterate and
-            the first fit's warm start (transferred by position when the topology changed).
-        deadline
-            A ``time.perf_counter()`` value at which the solve stops (status ``"time_limit"``,
-            its best network so far); default: ``time_limit`` seconds from now. Every inner
-            loop (Step 2, Step 3's CG, the polish, the refinement) honours it.
-        """
-        loads, options = loads_or_options(options, loads)
-        problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
-        opt = _options(self.options, {**dict(options or {}), **overrides})
-        why = _couples_first(problem) if opt.coupled is None else None
-        if why is None:
-            return _Run(self, problem, replace(opt, coupled=bool(opt.coupled)), progress, warm_start, deadline).solve()
-        # Several load cases that are not proportional: one geometry must carry each, and with the
-        # weights held Step 3 can only trade one case's error against the other's (lilium, empty and
-        # with 5% of its weight on one vertex: stalled at 0.97 plain, converged coupled in 38
-        # iterations; generated domes 1.5-5x and dented disks 1.2-1.6x closer to the reference).
-        # Planar faces required: with the weights held in Step 3, the planarity penalty and the fit
-        # pull against each other and the fit error creeps (1-2 % per iteration; a 400-vertex dome
-        # remeshed at 0.6-1 edge length stalled in 3 of 6 meshes). The coupled step converged on all
-        # six in 11-17 iterations, 1.2-2.9x closer to the reference; on the paper's coarse vault
-        # remeshed along a grid it stalled where the plain one converged: so coupled first, and the
-        # plain step from the start again when it stalls (the better of the two is returned).
-        t0 = time.perf_counter()
-        deadline = t0 + opt.time_limit if deadline is None else deadline
-        first = _Run(self, problem, replace(opt, coupled=True), progress, warm_start, deadline).solve()
-        if first.status != "stalled" or out_of_time(deadline):
-            return first
-        second = _Run(self, problem, replace(opt, coupled=False), progress, warm_start, deadline).solve()
-        better = second.status == "converged" or second.max_relative_error < first.max_relative_error
-        chosen, other = (second, first) if better else (first, second)
-        note = (f"the coupled Step 3 (tried first with {why}) stalled at max relative error "
-                f"{first.max_relative_error:.2e}; the plain one ended {second.status} at {second.max_relative_error:.2e}")
-        return dataclasses.replace(chosen, wall_time=time.perf_counter() - t0,
-                                   iterations=first.iterations + second.iterations,
-                                   message="; ".join(m for m in (chosen.message, note) if m),
-                                   parameters={**chosen.parameters, "other_run": {
-                                       "coupled": other.parameters.get("coupled"), "status": other.status,
-                                       "max_relative_error": other.max_relative_error,
-                                       "iterations": other.iterations}})
+if TYPE_CHECKING:
+    from selfsupport.methods.staggered.method import StaggeredLinearization
 
 
 class _Run:
@@ -407,8 +95,6 @@ class _Run:
         method.backend.reset()
         self.X_start, self.w_warm, self.warm_info = self.X0, None, None
         if warm_start is not None:  # a previous network as the starting iterate (methods/warm.py)
-            from selfsupport.methods.warm import as_warm_start, transfer
-
             V, w, same = transfer(as_warm_start(warm_start), self.scene)
             self.X_start = self.sc.pos(V)
             self.w_warm = [np.clip(self.sc.weight(w[self.scene.active_edges]), self.lower, self.upper)] * self.C
@@ -1007,273 +693,9 @@ class _Run:
         return net, cases, err
 
 
-#: Weight of the hull's face pins in Step 3, relative to the objective's unit (a quasi-equality).
-HULL_PIN = 1e6
-
-
-def _hull_faces(hull: HullPenalty, X: np.ndarray, active: np.ndarray) -> Term:
-    """Pins of the ``active`` vertices' normal coordinates to the hull face they are nearest (on
-    the side ``X`` is on), as a plane-distance term of weight :data:`HULL_PIN`."""
-
-    n = hull.normals[active]
-    side = np.sign(np.einsum("ij,ij->i", n, X[active] - hull.points[active]))
-    side[side == 0] = 1.0
-    P, N = hull.points.copy(), hull.normals.copy()
-    P[active] = hull.points[active] + (side * hull.half_thickness)[:, None] * n
-    return PlaneDistance(points=P, normals=N, mask=active, weight=HULL_PIN)
-
-
-def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> np.ndarray:
-    """``X`` with every hull vertex moved along its normal (or, with a fixed top view, vertically)
-    onto the hull's face where it lies outside ``±h``."""
-    s = hull.signed_distance(X)
-    excess = s - np.clip(s, -hull.half_thickness, hull.half_thickness)
-    out = np.flatnonzero(excess)
-    if out.size == 0:
-        return X
-    X = X.copy()
-    idx, n = hull.idx[out], hull.normals[hull.idx[out]]
-    if fixed_xy:  # along z, by the amount that brings ⟨n, v − p⟩ back to ±h
-        X[idx, 2] -= excess[out] / np.where(np.abs(n[:, 2]) > 1e-12, n[:, 2], np.inf)
-    else:
-        X[idx] -= excess[out][:, None] * n
-    return X
-
-
 def _si_bound(sc: Scaling, b: np.ndarray) -> Any:
     """A bound in N/m for the record: a number when it is the same on every edge."""
     v = sc.weight_back(np.asarray(b, float))
     if v.size and np.all(v == v[0]):
         return None if np.isinf(v[0]) else float(v[0])
     return v.tolist()
-
-
-# -------------------------------------------------------------------- Step 3 assembly
-def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: float, c: float,
-                ws: dict, pinned: Term | None = None) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix | None,
-                                  np.ndarray]:
-    """The objective's Gauss–Newton model at ``X`` over the free positions, weighted by ``c α``
-    (constraint terms by ``c``): ``Σ μ ‖r + J Δx‖²`` split into a per-coordinate matrix ``H₁``
-    (terms acting on x, y, z alike) with right-hand side ``(k, 3)``, 3×3 blocks per free vertex
-    (vertex-local terms) with their right-hand side, and a general part (3 nf square). The
-    right-hand sides are those of the normal equations in absolute positions:
-    ``JᵀJ X − Jᵀ r`` at the current ``X``."""
-    nf = int(free.sum())
-    H1, rhs1 = None, np.zeros((nf, 3))
-    blocks, rhs3 = np.zeros((nf, 3, 3)), np.zeros((nf, 3))
-    Gg, rhsg = None, np.zeros(3 * nf)
-    if objective is None and pinned is None:
-        return H1, rhs1, blocks, rhs3, Gg, rhsg
-    objective = objective if objective is not None else pinned
-    cols3 = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
-    fi = np.cumsum(free) - 1
-    fi[~free] = -1  # vertex -> free index
-    Xf = X[free]
-    fixed = set(map(id, pinned.parts())) if pinned is not None else set()
-    for t in objective.parts() + (pinned.parts() if pinned is not None else ()):
-        mu = c * t.weight * (1.0 if t.constraint or id(t) in fixed else alpha)
-        if mu == 0.0:
-            continue
-        if not t.couples_xyz:
-            r1, J1 = t.per_coordinate(X)
-            cache = ws.setdefault("per_coordinate", {})
-            if id(t) not in cache:  # these terms' Jacobians are constant: JᵀJ once per solve
-                J1f = J1[:, free].tocsr()
-                cache[id(t)] = (t, J1f, (J1f.T @ J1f).tocsr())
-            _, J1f, JtJ = cache[id(t)]
-            H1 = mu * JtJ if H1 is None else H1 + mu * JtJ
-            rhs1 += mu * (J1f.T @ (J1f @ Xf - r1))
-            continue
-        if t.vertex_local:  # 3×3 blocks straight from the term (no sparse products per iteration)
-            idx, B, b = t.vertex_blocks(X)
-            k = fi[idx]
-            on = k >= 0  # (rows at supports do not move anything)
-            np.add.at(blocks, k[on], mu * B[on])
-            np.add.at(rhs3, k[on], mu * b[on])
-            continue
-        r, J = t.linearize(X)
-        Jf = J[:, cols3].tocsr()
-        rhsg += mu * (Jf.T @ (Jf @ Xf.ravel() - r))
-        JtJ = (Jf.T @ Jf).tocsr()
-        Gg = mu * JtJ if Gg is None else (Gg + mu * JtJ).tocsr()
-    return H1, rhs1, blocks, rhs3, Gg, rhsg
-
-
-def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
-                   objective: Term | None, alpha: float, beta: float, G: list[sp.spmatrix] | None = None,
-                   prox_dw: float = 0.0, gap: list[np.ndarray] | None = None, damping: float = 0.0,
-                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None,
-                   deadline: float | None = None) -> np.ndarray:
-    """Step 3: the SPD least-squares update of the free positions (see the module docstring).
-
-    ``weights`` and ``L`` hold one weight vector and one load vector per load case. The residual
-    rows of each case are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
-    very error the fit measures); the penalties are multiplied by the mean of
-    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that the
-    objective's weights, α and β compare lengths with lengths whatever the mesh resolution.
-
-    The system is ``(H ⊗ I₃ + ⊕ B_i + G) x = rhs`` with H the (n_free × n_free) Gram matrix of
-    the scaled stress Laplacians (+ per-coordinate terms), ``B_i`` 3×3 blocks (vertex-local
-    terms + β) and ``G`` the general terms. Without ``G`` it is solved by conjugate gradients
-    preconditioned with one n×n factorization of ``H + diag(λ_min(B_i))`` applied to the three
-    coordinates (:func:`_solve_blocks`) — a 3n×3n factorization costs ~27× the flops; for the
-    default objective the preconditioned condition number is at most ``1 + (1 − τ)/(τ + β/α)``
-    (measured: 2–27 iterations to 1e-10 on the paper's scenes). The direct 3n×3n factorization
-    remains for general terms, the coupled step and as a fallback; with a fixed top view only
-    the heights move (an n×n factorization). ``workspace`` (a dict kept by the caller across
-    steps) holds the factor objects, whose symbolic analyses are reused, and the constant
-    Gram matrices of the per-coordinate terms.
-    """
-    wsp = workspace if workspace is not None else {}
-    wsp["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
-    free = top.free
-    nf = top.n_free
-    H, rhs, cvals, Kts, targets = None, np.zeros((nf, 3)), [], [], []
-    for w, Lc in zip(weights, L):
-        Kff, Kfs = position_blocks(top, w)
-        s = 1.0 / np.abs(Lc[free])
-        cvals.append(float(np.mean((-Kff.diagonal() * s) ** 2)))
-        S = sp.diags(s)
-        Kt = (S @ Kff).tocsr()
-        B = np.zeros((nf, 3))
-        B[:, 2] = Lc[free]
-        target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
-        H = (Kt.T @ Kt).tocsr() if H is None else (H + Kt.T @ Kt).tocsr()
-        rhs += Kt.T @ target
-        Kts.append(Kt)
-        targets.append(target)
-    c = float(np.mean(cvals))
-    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp, pinned)
-    if H1 is not None:
-        H = (H + H1).tocsr()
-    blocks = blocks + (c * beta) * np.eye(3)[None]
-    rhs += rhs1 + rhs3 + (c * beta) * X[free]
-    Xn = X.copy()
-    if fixed_xy:  # only the heights move: the zz part of the system (x, y stay at X)
-        # M_zz z = rhs_z − M_z,xy x_xy with x, y held (H has no x-z coupling; blocks and G may)
-        Mz = (H + sp.diags(blocks[:, 2, 2])).tocsc()
-        rz = rhs[:, 2] - np.einsum("kj,kj->k", blocks[:, 2, :2], X[free, :2])
-        if Gg is not None:
-            z3 = np.arange(nf) * 3 + 2
-            xy = np.sort(np.r_[np.arange(nf) * 3, np.arange(nf) * 3 + 1])
-            Gg = Gg.tocsr()
-            Mz = (Mz + Gg[z3][:, z3]).tocsc()
-            rz = rz + rhsg[z3] - Gg[z3][:, xy] @ X[free, :2].ravel()
-        wsp["factor_z"] = spd_factor(Mz, reuse=wsp.get("factor_z"))
-        Xn[free, 2] = wsp["factor_z"].solve(rz)
-        return Xn
-    coupled = G is not None and sum(g.shape[1] for g in G) > 0
-    if Gg is None and not coupled:  # (with every weight at a bound the coupled step is the plain one)
-        sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline)
-        if sol is not None:
-            Xn[free] = sol
-            return Xn
-    M = (sp.kron(H, sp.identity(3), format="csr") + block_diagonal(blocks)).tocsc()
-    rhs_flat = rhs.ravel() + (rhsg if Gg is not None else 0.0)
-    if Gg is not None:
-        M = (M + Gg).tocsc()
-    if coupled:
-        # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
-        # the reduced error min_w E(X, w) rather than on E(X, w_k)), each load case its own;
-        # dw is only used to shape the position step: the trial is refitted exactly
-        off, diag, rhs_w = [], [], []
-        for Kt, target, Gc, gc in zip(Kts, targets, G, gap):
-            if Gc.shape[1] == 0:  # (every weight of this case at a bound)
-                continue
-            GtG = (Gc.T @ Gc).tocsr()
-            mean = float(GtG.diagonal().mean())
-            # weights near their bound may hardly move (an interior-point-like scaling), since
-            # the refit will clamp them there
-            gc = np.asarray(gc, float)
-            pw = prox_dw * mean + damping * mean * (np.median(gc) / gc) ** 2
-            off.append(sp.kron(Kt, sp.identity(3), format="csr").T @ Gc)
-            diag.append(GtG + sp.diags(pw))
-            # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
-            rhs_w.append(Gc.T @ target.ravel())
-        C = len(off)
-        N = sp.bmat([[M] + off] + [[off[c].T] + [diag[c] if d == c else None for d in range(C)] for c in range(C)],
-                    format="csc")
-        sol = spd_factor(N).solve(np.concatenate([rhs_flat, *rhs_w]))
-        Xn[free] = sol[:M.shape[0]].reshape(-1, 3)
-        return Xn
-    wsp["factor"] = spd_factor(M, reuse=wsp.get("factor"))
-    Xn[free] = wsp["factor"].solve(rhs_flat).reshape(-1, 3)
-    return Xn
-
-
-def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, rtol: float = 1e-10,
-                  maxiter: int = 200, deadline: float | None = None) -> np.ndarray | None:
-    """``(H ⊗ I₃ + ⊕ B_i) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG (scipy), the
-    preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
-    ``⊕ B_i − λ_min ⊗ I`` is PSD, so the preconditioned system's eigenvalues are ≥ 1); None if CG
-    does not converge. Raises :class:`~selfsupport.methods.deadline.DeadlineReached` when the
-    next CG iteration would end past ``deadline`` (a partial step is no step)."""
-    from scipy.sparse.linalg import LinearOperator, cg
-
-    k = H.shape[0]
-    lam = np.linalg.eigvalsh(blocks)[:, 0]
-    pre = ws["pre"] = spd_factor((H + sp.diags(lam)).tocsc(), reuse=ws.get("pre"))
-
-    def matvec(x: np.ndarray) -> np.ndarray:
-        Xv = x.reshape(k, 3)
-        return (H @ Xv + np.einsum("kij,kj->ki", blocks, Xv)).ravel()
-
-    op = LinearOperator((3 * k, 3 * k), matvec=matvec, dtype=float)
-    prec = LinearOperator((3 * k, 3 * k), matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel(), dtype=float)
-    count = [0]
-    last = [time.perf_counter(), 0.0]  # end of the last iteration, its duration
-
-    def callback(_: np.ndarray) -> None:
-        count[0] += 1
-        now = time.perf_counter()
-        last[:] = [now, now - last[0]]
-        if out_of_time(deadline, last[1]):
-            raise DeadlineReached
-
-    x, info = cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
-                 callback=callback)
-    ok = info == 0 and np.all(np.isfinite(x))
-    ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
-    return x.reshape(k, 3) if ok else None
-
-def _try_finish(top: Topology, X: np.ndarray, w: np.ndarray, L_it: np.ndarray, loads: LoadCase, mesh0,
-                sc: Scaling, reference, d_it: np.ndarray, opt: StaggeredOptions, slack: float,
-                workspace: dict | None = None, deadline: float | None = None):
-    """Polish with the current weights and keep the result if it is in equilibrium and no
-    farther from the reference than the iterate itself (mean within ``slack``, max
-    within 4× that): finishing then costs no closeness, further iterations could only drift.
-    ``L_it`` are the iterate's loads, ``d_it`` its distances to the reference.
-
-    A screen comes first: the positions in equilibrium with ``w`` and the iterate's loads
-    (one stress-Laplacian solve; the polish then only makes the loads consistent) predict the
-    polished distance — measured on the paper's scenes within 25% of the polished ratio where it
-    was far off (82 / 6.0 / 2.1 / 1.40 against 109 / 7.4 / 2.5 / 1.42 on twocirc-3) and within
-    7% where the polish was kept. A try whose screened mean distance exceeds the iterate's by
-    more than ``finish_screen`` is not polished (a Newton polish costs 20–70 ms there, the
-    screen a few).
-    Returns (positions, loads, rounds, info) — positions and loads None when screened out —
-    or None when the polish breaks down."""
-    free = top.free
-    Kff, Kfs = position_blocks(top, w)
-    B = np.zeros((top.n_free, 3))
-    B[:, 2] = L_it[free]
-    Xs = X.copy()
-    Xs[free] = spd_factor((-Kff).tocsc()).solve(Kfs @ X[~free] - B)  # −K_ff X_f = K_fs X_s − B
-    if not np.all(np.isfinite(Xs)):
-        return None
-    screen = float(closest_points(Xs, reference)[1].mean() / max(float(d_it.mean()), 1e-300))
-    if screen > 1 + opt.finish_screen:
-        return None, None, 0, {"ok": False, "screened": screen}
-    # Newton only: a try that Newton cannot finish is retried later, or left to the final polish
-    Xp, L, rounds = _polish(top, X, w, loads, mesh0, sc, workspace=workspace, fallbacks=bool(opt.try_fallbacks),
-                            deadline=deadline)
-    if not np.all(np.isfinite(Xp)):
-        return None
-    err = float((np.linalg.norm(residual(top, Xp, w, L), axis=1) / np.abs(L[free])).max())
-    d_p = closest_points(Xp, reference)[1]
-    ok = (err <= opt.tol and float(d_p.mean()) <= (1 + slack) * float(d_it.mean())
-          and float(d_p.max()) <= (1 + 4 * slack) * float(d_it.max()))
-    info = {"ok": bool(ok), "error": err, "screened": screen,
-            "dist_mean_ratio": float(d_p.mean() / max(d_it.mean(), 1e-300)),
-            "dist_max_ratio": float(d_p.max() / max(d_it.max(), 1e-300))}
-    return Xp, L, rounds, info
