@@ -28,7 +28,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
-from selfsupport.structure.stability import solve_in_hull
+from selfsupport.structure.hull import solve_in_hull
 
 __all__ = ["Stage", "sub_scene", "ring_faces", "clean_faces", "destroy"]
 

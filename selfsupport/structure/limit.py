@@ -65,7 +65,7 @@ from selfsupport.methods.base import case_networks, hull_excess, hull_signed_dis
 from selfsupport.methods.polish import polish_joint
 from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
-from selfsupport.structure.stability import solve_in_hull, spread_mass
+from selfsupport.structure.hull import solve_in_hull, spread_mass
 
 __all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "max_horizontal", "thrust_range", "CERTIFY_TOL",
            "HULL_MARGIN"]
