@@ -21,6 +21,7 @@ when used; what each can do is its :class:`~selfsupport.methods.Capabilities`.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import dataclass, replace
@@ -38,18 +39,19 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.options import check_options
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
-from selfsupport.io import read_mesh
+from selfsupport.io import read_mesh, read_network
 from selfsupport.io.loadcases import LoadSpec
 from selfsupport.io.network_json import load_case_entries
 from selfsupport.io.problem import load_spec, problem, scene_loads, weight_bounds
 from selfsupport.io.scenes import as_scene, design_of
 from selfsupport.methods import METHODS, MethodSpec, capabilities, make_method, method_class
-from selfsupport.methods.choice import AUTO
+from selfsupport.methods.choice import AUTO, choose_method
 from selfsupport.methods.deadline import finish_reserve
 from selfsupport.methods.fixed_fit import fit_weights
 from selfsupport.methods.memory import check_memory, dense_row_bytes
 from selfsupport.methods.sensitivity import sensitivity as _sensitivity
 from selfsupport.methods.validate import load_issues, validate_scene
+from selfsupport.structure.stability import solve_in_hull
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
@@ -159,7 +161,6 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
     issues = [*issues, *load_issues(prob.loads, scene.supports)]
     choice, settings = None, {}
     if method == AUTO:  # (the rule, from the problem: selfsupport.methods.choice)
-        from selfsupport.methods.choice import choose_method
 
         choice = choose_method(prob, warm_start=start)
         method, settings = choice.method, dict(choice.settings)
@@ -184,7 +185,6 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         design["start"] = started
     if prob.hull_thickness() is not None:
         # the masonry hull: search for a certifying network, or the verdict "infeasible"
-        from selfsupport.structure.stability import solve_in_hull
 
         result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress,
                                **start_kw)
@@ -294,7 +294,6 @@ class CheckReport:
 
 def _stored_document(path: Path) -> dict[str, Any]:
     """The raw JSON of a network file (for its load model and per-case weights), or ``{}``."""
-    import json
 
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
@@ -345,7 +344,6 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     if isinstance(obj, Network):
         stored = obj
     elif isinstance(obj, (str, os.PathLike)) and Path(obj).suffix.lower() == ".json":
-        from selfsupport.io import read_network
 
         doc = _stored_document(Path(obj))
         if "weights" in doc or "edges" in doc:  # not a hand-made {"vertices", "faces", "supports"} scene

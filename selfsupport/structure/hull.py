@@ -16,6 +16,7 @@ from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.methods import capabilities
 from selfsupport.methods.base import hull_report
+from selfsupport.methods.staggered import StaggeredLinearization
 
 #: What the staggered search tries, in order: 0, no hull (the nearest network); then the hull
 #: (the value is :class:`~formulations.problem.Hull`'s penalty, which only penalty-based methods use).
@@ -78,7 +79,6 @@ def solve_in_hull(problem: Problem, *, method: Any = None, options: Mapping[str,
     if t is None:
         raise InputError("solve_in_hull needs a problem with the masonry hull (constraints=['hull'])")
     if method is None:
-        from selfsupport.methods.staggered import StaggeredLinearization
 
         method = StaggeredLinearization()
     t0 = time.perf_counter()

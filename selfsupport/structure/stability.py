@@ -39,6 +39,7 @@ from selfsupport.structure.hull import (
     spread_mass,
     stands_line,
 )
+from selfsupport.structure.limit import limit_load
 
 __all__ = ["CERTIFY_TOL", "PENALTY_LADDER", "HULL_TOL", "solve_in_hull", "stands_line", "LoadStep", "stability_series",
            "max_load", "spread_mass", "MaxLoad"]
@@ -128,7 +129,6 @@ def max_load(scene: Scene, *, thickness: float, density: float = 2500.0, at: Seq
     probe uses it: it reports a verdict per probe and is cancelled between probes.
     """
     if search == "nlp":
-        from selfsupport.structure.limit import limit_load
 
         r = limit_load(scene, thickness=thickness, density=density, at=at, options=options, time_limit=time_limit,
                        progress=progress)
