@@ -110,11 +110,11 @@ class MethodSpec:
 METHODS: dict[str, MethodSpec] = {
     "staggered": MethodSpec("selfsupport.methods.staggered", "StaggeredLinearization",
                             "the paper's staggered linearization (§3): weights and positions in turn",
-                            backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
+                            backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "multilevel": MethodSpec("selfsupport.methods.multilevel", "Multilevel",
                              "the staggered method on coarsened top views first, each level warm-starting "
                              "the next (big meshes)",
-                             backend_module="selfsupport.methods.weightfit", backends="WEIGHT_FIT_BACKENDS"),
+                             backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "ipopt": MethodSpec("selfsupport.methods.simultaneous", "Simultaneous",
                         "all positions and weights at once with IPOPT (CasADi, MUMPS)"),
     "nlopt": MethodSpec("selfsupport.methods.nlopt_methods", "NloptSimultaneous",
@@ -133,7 +133,7 @@ def method_class(name: str) -> type:
 
 def make_method(name: str = "staggered", backend: str | None = None, **settings: Any) -> Any:
     """An instance of method ``name``; ``backend`` picks its inner solver where it has a choice
-    (the staggered method's Step 2: see ``selfsupport.methods.weightfit.WEIGHT_FIT_BACKENDS``);
+    (the staggered method's Step 2: see ``selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS``);
     ``settings`` are further keywords of its constructor."""
     cls = method_class(name)
     if backend is None:
