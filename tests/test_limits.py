@@ -183,7 +183,7 @@ def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypa
 def test_a_subdivision_beyond_the_memory_is_refused_before_it_is_built(monkeypatch, tmp_path, capsys):
     """``--subdivide K`` quadruples the mesh per step: the refined size is checked before the
     subdivision runs (ten steps of a 200-vertex dome would be 3·10⁸ vertices)."""
-    from selfsupport.design import subdivision
+    from selfsupport.core import subdivision
 
     monkeypatch.setattr(subdivision, "subdivide_scene", lambda *a, **k: pytest.fail("subdivided"))
     out = tmp_path / "x.json"
@@ -340,7 +340,7 @@ def test_subdividing_goes_through_the_size_guard(monkeypatch):
     """An edit script's or the design page's ``subdivide`` is refused before it is built, as
     ``solve --subdivide`` is (levels=10 ended in MemoryError at 5.2 GB)."""
     from selfsupport.core.errors import TooLarge
-    from selfsupport.design import subdivision
+    from selfsupport.core import subdivision
     from selfsupport.design.edits import Design, Subdivide
     from selfsupport.methods import memory
 
