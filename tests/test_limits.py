@@ -339,8 +339,8 @@ def test_a_ring_count_beyond_the_mesh_ends_with_the_connected_region(tmp_path):
 def test_subdividing_goes_through_the_size_guard(monkeypatch):
     """An edit script's or the design page's ``subdivide`` is refused before it is built, as
     ``solve --subdivide`` is (levels=10 ended in MemoryError at 5.2 GB)."""
-    from selfsupport.core.errors import TooLarge
     from selfsupport.core import subdivision
+    from selfsupport.core.errors import TooLarge
     from selfsupport.design.edits import Design, Subdivide
     from selfsupport.methods import memory
 

@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
 from selfsupport.core.subdivision import subdivision_parents
-from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel, why_not
 from selfsupport.methods.warm import as_warm_start
 
 if TYPE_CHECKING:
@@ -103,6 +102,7 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
     if n <= levels_above:
         return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
     # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
+    from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel, why_not
 
     why = why_not(problem)
     if why:
