@@ -250,6 +250,17 @@ def test_horizontal_loads_are_refused_where_only_vertical_loads_apply(tmp_path):
     with pytest.raises(InputError, match="apply to vertical loads only") as e:
         airy(net)
     assert "\n" not in str(e.value)
+    # the view leaves the Airy layers out and draws each load along its own 3D vector
+    from selfsupport.figures.viewer import build_view
+
+    fig, info = build_view(net)
+    assert "airy" not in info.layers and "loads" in info.layers
+    tr = next(t for t in fig.data if t.name == "loads")
+    xyz = np.stack([np.asarray(tr.x, float), np.asarray(tr.y, float), np.asarray(tr.z, float)], axis=1)
+    seg = xyz[:-1].reshape(-1, 3, 3)  # (start, tip, gap) per vertex
+    arrow = seg[:, 1] - seg[:, 0]
+    np.testing.assert_allclose(arrow / np.linalg.norm(arrow, axis=1, keepdims=True),
+                               net.loads / np.linalg.norm(net.loads, axis=1, keepdims=True), atol=1e-12)
     # a network with 3D loads round-trips through its file, which the schema accepts
     p = tmp_path / "h.json"
     write_network(p, net)

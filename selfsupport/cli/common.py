@@ -605,6 +605,8 @@ def _run_check(args: argparse.Namespace) -> int:
     if args.out is not None:
         write_network_out(args.out, rep.network, args.format, scene=_scene_info(rep, args), **rep.file_fields())
     print_table(f"selfsupport check {spec}" + (f" -> {args.out}" if args.out else ""), rep.rows())
+    # (a line of its own: as a table row its length would wrap the table's long labels)
+    print(f"support reactions of the fitted weights: {reaction_line(rep.network.reaction_summary())}")
     print(check_verdict(rep))
     ok = rep.self_supporting and rep.stored_self_supporting is not False
     return EXIT_CODES["ok"] if ok else EXIT_CODES["not_self_supporting"]

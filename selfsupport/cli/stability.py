@@ -197,7 +197,8 @@ def _max_horizontal(scene, args: argparse.Namespace, out: Path, info: dict) -> i
                        time_limit=args.time_limit)
     info = {**info, "direction": args.max_horizontal, "direction_vector": d.tolist()}
     atomic_write_text(out / "max-horizontal-program.json", json.dumps(
-        {"scene": info, **_program_record(r), "max_horizontal_acceleration_g": r.value}, indent=1, default=float) + "\n")
+        {"scene": info, **_program_record(r), "max_horizontal_acceleration_g": r.value}, indent=1,
+        default=float) + "\n")
     if not r.certified:
         print(f"selfsupport: no max horizontal acceleration: {r.message}", file=sys.stderr)
         return EXIT_CODES["not_converged"]

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from selfsupport.core.errors import InputError, SelfSupportError
-from selfsupport.core.evidence import residuals, triangulate
+from selfsupport.core.evidence import load_magnitudes, load_vectors, residuals, triangulate
 from selfsupport.core.geometry import bbox_diagonal
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
@@ -220,27 +220,28 @@ def build_view(network: Network, *, reference: PolyMesh | None = None, title: st
 
     # vertices: load and residual on hover
     loads = np.asarray(net.loads, float)
+    size = load_magnitudes(loads)
+    shown = loads if loads.ndim == 1 else size  # (a signed vertical load, or the size of a 3D one)
     r = residuals(vertices=V, edges=E, weights=w, loads=loads)
     rn = np.linalg.norm(r, axis=1)
     free = ~net.supports
-    ftxt = [f"vertex {i}<br>load A·F = {_fmt(loads[i], 'N')}<br>residual ‖r‖ = {_fmt(rn[i], 'N')}"
-            f" (relative {rn[i] / max(abs(loads[i]), 1e-300):.2e})" for i in np.flatnonzero(free)]
+    ftxt = [f"vertex {i}<br>load A·F = {_fmt(shown[i], 'N')}<br>residual ‖r‖ = {_fmt(rn[i], 'N')}"
+            f" (relative {rn[i] / max(size[i], 1e-300):.2e})" for i in np.flatnonzero(free)]
     add(go.Scatter3d(x=V[free, 0], y=V[free, 1], z=V[free, 2], mode="markers", showlegend=False, name="vertices",
                      marker=dict(size=1.5 if dense else 2.5, color="#333333"), hovertext=ftxt, hoverinfo="text"), "network", **main)
 
     # supports: the residual there is the ground reaction
     if net.supports.any():
         s = np.flatnonzero(net.supports)
-        stxt = [f"support {i}<br>load A·F = {_fmt(loads[i], 'N')}<br>ground reaction = "
+        stxt = [f"support {i}<br>load A·F = {_fmt(shown[i], 'N')}<br>ground reaction = "
                 f"({r[i, 0]:.4g}, {r[i, 1]:.4g}, {r[i, 2]:.4g}) N" for i in s]
         add(go.Scatter3d(x=V[s, 0], y=V[s, 1], z=V[s, 2], mode="markers", name=LAYERS["supports"], showlegend=True,
                          marker=dict(size=3 if dense else 4.5, color="black", symbol="square"), hovertext=stxt, hoverinfo="text"),
             "supports", **main)
 
     # loads: downward segments, length ∝ |A F| (the largest 8% of the bounding-box diagonal)
-    lmax = float(np.abs(loads).max()) if loads.size and np.abs(loads).max() > 0 else 1.0
-    tip = V.copy()
-    tip[:, 2] += 0.08 * diag * loads / lmax
+    lmax = float(size.max()) if size.size and size.max() > 0 else 1.0
+    tip = V + 0.08 * diag * load_vectors(loads) / lmax
     P = np.vstack([V, tip])
     pairs = np.c_[np.arange(len(V)), len(V) + np.arange(len(V))]
     x, y, z = _lines(P, pairs)

@@ -1,12 +1,14 @@
-"""Limit analysis as one nonlinear program: the largest load factor, feasibility at a given load
-and the smallest thickness, each answered with a certificate (paper §4; Heyman's safe theorem).
+"""Limit analysis as one nonlinear program: the largest load factor, feasibility at a given load,
+the smallest thickness, the largest horizontal acceleration and the range of the thrust, each
+answered with a certificate (paper §4; Heyman's safe theorem).
 
-    maximise    λ                          (:func:`limit_load`)
+    maximise    λ                          (:func:`limit_load`; :func:`max_horizontal`: λ in g)
                 − t                        (:func:`min_thickness`; h = t/2 an unknown)
                 − distance to reference    (:func:`feasible`; λ and t fixed)
+                ∓ Σ_s ‖R_s,h‖              (:func:`thrust_range`; λ = 0: the supports' horizontal reactions)
     over        offsets s_i, active weights w (one vector), λ [kg] (, h)
     where       v_i = p_i + s_i n_i         (p_i the reference vertex, n_i its normal)
-    subject to  Σ_j w_ij (v_j − v_i) = (0, 0, L_i),   L = L_ref + λ P          (eqs. 2-3)
+    subject to  Σ_j w_ij (v_j − v_i) = (0, 0, L_i) + λ H_i,   L = L_ref + λ P   (eqs. 2-3)
                 eps ≤ w ≤ w_max,   |s_i| ≤ (1 − HULL_MARGIN) h,   λ ≥ 0
 
 The equilibrium rows (relative to |L_i|) and the objective are those of
@@ -14,6 +16,8 @@ The equilibrium rows (relative to |L_i|) and the objective are those of
 <selfsupport.methods.simultaneous.Simultaneous.formulation>` in its scale-free units; the
 program only substitutes its unknowns into them: the positions by the offsets, the load
 parameter by ``L_ref + λ P`` (``P``: the added load per kg, spread over the loaded vertices).
+For a horizontal acceleration ``P = 0`` and ``H_i = W_i (d_x, d_y, 0)``, W_i the vertex's weight
+and d the plan direction, is subtracted from the rows in their relative scale (elsewhere H = 0).
 
 The hull: each free vertex moves on the line of the hull's slab at its reference vertex
 (:class:`formulations.terms.HullPenalty`: anchor ``p_i``, normal ``n_i``), so its distance to the
@@ -93,13 +97,15 @@ class LimitResult:
     Attributes
     ----------
     kind
-        ``"max_load"``, ``"feasibility"`` or ``"min_thickness"``.
+        ``"max_load"``, ``"feasibility"``, ``"min_thickness"``, ``"max_horizontal"``,
+        ``"min_thrust"`` or ``"max_thrust"``.
     value
-        The certified value: the added mass [kg] (max load, feasibility) or the thickness [m]
-        (min thickness); ``None`` when nothing was certified.
+        The certified value: the added mass [kg] (max load, feasibility), the thickness [m]
+        (min thickness), the acceleration [g] (max horizontal) or the certificate's thrust [N];
+        ``None`` when nothing was certified.
     optimum
-        The program's own optimum before the certificate (λ [kg] or t [m]); ``None`` if IPOPT
-        found no point.
+        The program's own optimum before the certificate (λ [kg], t [m], a [g] or the thrust
+        [N]); ``None`` if IPOPT found no point.
     certified
         A network inside the hull, in equilibrium and compressive, was found (``certificate``).
     certificate
@@ -549,18 +555,19 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
              f"{start_kg:g} kg")
     return _maximise("max_load", scene, thickness, problem, added, V, W, how, tried, start=float(start_kg),
-                     quantity=lambda x: f"{x:.6g} kg at {list(at_)}", extra={"at": list(at_)}, t_start=t_start,
+                     unit="kg", where=f" at {list(at_)}", extra={"at": list(at_)}, t_start=t_start,
                      deadline=deadline, tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
 
 
 def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added: np.ndarray, V: np.ndarray,
-              W: np.ndarray | None, how: str, tried: str, *, start: float, quantity: Callable[[float], str],
+              W: np.ndarray | None, how: str, tried: str, *, start: float, unit: str, where: str,
               extra: Mapping[str, Any], t_start: float, deadline: float, tol: float, max_iter: int,
               progress: Callable[[dict], None] | None, slide_supports: bool,
               horizontal: np.ndarray | None = None) -> LimitResult:
     """λ maximised (``kind`` ``"max_load"``: λ kg added at ``added``; ``"max_horizontal"``: λ g
     along ``horizontal``), then certified: the optimum's network, else the feasibility program's
-    at λ backed off by :data:`BACK_OFF`. ``quantity`` writes a λ for the messages."""
+    at λ backed off by :data:`BACK_OFF`. ``unit`` and ``where`` (after the certified value) are
+    the messages' words for λ."""
     run = _program_run(problem, kind, V, W, added, kg=start, deadline=deadline, tol=tol, max_iter=max_iter,
                        progress=progress, slide_supports=slide_supports, horizontal=horizontal)
     if not run.settled:
@@ -585,11 +592,11 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
     value = best.lam * best.prog.lam_unit
     if ok:
         what = "a horizontal acceleration of " if kind == "max_horizontal" else ""
-        message = (f"certified: {what}{quantity(value)} (the program's optimum {quantity(optimum)}) is carried by a "
-                   f"compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
+        message = (f"certified: {what}{value:.6g} {unit}{where} (the program's optimum {optimum:.6g} {unit}) is "
+                   f"carried by a compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
                    f"within t/2 = {0.5 * thickness:g} m of the reference")
         return _certified(kind, scene, value, optimum, res, best, hull, thickness, message)
-    message = (f"not certified: the program's optimum {quantity(optimum)} left a network that fails the check "
+    message = (f"not certified: the program's optimum {optimum:.6g} {unit} left a network that fails the check "
                f"(max relative error {hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond t/2 by "
                f"up to {hull['max_excess']:.3g} m), and so did the feasibility program at λ backed off by "
                f"{', '.join(f'{b:g}' for b in BACK_OFF)}")
@@ -634,7 +641,7 @@ def max_horizontal(scene: Scene, *, thickness: float, direction: str | float = "
     tried = (f"maximised the horizontal acceleration along ({d[0]:.4g}, {d[1]:.4g}) over networks inside "
              f"t = {thickness:g} m from {how}")
     return _maximise("max_horizontal", scene, thickness, problem, added, V, W, how, tried, start=0.0,
-                     quantity=lambda a: f"{a:.6g} g", extra={"direction": d.tolist()},
+                     unit="g", where=f" along ({d[0]:.4g}, {d[1]:.4g})", extra={"direction": d.tolist()},
                      t_start=t_start, deadline=deadline, tol=tol, max_iter=max_iter, progress=progress,
                      slide_supports=slide_supports, horizontal=d)
 
