@@ -1449,12 +1449,12 @@ def test_a_polish_short_of_tol_names_the_worst_vertices_by_their_numbers(monkeyp
     their positions among the free vertices (on a mesh whose supports are not numbered last those
     would be other vertices, supports among them)."""
     import selfsupport.methods.staggered as st
-    import selfsupport.methods.staggered.run as st_run
+    import selfsupport.methods.staggered.conclude as st_conclude
 
     scene = make_shape("pillar_vault", n_vertices=300)
     # (a support numbered before a free vertex: positions among the free ones are other numbers)
     assert np.flatnonzero(scene.supports)[0] < np.flatnonzero(~scene.supports)[-1]
-    monkeypatch.setattr(st_run, "cases_in_equilibrium", lambda cases, tol: False)  # every polish counts as short
+    monkeypatch.setattr(st_conclude, "cases_in_equilibrium", lambda cases, tol: False)  # every polish counts as short
     res = st.StaggeredLinearization().solve(scene)
     assert res.status == "stalled" and "the polished network has max relative error" in res.message
     m = re.search(r"vertices hardest to balance: \[([\d, ]+)\]", res.message)

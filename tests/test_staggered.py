@@ -580,7 +580,7 @@ def test_rejected_coupled_steps_hold_the_weights_harder(monkeypatch):
     step at the default hold on the weights over-promised (rejected, the plain step taken
     instead) and the run stalled too. Raising the hold after a rejected coupled step (×10, and
     halved back after an accepted one) lets the coupled steps through: converged."""
-    import selfsupport.methods.staggered.run as stg  # (where the solve reads DAMPING_MAX)
+    import selfsupport.methods.staggered.schedule as stg  # (where the damping rule reads DAMPING_MAX)
 
     scene, cases = _two_cases("concave_disk", 0.165)
     # (coupled=False: the plain step first, as before cases that are not proportional took the

@@ -96,6 +96,47 @@ class _Band:
         return r[held] - np.sign(r[held]) * self.band, J[held]
 
 
+def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
+            loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, band: float, target: float,
+            deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
+    """The homotopy's stages from the band ``band`` down to ``target``: each a joint polish with
+    the faces held within the next band (``form_at(X, band)``); an accepted stage cuts faster, a
+    failed one retries a finer cut. Returns (X, W, band reached, polish steps, history, status)."""
+    shrink, steps, history = FIRST_SHRINK, 0, []
+    status = "stalled"
+    first = True
+    while True:
+        if out_of_time(deadline):
+            status = "time_limit"
+            break
+        if len(history) >= MAX_STAGES:
+            status = "iteration_limit"
+            break
+        trial = band if first else max(band * shrink, target)  # (the first stage: equilibrium at the start's band)
+        form = form_at(X, trial)
+        Xn, Wn, k, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
+                                          load_jacobian=load_jacobian, deadline=deadline)
+        steps += k
+        rec = {"iteration": len(history), "band": trial, "steps": k, "max_rel_error": err, "accepted": bool(ok)}
+        history.append(rec)
+        if progress is not None:
+            progress(rec)
+        if ok:
+            X, W, band = Xn, Wn, trial
+            shrink = shrink if first else shrink ** 1.5
+            if band <= target:
+                status = "converged"
+                break
+        elif first:
+            break  # the start is not in equilibrium to within the polish's reach
+        else:
+            shrink = shrink ** 0.5
+            if shrink > MAX_SHRINK:
+                break
+        first = False
+    return X, W, band, steps, history, status
+
+
 def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
                     progress: Callable[[dict], None] | None = None) -> SolveResult:
     """Planar faces in equilibrium from a network in equilibrium on the same mesh (module docstring).
@@ -145,39 +186,13 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     start = float(np.abs(diagonal_distance(X, rows)[0]).max(initial=0.0))
     target = BAND_END * planar.tol
     band = max(start, target)
-    shrink, steps, history = FIRST_SHRINK, 0, []
-    status = "stalled"
-    first = True
-    while True:
-        if out_of_time(deadline):
-            status = "time_limit"
-            break
-        if len(history) >= MAX_STAGES:
-            status = "iteration_limit"
-            break
-        trial = band if first else max(band * shrink, target)  # (the first stage: equilibrium at the start's band)
-        form = ThrustNetworkProblem(top, X, loads_at(X), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
+
+    def form_at(Y: np.ndarray, trial: float) -> ThrustNetworkProblem:
+        return ThrustNetworkProblem(top, Y, loads_at(Y), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
                                     planar=_Band(rows, trial, mesh0.n_vertices))
-        Xn, Wn, k, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
-                                          load_jacobian=jac, deadline=deadline)
-        steps += k
-        rec = {"iteration": len(history), "band": trial, "steps": k, "max_rel_error": err, "accepted": bool(ok)}
-        history.append(rec)
-        if progress is not None:
-            progress(rec)
-        if ok:
-            X, W, band = Xn, Wn, trial
-            shrink = shrink if first else shrink ** 1.5
-            if band <= target:
-                status = "converged"
-                break
-        elif first:
-            break  # the start is not in equilibrium to within the polish's reach
-        else:
-            shrink = shrink ** 0.5
-            if shrink > MAX_SHRINK:
-                break
-        first = False
+
+    X, W, band, steps, history, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac, band=band,
+                                                target=target, deadline=deadline, progress=progress)
     net, cases = case_networks(problem, sc, X, list(W))
     report = planarity_report(problem, net)
     if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):  # (recomputed in SI)

@@ -399,6 +399,90 @@ def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct:
     return J.T @ y
 
 
+def _joint_rows(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.ndarray, *, S: np.ndarray,
+                dL: list, xcols: np.ndarray, planar_rows: tuple | None) -> tuple[list, np.ndarray]:
+    """The joint polish's equilibrium rows on the movable positions, per case (scaled by ``S``;
+    with the load Jacobian ``dL[c]`` when the loads move with the positions: a Newton step),
+    then the planarity rows ``(r, J)`` when given, and their right-hand side ``−r``."""
+    top, C = form.topology, form.n_cases
+    JX, rhs = [], []
+    for c in range(C):
+        sr = np.repeat(S[c], 3)
+        Kff, _ = position_blocks(top, W[c])
+        Cx = sp.kron(Kff, sp.identity(3), format="csr")
+        if dL[c] is not None:  # the loads move with the positions (self-weight): a Newton step
+            Cx = Cx - dL[c]
+        JX.append(sp.diags(sr) @ Cx.tocsr()[:, xcols])
+        rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
+    b_eq = np.concatenate(rhs)
+    if planar_rows is not None:  # equality rows: every face held planar
+        rp, Jp = planar_rows
+        free_cols = (3 * np.flatnonzero(top.free)[:, None] + np.arange(3)).ravel()
+        JX.append(Jp.tocsc()[:, free_cols].tocsr()[:, xcols])
+        b_eq = np.concatenate([b_eq, -rp])
+    return JX, b_eq
+
+
+def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: list, b_eq: np.ndarray, *,
+               S: np.ndarray, inner: np.ndarray, xcols: np.ndarray, hull_rows_all: sp.spmatrix | None,
+               deadline: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """One minimum-norm step of the joint polish on the positions and the ``inner`` weights
+    (updated in place): weights a step would push past a bound, and vertices it would carry out
+    of the hull, are held (the vertices on the face they would cross) and the step redone.
+    Returns (the flattened free-position step, the weights after it), or None past the deadline."""
+    top, C, hull = form.topology, form.n_cases, form.hull
+    free, nf = top.free, top.n_free
+    lo, up = form.lower, form.upper
+    s_w = form.weight_scale * WEIGHT_STEP_PREFERENCE
+    Aw = weight_matrix(top, V)
+    if hull is not None:  # rows of the vertices on the hull's face: held there (or put back)
+        h = max(hull.half_thickness, 1e-300)
+        sd = hull.signed_distance(V)
+        on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
+        goal = np.clip(sd, -hull.half_thickness, hull.half_thickness)
+    for _ in range(20):  # weights a step would push past a bound, and vertices it would carry
+        # out of the hull, are held (the vertices on the face they would cross), the step redone
+        Hr, b = None, b_eq
+        if hull is not None and on.any():
+            Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / h
+            b = np.concatenate([b_eq, (goal[on] - sd[on]) / h])
+        wcols = [np.flatnonzero(inner[c]) for c in range(C)]
+        nW = [len(i) for i in wcols]
+        # J = [position columns | each case's weight columns, block-diagonal by case]; the
+        # planarity and hull rows have position columns only
+        Xrows = JX + ([Hr] if Hr is not None else [])
+        extra = sum(r.shape[0] for r in Xrows[C:])
+        JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
+        J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
+        d = min_norm_step(J, [r.shape[0] for r in Xrows], b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
+        if d is None:  # the deadline passed inside the step: the best iterate so far
+            break
+        off, crossing = len(xcols), False
+        Wn = W.copy()
+        for c in range(C):
+            Wn[c, wcols[c]] += s_w * d[off:off + nW[c]]
+            out = wcols[c][(Wn[c, wcols[c]] < lo[wcols[c]]) | (Wn[c, wcols[c]] > up[wcols[c]])]
+            if out.size:
+                inner[c, out], crossing = False, True
+            off += nW[c]
+        dX = np.zeros(3 * nf)
+        dX[xcols] = d[:len(xcols)]
+        if hull is not None:
+            Vt = V.copy()
+            Vt[free] += dX.reshape(-1, 3)
+            sd_t = hull.signed_distance(Vt)
+            cross = ~on & (np.abs(sd_t) > hull.half_thickness)
+            if cross.any():
+                on |= cross
+                goal[cross] = np.sign(sd_t[cross]) * hull.half_thickness
+                crossing = True
+        if not crossing:
+            break
+    if d is None:
+        return None
+    return dX, Wn
+
+
 def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                  loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
                  max_iter: int = JOINT_POLISH_MAX_ITER,
@@ -408,13 +492,13 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
 
     Gauss–Newton with minimum-norm steps on the system ``r_c(X, w_c; L_c(V)) = 0`` (all cases,
     rows scaled as in the NLP): the unknowns are the free positions (z only with a fixed top
-    view) and, per case, the weights strictly inside their bounds (measured so that the
-    step prefers weights, :data:`WEIGHT_STEP_PREFERENCE`: they leave the loads unchanged); weights on a bound and hull
-    rows on the hull's face are held. The problem's planarity rows (``form.planar``) are equations
-    of the same system, counted in the error like relative residuals. The loads are re-estimated from the geometry before every
-    step (they lag by one step; the steps are of the size of the residual, so the lag is
-    small). ``δ = Jᵀ (J Jᵀ + μ I)⁻¹ (−r)`` with one refinement step; ``μ`` is round-off level
-    and only matters where ``J`` is rank deficient.
+    view) and, per case, the weights strictly inside their bounds (measured so that the step
+    prefers weights, :data:`WEIGHT_STEP_PREFERENCE`: they leave the loads unchanged); weights on
+    a bound and hull rows on the hull's face are held (:func:`_held_step`). The planarity rows
+    (``form.planar``) are equations of the same system, counted like relative residuals. The
+    loads are re-estimated from the geometry before every step (a lag of one step, of the size
+    of the residual). ``δ = Jᵀ (J Jᵀ + μ I)⁻¹ (−r)`` with one refinement step; ``μ`` is
+    round-off level and only matters where ``J`` is rank deficient.
 
     Parameters
     ----------
@@ -436,19 +520,15 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     free = top.free
     nf, C = top.n_free, form.n_cases
     V, W = np.array(V, float), np.array(W, float)
-    s_w = form.weight_scale * WEIGHT_STEP_PREFERENCE
     coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
     xcols = (3 * np.arange(nf)[:, None] + coords).ravel()  # movable entries of X (flattened free positions)
-    hull = form.hull
-    if hull is not None:
-        hull_rows_all = hull._rows[:, (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()]  # on free X
+    hull = form.hull  # (its rows on the free positions' coordinates)
+    fc = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
+    hull_rows_all = hull._rows[:, fc] if hull is not None else None
     err = np.inf
     best = (np.inf, V.copy(), W.copy())
-    since, best_before = 0, np.inf
-    t_step = 0.0
+    since, best_before, t_step = 0, np.inf, 0.0
     planar = form.planar if form.n_planar else None
-    if planar is not None:
-        free_cols = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
     for k in range(max_iter + 1):
         t0 = time.perf_counter()
         L = loads_at(V)
@@ -470,67 +550,16 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
         lo, up = form.lower, form.upper
         below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
         inner = (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up  # (C, m)
-        JX, Aw, rhs = [], weight_matrix(top, V), []
         dL = load_jacobian(V, L, deadline=deadline) if load_jacobian is not None else [None] * C
         if dL is None:  # the deadline passed while the load Jacobians were formed
             break
-        for c in range(C):
-            sr = np.repeat(S[c], 3)
-            Kff, _ = position_blocks(top, W[c])
-            Cx = sp.kron(Kff, sp.identity(3), format="csr")
-            if dL[c] is not None:  # the loads move with the positions (self-weight): a Newton step
-                Cx = Cx - dL[c]
-            JX.append(sp.diags(sr) @ Cx.tocsr()[:, xcols])
-            rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
-        b_eq = np.concatenate(rhs)
-        if planar is not None:  # equality rows: every face held planar
-            JX.append(Jp.tocsc()[:, free_cols].tocsr()[:, xcols])
-            b_eq = np.concatenate([b_eq, -rp])
-        if hull is not None:  # rows of the vertices on the hull's face: held there (or put back)
-            h = max(hull.half_thickness, 1e-300)
-            sd = hull.signed_distance(V)
-            on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
-            goal = np.clip(sd, -hull.half_thickness, hull.half_thickness)
-        for _ in range(20):  # weights a step would push past a bound, and vertices it would carry
-            # out of the hull, are held (the vertices on the face they would cross), the step redone
-            Hr, b = None, b_eq
-            if hull is not None and on.any():
-                Hr = hull_rows_all[np.flatnonzero(on)][:, xcols] / h
-                b = np.concatenate([b_eq, (goal[on] - sd[on]) / h])
-            wcols = [np.flatnonzero(inner[c]) for c in range(C)]
-            nW = [len(i) for i in wcols]
-            # J = [position columns | each case's weight columns, block-diagonal by case]; the
-            # planarity and hull rows have position columns only
-            Xrows = JX + ([Hr] if Hr is not None else [])
-            extra = sum(r.shape[0] for r in Xrows[C:])
-            JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
-            J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
-            d = min_norm_step(J, [r.shape[0] for r in Xrows], b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
-            if d is None:  # the deadline passed inside the step: the best iterate so far
-                break
-            off, crossing = len(xcols), False
-            Wn = W.copy()
-            for c in range(C):
-                Wn[c, wcols[c]] += s_w * d[off:off + nW[c]]
-                out = wcols[c][(Wn[c, wcols[c]] < lo[wcols[c]]) | (Wn[c, wcols[c]] > up[wcols[c]])]
-                if out.size:
-                    inner[c, out], crossing = False, True
-                off += nW[c]
-            dX = np.zeros(3 * nf)
-            dX[xcols] = d[:len(xcols)]
-            if hull is not None:
-                Vt = V.copy()
-                Vt[free] += dX.reshape(-1, 3)
-                sd_t = hull.signed_distance(Vt)
-                cross = ~on & (np.abs(sd_t) > hull.half_thickness)
-                if cross.any():
-                    on |= cross
-                    goal[cross] = np.sign(sd_t[cross]) * hull.half_thickness
-                    crossing = True
-            if not crossing:
-                break
-        if d is None:
+        JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols,
+                               planar_rows=(rp, Jp) if planar is not None else None)
+        step = _held_step(form, V, W, JX, b_eq, S=S, inner=inner, xcols=xcols, hull_rows_all=hull_rows_all,
+                          deadline=deadline)
+        if step is None:
             break
+        dX, Wn = step
         V[free] += dX.reshape(-1, 3)
         W = np.clip(Wn, lo, up)
         t_step = time.perf_counter() - t0

@@ -172,21 +172,15 @@ class _LowerQ:
         return self._factor(data), keep
 
 
-def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
-                tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
-                lowq: _LowerQ | None = None, deadline: float | None = None, centred: tuple | None = None,
-                trail: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
-    """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
-
-    One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
-    structure of Q. Returns the point, the multipliers of both bounds, iterations, status
-    (``"time_limit"`` when the next iteration would end past ``deadline``: the iterate is
-    strictly inside the box, a usable if inexact fit).
-    """
-    lowq = lowq if lowq is not None else _LowerQ(Q)
+def _ipm_start(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray, *,
+               lowq: _LowerQ, gs: float, warm: tuple[np.ndarray, np.ndarray] | None,
+               centred: tuple | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The interior point's first iterate (w, z, y) strictly inside the box, and the typical
+    weight ``scale_w`` its test is relative to: a centred iterate of the previous fit, a warm
+    start nudged off the bounds, or the unconstrained minimiser pushed inside. ``gs``: the
+    gradient scale max |c|."""
     fin = np.isfinite(upper)
     span = np.where(fin, upper - lower, np.inf)
-    gs = max(float(np.abs(c).max()), 1e-300)
     if centred is not None and centred[0].shape == c.shape:
         # a centred iterate of the previous fit (a few iterations before its end): the next
         # problem's barrier path passes close to it (16k disk, exact fits: 26-31 -> 16-20 iterations)
@@ -221,6 +215,24 @@ def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.nd
         gm = max(float(np.median(np.abs(g))), 1e-3 * gs)
         z = np.maximum(g, 0) + gm
         y = np.where(fin, np.maximum(-g, 0) + gm, 0.0)
+    return w, z, y, scale_w
+
+
+def _box_qp_ipm(Q: sp.csc_matrix, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, w0: np.ndarray,
+                tol: float, max_iter: int, warm: tuple[np.ndarray, np.ndarray] | None = None,
+                lowq: _LowerQ | None = None, deadline: float | None = None, centred: tuple | None = None,
+                trail: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, str]:
+    """Mehrotra predictor-corrector interior point for ``min ½wᵀQw − cᵀw, l ≤ w ≤ u``.
+
+    One sparse factorization of ``Q + Z/S + Y/T`` per iteration; robust whatever the
+    structure of Q. Returns the point, the multipliers of both bounds, iterations, status
+    (``"time_limit"`` when the next iteration would end past ``deadline``: the iterate is
+    strictly inside the box, a usable if inexact fit).
+    """
+    lowq = lowq if lowq is not None else _LowerQ(Q)
+    fin = np.isfinite(upper)
+    gs = max(float(np.abs(c).max()), 1e-300)
+    w, z, y, scale_w = _ipm_start(Q, c, lower, upper, w0, lowq=lowq, gs=gs, warm=warm, centred=centred)
     n_con = w.size + int(fin.sum())
     has_up = bool(fin.any())  # (y = 0 and t = 1 wherever the upper bound is infinite)
     zero = np.zeros_like(w)

@@ -15,7 +15,7 @@ from selfsupport.methods.base import as_problem, cases_proportional, loads_or_op
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
-from selfsupport.methods.staggered.schedule import _coupled_fits
+from selfsupport.methods.staggered.schedule import coupled_fits
 from selfsupport.methods.weightfit import WeightFitBackend
 from selfsupport.methods.weightfit_backends import make_backend
 
@@ -29,7 +29,7 @@ def _couples_first(problem: Problem) -> str | None:
         return None
     if any(isinstance(c, Planar) for c in problem.constraints):
         return "planar faces" if C == 1 else None
-    if (C > 1 and problem.hull_thickness() is None and _coupled_fits(problem.scene.mesh.n_vertices, C)
+    if (C > 1 and problem.hull_thickness() is None and coupled_fits(problem.scene.mesh.n_vertices, C)
             and not cases_proportional(problem)):
         return "load cases that are not proportional"
     return None
@@ -85,16 +85,9 @@ class StaggeredLinearization:
         why = _couples_first(problem) if opt.coupled is None else None
         if why is None:
             return _Run(self, problem, replace(opt, coupled=bool(opt.coupled)), progress, warm_start, deadline).solve()
-        # Several load cases that are not proportional: one geometry must carry each, and with the
-        # weights held Step 3 can only trade one case's error against the other's (lilium, empty and
-        # with 5% of its weight on one vertex: stalled at 0.97 plain, converged coupled in 38
-        # iterations; generated domes 1.5-5x and dented disks 1.2-1.6x closer to the reference).
-        # Planar faces required: with the weights held in Step 3, the planarity penalty and the fit
-        # pull against each other and the fit error creeps (1-2 % per iteration; a 400-vertex dome
-        # remeshed at 0.6-1 edge length stalled in 3 of 6 meshes). The coupled step converged on all
-        # six in 11-17 iterations, 1.2-2.9x closer to the reference; on the paper's coarse vault
-        # remeshed along a grid it stalled where the plain one converged: so coupled first, and the
-        # plain step from the start again when it stalls (the better of the two is returned).
+        # with the weights held, Step 3 can only trade one case's error against another's, or the
+        # planarity penalty against the fit: the coupled step first, and the plain one from the start
+        # again when it stalls (the better of the two is returned)
         t0 = time.perf_counter()
         deadline = t0 + opt.time_limit if deadline is None else deadline
         first = _Run(self, problem, replace(opt, coupled=True), progress, warm_start, deadline).solve()

@@ -34,9 +34,9 @@ class StaggeredOptions:
     creep_window: int = _setting(10, "[0, inf)")  # iterations at alpha_min in which the fit error must halve,
     # else Step 3 turns coupled for the rest of the run (free top view; 0: never)
     stall_window: int = _setting(30, "[1, inf)")  # iterations at alpha_min in which the fit error must halve,
-    # else "stalled" (on the paper's scenes and their variants at most 2 iterations are spent at alpha_min)
+    # else "stalled" (schedule.fit_stalls)
     smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
-    # term on v − v_ref, the original tool's smoothing; see the module docstring)
+    # term on v − v_ref, the original tool's smoothing; docs/theory/staggered.md)
     reproject_every: int = _setting(1, "[0, inf)")  # closest-point re-projection onto the reference (0: never)
     prox_w: float = _setting(1e-8, "(0, inf)")  # proximal weight of the Step-2 fit relative to its diagonal:
     # makes the weights unique (A has more columns than rows) and reproducible during the iteration
@@ -44,25 +44,22 @@ class StaggeredOptions:
     polish_tol: float = _setting(1e-3, "(0, inf)")  # fit error below which the weights are frozen, positions solved
     joint_polish_tol: float = _setting(1e-2, "(0, inf)")  # ... and the joint polish is tried (several load
     # cases, a fixed top view, a hull): it moves the weights with the positions, a Newton iteration that
-    # converges from farther (a pillar vault with a fixed top view stalled at fit error 1.15e-3 otherwise)
+    # converges from farther
     coupled: bool | None = None  # Step 3 moves the free weights with the positions (Gauss-Newton on min_w E):
-    # up to 1.65x closer to the reference on the paper's scenes, 1.5-4x slower, and less reproducible
-    # under rotation/scaling of the input (weights shift by up to ~1.5%); hence opt-in. None (default):
-    # off, except with planar faces required (one case, free top view), where it is tried first (see
-    # StaggeredLinearization.solve)
+    # closer to the reference, but slower and less reproducible under rotation/scaling of the input; hence
+    # opt-in. None (default): off, except where it is tried first (method._couples_first)
     coupled_damping: float = _setting(1e-4, "[0, inf)")  # coupled step: how strongly weights near ε are held
     finish_try: float = _setting(0.1, "[0, inf)")  # fit error below which the polish is tried after every step
     warm_accept: float = _setting(0.5, "[0, inf)")  # a warm start whose first fit error is above finish_try but
-    # below this gets one finish try as it is (a top-view move of 0.2% of lilium's diagonal: 0.11), and the
-    # solve starts cold when that fails (iterating on from such a start measured slower than cold: 1.0-1.9x)
+    # below this gets one finish try as it is, and the solve starts cold when that fails (iterating on from
+    # such a start is slower than a cold start)
     warm_iterate: bool = False  # a warm start above warm_accept is iterated from (not restarted cold):
     # a prolongation from a coarser level (methods/multilevel.py), near the solution yet not in equilibrium
     finish_slack: float = _setting(0.05, "[0, inf)")  # ... kept if its mean distance grows by at most this
     finish_slack_released: float = _setting(0.25, "[0, inf)")  # ... once α is at alpha_min: the reference no
-    # longer holds the iterate, and iterating on buys little closeness (a 1k pillar vault with a point load of
-    # 10% of its weight: a try 5.9% farther was refused, 30 more iterations gained 8% and ended "stalled")
+    # longer holds the iterate, and iterating on buys little closeness
     finish_screen: float = _setting(0.25, "[0, inf]")  # ... and not even polished when one stress-Laplacian
-    # solve with the iterate's loads already moves the mean distance up by more than this (see _try_finish)
+    # solve with the iterate's loads already moves the mean distance up by more than this (finish.screen_ratio)
     try_fallbacks: bool = False  # ... with Newton only (no Anderson / Newton-Krylov rounds after it)
     fit_rtol: float = _setting(1e-3, "(0, inf)")  # KKT tolerance a Step-2 backend may stop at while the fit
     # error is above finish_try (those fits only steer the iteration; the fits the finish uses are exact)
@@ -70,7 +67,6 @@ class StaggeredOptions:
     # convergence (refine.py; 0: the paper's method as it is)
     refine_concentrated: int = _setting(20, "[0, inf)")  # ... the steps when ``refine`` is 0 and a load case
     # holds point loads or extra masses: the penalty path carries such a load by a spike far from the reference
-    # (the 100-vertex vault, 30% of its weight on one vertex: 0.51 of the diagonal, refined 0.02)
     refine_gain: float = _setting(1e-2, "[0, 1)")  # ... stopping after two steps that each lower the objective
     # by less than this (relative; 0: on to refine's step limit, the optimum of the problem's objective)
     tol: float = _setting(1e-9, "(0, inf)")  # required max relative error of the final network

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -44,10 +45,9 @@ def _into_hull(hull: HullPenalty, X: np.ndarray, *, fixed_xy: bool = False) -> n
     return X
 
 
-# -------------------------------------------------------------------- Step 3 assembly
-def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: float, c: float,
-                ws: dict, pinned: Term | None = None) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix | None,
-                                  np.ndarray]:
+def _term_model(objective: Term | None, X: np.ndarray, *, free: np.ndarray, alpha: float, c: float, ws: dict,
+                pinned: Term | None = None) -> tuple[sp.csr_matrix | None, np.ndarray, np.ndarray, np.ndarray,
+                                                     sp.csr_matrix | None, np.ndarray]:
     """The objective's Gauss–Newton model at ``X`` over the free positions, weighted by ``c α``
     (constraint terms by ``c``): ``Σ μ ‖r + J Δx‖²`` split into a per-coordinate matrix ``H₁``
     (terms acting on x, y, z alike) with right-hand side ``(k, 3)``, 3×3 blocks per free vertex
@@ -95,37 +95,32 @@ def _term_model(objective: Term | None, X: np.ndarray, free: np.ndarray, alpha: 
     return H1, rhs1, blocks, rhs3, Gg, rhsg
 
 
-def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: np.ndarray,
-                   objective: Term | None, alpha: float, beta: float, G: list[sp.spmatrix] | None = None,
-                   prox_dw: float = 0.0, gap: list[np.ndarray] | None = None, damping: float = 0.0,
-                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None,
-                   deadline: float | None = None) -> np.ndarray:
-    """Step 3: the SPD least-squares update of the free positions (see the module docstring).
+@dataclass(frozen=True)
+class Coupling:
+    """What the coupled Step 3 moves besides the positions: per load case, the scaled ``A`` at
+    the iterate restricted to the weights off their bounds (``G``) and those weights' gaps to
+    the lower bound; ``prox`` and ``damping`` weigh the proximal term and the hold on weights
+    near their bound (relative to the mean diagonal of ``GᵀG``)."""
 
-    ``weights`` and ``L`` hold one weight vector and one load vector per load case. The residual
-    rows of each case are scaled by ``1 / |A_i F_i|`` as in the fit (so the step decreases the
-    very error the fit measures); the penalties are multiplied by the mean of
-    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that the
-    objective's weights, α and β compare lengths with lengths whatever the mesh resolution.
+    G: list[sp.spmatrix]
+    gap: list[np.ndarray]
+    prox: float
+    damping: float
 
-    The system is ``(H ⊗ I₃ + ⊕ B_i + G) x = rhs`` with H the (n_free × n_free) Gram matrix of
-    the scaled stress Laplacians (+ per-coordinate terms), ``B_i`` 3×3 blocks (vertex-local
-    terms + β) and ``G`` the general terms. Without ``G`` it is solved by conjugate gradients
-    preconditioned with one n×n factorization of ``H + diag(λ_min(B_i))`` applied to the three
-    coordinates (:func:`_solve_blocks`) — a 3n×3n factorization costs ~27× the flops; for the
-    default objective the preconditioned condition number is at most ``1 + (1 − τ)/(τ + β/α)``
-    (measured: 2–27 iterations to 1e-10 on the paper's scenes). The direct 3n×3n factorization
-    remains for general terms, the coupled step and as a fallback; with a fixed top view only
-    the heights move (an n×n factorization). ``workspace`` (a dict kept by the caller across
-    steps) holds the factor objects, whose symbolic analyses are reused, and the constant
-    Gram matrices of the per-coordinate terms.
-    """
-    wsp = workspace if workspace is not None else {}
-    wsp["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
-    free = top.free
-    nf = top.n_free
+    @property
+    def moves(self) -> bool:
+        """Any weight free to move (with every weight at a bound the coupled step is the plain one)."""
+        return sum(g.shape[1] for g in self.G) > 0
+
+
+def _stress_gram(top: Topology, X: np.ndarray, *, weights: list[np.ndarray], loads: np.ndarray) -> tuple:
+    """The equilibrium part of Step 3 summed over the load cases: the Gram matrix ``H`` of the
+    scaled stress Laplacians ``Kt = diag(1 / |L|) K_ff``, its right-hand side, the mean squared
+    relative diagonal ``c`` (which turns relative residuals into lengths), and per case ``Kt``
+    and the target of ``Kt X_free``."""
+    free, nf = top.free, top.n_free
     H, rhs, cvals, Kts, targets = None, np.zeros((nf, 3)), [], [], []
-    for w, Lc in zip(weights, L):
+    for w, Lc in zip(weights, loads):
         Kff, Kfs = position_blocks(top, w)
         s = 1.0 / np.abs(Lc[free])
         cvals.append(float(np.mean((-Kff.diagonal() * s) ** 2)))
@@ -138,28 +133,90 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
         rhs += Kt.T @ target
         Kts.append(Kt)
         targets.append(target)
-    c = float(np.mean(cvals))
-    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free, alpha, c, wsp, pinned)
+    return H, rhs, float(np.mean(cvals)), Kts, targets
+
+
+def _heights(X: np.ndarray, free: np.ndarray, *, H: sp.spmatrix, blocks: np.ndarray, rhs: np.ndarray,
+             Gg: sp.spmatrix | None, rhsg: np.ndarray, wsp: dict) -> np.ndarray:
+    """Step 3 with a fixed top view: only the heights move, the zz part of the system
+    ``M_zz z = rhs_z − M_z,xy x_xy`` with x, y held (H has no x-z coupling; blocks and G may)."""
+    nf = int(free.sum())
+    Xn = X.copy()
+    Mz = (H + sp.diags(blocks[:, 2, 2])).tocsc()
+    rz = rhs[:, 2] - np.einsum("kj,kj->k", blocks[:, 2, :2], X[free, :2])
+    if Gg is not None:
+        z3 = np.arange(nf) * 3 + 2
+        xy = np.sort(np.r_[np.arange(nf) * 3, np.arange(nf) * 3 + 1])
+        Gg = Gg.tocsr()
+        Mz = (Mz + Gg[z3][:, z3]).tocsc()
+        rz = rz + rhsg[z3] - Gg[z3][:, xy] @ X[free, :2].ravel()
+    wsp["factor_z"] = spd_factor(Mz, reuse=wsp.get("factor_z"))
+    Xn[free, 2] = wsp["factor_z"].solve(rz)
+    return Xn
+
+
+def _coupled_solve(M: sp.spmatrix, rhs: np.ndarray, *, Kts: list, targets: list, coupling: Coupling) -> np.ndarray:
+    """The coupled step's positions: the weights not at a bound move with them (Gauss-Newton on
+    the reduced error min_w E(X, w) rather than on E(X, w_k)), each load case its own; their
+    moves only shape the position step (the trial is refitted exactly)."""
+    off, diag, rhs_w = [], [], []
+    for Kt, target, Gc, gc in zip(Kts, targets, coupling.G, coupling.gap):
+        if Gc.shape[1] == 0:  # (every weight of this case at a bound)
+            continue
+        GtG = (Gc.T @ Gc).tocsr()
+        mean = float(GtG.diagonal().mean())
+        # weights near their bound may hardly move (an interior-point-like scaling), since the
+        # refit will clamp them there
+        gc = np.asarray(gc, float)
+        pw = coupling.prox * mean + coupling.damping * mean * (np.median(gc) / gc) ** 2
+        off.append(sp.kron(Kt, sp.identity(3), format="csr").T @ Gc)
+        diag.append(GtG + sp.diags(pw))
+        # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
+        rhs_w.append(Gc.T @ target.ravel())
+    C = len(off)
+    N = sp.bmat([[M] + off] + [[off[c].T] + [diag[c] if d == c else None for d in range(C)] for c in range(C)],
+                format="csc")
+    sol = spd_factor(N).solve(np.concatenate([rhs, *rhs_w]))
+    return sol[:M.shape[0]].reshape(-1, 3)
+
+
+def _position_step(top: Topology, X: np.ndarray, *, weights: list[np.ndarray], loads: np.ndarray,
+                   objective: Term | None, alpha: float, beta: float, coupling: Coupling | None = None,
+                   workspace: dict | None = None, fixed_xy: bool = False, pinned: Term | None = None,
+                   deadline: float | None = None) -> np.ndarray:
+    """Step 3: the SPD least-squares update of the free positions (see the package docstring).
+
+    ``weights`` and ``loads`` hold one weight vector and one load vector per load case. The
+    residual rows of each case are scaled by ``1 / |A_i F_i|`` as in the fit (so the step
+    decreases the very error the fit measures); the penalties are multiplied by the mean of
+    ``(d_i / |A_i F_i|)²``, which converts that relative residual into a length, so that the
+    objective's weights, α and β compare lengths with lengths whatever the mesh resolution.
+
+    The system is ``(H ⊗ I₃ + ⊕ B_i + G) x = rhs`` with H the (n_free × n_free) Gram matrix of
+    the scaled stress Laplacians (+ per-coordinate terms), ``B_i`` 3×3 blocks (vertex-local
+    terms + β) and ``G`` the general terms. Without ``G`` it is solved by conjugate gradients
+    preconditioned with one n×n factorization (:func:`_solve_blocks`), a 3n×3n factorization
+    costing ~27× the flops; for the default objective the preconditioned condition number is at
+    most ``1 + (1 − τ)/(τ + β/α)``. The direct 3n×3n factorization remains for general terms,
+    the coupled step (``coupling``) and as a fallback; with a fixed top view only the heights
+    move (an n×n factorization). ``workspace`` (a dict kept by the caller across steps) holds
+    the factor objects, whose symbolic analyses are reused, and the constant Gram matrices of
+    the per-coordinate terms.
+    """
+    wsp = workspace if workspace is not None else {}
+    wsp["cg_iterations"] = 0  # stays 0 unless conjugate gradients solve the step
+    free = top.free
+    H, rhs, c, Kts, targets = _stress_gram(top, X, weights=weights, loads=loads)
+    H1, rhs1, blocks, rhs3, Gg, rhsg = _term_model(objective, X, free=free, alpha=alpha, c=c, ws=wsp, pinned=pinned)
     if H1 is not None:
         H = (H + H1).tocsr()
     blocks = blocks + (c * beta) * np.eye(3)[None]
     rhs += rhs1 + rhs3 + (c * beta) * X[free]
+    if fixed_xy:
+        return _heights(X, free, H=H, blocks=blocks, rhs=rhs, Gg=Gg, rhsg=rhsg, wsp=wsp)
     Xn = X.copy()
-    if fixed_xy:  # only the heights move: the zz part of the system (x, y stay at X)
-        # M_zz z = rhs_z − M_z,xy x_xy with x, y held (H has no x-z coupling; blocks and G may)
-        Mz = (H + sp.diags(blocks[:, 2, 2])).tocsc()
-        rz = rhs[:, 2] - np.einsum("kj,kj->k", blocks[:, 2, :2], X[free, :2])
-        if Gg is not None:
-            z3 = np.arange(nf) * 3 + 2
-            xy = np.sort(np.r_[np.arange(nf) * 3, np.arange(nf) * 3 + 1])
-            Gg = Gg.tocsr()
-            Mz = (Mz + Gg[z3][:, z3]).tocsc()
-            rz = rz + rhsg[z3] - Gg[z3][:, xy] @ X[free, :2].ravel()
-        wsp["factor_z"] = spd_factor(Mz, reuse=wsp.get("factor_z"))
-        Xn[free, 2] = wsp["factor_z"].solve(rz)
-        return Xn
-    coupled = G is not None and sum(g.shape[1] for g in G) > 0
-    if Gg is None and not coupled:  # (with every weight at a bound the coupled step is the plain one)
+    coupled = coupling is not None and coupling.moves
+    if Gg is None and not coupled:
         sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline)
         if sol is not None:
             Xn[free] = sol
@@ -169,35 +226,14 @@ def _position_step(top: Topology, X: np.ndarray, weights: list[np.ndarray], L: n
     if Gg is not None:
         M = (M + Gg).tocsc()
     if coupled:
-        # coupled step: the weights not at a bound move with the positions (Gauss-Newton on
-        # the reduced error min_w E(X, w) rather than on E(X, w_k)), each load case its own;
-        # dw is only used to shape the position step: the trial is refitted exactly
-        off, diag, rhs_w = [], [], []
-        for Kt, target, Gc, gc in zip(Kts, targets, G, gap):
-            if Gc.shape[1] == 0:  # (every weight of this case at a bound)
-                continue
-            GtG = (Gc.T @ Gc).tocsr()
-            mean = float(GtG.diagonal().mean())
-            # weights near their bound may hardly move (an interior-point-like scaling), since
-            # the refit will clamp them there
-            gc = np.asarray(gc, float)
-            pw = prox_dw * mean + damping * mean * (np.median(gc) / gc) ** 2
-            off.append(sp.kron(Kt, sp.identity(3), format="csr").T @ Gc)
-            diag.append(GtG + sp.diags(pw))
-            # the target of J x + G dw is the scaled target t (the current residual is J x_k − t)
-            rhs_w.append(Gc.T @ target.ravel())
-        C = len(off)
-        N = sp.bmat([[M] + off] + [[off[c].T] + [diag[c] if d == c else None for d in range(C)] for c in range(C)],
-                    format="csc")
-        sol = spd_factor(N).solve(np.concatenate([rhs_flat, *rhs_w]))
-        Xn[free] = sol[:M.shape[0]].reshape(-1, 3)
+        Xn[free] = _coupled_solve(M, rhs_flat, Kts=Kts, targets=targets, coupling=coupling)
         return Xn
     wsp["factor"] = spd_factor(M, reuse=wsp.get("factor"))
     Xn[free] = wsp["factor"].solve(rhs_flat).reshape(-1, 3)
     return Xn
 
 
-def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, rtol: float = 1e-10,
+def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, *, rtol: float = 1e-10,
                   maxiter: int = 200, deadline: float | None = None) -> np.ndarray | None:
     """``(H ⊗ I₃ + ⊕ B_i) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG (scipy), the
     preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
