@@ -29,9 +29,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from selfsupport.cli.common import (
     EXIT_CODES,
@@ -50,6 +48,9 @@ from selfsupport.cli.common import (
     write_network_out,
 )
 from selfsupport.core.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["COMMANDS", "PHI_NAMES", "INTEGRATION_NAMES", "add_airy_arguments", "run_airy", "add_construct_arguments", "run_construct", "airy_document"]
 

@@ -48,7 +48,6 @@ from typing import Any, Callable, Iterator, Sequence
 
 from selfsupport import __version__
 from selfsupport.core.errors import InputError, SelfSupportError
-from selfsupport.core.evidence import reaction_line
 from selfsupport.methods import METHODS, capabilities, find_method
 
 __all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
@@ -254,6 +253,7 @@ def print_warnings(result, scene) -> None:
 
 def summary_rows(result, scene) -> list[tuple[str, str]]:
     """Rows of the summary table of a solve."""
+    from selfsupport.core import evidence
     from selfsupport.core.geometry import bbox_diagonal
 
     net = result.network
@@ -267,7 +267,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
             ("min weight", f"{result.min_weight:.4g} N/m"),
             *tension_rows(result),
             ("total load", f"{float(net.loads.sum()):.6g} N"),
-            ("support reactions", reaction_line(net.reaction_summary())),
+            ("support reactions", evidence.reaction_line(net.reaction_summary())),
             ("distance to reference mean", f"{result.distance_mean:.3e} of bbox diagonal "
                                            f"({result.distance_mean * diag:.3g} m)"),
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
@@ -606,7 +606,9 @@ def _run_check(args: argparse.Namespace) -> int:
         write_network_out(args.out, rep.network, args.format, scene=_scene_info(rep, args), **rep.file_fields())
     print_table(f"selfsupport check {spec}" + (f" -> {args.out}" if args.out else ""), rep.rows())
     # (a line of its own: as a table row its length would wrap the table's long labels)
-    print(f"support reactions of the fitted weights: {reaction_line(rep.network.reaction_summary())}")
+    from selfsupport.core import evidence
+
+    print(f"support reactions of the fitted weights: {evidence.reaction_line(rep.network.reaction_summary())}")
     print(check_verdict(rep))
     ok = rep.self_supporting and rep.stored_self_supporting is not False
     return EXIT_CODES["ok"] if ok else EXIT_CODES["not_self_supporting"]
