@@ -156,7 +156,7 @@ def test_pq_command_writes_a_planar_network_and_never_its_input(tmp_path, dome):
     src = tmp_path / "dome.json"
     write_network(src, net)
     before = src.read_bytes()
-    cli = [sys.executable, "-m", "selfsupport.cli"]
+    cli = [sys.executable, "-m", "selfsupport"]
     bad = subprocess.run(cli + ["pq", str(src), "--out", str(src)], capture_output=True, text=True)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and src.read_bytes() == before
     out = tmp_path / "pq.json"
@@ -175,7 +175,7 @@ def test_pq_command_writes_a_planar_network_and_never_its_input(tmp_path, dome):
 def test_solve_planar_flag(tmp_path):
     import json
 
-    cli = [sys.executable, "-m", "selfsupport.cli", "solve", "shape:barrel_vault:150"]
+    cli = [sys.executable, "-m", "selfsupport", "solve", "shape:barrel_vault:150"]
     out = tmp_path / "n.json"
     ok = subprocess.run(cli + ["--planar", "--out", str(out)], capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from selfsupport.core.errors import InputError
+from selfsupport.core.errors import InputError, TooLarge
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 
@@ -176,12 +176,14 @@ def subdivide_scene(scene: Scene, levels: int = 1, *, crease_supports: bool = Tr
     >>> [p.mesh.n_vertices for p in subdivision_parents(fine)] + [fine.mesh.n_vertices]
     [217, 1201, 4705]
 
-    Raises :class:`~selfsupport.core.errors.TooLarge` before any step when a solve of the result
-    would not fit in ``max_memory`` [GiB] (default: the memory available;
-    :func:`~selfsupport.methods.memory.check_memory`): each step quadruples the mesh.
+    Each step quadruples the mesh: callers that solve the result check its size first
+    (:func:`~selfsupport.methods.memory.check_subdivision`); a count no machine holds
+    (:data:`COUNT_CAP`) raises :class:`~selfsupport.core.errors.TooLarge` here, before any step.
     """
     if int(levels) < 0:
         raise InputError(f"subdivision levels must be >= 0, got {levels}")
+    if subdivided_vertex_count(scene.mesh, levels) > COUNT_CAP:  # (no machine holds it: refused at once)
+        raise TooLarge(f"subdividing {levels} times gives more than {COUNT_CAP:.0e} vertices; subdivide fewer times")
     mesh, sup = scene.mesh, np.asarray(scene.supports, bool)
     extras = {k: getattr(scene, k) for k in ("handles", "extra_mass", "point_loads")}
     crease = corner = None
