@@ -12,13 +12,13 @@
 from .equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds
 from .loadcases import DEFAULT_CASE, LoadCases
 from .nlp import ThrustNetworkProblem
-from .problem import (CONSTRAINTS, DEFAULT_OBJECTIVE, Bounds, FixedTopView, Hull, ObjectiveTerm, Planar, Problem, ScaledProblem,
+from .problem import (CONSTRAINTS, Bounds, FixedTopView, Hull, ObjectiveTerm, Planar, Problem, ScaledProblem,
                       parse_objective)
 from .scaling import Scaling, default_eps
 from .terms import (TERMS, Fairness, HullPenalty, NormalDrift, PlanarFaces, Planarity, PlanarityVolume, PointDistance,
                     ReferenceDistance, Scaled, Sum, Term, TermContext)
 
-__all__ = ["Problem", "DEFAULT_OBJECTIVE", "ScaledProblem", "Bounds", "Hull", "FixedTopView", "Planar", "CONSTRAINTS", "ObjectiveTerm",
+__all__ = ["Problem", "ScaledProblem", "Bounds", "Hull", "FixedTopView", "Planar", "CONSTRAINTS", "ObjectiveTerm",
            "parse_objective", "LoadCases", "DEFAULT_CASE", "GROUP_NAMES", "Equilibrium", "Topology", "WeightBounds",
            "TERMS", "Term", "TermContext", "Sum", "Scaled", "PointDistance", "ReferenceDistance", "NormalDrift",
            "Planarity", "PlanarityVolume", "PlanarFaces", "Fairness", "HullPenalty", "ThrustNetworkProblem", "Scaling", "default_eps"]

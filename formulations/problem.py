@@ -9,9 +9,9 @@ it; it owns its scale-free units (:meth:`Problem.scaled`).
                 |⟨n_i, v_i − p_i⟩| ≤ t/2                         (optional: the masonry hull)
                 x_i, y_i fixed                                   (optional: fixed top view, the TNA setting)
 
-``objective=None`` is the problem's default, :data:`DEFAULT_OBJECTIVE`: the distance to the
-reference surface (its closest points follow the network); every method solves the same
-problem, an explicit objective as stated.
+``objective=None`` leaves the objective to the method's default (staggered: distance to the
+reference surface + smooth displacement; simultaneous: distance to the reference vertices); an
+explicit objective is used as stated by every method.
 
 Example
 -------
@@ -37,9 +37,6 @@ from .loadcases import LoadCases
 from .scaling import Scaling, default_eps
 from .terms import TERMS, Scaled, Sum, Term, TermContext
 
-
-#: The objective of a problem that states none: distance to the reference surface (paper §3).
-DEFAULT_OBJECTIVE: Mapping[str, float] = {"reference": 1.0}
 
 #: Largest nodal load magnitude [N] the arithmetic takes: forces are squared in norms and in the
 #: fits (1e150² = 1e300, below the double range 1.8e308); its inverse is the smallest.
@@ -281,7 +278,7 @@ class Problem:
     scene: Any  # selfsupport.scene.Scene
     loads: LoadCases
     bounds: Bounds = Bounds()
-    objective: tuple | None = None  # of ObjectiveTerm / Term (SI units); None: DEFAULT_OBJECTIVE
+    objective: tuple | None = None  # of ObjectiveTerm / Term (SI units); None: the method's default
     constraints: tuple = ()
 
     @classmethod
@@ -378,21 +375,14 @@ class Problem:
         return ScaledProblem(top=top, scaling=sc, X=X, L=sc.load(L), lower=lower, upper=upper)
 
     # ---------------------------------------------------------------- objective
-    @property
-    def objective_spec(self) -> tuple:
-        """The objective's items: as stated, or :data:`DEFAULT_OBJECTIVE` when none is."""
-        return self.objective if self.objective is not None else parse_objective(DEFAULT_OBJECTIVE)
-
     def terms(self, ctx: TermContext, scaling: Scaling | None = None, default: Any = None) -> Term | None:
         """The objective as one :class:`Term` in the units of ``ctx`` (``scaling`` converts user
-        terms stated in SI units). ``default``, when given, must be :data:`DEFAULT_OBJECTIVE`:
-        a method cannot make the problem its own. The hull and planarity constraints add their
-        penalty terms (``constraint``: methods do not relax them)."""
-        if default is not None and parse_objective(default) != parse_objective(DEFAULT_OBJECTIVE):
-            raise InputError(f"a method asked for its own default objective {default!r}; the problem's is "
-                             f"{dict(DEFAULT_OBJECTIVE)!r}")
+        terms stated in SI units); ``default`` (a spec) when the problem leaves it to the method.
+        The hull and planarity constraints add their penalty terms (``constraint``: methods do
+        not relax them)."""
+        spec = self.objective if self.objective is not None else parse_objective(default)
         built: list[Term] = []
-        for item in self.objective_spec:
+        for item in spec or ():
             if isinstance(item, ObjectiveTerm):
                 built.append(item.build(ctx))
             elif scaling is not None:

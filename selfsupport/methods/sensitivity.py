@@ -291,7 +291,9 @@ class ObjectiveWeight(Parameter):
         return self.term
 
     def value(self, problem: Problem) -> float:
-        spec = problem.objective_spec
+        from .simultaneous import DEFAULT_OBJECTIVE
+
+        spec = problem.objective if problem.objective is not None else (ObjectiveTerm(DEFAULT_OBJECTIVE),)
         hits = [o for o in spec if isinstance(o, ObjectiveTerm) and o.name == self.term]
         if len(hits) != 1:
             have = [getattr(o, "name", type(o).__name__) for o in spec]

@@ -1,7 +1,7 @@
 """The simultaneous method: all free positions and every load case's weights at once, with IPOPT.
 
     minimise    Σ weight_t · term_t(V)  (+ a tiny weight regulariser)
-                                   (the problem's objective; by default the distance to the reference surface)
+                                   (default objective: Σ ‖v_i − v_i^ref‖² over free vertices)
     subject to  Σ_j w_c,ij (v_j − v_i) = (0, 0, L_c,i)    every load case c, every free vertex
                 eps ≤ w_c ≤ w_max                           (scalar or per edge)
                 −t/2 ≤ ⟨n_i, v_i − p_i⟩ ≤ t/2               (the problem's :class:`~formulations.Hull`)
@@ -14,13 +14,6 @@ and solved by ``ca.nlpsol`` (IPOPT with MUMPS, adaptive μ) in the problem's sca
 of the first case). Constraint rows are divided by ``|L_c,i|``, so IPOPT's ``tol`` bounds the
 paper's relative error directly. The hull is hard here: its penalty term, which
 :meth:`~formulations.Problem.terms` appends for penalty methods, is left out of the objective.
-
-The objective's reference term (the problem's default) is the distance to the tangent planes of
-the reference at its vertices, whatever the start, plus :data:`REFERENCE_HOLD` × the distance to
-the reference vertices: the distance to the surface alone leaves the vertices free to slide along
-it, and the load rounds below then do not settle. Its closest points are not re-anchored between
-rounds: that made the answer depend on the path (a warm start from the solution took 5× the
-iterations of the cold solve and ended elsewhere), so one problem has one NLP.
 
 Loads depend on the geometry (self-weight ∝ area). They are held fixed during one IPOPT run;
 then every case's loads are re-estimated from the result (Anderson-accelerated) and the problem
@@ -62,7 +55,7 @@ from typing import Any, Callable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from formulations import PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem, WeightBounds
+from formulations import Problem, Term, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.scaling import Scaling
 from formulations.terms import HullPenalty, PlanarFaces, Sum
 
@@ -100,11 +93,6 @@ ANDERSON_DEPTH = 3
 #: leaves a vertex outside the true hull the slabs move to the vertices' closest points and the
 #: rounds go on, warm). A design whose network keeps sliding out is not certified ("stalled").
 MAX_HULL_ANCHORINGS = 8
-#: Weight of the squared distance to the reference vertices added to an objective with the
-#: reference term, relative to it (the β of the paper's Step 3 regulariser): the distance to the
-#: surface alone leaves the vertices free to slide along it, and the load rounds then do not
-#: settle (the paper's structural scene: load change stuck at 1e-2).
-REFERENCE_HOLD = 0.1
 #: Natural weight scale in scaled units: ``1 / ĥ²`` (ĥ = mean edge length / bbox diagonal).
 #: Cold-start weights, relative to it (IPOPT's path from larger starts is often long and ends
 #: in worse local optima; 0.003–0.01 was consistently good on vault, vault-pillar and domes).
@@ -147,6 +135,10 @@ IPOPT_STATUS: dict[str, str] = {
 #: IPOPT statuses after which ``iter_count`` is meaningless.
 _NO_ITERATIONS = {"Invalid_Option", "Invalid_Problem_Definition", "Not_Enough_Degrees_Of_Freedom",
                   "Insufficient_Memory", "Unrecoverable_Exception", "NonIpopt_Exception_Thrown"}
+
+
+#: Objective of a problem that leaves it to this method: distance to the reference vertices.
+DEFAULT_OBJECTIVE = "vertices"
 
 
 @dataclass(frozen=True)
@@ -585,7 +577,7 @@ class Simultaneous:
         if status != "converged":
             message = "; ".join(m for m in (message, load_cases_note(problem)) if m)
         return SimultaneousRun(SolveResult.build(
-            first, cases=cases, terms=term_values(problem, first),
+            first, cases=cases, terms=term_values(problem, first, default=DEFAULT_OBJECTIVE),
             status=status, method=self.name, backend=self.backend, iterations=st.iterations,
             wall_time=time.perf_counter() - t_start, history=tuple(st.history), message=message,
             parameters={"eps": float(np.min(sc.weight_back(form.lower))),
@@ -644,17 +636,12 @@ class Simultaneous:
         sp_ = problem.scaled(problem.loads.nodal(mesh0, start))
         sc, top = sp_.scaling, sp_.top
         ctx = TermContext(vertices=sc.pos(start), reference=mesh0.with_vertices(sp_.X), free=scene.free)
-        total = problem.terms(ctx, scaling=sc)
+        total = problem.terms(ctx, scaling=sc, default=DEFAULT_OBJECTIVE)
         parts = total.parts() if total is not None else ()
         hull = next((t for t in parts if isinstance(t, HullPenalty)), None) if problem.hull_thickness() else None
         planar = next((t for t in parts if isinstance(t, PlanarFaces)), None)
         kept = [t for t in parts if not t.constraint]  # the hull and planarity are rows here, not penalties
-        if any(isinstance(t, ReferenceDistance) for t in kept) and REFERENCE_HOLD:
-            # (the distance to the surface leaves sliding along it free: held to the reference vertices)
-            kept.append(PointDistance(targets=sp_.X, mask=scene.free) * REFERENCE_HOLD)
         objective_term = None if not kept else kept[0] if len(kept) == 1 else Sum(tuple(kept))
-        if objective_term is not None:  # (the reference term linearised at the reference, whatever the start)
-            objective_term = objective_term.at(sp_.X)
         h = float(np.linalg.norm(sp_.X[top.edges[:, 1]] - sp_.X[top.edges[:, 0]], axis=1).mean())
         form = ThrustNetworkProblem(top, sc.pos(start), sp_.L, WeightBounds(sp_.lower, sp_.upper),
                                     objective=objective_term,
@@ -759,7 +746,7 @@ def _start_weights(warm_start: Network | SolveResult, scene: Scene, n_cases: int
 
 
 def _describe_objective(problem: Problem) -> Any:
-    """``None`` (the problem's default) or ``["name=weight", …]`` (user terms by class name)."""
+    """``None`` (the method's default) or ``["name=weight", …]`` (user terms by class name)."""
     if problem.objective is None:
         return None
     return [type(o).__name__ if isinstance(o, Term) else f"{o.name}={float(o.weight):g}" for o in problem.objective]
