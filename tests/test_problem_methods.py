@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from formulations import FixedTopView, Hull, Problem
+from formulations import FixedTopView, Hull, ObjectiveTerm, Problem
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import vertex_normals
 from selfsupport.core.loads import PointLoad, SelfWeight
@@ -277,14 +277,20 @@ def test_two_cases_have_distinct_weights(method):
     assert b.loads.sum() < a.loads.sum()
 
 
-def test_short_form_and_legacy_objective_names():
+def test_short_form_and_registered_objective_names():
+    """The short form builds the same problem; objective names are the registry's only (the
+    surface objective of old is stated by its terms)."""
     scene = make_shape("dome", n_vertices=60)
     a = Simultaneous().solve(scene, LOADS, objective="vertices", time_limit=30.0)
     b = Simultaneous().solve(Problem.build(scene, LOADS), {"time_limit": 30.0})
     assert a.status == b.status == "converged"
     np.testing.assert_allclose(a.network.vertices, b.network.vertices, rtol=0, atol=1e-12)
-    c = Simultaneous().solve(scene, LOADS, objective="surface")
+    surface = [ObjectiveTerm("reference", 1.0, {"tangential": 0.0}), ObjectiveTerm("vertices", 0.1)]
+    c = Simultaneous().solve(scene, LOADS, objective=surface)
     assert c.status == "converged" and c.max_relative_error <= 1e-9
+    assert c.parameters["objective"] == ["reference=1", "vertices=0.1"]
+    with pytest.raises(InputError, match="unknown objective term 'surface'"):
+        Simultaneous().solve(scene, LOADS, objective="surface")
     with pytest.raises(InputError, match="option"):
         Simultaneous().solve(Problem.build(scene, LOADS), {"tolerance": 1e-3})
 

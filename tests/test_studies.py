@@ -257,7 +257,7 @@ def test_table1_surface_variant_hands_its_objective_to_ipopt(tmp_path):
         rows[key] = table1.solve_row(variant=key, out_json=str(path), warm_from=str(warm), **common_kw)
         d = json.loads(path.read_text(encoding="utf-8"))
         assert rows[key]["status"] == "converged"
-        assert d["parameters"]["objective"] == ("surface" if "surface" in key else None)
+        assert d["parameters"]["objective"] == (["reference=1", "vertices=0.1"] if "surface" in key else None)
         assert document_errors(d).max() <= 1e-8
     surface, vertices = rows["simultaneous/ipopt-surface-warm"], rows["simultaneous/ipopt-warm"]
     assert surface["dist_ref_mean"] < 0.9 * vertices["dist_ref_mean"]

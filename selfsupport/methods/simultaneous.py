@@ -49,13 +49,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import casadi as ca
 import numpy as np
 
-from formulations import TERMS, PointDistance, Problem, ReferenceDistance, Term, TermContext, ThrustNetworkProblem, WeightBounds
+from formulations import Problem, Term, TermContext, ThrustNetworkProblem, WeightBounds
 from formulations.scaling import Scaling
 from formulations.terms import HullPenalty, PlanarFaces, Sum
 from selfsupport.core.errors import InputError
@@ -145,26 +145,6 @@ _NO_ITERATIONS = {"Invalid_Option", "Invalid_Problem_Definition", "Not_Enough_De
                   "Insufficient_Memory", "Unrecoverable_Exception", "NonIpopt_Exception_Thrown"}
 
 
-def _vertices_objective(scene: Scene, start: np.ndarray) -> Term:
-    return PointDistance(targets=scene.mesh.vertices, mask=scene.free)
-
-
-def _surface_objective(scene: Scene, start: np.ndarray) -> Term:
-    return (ReferenceDistance.from_reference(start, scene.mesh, mask=scene.free)
-            + PointDistance(targets=scene.mesh.vertices, mask=scene.free) * 0.1)
-
-
-#: Legacy objective names of the short form ``solve(scene, loads, objective=NAME)`` (stated in SI
-#: units): name -> factory(scene, start_vertices) -> Term; a problem names registry terms instead
-#: (``formulations.TERMS``). ``"vertices"``: squared distance to the reference vertices. ``"surface"``: squared distance to
-#: the reference surface, linearised at the start (closest points and normals), plus 0.1 × the
-#: vertex term (the paper's α = 1, β = 0.1 regulariser).
-OBJECTIVES: dict[str, Callable[[Scene, np.ndarray], Term]] = {
-    "vertices": _vertices_objective,
-    "surface": _surface_objective,
-}
-
-
 #: Objective of a problem that leaves it to this method: distance to the reference vertices.
 DEFAULT_OBJECTIVE = "vertices"
 
@@ -234,6 +214,58 @@ class SimultaneousRun:
 
     result: SolveResult
     answer: IpoptAnswer | None
+
+
+@dataclass(eq=False)
+class _Rounds:
+    """The state of one run's load rounds, in the problem's scaled units."""
+
+    problem: Problem
+    opts: SimultaneousOptions
+    deadline: float
+    progress: Callable[[dict], None] | None
+    form: ThrustNetworkProblem  # the NLP of the next round (its hull's slabs anchored)
+    sc: Scaling
+    nlp: dict
+    x: np.ndarray  # the current iterate
+    L_cur: np.ndarray  # (n_cases, n) loads of the next round
+    mixer: Anderson
+    best: tuple[float, np.ndarray]  # (load change, iterate) of the most load-consistent converged round
+    history: list[dict[str, Any]] = field(default_factory=list)
+    warm: dict | None = None  # IPOPT's multipliers for the next round
+    answer: IpoptAnswer | None = None
+    status: str = "failed"
+    raw: str = ""  # IPOPT's status of the last round
+    message: str = ""
+    iterations: int = 0
+    polish: bool = False
+    x_ok: np.ndarray | None = None  # last iterate of a converged round
+    anchorings: int = 0  # re-anchorings of the hull's slabs so far
+    polished_change: float | None = None  # the best round's change, when it (not the last) is polished
+    unsettled: bool = False  # the rounds stopped without settling the loads (status "stalled")
+
+    @property
+    def joint(self) -> bool:
+        """Whether the polish is the joint one (several cases, a hull, a fixed top view, planar rows)."""
+        return (len(self.problem.loads) > 1 or self.form.hull is not None or self.problem.fixed_top_view
+                or self.form.n_planar > 0)
+
+    def loads_at(self, Vs: np.ndarray) -> np.ndarray:
+        """Every case's scaled loads at scaled positions ``Vs``."""
+        return self.sc.loads_at(self.problem.loads, self.problem.scene.mesh, Vs)
+
+    def record(self, rec: dict[str, Any]) -> None:
+        self.history.append(rec)
+        if self.progress is not None:
+            self.progress(rec)
+
+    def next_round(self, Vs: np.ndarray, L_new: np.ndarray, *, hull: bool = False) -> None:
+        """The next round's loads (mixed) and, with ``hull``, the hull's slabs at ``Vs``."""
+        C = len(self.problem.loads)
+        self.L_cur = self.mixer.next(self.L_cur.ravel(), L_new.ravel()).reshape(C, -1)
+        if hull:
+            self.form = dataclasses.replace(self.form, hull=self.form.hull.at(Vs))
+            self.nlp = self.form.nlp()
 
 
 class Simultaneous:
@@ -309,8 +341,7 @@ class Simultaneous:
             A :class:`formulations.Problem`, or a scene for the short form: then the second
             positional argument is the load model (as in ``solve(scene, SelfWeight())``) and
             ``eps``, ``w_max``, ``objective``, ``constraints`` build the problem
-            (:func:`~selfsupport.methods.base.as_problem`). ``objective`` may also name one of
-            :data:`OBJECTIVES` (``"surface"``).
+            (:func:`~selfsupport.methods.base.as_problem`).
         options
             :class:`SimultaneousOptions` or a mapping of its fields (a :class:`Problem` only).
         progress
@@ -324,15 +355,10 @@ class Simultaneous:
             ``warm_start``, ``verbose``).
         """
         t_start = time.perf_counter()
-        named = None  # a legacy objective name ("vertices", "surface"), recorded as given
         if not isinstance(problem, Problem):
             if loads is not None and options is not None:
                 raise InputError("give the load model once (second argument or loads=)")
             loads, options = (options if loads is None else loads), None
-            if isinstance(objective, str) and objective in OBJECTIVES and objective not in TERMS:
-                ws = option_kw.get("warm_start")
-                start = problem.mesh.vertices if ws is None else _start_vertices(problem, ws)
-                named, objective = objective, OBJECTIVES[objective](problem, start)
         opts = SimultaneousOptions.of(options, **option_kw)
         deadline = t_start + opts.time_limit if deadline is None else deadline
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
@@ -340,187 +366,218 @@ class Simultaneous:
         self._check_problem(problem)
         if self.continuation:
             return self._continue(problem, opts, deadline, progress, t_start)
-        scene = problem.scene
-        mesh0 = scene.mesh
+        st = self._start(problem, opts, deadline, progress)
+        self._load_rounds(st)
+        if st.polish:
+            self._final_polish(st)
+        return self._result(st, t_start)
 
+    # ------------------------------------------------------------------ the run's steps
+    def _start(self, problem: Problem, opts: SimultaneousOptions, deadline: float,
+               progress: Callable[[dict], None] | None) -> "_Rounds":
+        """The NLP at the start (the reference, or the warm start's free positions and weights)."""
+        scene = problem.scene
         V = _start_vertices(scene, opts.warm_start)
         if problem.fixed_top_view:  # (the top view the solve keeps: the start's)
             require_top_view_balance(scene, V)
         form, sc = self.formulation(problem, V, weight_regularization=self.weight_regularization)
-        top = form.topology
-        free = top.free
-        C = len(problem.loads)
-        hull = form.hull
+        C, free = len(problem.loads), form.topology.free
         W0 = _start_weights(opts.warm_start, scene, C, sc) if opts.warm_start is not None else \
-            np.full((C, top.m), COLD_START_FACTOR * form.weight_scale)  # weight_scale = 1 / h²
-        W0 = np.clip(W0, form.lower, form.upper)
-        x = form.pack(sc.pos(V), W0)
-
-        def loads_at(Vs: np.ndarray) -> np.ndarray:
-            return sc.loads_at(problem.loads, mesh0, Vs)
-
-        nlp = form.nlp()
-        history: list[dict[str, Any]] = []
-        warm = None
-        answer: IpoptAnswer | None = None
-        status, message, iterations = "failed", "", 0
-        tol = opts.tol
-        L_cur = form.loads
+            np.full((C, form.topology.m), COLD_START_FACTOR * form.weight_scale)  # weight_scale = 1 / h²
+        x = form.pack(sc.pos(V), np.clip(W0, form.lower, form.upper))
         # mixed loads must stay downward, and a mixed step no longer than the plain one (against a runaway
         # when the rounds are far from contractive, e.g. under a tight w_max)
         mixer = Anderson(ANDERSON_DEPTH, accept=lambda Lm: bool(np.all(Lm.reshape(C, -1)[:, free] < 0)),
                          limit_step=True)
-        polish = False
-        x_ok = None  # last iterate of a converged round
-        anchorings = 0  # re-anchorings of the hull's slabs so far
-        best = (np.inf, x)  # (load change, iterate) of the most load-consistent converged round
-        polished_change = None  # that change, when that round (not the last) is the one polished
-        unsettled = False  # the rounds stopped without settling the loads (status "stalled")
+        return _Rounds(problem=problem, opts=opts, deadline=deadline, progress=progress, form=form, sc=sc,
+                       nlp=form.nlp(), x=x, L_cur=form.loads, mixer=mixer, best=(np.inf, x))
+
+    def _load_rounds(self, st: "_Rounds") -> None:
+        """IPOPT with the loads of the last round's geometry, until they are consistent with it;
+        sets ``st.polish`` when the result is to be polished."""
         for rnd in range(1, MAX_LOAD_ROUNDS + 1):
-            remaining = deadline - time.perf_counter()
+            remaining = st.deadline - time.perf_counter()
             if remaining <= 0:
-                status, message = "time_limit", f"time limit {opts.time_limit:g} s reached before load round {rnd}"
-                polish = x_ok is not None
-                break
-            out = self._solve_round(form, nlp, x, L_cur, warm, tol=tol, max_iter=opts.max_iter,
-                                    remaining=remaining, verbose=opts.verbose)
-            iterations += out["iterations"]
-            x, warm = out["x"], out["warm"]
-            if warm is not None:
-                answer = IpoptAnswer(form, nlp, x.copy(), form.parameters(L_cur), np.asarray(warm["lam_x0"]).ravel(),
-                                     np.asarray(warm["lam_g0"]).ravel(), out["objective"], sc, out["raw"])
-            Vs, Ws = form.unpack_cases(x)
-            L_new = loads_at(Vs)
-            change = _relative_change(L_new, L_cur)
-            rec = {"round": rnd, "stage": self.backend, "solver_status": out["raw"], "iterations": out["iterations"],
-                   "seconds": out["seconds"], "objective": out["objective"], "load_change": change,
-                   "max_relative_error": _max_rel_error(top, Vs, Ws, L_new)}
-            history.append(rec)
-            if progress is not None:
-                progress(rec)
-            status = out["status"]
-            if out["raw"] in ACCEPTABLE_ROUND and rnd < MAX_LOAD_ROUNDS and np.all(np.isfinite(x)):
-                # a round that is not the last only has to bring the loads nearer: the next one, warm
-                # from here with the new loads, decides (the rounds' own evidence is what is judged)
-                rec["acceptable"] = True
-                L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
-                continue
-            if status != "converged":
-                message = f"{self.backend} returned {out['raw']} in load round {rnd}"
-                if status == "infeasible" and hull is not None:
-                    message = self._hull_diagnosis(form, x, L_cur, hull, sc, tol=tol,
-                                                   remaining=deadline - time.perf_counter())
-                elif x_ok is not None:
-                    x, polish = x_ok, True
-                    message += "; the last converged round's result is returned, polished"
-                break
-            x_ok = x
-            if change < best[0]:
-                best = (change, x)
-            if hull is not None:
-                excess = float((np.abs(hull.at(Vs).signed_distance(Vs)) - hull.half_thickness).max(initial=0.0))
-                rec["hull_excess"] = excess / hull.half_thickness  # beyond the true hull, relative to t/2
-                if excess > HULL_TOL * hull.half_thickness:
-                    if anchorings == MAX_HULL_ANCHORINGS:
-                        status = "stalled"
-                        message = (f"the network keeps leaving the curved masonry hull (by up to {excess * sc.length:.3g} m "
-                                   f"beyond t/2 after {anchorings} re-anchorings of its tangent slabs): no network "
-                                   "inside the hull was found; try a larger thickness or a smaller load")
-                        break
-                    # the slabs at the closest points, warm from here (the rows keep their order)
-                    anchorings += 1
-                    form = dataclasses.replace(form, hull=hull.at(Vs))
-                    hull, nlp = form.hull, form.nlp()
-                    L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
-                    continue
-            if change < LOAD_TOL:
-                message = f"{self.backend} converged; loads consistent with the geometry after {rnd} round(s)"
-                polish = C > 1 or hull is not None or problem.fixed_top_view or form.n_planar > 0  # every row exact
-                break
-            stagnating = len(history) > 1 and change > 0.5 * history[-2]["load_change"]
-            if change < POLISH_FROM or (stagnating and change < POLISH_ACCEPT):
-                polish = True
-                break
-            if rnd == MAX_LOAD_ROUNDS or (len(history) > 3 and change >= history[-4]["load_change"]):
-                if best[0] < POLISH_ACCEPT:  # an earlier round was consistent enough: polish that one
-                    x, polish, polished_change = best[1], True, best[0]
-                    break
-                # The most consistent round is polished, like the last converged round of a run that
-                # stopped early: equilibrium for its weights, though optimal only for nearby loads
-                # (vault with its heights ×0.6: IPOPT's objective agrees to 1e-5 from round to round
-                # while the loads keep changing by ~1e-2).
-                status, polish, unsettled = "stalled", True, True
-                x = best[1]
-                message = (f"the loads do not settle: the geometry changes them by {change:.2e} (relative) "
-                           f"after {rnd} {self.backend} round(s); the most consistent round (change {best[0]:.2e}) "
-                           "is returned")
-                break
-            L_cur = mixer.next(L_cur.ravel(), L_new.ravel()).reshape(C, -1)
+                st.status = "time_limit"
+                st.message = f"time limit {st.opts.time_limit:g} s reached before load round {rnd}"
+                st.polish = st.x_ok is not None
+                return
+            rec, Vs, L_new = self._round(st, rnd, remaining)
+            if not self._go_on(st, rnd, rec, Vs, L_new):
+                return
 
-        if polish:
-            t0 = time.perf_counter()
-            Vp, Wp = form.unpack_cases(x)
-            L_before = loads_at(Vp)
-            joint = C > 1 or hull is not None or problem.fixed_top_view or form.n_planar > 0
-            if joint:
-                Vp, Wp, k, perr, ok = polish_joint(  # (with the load Jacobian: Newton, not a load lag)
-                    form, Vp, Wp, loads_at=loads_at, deadline=deadline,
-                    load_jacobian=case_load_jacobians(problem.loads.models, mesh0, sc, top.free))
-            else:
-                # kept when better than IPOPT's round even above tol: vertices that carry almost no
-                # load can hold it there (the evidence check below then names them)
-                before = _max_rel_error(top, Vp, Wp[0], L_before[0])
-                Vp, Lp, k = _polish(top, Vp, Wp[0], problem.loads.primary, mesh0, sc, deadline=deadline)
-                perr = _max_rel_error(top, Vp, Wp[0], Lp)
-                ok = perr <= JOINT_POLISH_TOL or perr < before
-            what = f"max relative error {perr:.1e}"
-            # the polishes' target is round-off (1e-12); one that stops at its floor above that
-            # (planarity rows: 1.7e-12 on a vault remesh) is still far better than IPOPT's
-            # round and meets the method's tolerance, as the staggered method judges it
-            ok = ok or perr <= tol
-            switch = (history[-1]["load_change"] if polished_change is None else polished_change) \
-                if status == "converged" else float("nan")
-            moved = float(np.abs(Vp - form.unpack_cases(x)[0]).max()) if ok else float("nan")
-            if ok:
-                x = form.pack(Vp, Wp)
-            rec = {"round": len(history) + 1, "stage": "polish", "solver_status": "converged" if ok else "not converged",
-                   "iterations": k, "seconds": time.perf_counter() - t0, "objective": None,
-                   "load_change": _relative_change(loads_at(Vp), L_before),
-                   "max_relative_error": _max_rel_error(top, Vp, Wp, loads_at(Vp))}
-            history.append(rec)
-            if progress is not None:
-                progress(rec)
-            if unsettled and ok:  # (say what the polish did)
-                message += (f", polished into equilibrium for its weights (vertices moved by up to {moved:.1e} of "
-                            "the bounding-box diagonal): nearest to the reference only for loads within "
-                            f"{best[0]:.1e} of its own")
-            elif unsettled:
-                message += (" with loads of its own geometry, not in equilibrium (its polish did not reach it: a tight "
-                            "w_max, or a design that cannot carry its own weight?)")
-            elif status != "converged":
-                pass  # keep the solver's status and message
-            elif not ok and out_of_time(deadline):
-                status = "time_limit"
-                message = (f"time limit {opts.time_limit:g} s reached in the final polish; the last {self.backend} "
-                           "round's network is returned with loads of its own geometry")
-            elif not ok:
-                status = "stalled"
-                message = (f"the final polish did not reach equilibrium to round-off (still {what} after {k} "
-                           f"steps); the last {self.backend} round's network is returned with loads of its own "
-                           "geometry")
-            else:
-                how = ("joint minimum-norm Gauss-Newton correction of positions and free weights of every case"
-                       if joint else "heights solved with fixed weights")
-                message = (f"{self.backend} converged in {len(history) - 1} load round(s) (load change "
-                           f"{switch:.1e} in the round polished); {how} until {what}")
+    def _round(self, st: "_Rounds", rnd: int, remaining: float) -> tuple[dict, np.ndarray, np.ndarray]:
+        """One IPOPT run at the current loads; its history record, positions and their loads."""
+        form, opts = st.form, st.opts
+        out = self._solve_round(form, st.nlp, st.x, st.L_cur, st.warm, tol=opts.tol, max_iter=opts.max_iter,
+                                remaining=remaining, verbose=opts.verbose)
+        st.iterations += out["iterations"]
+        st.x, st.warm = out["x"], out["warm"]
+        if st.warm is not None:
+            st.answer = IpoptAnswer(form, st.nlp, st.x.copy(), form.parameters(st.L_cur),
+                                    np.asarray(st.warm["lam_x0"]).ravel(), np.asarray(st.warm["lam_g0"]).ravel(),
+                                    out["objective"], st.sc, out["raw"])
+        Vs, Ws = form.unpack_cases(st.x)
+        L_new = st.loads_at(Vs)
+        rec = {"round": rnd, "stage": self.backend, "solver_status": out["raw"], "iterations": out["iterations"],
+               "seconds": out["seconds"], "objective": out["objective"],
+               "load_change": _relative_change(L_new, st.L_cur),
+               "max_relative_error": _max_rel_error(form.topology, Vs, Ws, L_new)}
+        st.record(rec)
+        st.status, st.raw = out["status"], out["raw"]
+        return rec, Vs, L_new
 
-        Vs, Ws = form.unpack_cases(x)
+    def _go_on(self, st: "_Rounds", rnd: int, rec: dict, Vs: np.ndarray, L_new: np.ndarray) -> bool:
+        """Judge a round: another round (True), or the end of the rounds (False, with the status,
+        the message and whether to polish set on ``st``)."""
+        change, hull = rec["load_change"], st.form.hull
+        last = rnd == MAX_LOAD_ROUNDS
+        if st.raw in ACCEPTABLE_ROUND and not last and np.all(np.isfinite(st.x)):
+            # a round that is not the last only has to bring the loads nearer: the next one, warm
+            # from here with the new loads, decides (the rounds' own evidence is what is judged)
+            rec["acceptable"] = True
+            st.next_round(Vs, L_new)
+            return True
+        if st.status != "converged":
+            self._failed_round(st, rnd)
+            return False
+        st.x_ok = st.x
+        if change < st.best[0]:
+            st.best = (change, st.x)
+        if hull is not None and self._left_the_hull(st, rec, Vs):
+            if st.anchorings == MAX_HULL_ANCHORINGS:
+                return False
+            # the slabs at the closest points, warm from here (the rows keep their order)
+            st.anchorings += 1
+            st.next_round(Vs, L_new, hull=True)
+            return True
+        if change < LOAD_TOL:
+            st.message = f"{self.backend} converged; loads consistent with the geometry after {rnd} round(s)"
+            st.polish = st.joint  # (every row exact)
+            return False
+        history = st.history
+        stagnating = len(history) > 1 and change > 0.5 * history[-2]["load_change"]
+        if change < POLISH_FROM or (stagnating and change < POLISH_ACCEPT):
+            st.polish = True
+            return False
+        if last or (len(history) > 3 and change >= history[-4]["load_change"]):
+            self._unsettled(st, rnd, change)
+            return False
+        st.next_round(Vs, L_new)
+        return True
+
+    def _failed_round(self, st: "_Rounds", rnd: int) -> None:
+        """A round IPOPT did not solve: the hull's diagnosis, or the last converged round, polished."""
+        st.message = f"{self.backend} returned {st.raw} in load round {rnd}"
+        if st.status == "infeasible" and st.form.hull is not None:
+            st.message = self._hull_diagnosis(st.form, st.x, st.L_cur, st.form.hull, st.sc, tol=st.opts.tol,
+                                              remaining=st.deadline - time.perf_counter())
+        elif st.x_ok is not None:
+            st.x, st.polish = st.x_ok, True
+            st.message += "; the last converged round's result is returned, polished"
+
+    def _left_the_hull(self, st: "_Rounds", rec: dict, Vs: np.ndarray) -> bool:
+        """Whether the round's network leaves the curved hull (its slabs are tangent planes); past
+        :data:`MAX_HULL_ANCHORINGS` re-anchorings that ends the rounds, "stalled"."""
+        hull = st.form.hull
+        excess = float((np.abs(hull.at(Vs).signed_distance(Vs)) - hull.half_thickness).max(initial=0.0))
+        rec["hull_excess"] = excess / hull.half_thickness  # beyond the true hull, relative to t/2
+        if excess <= HULL_TOL * hull.half_thickness:
+            return False
+        if st.anchorings == MAX_HULL_ANCHORINGS:
+            st.status = "stalled"
+            st.message = (f"the network keeps leaving the curved masonry hull (by up to {excess * st.sc.length:.3g} m "
+                          f"beyond t/2 after {st.anchorings} re-anchorings of its tangent slabs): no network "
+                          "inside the hull was found; try a larger thickness or a smaller load")
+        return True
+
+    def _unsettled(self, st: "_Rounds", rnd: int, change: float) -> None:
+        """The rounds stopped contracting: polish the most load-consistent round."""
+        best_change, best_x = st.best
+        if best_change < POLISH_ACCEPT:  # an earlier round was consistent enough: polish that one
+            st.x, st.polish, st.polished_change = best_x, True, best_change
+            return
+        # The most consistent round is polished, like the last converged round of a run that stopped
+        # early: equilibrium for its weights, though optimal only for nearby loads.
+        st.status, st.polish, st.unsettled, st.x = "stalled", True, True, best_x
+        st.message = (f"the loads do not settle: the geometry changes them by {change:.2e} (relative) "
+                      f"after {rnd} {self.backend} round(s); the most consistent round (change {best_change:.2e}) "
+                      "is returned")
+
+    def _final_polish(self, st: "_Rounds") -> None:
+        """Equilibrium to round-off with loads of the final geometry (module docstring), and the
+        message that says what it did."""
+        form, problem = st.form, st.problem
+        top, mesh0 = form.topology, problem.scene.mesh
+        t0 = time.perf_counter()
+        V0, Wp = form.unpack_cases(st.x)
+        L_before = st.loads_at(V0)
+        if st.joint:
+            Vp, Wp, k, perr, ok = polish_joint(  # (with the load Jacobian: Newton, not a load lag)
+                form, V0, Wp, loads_at=st.loads_at, deadline=st.deadline,
+                load_jacobian=case_load_jacobians(problem.loads.models, mesh0, st.sc, top.free))
+        else:
+            # kept when better than IPOPT's round even above tol: vertices that carry almost no
+            # load can hold it there (the evidence check below then names them)
+            before = _max_rel_error(top, V0, Wp[0], L_before[0])
+            Vp, Lp, k = _polish(top, V0, Wp[0], problem.loads.primary, mesh0, st.sc, deadline=st.deadline)
+            perr = _max_rel_error(top, Vp, Wp[0], Lp)
+            ok = perr <= JOINT_POLISH_TOL or perr < before
+        # the polishes' target is round-off (1e-12); one that stops at its floor above that
+        # (planarity rows: 1.7e-12 on a vault remesh) still meets the method's tolerance
+        ok = ok or perr <= st.opts.tol
+        if ok:
+            st.x = form.pack(Vp, Wp)
+        st.record({"round": len(st.history) + 1, "stage": "polish",
+                   "solver_status": "converged" if ok else "not converged", "iterations": k,
+                   "seconds": time.perf_counter() - t0, "objective": None,
+                   "load_change": _relative_change(st.loads_at(Vp), L_before),
+                   "max_relative_error": _max_rel_error(top, Vp, Wp, st.loads_at(Vp))})
+        moved = float(np.abs(Vp - V0).max()) if ok else float("nan")
+        self._polish_message(st, ok, f"max relative error {perr:.1e}", k, moved)
+
+    def _polish_message(self, st: "_Rounds", ok: bool, what: str, k: int, moved: float) -> None:
+        """The run's status and message after the polish (``what``: its final error, ``k`` steps,
+        ``moved``: how far it moved the vertices, scaled)."""
+        if st.unsettled and ok:
+            st.message += (f", polished into equilibrium for its weights (vertices moved by up to {moved:.1e} of "
+                           "the bounding-box diagonal): nearest to the reference only for loads within "
+                           f"{st.best[0]:.1e} of its own")
+        elif st.unsettled:
+            st.message += (" with loads of its own geometry, not in equilibrium (its polish did not reach it: a "
+                           "tight w_max, or a design that cannot carry its own weight?)")
+        elif st.status != "converged":
+            pass  # keep the solver's status and message
+        elif not ok and out_of_time(st.deadline):
+            st.status = "time_limit"
+            st.message = (f"time limit {st.opts.time_limit:g} s reached in the final polish; the last "
+                          f"{self.backend} round's network is returned with loads of its own geometry")
+        elif not ok:
+            st.status = "stalled"
+            st.message = (f"the final polish did not reach equilibrium to round-off (still {what} after {k} "
+                          f"steps); the last {self.backend} round's network is returned with loads of its own "
+                          "geometry")
+        else:
+            # (the load change of the round polished: the last IPOPT round's, or the best one's)
+            rounds = [h for h in st.history if h["stage"] != "polish"]
+            switch = rounds[-1]["load_change"] if st.polished_change is None else st.polished_change
+            how = ("joint minimum-norm Gauss-Newton correction of positions and free weights of every case"
+                   if st.joint else "heights solved with fixed weights")
+            st.message = (f"{self.backend} converged in {len(st.history) - 1} load round(s) (load change "
+                          f"{switch:.1e} in the round polished); {how} until {what}")
+
+    def _result(self, st: "_Rounds", t_start: float) -> SimultaneousRun:
+        """The result: the final network per case, judged by its own evidence (equilibrium of
+        every case, planarity), with the run's parameters."""
+        problem, form, sc, opts = st.problem, st.form, st.sc, st.opts
+        Vs, Ws = form.unpack_cases(st.x)
         first, cases = case_networks(problem, sc, Vs, list(Ws))
-        if status == "converged" and not cases_in_equilibrium(cases, tol):
+        status, message = st.status, st.message
+        if status == "converged" and not cases_in_equilibrium(cases, opts.tol):
             # (IPOPT's rows are relative to |L_i| as the metric is, but a vertex whose faces collapsed
             # carries almost no load: 3.7e-4 on a vault with half its supports, "converged")
-            status, message = "stalled", short_of_tol(first, tol, cases_max_error(cases))
-        lo, up = problem.bounds.active(scene)
+            status, message = "stalled", short_of_tol(first, opts.tol, cases_max_error(cases))
+        _, up = problem.bounds.active(problem.scene)
         planarity = planarity_report(problem, first)
         if planarity is not None and status == "converged" and not planarity["met"]:
             status, message = "stalled", (f"{message}; but faces are not planar: max non-planarity "
@@ -529,17 +586,17 @@ class Simultaneous:
             message = "; ".join(m for m in (message, load_cases_note(problem)) if m)
         return SimultaneousRun(SolveResult.build(
             first, cases=cases, terms=term_values(problem, first, default=DEFAULT_OBJECTIVE),
-            status=status, method=self.name, backend=self.backend, iterations=iterations,
-            wall_time=time.perf_counter() - t_start, history=tuple(history), message=message,
+            status=status, method=self.name, backend=self.backend, iterations=st.iterations,
+            wall_time=time.perf_counter() - t_start, history=tuple(st.history), message=message,
             parameters={"eps": float(np.min(sc.weight_back(form.lower))),
                         "w_max": None if up is None else _jsonable(problem.bounds.upper),
-                        "tol": tol, "max_iter": opts.max_iter, "time_limit": opts.time_limit,
-                        "objective": named if named is not None else _describe_objective(problem),
+                        "tol": opts.tol, "max_iter": opts.max_iter, "time_limit": opts.time_limit,
+                        "objective": _describe_objective(problem),
                         "problem": problem.describe(), "load_cases": list(problem.loads.names),
-                        "warm_start": opts.warm_start is not None, "load_rounds": len(history),
+                        "warm_start": opts.warm_start is not None, "load_rounds": len(st.history),
                         "solver_options": dict(self.options), "weight_regularization": form.weight_regularization,
-                        "regularizer_share": _regularizer_share(answer),
-                        **({"planarity": planarity} if planarity is not None else {})}), answer)
+                        "regularizer_share": _regularizer_share(st.answer),
+                        **({"planarity": planarity} if planarity is not None else {})}), st.answer)
 
     def _continue(self, problem: Problem, opts: SimultaneousOptions, deadline: float,
                   progress: Callable[[dict], None] | None, t_start: float) -> SimultaneousRun:
