@@ -170,7 +170,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
             takes = [n for n in METHODS if capabilities(n).options_type is not None]
             raise InputError(f"method options {sorted(options)} apply to the {' and '.join(takes)} methods "
                              f"only, not {method!r}")
-        check_options(caps.options_type, options)  # before the work, with the allowed interval
+        check_options(caps.options_class(), options)  # before the work, with the allowed interval
     solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit

@@ -151,3 +151,14 @@ def test_find_method_picks_by_capability():
     assert find_method(levels=True) == "multilevel"
     with pytest.raises(InputError, match="unknown capabilities"):
         find_method(flies=True)
+
+
+def test_each_class_declares_the_capabilities_its_registry_entry_states():
+    """One declaration: a method class's ``capabilities`` is its registry entry's, so asking the
+    registry (no import) and the class agree; the options type resolves to the class it names."""
+    from selfsupport.methods.staggered import StaggeredOptions
+
+    for key, spec in METHODS.items():
+        assert method_class(key).capabilities is spec.capabilities is capabilities(key)
+    assert capabilities("staggered").options_class() is StaggeredOptions
+    assert capabilities("ipopt").options_class() is None

@@ -39,8 +39,9 @@ class Capabilities:
     planar_rows
         Planar faces are equations, not a penalty.
     options_type
-        The dataclass whose fields are the method's per-solve ``options`` (checked before the
-        work), or ``None``: the method takes only the stopping rules.
+        ``"module:Class"`` of the dataclass whose fields are the method's per-solve ``options``
+        (checked before the work; :meth:`options_class` imports it), or ``None``: the method
+        takes only the stopping rules.
     simultaneous
         Positions and weights at once: the result is a KKT point of the simultaneous NLP
         (:meth:`~selfsupport.methods.simultaneous.Simultaneous.formulation`), so it has
@@ -56,10 +57,17 @@ class Capabilities:
     hull_as_rows: bool = False
     load_cases: bool = True
     planar_rows: bool = False
-    options_type: type | None = None
+    options_type: str | None = None
     simultaneous: bool = False
     levels: bool = False
     bytes_per_vertex: float = 100e3
+
+    def options_class(self) -> type | None:
+        """The options dataclass named by :attr:`options_type` (imported now), or ``None``."""
+        if self.options_type is None:
+            return None
+        module, _, attr = self.options_type.partition(":")
+        return getattr(importlib.import_module(module), attr)
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,9 @@ class MethodSpec:
         ``solve(problem, options, *, progress, warm_start?, deadline) -> SolveResult``.
     summary
         One line for ``--help``.
+    capabilities
+        What the method can do, declared here so that asking costs no import (the class's
+        ``capabilities`` attribute is this one).
     backend_module, backends
         Name of a module-level dict of backend names in ``backend_module`` (the method's
         constructor then takes ``backend=NAME``); empty when the method has no backend choice.
@@ -81,6 +92,7 @@ class MethodSpec:
     module: str
     attr: str
     summary: str
+    capabilities: Capabilities = Capabilities()
     backend_module: str = ""
     backends: str = ""
 
@@ -105,20 +117,28 @@ class MethodSpec:
         return tuple(getattr(importlib.import_module(self.backend_module), self.backends))
 
 
+_STAGGERED_OPTIONS = "selfsupport.methods.staggered.options:StaggeredOptions"
+
 #: Method name (``--method``) -> where its class lives; the order is the order of preference
 #: of :func:`find_method`.
 METHODS: dict[str, MethodSpec] = {
     "staggered": MethodSpec("selfsupport.methods.staggered", "StaggeredLinearization",
                             "the paper's staggered linearization (§3): weights and positions in turn",
+                            Capabilities(warm_start=True, options_type=_STAGGERED_OPTIONS, bytes_per_vertex=16e3),
                             backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "multilevel": MethodSpec("selfsupport.methods.multilevel", "Multilevel",
                              "the staggered method on coarsened top views first, each level warm-starting "
                              "the next (big meshes)",
+                             Capabilities(warm_start=True, options_type=_STAGGERED_OPTIONS, levels=True,
+                                          bytes_per_vertex=16e3),
                              backend_module="selfsupport.methods.weightfit_backends", backends="WEIGHT_FIT_BACKENDS"),
     "ipopt": MethodSpec("selfsupport.methods.simultaneous", "Simultaneous",
-                        "all positions and weights at once with IPOPT (CasADi, MUMPS)"),
+                        "all positions and weights at once with IPOPT (CasADi, MUMPS)",
+                        Capabilities(warm_start=True, hull_as_rows=True, planar_rows=True, simultaneous=True,
+                                     bytes_per_vertex=100e3)),
     "nlopt": MethodSpec("selfsupport.methods.nlopt_methods", "NloptSimultaneous",
-                        "all positions and weights at once with nlopt SLSQP (small problems only)"),
+                        "all positions and weights at once with nlopt SLSQP (small problems only)",
+                        Capabilities(load_cases=False, simultaneous=True, bytes_per_vertex=100e3)),
 }
 
 
@@ -150,7 +170,9 @@ def capabilities(method: Any) -> Capabilities:
     """The capabilities of a method given by its registered name, its class or an instance; an
     object that declares none has the defaults of :class:`Capabilities` (no warm start, ...)."""
     if isinstance(method, str):
-        method = method_class(method)
+        if method not in METHODS:
+            raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+        return METHODS[method].capabilities
     caps = getattr(method, "capabilities", None)
     return caps if isinstance(caps, Capabilities) else Capabilities()
 

@@ -90,11 +90,11 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.core.subdivision import subdivide_like, subdivision_parents
-from selfsupport.methods import Capabilities
+from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, loads_or_options, term_values
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.prolong import START_TOL, prolong
-from selfsupport.methods.staggered import DEFAULT_OBJECTIVE, StaggeredLinearization, StaggeredOptions
+from selfsupport.methods.staggered import DEFAULT_OBJECTIVE, StaggeredLinearization
 from selfsupport.methods.warm import WarmStart, as_warm_start, interpolate_over_top_view
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
 from selfsupport.methods.weightfit import WeightFitBackend
@@ -423,7 +423,7 @@ class Multilevel:
     """
 
     name = "multilevel"
-    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, levels=True, bytes_per_vertex=16e3)
+    capabilities = METHODS["multilevel"].capabilities  # (declared in the registry)
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", *, direct_max: int = DIRECT_MAX,
                  factor: float = FACTOR, prolongation: str = "stress", use_subdivision: bool = True,

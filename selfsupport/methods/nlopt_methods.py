@@ -29,7 +29,7 @@ from scipy.sparse.linalg import splu
 from formulations import Hull, Planar, Problem, ThrustNetworkProblem
 from formulations.equilibrium import position_blocks, weight_matrix
 from selfsupport.core.errors import BackendUnavailable, InputError
-from selfsupport.methods import Capabilities
+from selfsupport.methods import METHODS
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.weightfit_backends import nlopt_failures
 
@@ -64,7 +64,7 @@ class NloptSimultaneous(Simultaneous):
     name = "nlopt"
     backend = "nlopt"
     #: one load case, no hull, no planar rows (refused by :meth:`_check_problem`); starts from the reference
-    capabilities = Capabilities(load_cases=False, simultaneous=True, bytes_per_vertex=100e3)
+    capabilities = METHODS["nlopt"].capabilities
     #: bound-constrained algorithms for the reduced (weights-only) problem (LD_MMA was tried:
     #: it does not converge on a 5×5 grid in 13,000 evaluations)
     REDUCED = ("LD_LBFGS",)

@@ -61,7 +61,7 @@ from formulations.terms import HullPenalty, PlanarFaces, Sum
 from selfsupport.core.errors import InputError
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
-from selfsupport.methods import Capabilities
+from selfsupport.methods import METHODS
 from selfsupport.methods.anderson import Anderson
 from selfsupport.methods.base import (
     HULL_TOL,
@@ -284,9 +284,8 @@ class Simultaneous:
     name = "ipopt"
     backend = "ipopt"
     #: The hull and planar faces are hard rows here (one solve decides); a previous network can
-    #: start the solve.
-    capabilities = Capabilities(warm_start=True, hull_as_rows=True, planar_rows=True, simultaneous=True,
-                                bytes_per_vertex=100e3)
+    #: start the solve (declared in the registry).
+    capabilities = METHODS["ipopt"].capabilities
     #: IPOPT options (``ipopt.`` prefix added); ``tol``, ``max_iter``, ``max_wall_time`` and
     #: ``print_level`` come from the solve's options.
     defaults: dict[str, Any] = {

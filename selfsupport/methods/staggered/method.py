@@ -10,7 +10,7 @@ from formulations import LoadCases, Planar, Problem
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
-from selfsupport.methods import Capabilities
+from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
@@ -48,7 +48,7 @@ class StaggeredLinearization:
     """
 
     name = "staggered"
-    capabilities = Capabilities(warm_start=True, options_type=StaggeredOptions, bytes_per_vertex=16e3)
+    capabilities = METHODS["staggered"].capabilities  # (declared in the registry)
 
     def __init__(self, backend: str | WeightFitBackend = "active-set", **options: Any) -> None:
         self.backend = make_backend(backend) if isinstance(backend, str) else backend
