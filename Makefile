@@ -62,8 +62,9 @@ lint: $(STAMP_TEST)
 	$(BIN)/ruff check --quiet .
 	$(BIN)/lint-imports --no-cache
 
-# The documentation is built first (docs), then the lint (lint). -n auto: one pytest-xdist worker per core. The browser tests run afterwards, alone: they time a
-# drag against the design server's answers, which a busy second worker would delay.
+# The documentation is built first (docs), then the lint (lint). -n auto: one pytest-xdist worker per
+# core. The browser tests run afterwards, alone: they time a drag against the design server's answers,
+# which a busy second worker would delay.
 test: docs lint
 	$(BIN)/pytest $(PYTEST_FAST)
 	$(BIN)/pytest -q -m "browser and not slow"
