@@ -32,8 +32,9 @@ import numpy as np
 
 from formulations import Problem
 from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
+from selfsupport.core.defaults import DEFAULT_CHECK_TOL, DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G
+from selfsupport.core.loads import G
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.options import check_options
 from selfsupport.core.result import Network, SolveResult
@@ -55,9 +56,6 @@ from selfsupport.structure.stability import solve_in_hull
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
            "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
-
-#: Max relative error below which :func:`check` calls a surface self-supporting.
-DEFAULT_CHECK_TOL = 1e-6
 
 
 # ------------------------------------------------------------------------------- scenes

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any, Callable, Collection, Iterator, Sequence
 
 from selfsupport import __version__
+from selfsupport.core.defaults import DEFAULT_CHECK_TOL, DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.methods import METHODS, capabilities, find_method
 
@@ -189,8 +190,6 @@ def add_scene_arguments(p: argparse.ArgumentParser, *, metavar: str = "SCENE") -
 
 def add_load_arguments(p: argparse.ArgumentParser, *, default: bool = True) -> None:
     """``--density`` and ``--thickness`` (self-weight ρ·t·g per unit area)."""
-    from selfsupport.api import DEFAULT_DENSITY, DEFAULT_THICKNESS
-
     p.add_argument("--density", type=positive_float, default=DEFAULT_DENSITY if default else None,
                    metavar="RHO", help=f"material density [kg/m^3] (default {DEFAULT_DENSITY:g})")
     p.add_argument("--thickness", type=positive_float, default=DEFAULT_THICKNESS if default else None,
@@ -579,8 +578,6 @@ def _scene_info(scene, args: argparse.Namespace) -> dict[str, Any]:
 
 # ----------------------------------------------------------------------------- check
 def _check_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_CHECK_TOL
-
     add_scene_arguments(p, metavar="MESH_OR_NET")
     add_load_arguments(p, default=False)
     p.add_argument("--tol", type=tolerance, default=DEFAULT_CHECK_TOL,

@@ -39,6 +39,7 @@ from selfsupport.cli.common import (
     positive_int,
     print_table,
 )
+from selfsupport.core.defaults import DEFAULT_DENSITY
 from selfsupport.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -81,8 +82,6 @@ def _kg_name(kg: float) -> str:
 
 # ------------------------------------------------------------------------------ stability
 def _stability_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
-
     add_scene_arguments(p)
     p.add_argument("--thickness", type=positive_float, required=True, metavar="T",
                    help="shell thickness [m]: the self-weight and the masonry hull (reference ± T/2)")
@@ -240,8 +239,6 @@ def _thrust(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
 
 # ------------------------------------------------------------------------------ destroy
 def _destroy_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
-
     add_scene_arguments(p)
     p.add_argument("--remove", action="append", type=number_in("[0, inf)", integer=True, what="a vertex index"),
                    required=True, metavar="VERTEX",
