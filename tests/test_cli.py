@@ -463,6 +463,21 @@ def test_top_level_help_imports_neither_numpy_nor_scipy_nor_a_command_module():
         assert f"    {name}" in out and entry.help.split()[0] in out, name
 
 
+#: What a plain solve of a small mesh file does not need: other methods' machinery (multilevel,
+#: IPOPT's hull search and sensitivities), the analysis, scipy.optimize (a built-in shape's
+#: catenary, the polish's last fallback), plots, the browser tool and the sweeps.
+NOT_FOR_A_PLAIN_SOLVE = ("scipy.optimize", "selfsupport.methods.multilevel", "selfsupport.methods.prolong",
+                         "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
+                         "selfsupport.structure", "selfsupport.figures", "matplotlib", "plotly", "starlette", "dask")
+
+
+def test_a_plain_solve_imports_only_what_it_needs(barrel_obj, tmp_path):
+    out = tmp_path / "net.json"
+    _, mods = _modules_after("solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), "--quiet")
+    assert document_check(json.loads(out.read_text()))["max_rel"] <= 1e-8  # (it did solve)
+    assert sorted(m for m in mods if m.startswith(NOT_FOR_A_PLAIN_SOLVE)) == []
+
+
 def test_a_command_imports_its_own_module_only():
     out, mods = _modules_after("view", "--help")
     assert "--open" in out or "usage: selfsupport view" in out
