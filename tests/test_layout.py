@@ -18,10 +18,13 @@ from selfsupport import api
 
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = ("selfsupport", "formulations")
-#: Where a function-level import of the project is deliberate: the command modules import their
-#: layer when the command runs, so that building the parser stays light; the method choice loads
-#: the multilevel machinery only for a mesh large enough to use it (0.5 s of imports).
-LAZY_ALLOWED = (ROOT / "selfsupport" / "cli", ROOT / "selfsupport" / "methods" / "choice.py")
+#: Where a function-level import of the project is deliberate: the command line's parser and
+#: shared helpers (every run imports them, ``selfsupport --help`` too) import the layers when
+#: called; the method choice loads the multilevel machinery only for a mesh large enough to use
+#: it (0.5 s of imports). The other command modules, imported only when their command runs,
+#: import their layer at the top.
+LAZY_ALLOWED = (ROOT / "selfsupport" / "cli" / "common.py", ROOT / "selfsupport" / "cli" / "__init__.py",
+                ROOT / "selfsupport" / "methods" / "choice.py")
 #: Files that import the modules they name where used (a plain solve does not load them).
 LAZY_NAMED = {ROOT / "selfsupport" / "api.py": api._LAZY}
 
