@@ -741,7 +741,7 @@ COMMANDS: dict[str, Command] = {
 }
 
 #: The modules of :mod:`selfsupport.cli` that hold no commands of their own.
-NOT_COMMAND_MODULES = frozenset({"common"})
+NOT_COMMAND_MODULES = frozenset({"common", "__main__"})
 
 
 @dataclass(frozen=True)
