@@ -31,9 +31,9 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from formulations import Problem
-from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner
+from selfsupport.core.defaults import DEFAULT_CHECK_TOL, DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, G
+from selfsupport.core.loads import G
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.options import check_options
 from selfsupport.core.result import Network, SolveResult
@@ -48,16 +48,16 @@ from selfsupport.methods.choice import AUTO, choose_method
 from selfsupport.methods.deadline import finish_reserve
 from selfsupport.methods.fixed_fit import fit_weights
 from selfsupport.methods.memory import check_memory, dense_row_bytes
-from selfsupport.methods.sensitivity import sensitivity as _sensitivity
 from selfsupport.methods.validate import load_issues, validate_scene
-from selfsupport.structure.stability import solve_in_hull
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
            "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
-#: Max relative error below which :func:`check` calls a surface self-supporting.
-DEFAULT_CHECK_TOL = 1e-6
+#: The modules imported where used, not at the top (a named exception to the layout rule,
+#: tests/test_layout.py): a solve without the hull, which needs none of them, does not load the
+#: IPOPT machinery of the hull search and of sensitivities nor the Koebe family's analysis.
+_LAZY = ("selfsupport.structure.hull", "selfsupport.methods.sensitivity", "selfsupport.analysis.koebe")
 
 
 # ------------------------------------------------------------------------------- scenes
@@ -184,6 +184,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
         design["start"] = started
     if prob.hull_thickness() is not None:
         # the masonry hull: search for a certifying network, or the verdict "infeasible"
+        from selfsupport.structure.hull import solve_in_hull  # (see _LAZY)
 
         result = solve_in_hull(prob, method=solver, options={**dict(options or {}), **stops}, progress=progress,
                                **start_kw)
@@ -425,6 +426,7 @@ def sensitivity(result: Any, parameter: str, *, problem: Problem | None = None) 
     :class:`~selfsupport.methods.sensitivity.Sensitivity` (SI units). ``problem``: the solved
     problem (default: rebuilt from the result's parameters). See
     :func:`selfsupport.methods.sensitivity.sensitivity`."""
+    from selfsupport.methods.sensitivity import sensitivity as _sensitivity  # (see _LAZY)
 
     return _sensitivity(result, parameter, problem=problem)
 
@@ -447,6 +449,7 @@ def koebe(source: PolyMesh | str | os.PathLike = "enneper", *, alpha: float = 1.
     >>> fam.network.max_relative_error() < 1e-10
     True
     """
+    from selfsupport.analysis.koebe import KOEBE_EXAMPLES, as_airy, family, koebe_mesh, minimal_partner  # (see _LAZY)
 
     if isinstance(source, PolyMesh):
         mesh = source

@@ -435,6 +435,95 @@ def test_every_plugin_module_defines_commands():
     assert all(isinstance(c, cli.Command) for c in cmds.values())
 
 
+def test_the_index_agrees_with_the_imported_commands():
+    """The index, read from each module's source, names the module that defines each command and
+    its help exactly as the imported ``Command`` says."""
+    index, cmds = cli.command_index(), cli.discover_commands()
+    assert list(index) == list(cmds)
+    for name, entry in index.items():
+        assert entry.help == cmds[name].help and cmds[name].run.__module__ == entry.module, name
+
+
+_MODULES_AFTER = ("import json, sys\nfrom selfsupport.cli import main\ntry:\n    main({argv!r})\n"
+                  "except SystemExit:\n    pass\nprint(json.dumps(sorted(sys.modules)), file=sys.stderr)\n")
+
+
+def _modules_after(*argv: str) -> tuple[str, set[str]]:
+    """The help printed by ``selfsupport ARGV`` in a fresh interpreter and the modules it imported."""
+    p = subprocess.run([sys.executable, "-c", _MODULES_AFTER.format(argv=list(argv))], capture_output=True,
+                       text=True, timeout=120)
+    return p.stdout, set(json.loads(p.stderr.splitlines()[-1]))
+
+
+def test_top_level_help_imports_neither_numpy_nor_scipy_nor_a_command_module():
+    out, mods = _modules_after("--help")
+    assert not {"numpy", "scipy", "casadi", "rich"} & mods
+    assert {m for m in mods if m.startswith("selfsupport.cli.")} == {"selfsupport.cli.common"}
+    for name, entry in cli.command_index().items():  # and yet every command is listed, with its help
+        assert f"    {name}" in out and entry.help.split()[0] in out, name
+
+
+#: What a plain solve of a small mesh file does not need: other methods' machinery (multilevel,
+#: IPOPT's hull search and sensitivities), the analysis, scipy.optimize (a built-in shape's
+#: catenary, the polish's last fallback), plots, the browser tool and the sweeps.
+NOT_FOR_A_PLAIN_SOLVE = ("scipy.optimize", "selfsupport.methods.multilevel", "selfsupport.methods.prolong",
+                         "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
+                         "selfsupport.structure", "selfsupport.figures", "matplotlib", "plotly", "starlette", "dask")
+
+
+def test_a_plain_solve_imports_only_what_it_needs(barrel_obj, tmp_path):
+    out = tmp_path / "net.json"
+    _, mods = _modules_after("solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), "--quiet")
+    assert document_check(json.loads(out.read_text()))["max_rel"] <= 1e-8  # (it did solve)
+    assert sorted(m for m in mods if m.startswith(NOT_FOR_A_PLAIN_SOLVE)) == []
+
+
+def test_a_command_imports_its_own_module_only():
+    out, mods = _modules_after("view", "--help")
+    assert "--open" in out or "usage: selfsupport view" in out
+    assert {m for m in mods if m.startswith("selfsupport.cli.")} == {"selfsupport.cli.common", "selfsupport.cli.figures"}
+
+
+def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeypatch, capsys):
+    """A module dropped into the package's path is listed by ``--help`` without being imported, and
+    runs when named."""
+    (tmp_path / "hello.py").write_text(
+        "from selfsupport.cli.common import Command\n\n\ndef add(p):\n    p.add_argument('--n', type=int)\n\n\n"
+        "def run(args):\n    print('hello', args.n)\n    return 3\n\n\n"
+        "COMMANDS = {\n    'hello': Command('say hello'\n                     ' to the world', add, run),\n}\n")
+    import selfsupport.cli as package
+
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, "selfsupport.cli.hello", raising=False)
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    assert "say hello to the world" in " ".join(capsys.readouterr().out.split())
+    assert "selfsupport.cli.hello" not in sys.modules
+    assert cli.main(["hello", "--n", "7"]) == 3 and capsys.readouterr().out == "hello 7\n"
+    sys.modules.pop("selfsupport.cli.hello")
+
+
+@pytest.mark.parametrize("source, why", [
+    ("x = 1\n", "no declaration"),
+    ("COMMANDS = make()\n", "not a dict literal"),
+    ("COMMANDS = {'a': Command(f'{HELP}', add, run)}\n", "help not a string literal"),
+    ("COMMANDS = {NAME: Command('help', add, run)}\n", "name not a string literal"),
+    ("COMMANDS = {'a': Command('help', add, run)\n\ndef f():\n    pass\n", "statement does not end"),
+])
+def test_a_declaration_the_index_cannot_read_is_refused_with_what_to_write(source, why):
+    with pytest.raises(TypeError, match=r"m must declare COMMANDS as a dict literal .*the help a string literal"):
+        cli.common.declared_commands(source, "m")
+
+
+def test_a_module_may_not_redefine_a_command(tmp_path, monkeypatch):
+    (tmp_path / "again.py").write_text("COMMANDS = {'solve': Command('solve again', add, run)}\n")
+    import selfsupport.cli as package
+
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    with pytest.raises(TypeError, match=r"selfsupport.cli.again redefines command\(s\) \['solve'\]"):
+        cli.command_index()
+
+
 def test_progress_prints_one_line_per_record_with_its_numbers():
     import io
 

@@ -15,7 +15,7 @@ from selfsupport.core.errors import InputError
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.shapes import make_shape
 from selfsupport.methods import METHODS, Capabilities, capabilities, find_method, memory, method_class
-from selfsupport.methods.choice import AUTO, CANDIDATES
+from selfsupport.methods.choice import AUTO, CANDIDATES, LEVELS_ABOVE, choose_method
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.structure.stability import solve_in_hull
 
@@ -134,6 +134,21 @@ def test_the_memory_guard_reads_the_methods_rates():
             memory.BASE_BYTES + capabilities(key).bytes_per_vertex * n)
     assert memory.bytes_per_vertex(AUTO) == max(capabilities(m).bytes_per_vertex for m in CANDIDATES)
     assert memory.bytes_per_vertex("ipopt") > memory.bytes_per_vertex("staggered")
+
+
+def test_auto_on_a_small_mesh_asks_only_the_method_it_picks(monkeypatch):
+    """Up to LEVELS_ABOVE vertices ``auto`` picks the staggered method (whatever the mesh), so its
+    estimate asks that method alone for its rate (the multilevel module is not loaded for it);
+    above, the larger of the candidates' rates."""
+    small, big = LEVELS_ABOVE, LEVELS_ABOVE + 1
+    dome = make_shape("dome", n_vertices=200)
+    assert choose_method(Problem.build(dome, SelfWeight(density=2000.0, thickness=0.1))).method == "staggered"
+    asked: list[str] = []
+    rates = {"staggered": 1.0, "multilevel": 3.0}
+    monkeypatch.setattr(memory, "capabilities", lambda m: asked.append(m) or Capabilities(bytes_per_vertex=rates[m]))
+    assert memory.estimate_solve_bytes(small, AUTO) == memory.BASE_BYTES + 1.0 * small and asked == ["staggered"]
+    assert memory.estimate_solve_bytes(big, AUTO) == memory.BASE_BYTES + 3.0 * big
+    assert set(asked) == set(CANDIDATES)
 
 
 def test_options_go_only_to_a_method_that_declares_their_type():

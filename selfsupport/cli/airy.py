@@ -22,15 +22,20 @@ network from a convex Airy function (§2.5) and writes it in the network format,
 Exit codes: 0 on success; for ``airy`` also 0 when Φ is not convex (that is a finding, printed);
 4 when the network is not in equilibrium (``airy``: Φ and the reciprocal diagram exist only for a
 network in equilibrium, so the analysis is written but describes residuals; ``construct``: its
-round-off); 2 bad input. Nothing heavy is imported until a command runs.
+round-off); 2 bad input.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import numpy as np
+
+from selfsupport.analysis import airy, construct_detailed, curvatures, reciprocal, write_vector_fields
+from selfsupport.api import DEFAULT_CHECK_TOL
 from selfsupport.cli.common import (
     EXIT_CODES,
     STATUS_EXIT,
@@ -48,9 +53,14 @@ from selfsupport.cli.common import (
     write_network_out,
 )
 from selfsupport.core.errors import InputError
-
-if TYPE_CHECKING:
-    import numpy as np
+from selfsupport.core.loads import SelfWeight
+from selfsupport.core.shapes import disk_points
+from selfsupport.io import read_network, write_mesh
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.axes import rotation
+from selfsupport.io.network_json import to_jsonable
+from selfsupport.io.safety import check_outputs
+from selfsupport.methods.memory import check_memory
 
 __all__ = ["COMMANDS", "PHI_NAMES", "INTEGRATION_NAMES", "add_airy_arguments", "run_airy", "add_construct_arguments", "run_construct", "airy_document"]
 
@@ -90,15 +100,11 @@ def add_airy_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _nan_list(a: np.ndarray | None) -> Any:
-    import numpy as np
-
     return None if a is None else np.asarray(a, float)  # to_jsonable writes NaN as null
 
 
 def airy_document(network, res, rd, cv) -> dict[str, Any]:
     """The ``AIRY.json`` content for an analysed network (see the module docstring)."""
-    import numpy as np
-
     periods = [{"kind": p.kind, "vertices": p.vertices, "gradient": p.gradient, "offset": p.offset,
                 "thrust": p.thrust, "moment": p.moment, "cut_edge": p.cut_edges} for p in res.periods]
     doc: dict[str, Any] = {
@@ -151,14 +157,6 @@ def airy_document(network, res, rd, cv) -> dict[str, Any]:
 def run_airy(args: argparse.Namespace) -> int:
     """Analyse a network file and write ``AIRY.json`` (plus the optional meshes)."""
 
-    from selfsupport.analysis import airy, curvatures, reciprocal, write_vector_fields
-    from selfsupport.api import DEFAULT_CHECK_TOL
-    from selfsupport.io import read_network, write_mesh
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.io.axes import rotation
-    from selfsupport.io.network_json import to_jsonable
-    from selfsupport.io.safety import check_outputs
-
     rotation(args.up, what="--up")  # fail before the work, with the valid names
     check_outputs([("--out", args.out), ("--stress", args.stress), ("--reciprocal", args.reciprocal),
                    ("--polar", args.polar), ("--vector-fields", args.vector_fields)], [("NET.json", args.network)])
@@ -179,8 +177,6 @@ def run_airy(args: argparse.Namespace) -> int:
     tol = DEFAULT_CHECK_TOL if args.tol is None else args.tol
     balanced = net.in_equilibrium(tol)
     doc.update(in_equilibrium=balanced, max_relative_error=net.max_relative_error(), tol=tol)
-    import json
-
     atomic_write_text(args.out, json.dumps(to_jsonable(doc), allow_nan=False, separators=(",", ":")))
     written = [args.out]
     if args.stress:
@@ -252,8 +248,6 @@ def add_construct_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _read_points(path: str) -> np.ndarray:
-    import numpy as np
-
     p = Path(path)
     if not p.exists():
         raise InputError(f"--points {path}: no such file")
@@ -267,8 +261,6 @@ def _read_points(path: str) -> np.ndarray:
 
 
 def _random_disk(n: int, radius: float, seed: int) -> np.ndarray:
-    import numpy as np
-
     rng = np.random.default_rng(seed)
     k = max(8, int(np.ceil(2 * np.sqrt(np.pi * n))))  # rim spacing ~ interior spacing
     t = 2 * np.pi * np.arange(k) / k
@@ -280,16 +272,7 @@ def _random_disk(n: int, radius: float, seed: int) -> np.ndarray:
 
 def run_construct(args: argparse.Namespace) -> int:
     """Build a network with the §2.5 construction and write it."""
-    import numpy as np
-
-    from selfsupport.analysis import construct_detailed
-    from selfsupport.api import DEFAULT_CHECK_TOL
-    from selfsupport.core.loads import SelfWeight
-    from selfsupport.core.shapes import disk_points
-
     check_network_out(args.out, args.format, [("--points", args.points), ("--phi-values", args.phi_values)])
-    from selfsupport.methods.memory import check_memory
-
     if args.disk is not None or args.random is not None:  # (the size guard of a solve, before the points are made)
         n = 1 + 3 * args.disk * (args.disk + 1) if args.disk is not None else args.random
         check_memory(n, "staggered", what=f"the construction ({'--disk' if args.disk is not None else '--random'})")

@@ -20,9 +20,11 @@ Adding a subcommand
 -------------------
 Subcommands live in :data:`COMMANDS` (name -> :class:`Command`). Another module adds its own
 without touching this file: create ``selfsupport/cli/<anything>.py`` defining a module-level
-``COMMANDS: dict[str, Command]``; :func:`discover_commands` imports every module of the
-package when the parser is built. Keep such modules light at import time (import heavy
-libraries inside ``run``), return an exit code from ``run``, raise
+``COMMANDS: dict[str, Command]``, a dict literal whose entries are written
+``"name": Command("one-line help", add_arguments, run)``. The top-level parser lists the commands
+from :func:`command_index`, which reads these declarations from the modules' source without
+importing them; only the chosen command's module is imported (:func:`load_command`), so a command
+module may import its layer at the top. Return an exit code from ``run``, raise
 :class:`~selfsupport.core.errors.SelfSupportError` subclasses for errors the user can fix.
 Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func:`load_scene`,
 :func:`stdout_console`, :func:`print_table`, :func:`summary_rows`, for a network ``--out``
@@ -33,24 +35,28 @@ Helpers for them: :func:`add_scene_arguments`, :func:`add_load_arguments`, :func
 from __future__ import annotations
 
 import argparse
+import ast
 import contextlib
 import importlib
 import json
 import math
 import pkgutil
+import re
 import signal
 import sys
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Collection, Iterator, Sequence
 
 from selfsupport import __version__
+from selfsupport.core.defaults import DEFAULT_CHECK_TOL, DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.methods import METHODS, capabilities, find_method
 
-__all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "discover_commands", "build_parser", "main",
+__all__ = ["Command", "COMMANDS", "EXIT_CODES", "STATUS_EXIT", "CommandEntry", "command_index", "declared_commands",
+           "load_command", "discover_commands", "build_parser", "main",
            "add_scene_arguments", "add_load_arguments", "load_scene", "stdout_console", "print_table",
            "number_in", "positive_float", "positive_int", "tolerance", "summary_rows", "sigterm_interrupts",
            "add_network_out_arguments", "check_network_out", "write_network_out"]
@@ -184,8 +190,6 @@ def add_scene_arguments(p: argparse.ArgumentParser, *, metavar: str = "SCENE") -
 
 def add_load_arguments(p: argparse.ArgumentParser, *, default: bool = True) -> None:
     """``--density`` and ``--thickness`` (self-weight ρ·t·g per unit area)."""
-    from selfsupport.api import DEFAULT_DENSITY, DEFAULT_THICKNESS
-
     p.add_argument("--density", type=positive_float, default=DEFAULT_DENSITY if default else None,
                    metavar="RHO", help=f"material density [kg/m^3] (default {DEFAULT_DENSITY:g})")
     p.add_argument("--thickness", type=positive_float, default=DEFAULT_THICKNESS if default else None,
@@ -574,8 +578,6 @@ def _scene_info(scene, args: argparse.Namespace) -> dict[str, Any]:
 
 # ----------------------------------------------------------------------------- check
 def _check_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_CHECK_TOL
-
     add_scene_arguments(p, metavar="MESH_OR_NET")
     add_load_arguments(p, default=False)
     p.add_argument("--tol", type=tolerance, default=DEFAULT_CHECK_TOL,
@@ -739,31 +741,122 @@ COMMANDS: dict[str, Command] = {
 }
 
 #: The modules of :mod:`selfsupport.cli` that hold no commands of their own.
-NOT_COMMAND_MODULES = frozenset({"common"})
+NOT_COMMAND_MODULES = frozenset({"common", "__main__"})
 
 
-def discover_commands() -> dict[str, Command]:
-    """Built-in commands plus the ``COMMANDS`` dict of every other module of :mod:`selfsupport.cli`."""
+@dataclass(frozen=True)
+class CommandEntry:
+    """A command as the top-level parser lists it, before its module is imported: the module whose
+    ``COMMANDS`` defines it and its one-line help."""
+
+    module: str
+    help: str
+
+
+#: The start of a module's ``COMMANDS`` declaration (``COMMANDS = {`` or ``COMMANDS: dict[...] = {``).
+_DECLARATION = re.compile(r"^COMMANDS\b[^=\n]*=", re.MULTILINE)
+
+
+def declared_commands(source: str, module: str) -> dict[str, str]:
+    """Name -> one-line help of the ``COMMANDS`` a module's source declares, read without running it.
+
+    The declaration is the module-level statement ``COMMANDS ... = {...}``: a dict literal whose
+    keys are strings and whose values are ``Command("help", ...)`` calls with the help a string
+    literal (positional or ``help=``). Only that statement is parsed: it ends at the first line that
+    starts in the first column with anything but a closing bracket or a comment.
+
+    >>> declared_commands('COMMANDS = {\\n    "hi": Command("say hi", add, run),\\n}\\n\\n\\ndef f():\\n    pass\\n', "m")
+    {'hi': 'say hi'}
+    """
+    bad = TypeError(f"{module} must declare COMMANDS as a dict literal of \"name\": Command(\"one-line help\", "
+                    "add_arguments, run) entries, the help a string literal (--help lists it without importing "
+                    "the module)")
+    found = _DECLARATION.search(source)
+    if found is None:
+        raise bad
+    lines = source[found.start():].splitlines()
+    end = next((k for k in range(1, len(lines)) if lines[k][:1] not in ("", " ", "\t", "}", ")", "]", "#")),
+               len(lines))
+    try:
+        value = ast.parse("\n".join(lines[:end])).body[0].value  # type: ignore[attr-defined]
+    except (SyntaxError, IndexError, AttributeError):
+        raise bad from None
+    if not isinstance(value, ast.Dict):
+        raise bad
+    out: dict[str, str] = {}
+    for key, call in zip(value.keys, value.values):
+        helps = ([call.args[0]] if call.args else [k.value for k in call.keywords if k.arg == "help"]) \
+            if isinstance(call, ast.Call) else []
+        if not (isinstance(key, ast.Constant) and isinstance(key.value, str) and helps
+                and isinstance(helps[0], ast.Constant) and isinstance(helps[0].value, str)):
+            raise bad
+        out[key.value] = helps[0].value
+    return out
+
+
+def command_index() -> dict[str, CommandEntry]:
+    """Every command, name -> :class:`CommandEntry`, in the order ``selfsupport --help`` lists them:
+    the built-ins of :data:`COMMANDS`, then the ``COMMANDS`` of every other module of
+    :mod:`selfsupport.cli` (by module name), read from its source (:func:`declared_commands`) without
+    importing it. A name declared twice is refused."""
     import selfsupport.cli as package
 
-    found = dict(COMMANDS)
+    index = {name: CommandEntry(__name__, cmd.help) for name, cmd in COMMANDS.items()}
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda i: i.name):
         if info.name in NOT_COMMAND_MODULES:
             continue
-        mod = importlib.import_module(f"selfsupport.cli.{info.name}")
-        extra = getattr(mod, "COMMANDS", None)
-        if not isinstance(extra, dict):
-            raise TypeError(f"selfsupport.cli.{info.name} must define COMMANDS: dict[str, Command]")
-        clash = sorted(set(extra) & set(found))
+        module = f"{package.__name__}.{info.name}"
+        spec = info.module_finder.find_spec(module, None)  # type: ignore[call-arg]
+        source = spec.loader.get_source(module) if spec is not None and spec.loader is not None else None
+        if source is None:  # (no source to read: a compiled module is imported instead)
+            declared = {name: cmd.help for name, cmd in _module_commands(module).items()}
+        else:
+            declared = declared_commands(source, module)
+        clash = sorted(set(declared) & set(index))
         if clash:
-            raise TypeError(f"selfsupport.cli.{info.name} redefines command(s) {clash}")
-        found.update(extra)
-    return found
+            raise TypeError(f"{module} redefines command(s) {clash}")
+        index.update({name: CommandEntry(module, text) for name, text in declared.items()})
+    return index
 
 
-def build_parser(commands: dict[str, Command] | None = None) -> argparse.ArgumentParser:
-    """The argument parser with one subparser per command."""
-    commands = discover_commands() if commands is None else commands
+def _module_commands(module: str) -> dict[str, Command]:
+    commands = getattr(importlib.import_module(module), "COMMANDS", None)
+    if not isinstance(commands, dict) or not all(isinstance(c, Command) for c in commands.values()):
+        raise TypeError(f"{module} must define COMMANDS: dict[str, Command]")
+    return commands
+
+
+def load_command(name: str, index: dict[str, CommandEntry] | None = None) -> Command:
+    """The :class:`Command` ``name`` of :func:`command_index` (``index``, if given): its module is
+    imported now."""
+    entry = (command_index() if index is None else index)[name]
+    commands = COMMANDS if entry.module == __name__ else _module_commands(entry.module)
+    if name not in commands:
+        raise TypeError(f"{entry.module}: its COMMANDS declares {name!r} but does not define it")
+    return commands[name]
+
+
+def discover_commands() -> dict[str, Command]:
+    """Every command of :func:`command_index`, each module imported."""
+    index = command_index()
+    return {name: load_command(name, index) for name in index}
+
+
+def build_parser(commands: dict[str, Command] | None = None, *,
+                 load: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser with one subparser per command.
+
+    Parameters
+    ----------
+    commands
+        The commands; default every command of :func:`command_index`.
+    load
+        Import and add the arguments of these commands alone (the one the command line names, or
+        none for the top-level help): the others are listed with their help but take no
+        arguments. Default: every command's.
+    """
+    index = command_index() if commands is None else None
+    helps = {n: c.help for n, c in (commands if index is None else index).items()}  # type: ignore[union-attr]
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show the full traceback on errors")
@@ -773,11 +866,23 @@ def build_parser(commands: dict[str, Command] | None = None) -> argparse.Argumen
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for name, cmd in commands.items():
-        sp = sub.add_parser(name, help=cmd.help, description=cmd.help, parents=[common])
-        cmd.add_arguments(sp)
-        sp.set_defaults(_run=cmd.run)
+    for name, text in helps.items():
+        sp = sub.add_parser(name, help=text, description=text, parents=[common])
+        if load is None or name in load:
+            cmd = load_command(name, index) if commands is None else commands[name]
+            cmd.add_arguments(sp)
+            sp.set_defaults(_run=cmd.run)
     return parser
+
+
+def command_named(argv: Sequence[str]) -> str | None:
+    """The command an argument list names: its first word that is not an option (the top-level
+    options ``--debug``, ``--version``, ``--help`` take no value), or ``None``.
+
+    >>> command_named(["--debug", "solve", "m.obj", "--out", "n.json"])
+    'solve'
+    """
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def _axis_values_joined(argv: list[str]) -> list[str]:
@@ -843,7 +948,8 @@ def _main(argv: Sequence[str] | None) -> int:
     argv = _axis_values_joined(list(sys.argv[1:] if argv is None else argv))
     debug = "--debug" in argv
     try:
-        args = build_parser().parse_args(argv)
+        name = command_named(argv)
+        args = build_parser(load=() if name is None else (name,)).parse_args(argv)
         return int(args._run(args))
     except _UsageError as e:
         if debug:

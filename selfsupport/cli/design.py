@@ -19,8 +19,12 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from selfsupport.cli.common import EXIT_CODES, Command, number_in, positive_float
+from selfsupport.app.server import DesignServer, bind_loopback, create_app, new_token, serve
+from selfsupport.app.session import SOLVE_DEFAULTS, EditLog
+from selfsupport.cli.common import EXIT_CODES, Command, load_scene, number_in, positive_float
 from selfsupport.core.errors import InputError
+from selfsupport.design.edits import Design
+from selfsupport.design.script import EditScript, _start_scene
 
 __all__ = ["COMMANDS", "add_design_arguments", "run_design", "open_session"]
 
@@ -39,11 +43,6 @@ def add_design_arguments(p: argparse.ArgumentParser) -> None:
 def open_session(spec: str, *, up: str | None = None, supports: str | None = None, density: float | None = None,
                  thickness: float | None = None):
     """The :class:`~selfsupport.app.session.EditLog` of a ``SCENE`` argument (see the module docstring)."""
-    from selfsupport.app.session import SOLVE_DEFAULTS, EditLog
-    from selfsupport.cli.common import load_scene
-    from selfsupport.design.edits import Design
-    from selfsupport.design.script import EditScript, _start_scene
-
     if spec.endswith(".toml") and not spec.startswith("shape:"):
         script = EditScript.read(spec)
         scene = load_scene(spec_of(script), supports=supports, up=up) if (supports or up) else _start_scene(script, None)
@@ -72,8 +71,6 @@ def _portable(spec: str) -> str:
 
 def run_design(args: argparse.Namespace) -> int:
     """Start the server and serve until interrupted (see the module docstring)."""
-    from selfsupport.app.server import DesignServer, bind_loopback, create_app, new_token, serve
-
     log = open_session(args.scene, up=args.up, supports=args.supports, density=args.density,
                        thickness=args.thickness)
     sock = bind_loopback(args.port)

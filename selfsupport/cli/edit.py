@@ -25,8 +25,12 @@ import os
 import time
 from pathlib import Path
 
-from selfsupport.cli.common import EXIT_CODES, Command, _err, print_table
+from selfsupport.cli.common import EXIT_CODES, Command, _err, load_scene, print_table
 from selfsupport.core.errors import InputError
+from selfsupport.design.script import EditScript, replay
+from selfsupport.figures.render import FigureInput, render
+from selfsupport.io import write_network
+from selfsupport.io.runfolder import MANIFEST, RunFolder, file_sha256
 
 __all__ = ["COMMANDS", "add_edit_arguments", "run_edit"]
 
@@ -49,15 +53,9 @@ def add_edit_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_edit(args: argparse.Namespace) -> int:
     """Replay the script and write every stage (see the module docstring)."""
-    from selfsupport.design.script import EditScript, replay
-    from selfsupport.io import write_network
-    from selfsupport.io.runfolder import MANIFEST, RunFolder, file_sha256
-
     script = EditScript.read(args.script)
     scene = None
     if args.scene is not None or args.supports is not None or args.up is not None:
-        from selfsupport.cli.common import load_scene
-
         spec = args.scene if args.scene is not None else script.scene
         if spec is None:
             raise InputError("--supports/--up need a scene (--scene or the script's [start] scene)")
@@ -88,8 +86,6 @@ def run_edit(args: argparse.Namespace) -> int:
         write_network(base.with_suffix(".json"), res, stage=info)
         written = [base.with_suffix(".json").name]
         if not args.no_figures:
-            from selfsupport.figures.render import FigureInput, render
-
             ops = "+".join(e.op for e in stage.edits) or "start"
             render("network", FigureInput(res.network, title=f"stage {stage.index:02d}: {ops} "
                                                               f"({res.status}, {res.max_relative_error:.1e})"),

@@ -14,8 +14,15 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from selfsupport.cli.common import Command, _positive_float, _positive_int, number_in
+from selfsupport.cli.common import Command, _positive_float, _positive_int, load_scene, number_in
 from selfsupport.core.errors import InputError
+from selfsupport.figures.render import FigureInput, render
+from selfsupport.figures.report import stored_thickness
+from selfsupport.figures.viewer import write_view
+from selfsupport.io import read_mesh, read_network
+from selfsupport.io.meshfiles import Source
+from selfsupport.io.network_json import load_json
+from selfsupport.io.safety import check_outputs
 
 __all__ = ["COMMANDS", "add_render_arguments", "run_render", "add_view_arguments", "run_view", "load_document"]
 
@@ -26,10 +33,6 @@ FIGURE_KINDS = ("network", "deviation", "airy", "reciprocal", "directions", "his
 
 def load_document(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """A network file as ``(Network, the JSON document)`` (the document holds history, parameters …)."""
-    from selfsupport.io import read_network
-    from selfsupport.io.meshfiles import Source
-    from selfsupport.io.network_json import load_json
-
     return read_network(path), load_json(Source(path))
 
 
@@ -40,11 +43,7 @@ def _reference(spec: str | None, up: str | None):
             raise InputError("--up applies to the --reference file; give --reference too")
         return None
     if spec.startswith("shape:"):
-        from selfsupport.cli.common import load_scene
-
         return load_scene(spec, up=up).mesh
-    from selfsupport.io import read_mesh
-
     if not Path(spec).exists():
         raise InputError(f"--reference {spec}: no such file; give the scene or mesh file the network was solved from")
     return read_mesh(spec, up=up)
@@ -94,10 +93,6 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_render(args: argparse.Namespace) -> int:
     """Render one figure of a network file; prints what was written."""
-    from selfsupport.figures.render import FigureInput, render
-    from selfsupport.figures.report import stored_thickness
-    from selfsupport.io.safety import check_outputs
-
     check_outputs([("--out", args.out)], _inputs(args))
     net, doc = load_document(args.network)
     thickness = args.thickness
@@ -124,9 +119,6 @@ def add_view_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_view(args: argparse.Namespace) -> int:
     """Write the interactive HTML view of a network file."""
-    from selfsupport.figures.viewer import write_view
-    from selfsupport.io.safety import check_outputs
-
     check_outputs([("--out", args.out)], _inputs(args))
     net, doc = load_document(args.network)
     info = write_view(args.out, net, reference=_reference(args.reference, args.up),

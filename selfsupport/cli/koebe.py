@@ -15,7 +15,6 @@ evidence) and its ``status``: ``converged`` when it is in equilibrium to ``--tol
 Exit 0 when it is in equilibrium, 4 when not (the file is written anyway: rounded coordinates, or
 top-view loads on a mesh with K_Φ ≠ 1), 2 on bad input (including a mesh whose polar mesh is not
 Koenigs).
-Nothing heavy is imported until the command runs.
 """
 from __future__ import annotations
 
@@ -23,6 +22,9 @@ import argparse
 import os
 import time
 
+import numpy as np
+
+from selfsupport.api import DEFAULT_CHECK_TOL, koebe
 from selfsupport.cli.common import (
     EXIT_CODES,
     STATUS_EXIT,
@@ -39,6 +41,11 @@ from selfsupport.cli.common import (
     tolerance,
     write_network_out,
 )
+from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import face_nonplanarity
+from selfsupport.io import write_mesh
+from selfsupport.io.axes import rotation
+from selfsupport.io.safety import check_outputs
 
 __all__ = ["COMMANDS", "EXAMPLE_NAMES", "KIND_NAMES", "MOBIUS_NAMES", "LOAD_RULE_NAMES", "add_koebe_arguments",
            "run_koebe"]
@@ -91,15 +98,6 @@ def add_koebe_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_koebe(args: argparse.Namespace) -> int:
     """Build the family member and write it."""
-    import numpy as np
-
-    from selfsupport.api import DEFAULT_CHECK_TOL, koebe
-    from selfsupport.core.errors import InputError
-    from selfsupport.core.evidence import face_nonplanarity
-    from selfsupport.io import write_mesh
-    from selfsupport.io.axes import rotation
-    from selfsupport.io.safety import check_outputs
-
     up = "z" if args.up is None else args.up
     rotation(up, what="--up")
     outputs = [("--out", args.out), ("--phi-out", args.phi_out), ("--partner-out", args.partner_out),

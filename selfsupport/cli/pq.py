@@ -38,14 +38,15 @@ from selfsupport.cli.common import (
     tolerance,
     write_network_out,
 )
+from selfsupport.io.network_json import read_network
+from selfsupport.remesh.planar import finish_summary, solve_planar
+from selfsupport.remesh.streamlines import FIELDS, METHODS, remesh
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
 
 
 def add_pq_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``selfsupport pq``."""
-    from selfsupport.remesh.streamlines import FIELDS, METHODS
-
     p.add_argument("network", metavar="NET.json", help="a network (selfsupport solve --out)")
     add_network_out_arguments(p, metavar="PQ.json", what="the planar-quad network")
     p.add_argument("--spacing", type=positive_float, default=None, metavar="H",
@@ -69,10 +70,6 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
-    from selfsupport.io.network_json import read_network
-    from selfsupport.remesh.planar import finish_summary, solve_planar
-    from selfsupport.remesh.streamlines import remesh
-
     check_network_out(args.out, args.format, [("network", args.network)])
     net = read_network(args.network)
     q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher)

@@ -27,8 +27,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from selfsupport.api import make_method
 from selfsupport.cli.common import (
     EXIT_CODES,
     Command,
@@ -39,10 +39,17 @@ from selfsupport.cli.common import (
     positive_int,
     print_table,
 )
+from selfsupport.core.defaults import DEFAULT_DENSITY
 from selfsupport.core.errors import InputError
-
-if TYPE_CHECKING:
-    from selfsupport.structure.limit import LimitResult
+from selfsupport.core.evidence import load_vectors, reaction_line
+from selfsupport.core.loads import plan_direction
+from selfsupport.figures.hull import stage_strip
+from selfsupport.io import write_network
+from selfsupport.io.atomic import atomic_write_text
+from selfsupport.io.safety import check_output_dir
+from selfsupport.structure.destruction import destroy
+from selfsupport.structure.limit import LimitResult, max_horizontal, thrust_range
+from selfsupport.structure.stability import max_load, stability_series
 
 __all__ = ["COMMANDS", "parse_vertices", "parse_loads"]
 
@@ -70,8 +77,6 @@ def parse_loads(text: str) -> list[float]:
 
 
 def _method(name: str):
-    from selfsupport.api import make_method
-
     return make_method(name)
 
 
@@ -81,8 +86,6 @@ def _kg_name(kg: float) -> str:
 
 # ------------------------------------------------------------------------------ stability
 def _stability_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
-
     add_scene_arguments(p)
     p.add_argument("--thickness", type=positive_float, required=True, metavar="T",
                    help="shell thickness [m]: the self-weight and the masonry hull (reference ± T/2)")
@@ -112,12 +115,6 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_stability(args: argparse.Namespace) -> int:
-    from selfsupport.core.loads import plan_direction
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.io.safety import check_output_dir
-    from selfsupport.structure.stability import max_load, stability_series
-
     out = Path(args.out)
     loads = parse_loads(args.loads)
     at = parse_vertices(args.load_at) if args.load_at else None
@@ -188,12 +185,6 @@ def _binding_text(r: LimitResult) -> str:
 
 def _max_horizontal(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
     """``--max-horizontal``: the limit program with λ the horizontal acceleration [g]."""
-    from selfsupport.core.evidence import reaction_line
-    from selfsupport.core.loads import plan_direction
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.structure.limit import max_horizontal
-
     d = plan_direction(args.max_horizontal)
     r = max_horizontal(scene, thickness=args.thickness, density=args.density, direction=args.max_horizontal,
                        time_limit=args.time_limit)
@@ -215,11 +206,6 @@ def _max_horizontal(scene, args: argparse.Namespace, out: Path, info: dict) -> i
 
 def _thrust(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
     """``--thrust``: the limit program with λ = 0, the thrust minimised and maximised."""
-    from selfsupport.core.evidence import load_vectors
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.structure.limit import thrust_range
-
     lo, hi = thrust_range(scene, thickness=args.thickness, density=args.density, time_limit=args.time_limit)
     atomic_write_text(out / "thrust-program.json", json.dumps(
         {"scene": info, "min": _program_record(lo), "max": _program_record(hi),
@@ -240,8 +226,6 @@ def _thrust(scene, args: argparse.Namespace, out: Path, info: dict) -> int:
 
 # ------------------------------------------------------------------------------ destroy
 def _destroy_args(p: argparse.ArgumentParser) -> None:
-    from selfsupport.api import DEFAULT_DENSITY
-
     add_scene_arguments(p)
     p.add_argument("--remove", action="append", type=number_in("[0, inf)", integer=True, what="a vertex index"),
                    required=True, metavar="VERTEX",
@@ -255,11 +239,6 @@ def _destroy_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_destroy(args: argparse.Namespace) -> int:
-    from selfsupport.io import write_network
-    from selfsupport.io.atomic import atomic_write_text
-    from selfsupport.io.safety import check_output_dir
-    from selfsupport.structure.destruction import destroy
-
     out = Path(args.out)
     check_output_dir(out, files=["destruction.json", "stages.png"],
                      inputs=[("scene", None if args.scene.startswith("shape:") else args.scene)])
@@ -277,8 +256,6 @@ def _run_destroy(args: argparse.Namespace) -> int:
                                                             "thickness": args.thickness, "density": args.density,
                                                             "stages": rows}, indent=1, default=float) + "\n")
     if not args.no_figure:
-        from selfsupport.figures.hull import stage_strip
-
         stage_strip(stages, out / "stages.png", thickness=args.thickness)
     print_table(f"selfsupport destroy -> {out}", [
         (f"stage {r['stage']}", f"{r['faces']} faces, {r['status']}; removed {r['removed']} ({r['why']})")

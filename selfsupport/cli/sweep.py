@@ -20,6 +20,13 @@ from pathlib import Path
 from typing import Sequence
 
 from selfsupport.cli.common import EXIT_CODES, Command, _positive_int, print_table
+from selfsupport.cli.common import main as cli_main
+from selfsupport.core.errors import InputError
+from selfsupport.io.safety import check_output_dir
+from selfsupport.sweep.report import write_report
+from selfsupport.sweep.runner import run_sweep
+from selfsupport.sweep.spec import load_spec
+from selfsupport.sweep.store import ResultStore
 
 __all__ = ["COMMANDS", "CONFIRM_RUNS", "add_arguments", "run", "main"]
 
@@ -49,14 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sweep, then export and report; returns the exit code."""
-    from selfsupport.core.errors import InputError
-    from selfsupport.sweep.runner import run_sweep
-    from selfsupport.sweep.spec import load_spec
-
     if args.scheduler and args.workers:
         raise InputError("--workers sizes the local cluster; with --scheduler the cluster has its own workers")
-    from selfsupport.io.safety import check_output_dir
-
     out = Path(args.out)
     check_output_dir(out, files=["results.sqlite", "results.csv", "results.parquet", "report.md"],
                      inputs=[("SWEEP.toml", args.sweep)])
@@ -93,9 +94,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _export_and_report(spec, outcome, out: Path) -> list[tuple[str, str]]:
-    from selfsupport.sweep.report import write_report
-    from selfsupport.sweep.store import ResultStore
-
     with ResultStore(outcome.store_path) as store:
         csv = store.export_csv(out / "results.csv", outcome.keys)
         pq = store.export_parquet(out / "results.parquet", outcome.keys)
@@ -116,7 +114,6 @@ COMMANDS: dict[str, Command] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m selfsupport.cli.sweep ...`` = ``selfsupport sweep ...``."""
-    from selfsupport.cli.common import main as cli_main
     return cli_main(["sweep", *(sys.argv[1:] if argv is None else argv)])
 
 

@@ -26,10 +26,6 @@ from selfsupport.core.mesh import PolyMesh
 
 G = 9.81
 
-#: Default material: stone-like density [kg/m³] and shell thickness [m] (the paper's examples).
-DEFAULT_DENSITY = 2000.0
-DEFAULT_THICKNESS = 0.1
-
 
 class LoadCase:
     """Base class: ``nodal(mesh, vertices)`` returns an ``(n,)`` array of signed loads [N]."""

@@ -33,7 +33,6 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import brentq
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
@@ -153,6 +152,7 @@ def _grid_quads(nu: int, nv: int) -> np.ndarray:
 
 def _catenary_parameter(half_span: float, rise: float) -> float:
     """``c`` with ``c (cosh(a/c) - 1) = rise``: the catenary ``z = c (cosh(a/c) - cosh(x/c))``."""
+    from scipy.optimize import brentq  # (0.1 s to import: a solve of a file does not need it)
 
     target = rise / half_span
     t = brentq(lambda t: (math.cosh(t) - 1.0) / t - target, 1e-12, 700.0, xtol=1e-14, rtol=1e-14)

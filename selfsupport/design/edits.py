@@ -50,8 +50,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from formulations.terms import TERMS
+from selfsupport.core.defaults import DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.options import check_range
 from selfsupport.core.scene import Scene

@@ -34,8 +34,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from selfsupport.core.defaults import DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, ExtraMass, G, LoadCase, PointLoad, SelfWeight
+from selfsupport.core.loads import ExtraMass, G, LoadCase, PointLoad, SelfWeight
 
 
 def parse_vertex_value(text: str, what: str) -> tuple[int, float]:

@@ -9,8 +9,9 @@ import numpy as np
 
 from formulations import Bounds, Problem
 from formulations.problem import stress_w_max
+from selfsupport.core.defaults import DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
-from selfsupport.core.loads import DEFAULT_DENSITY, DEFAULT_THICKNESS, LoadCase, SelfWeight, with_scene_extras
+from selfsupport.core.loads import LoadCase, SelfWeight, with_scene_extras
 from selfsupport.core.scene import Scene
 from selfsupport.io.bounds import read_bounds
 from selfsupport.io.loadcases import LoadSpec, read_load_cases

@@ -46,7 +46,7 @@ from selfsupport.methods.warm import as_warm_start
 if TYPE_CHECKING:
     from formulations import Problem
 
-__all__ = ["AUTO", "CANDIDATES", "LEVELS_ABOVE", "MethodChoice", "choose_method"]
+__all__ = ["AUTO", "CANDIDATES", "LEVELS_ABOVE", "MethodChoice", "candidates", "choose_method"]
 
 #: The method name (``--method``) that leaves the choice to :func:`choose_method`.
 AUTO = "auto"
@@ -56,6 +56,16 @@ CANDIDATES = ("staggered", "multilevel")
 #: scenes (up to 2,348 vertices, see the module docstring) and below 4k, where the levels paid on
 #: every measured shape (the dome lost by them up to 3k; the vaults gained from 2k).
 LEVELS_ABOVE = 3000
+
+
+def candidates(n_vertices: int) -> tuple[str, ...]:
+    """The methods :func:`choose_method` may pick for a mesh of ``n_vertices``: the staggered
+    method alone up to :data:`LEVELS_ABOVE` vertices, else any of :data:`CANDIDATES`.
+
+    >>> candidates(500), candidates(50_000)
+    (('staggered',), ('staggered', 'multilevel'))
+    """
+    return CANDIDATES if n_vertices > LEVELS_ABOVE else CANDIDATES[:1]
 
 
 @dataclass(frozen=True)
@@ -99,8 +109,8 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
     size = f"{n:,} vertices"
     if problem.hull_thickness() is not None:
         return MethodChoice("staggered", f"{size}; the masonry hull search runs on one level")
-    if n <= levels_above:
-        return MethodChoice("staggered", f"{size} <= {levels_above:,}: one level is fastest at this size")
+    if n <= levels_above:  # (as candidates(n) says for the default levels_above)
+        return MethodChoice(CANDIDATES[0], f"{size} <= {levels_above:,}: one level is fastest at this size")
     # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
     from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel, why_not
 

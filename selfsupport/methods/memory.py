@@ -30,7 +30,7 @@ from selfsupport.core.linalg import DENSE_ROW_MIN
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.subdivision import subdivided_vertex_count
 from selfsupport.methods import capabilities
-from selfsupport.methods.choice import AUTO, CANDIDATES
+from selfsupport.methods.choice import AUTO, CANDIDATES, candidates
 from selfsupport.methods.polish import DIRECT_CASES_MAX
 
 GIB = 1024.0 ** 3
@@ -76,14 +76,16 @@ def estimate_solve_bytes(n_vertices: int, method: str = "staggered", n_cases: in
     >>> round(estimate_solve_bytes(200_000) / 1e9, 2)  # measured: 2.16 GB
     3.35
     """
-    rate = bytes_per_vertex(method)
+    rate = bytes_per_vertex(method, n_vertices)
     return BASE_BYTES + rate * float(n_vertices) * case_factor(n_cases) + float(extra_bytes)
 
 
-def bytes_per_vertex(method: str) -> float:
+def bytes_per_vertex(method: str, n_vertices: int | None = None) -> float:
     """Peak bytes per vertex of a one-case solve by the registered ``method``; ``"auto"``: the
-    larger rate of the methods it picks from."""
-    names = CANDIDATES if method == AUTO else (method,)
+    larger rate of the methods it may pick for a mesh of ``n_vertices`` (any size if not given;
+    :func:`~selfsupport.methods.choice.candidates`: a small mesh's check then loads no other
+    method's module)."""
+    names = (candidates(n_vertices) if n_vertices is not None else CANDIDATES) if method == AUTO else (method,)
     return max(capabilities(name).bytes_per_vertex for name in names)
 
 

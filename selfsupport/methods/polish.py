@@ -28,7 +28,6 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import NoConvergence, newton_krylov
 from scipy.sparse.linalg import LinearOperator, cg, splu
 
 from formulations.equilibrium import Topology, position_blocks, residual, weight_matrix
@@ -237,6 +236,8 @@ def _newton_krylov(G: Callable, z_start: np.ndarray, z_best: np.ndarray, ftol: f
     """scipy's Newton–Krylov on ``z − G(z)``; returns whichever of its result and ``z_best``
     has the smaller fixed-point residual, and the number of evaluations of G it made
     (``z_best`` when ``deadline`` passes during the run)."""
+    # (the last fallback: scipy.optimize, 0.1 s to import, loads only when it runs)
+    from scipy.optimize import NoConvergence, newton_krylov
 
     count = [0]
 
