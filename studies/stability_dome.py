@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"the apex (vertex {at[0]}), supported on the {int(scene.supports.sum())} boundary vertices on the ground "
              "(the experiment's configuration, see the module docstring; --as-stored for the file's own pins)")
     notes = [f"dome2.sss ({scene.mesh.n_vertices} vertices), ρ = {DENSITY:g} kg/m³, added mass at {where}; hull search: "
-             "selfsupport.structure.stability.solve_in_hull (staggered: no hull, then the hull as an active set)",
+             "selfsupport.methods.hull_search.solve_in_hull (staggered: no hull, then the hull as an active set)",
              "paper: Fig. 9, t = 0.1 m, a network inside the hull under an added 11,000 kg; Fig. 10, t = 1 m, "
              "0 / 5,000 / 10,000 / 20,000 kg, the network leaving the hull as the load grows", *pub_note,
              f"command: python -m studies.stability_dome --scenes {args.scenes} --out {args.out}"]

@@ -17,12 +17,14 @@ Example
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import vertex_areas
 from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.scene import Scene
 
 G = 9.81
 
@@ -222,3 +224,27 @@ def with_scene_extras(loads: LoadCase, scene) -> LoadCase:
             and not present(PointLoad, "forces", scene.point_loads)):
         loads = loads + PointLoad(scene.point_loads)
     return loads
+
+
+def spread_mass(scene: Scene, at: Sequence[int] | None, kg: float) -> dict[int, float]:
+    """``kg`` spread evenly over the vertices ``at`` (default: the scene's free handled vertices;
+    a handled vertex that is also pinned carries nothing, lilium-pillar has one)."""
+    if at is None or len(at) == 0:
+        if scene.handles is None or not np.any(scene.handles):
+            raise InputError("no vertices to load: give --load-at VERTEX[,VERTEX...] (the scene has no handled vertices)")
+        at = np.flatnonzero(scene.handles & ~scene.supports).tolist()
+        if not at:
+            raise InputError("no vertices to load: the scene's handled vertices are all supports; give --load-at "
+                             "VERTEX[,VERTEX...] (free vertices)")
+    at = sorted({int(v) for v in at})
+    n = scene.mesh.n_vertices
+    bad = [v for v in at if not 0 <= v < n]
+    if bad:
+        raise InputError(f"--load-at vertex {bad[0]} is outside 0..{n - 1}")
+    sup = [v for v in at if scene.supports[v]]
+    if sup:
+        raise InputError(f"--load-at vertex {sup[0]} is a support: its load goes straight into the ground; "
+                         "load free vertices")
+    if not (np.isfinite(kg) and kg >= 0):
+        raise InputError(f"added mass must be a finite number >= 0 kg, got {kg}")
+    return {v: float(kg) / len(at) for v in at}

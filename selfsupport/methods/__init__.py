@@ -33,7 +33,7 @@ class Capabilities:
     hull_as_rows
         The masonry hull is a set of hard inequality rows: one solve decides whether a network
         inside it exists (and a warm start is kept); otherwise the hull search climbs its
-        penalties (:func:`selfsupport.structure.stability.solve_in_hull`).
+        penalties (:func:`selfsupport.methods.hull_search.solve_in_hull`).
     load_cases
         Several load cases in one solve.
     planar_rows

@@ -36,9 +36,11 @@ import time
 from typing import Any
 
 from formulations import Planar
-from selfsupport import api
+from selfsupport.io.problem import problem as stated_problem
+from selfsupport.io.scenes import as_scene
 from selfsupport.methods import capabilities, find_method
 from selfsupport.methods.planar_homotopy import planar_homotopy
+from selfsupport.methods.solve import solve
 
 __all__ = ["solve_planar", "finish_summary", "finish_method"]
 
@@ -65,18 +67,18 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     Parameters
     ----------
     scene
-        A scene, or anything :func:`selfsupport.api.solve` takes.
+        A scene, or anything :func:`selfsupport.methods.solve.solve` takes.
     tol
         Largest quad non-planarity accepted (distance of the diagonals / mean edge length).
     method
-        The first solve's method (a name of :data:`selfsupport.api.METHODS`).
+        The first solve's method (a name of :data:`selfsupport.methods.METHODS`).
     finish
         Run the finish when the first solve does not converge.
     time_limit
         Wall-clock limit of the whole call [s]; the finish gets what is left (``None``: each solve
         its method's own default).
     **solve_kw
-        Passed to every :func:`selfsupport.api.solve` (loads, bounds, objective, ...).
+        Passed to every :func:`selfsupport.methods.solve.solve` (loads, bounds, objective, ...).
 
     Returns
     -------
@@ -90,29 +92,29 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     t0 = time.perf_counter()
     planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]
     # the scene once, with the caller's supports and up-axis: every run below solves this one
-    scene = api.as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None))
+    scene = as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None))
 
     def left() -> dict[str, float]:
         return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
 
-    first = api.solve(scene, method=method, constraints=planar, **left(), **solve_kw)
+    first = solve(scene, method=method, constraints=planar, **left(), **solve_kw)
     if (first.status == "converged" or not finish or first.status == "time_limit"
             or capabilities(method).planar_rows):  # (the finish would solve the same rows again)
         return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
     free = [c for c in planar if not isinstance(c, Planar)]
-    eq = api.solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
+    eq = solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
     if eq.status != "converged":
         note = f"no finish: the mesh has no network in equilibrium without planar faces either ({eq.status})"
         return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
                                    parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
     runs = [("first", first)]
-    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(api.problem).parameters}
-    problem = api.problem(scene, constraints=planar, **problem_kw)
+    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(stated_problem).parameters}
+    problem = stated_problem(scene, constraints=planar, **problem_kw)
     if len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None:
         runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
                                                  else t0 + time_limit)))
     if runs[-1][1].status != "converged" and not (time_limit is not None and time.perf_counter() - t0 >= time_limit):
-        runs.append(("finish", api.solve(scene, method=finish_method(), constraints=planar, warm_start=eq, **left(),
+        runs.append(("finish", solve(scene, method=finish_method(), constraints=planar, warm_start=eq, **left(),
                                          **solve_kw)))
     name, chosen = runs[0]
     for n_, r in runs[1:]:

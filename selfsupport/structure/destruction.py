@@ -2,7 +2,7 @@
 
 Stage 0 is the intact vault. Then the faces of the removed vertices' 1-rings are deleted and,
 stage after stage, a network in equilibrium inside the masonry hull is searched for what remains
-(:func:`~selfsupport.structure.stability.solve_in_hull`, always against the *original* reference, with the
+(:func:`~selfsupport.methods.hull_search.solve_in_hull`, always against the *original* reference, with the
 original supports). When none is found, the faces touching the vertices that the closest network
 found leaves farthest outside the hull (by at least :data:`COLLAPSE_SHARE` of the worst excess)
 are deleted, and so on, until what remains stands or nothing does.
@@ -28,7 +28,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
-from selfsupport.structure.hull import solve_in_hull
+from selfsupport.methods.hull_search import solve_in_hull
 
 __all__ = ["Stage", "sub_scene", "ring_faces", "clean_faces", "destroy"]
 

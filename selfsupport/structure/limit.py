@@ -61,15 +61,15 @@ from formulations.equilibrium import to_dm
 from formulations.problem import Hull
 from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import load_vectors
-from selfsupport.core.loads import G, PointLoad, plan_direction
+from selfsupport.core.loads import G, PointLoad, plan_direction, spread_mass
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
 from selfsupport.methods.base import case_networks, hull_excess, hull_signed_distance
+from selfsupport.methods.hull_search import solve_in_hull
 from selfsupport.methods.polish import polish_joint
 from selfsupport.methods.simultaneous import IPOPT_STATUS, Simultaneous
 from selfsupport.methods.weight_refit import edge_bounds, refit_weights
-from selfsupport.structure.hull import solve_in_hull, spread_mass
 
 __all__ = ["LimitResult", "limit_load", "feasible", "min_thickness", "max_horizontal", "thrust_range", "CERTIFY_TOL",
            "HULL_MARGIN"]
@@ -416,7 +416,7 @@ def _base_problem(scene: Scene, thickness: float, density: float, w_max: Any = N
 def _start(problem: Problem, start: Network | SolveResult | None, kg: float, added: np.ndarray,
            options: Mapping[str, Any] | None, slide_supports: bool = False) -> tuple[np.ndarray, np.ndarray | None, str]:
     """Start positions and weights [SI, per mesh edge]: ``start``, else the staggered network
-    (:func:`~selfsupport.structure.stability.solve_in_hull`: certified, or the closest one found)."""
+    (:func:`~selfsupport.methods.hull_search.solve_in_hull`: certified, or the closest one found)."""
     if start is None:
 
         prob = problem if kg == 0 else dataclasses.replace(
@@ -524,7 +524,7 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
         Upper weight bound [N/m] (``None``: none).
     start
         A network on this mesh to start from; default the staggered network under
-        ``start_kg`` (:func:`~selfsupport.structure.stability.solve_in_hull`).
+        ``start_kg`` (:func:`~selfsupport.methods.hull_search.solve_in_hull`).
     start_kg
         The λ [kg] the program starts from (a previous answer).
     slide_supports

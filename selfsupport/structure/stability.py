@@ -28,15 +28,15 @@ from typing import Any, Callable, Mapping, Sequence
 from formulations import Problem
 from formulations.problem import Hull
 from selfsupport.core.errors import InputError
+from selfsupport.core.loads import spread_mass
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.problem import problem as stated_problem
 from selfsupport.methods.base import HULL_TOL
-from selfsupport.structure.hull import (
+from selfsupport.methods.hull_search import (
     CERTIFY_TOL,
     PENALTY_LADDER,
     solve_in_hull,
-    spread_mass,
     stands_line,
 )
 from selfsupport.structure.limit import limit_load

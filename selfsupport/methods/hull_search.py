@@ -1,19 +1,16 @@
 """The masonry hull search: a network in equilibrium whose every free vertex lies inside the hull
 (reference ± t/2 along its normal), found by the method's own hard rows where it has them, else by
-a penalty ladder; and what a load of kg spread over vertices puts on each."""
+a penalty ladder."""
 from __future__ import annotations
 
 import time
 from dataclasses import replace
 from typing import Any, Callable, Mapping, Sequence
 
-import numpy as np
-
 from formulations import Problem
 from formulations.problem import Hull
 from selfsupport.core.errors import InputError
 from selfsupport.core.result import SolveResult
-from selfsupport.core.scene import Scene
 from selfsupport.methods import capabilities
 from selfsupport.methods.base import hull_report
 from selfsupport.methods.staggered import StaggeredLinearization
@@ -149,25 +146,3 @@ def stands_line(parameters: Mapping[str, Any]) -> str:
 
 
 # ------------------------------------------------------------------------ added loads
-def spread_mass(scene: Scene, at: Sequence[int] | None, kg: float) -> dict[int, float]:
-    """``kg`` spread evenly over the vertices ``at`` (default: the scene's free handled vertices;
-    a handled vertex that is also pinned carries nothing, lilium-pillar has one)."""
-    if at is None or len(at) == 0:
-        if scene.handles is None or not np.any(scene.handles):
-            raise InputError("no vertices to load: give --load-at VERTEX[,VERTEX...] (the scene has no handled vertices)")
-        at = np.flatnonzero(scene.handles & ~scene.supports).tolist()
-        if not at:
-            raise InputError("no vertices to load: the scene's handled vertices are all supports; give --load-at "
-                             "VERTEX[,VERTEX...] (free vertices)")
-    at = sorted({int(v) for v in at})
-    n = scene.mesh.n_vertices
-    bad = [v for v in at if not 0 <= v < n]
-    if bad:
-        raise InputError(f"--load-at vertex {bad[0]} is outside 0..{n - 1}")
-    sup = [v for v in at if scene.supports[v]]
-    if sup:
-        raise InputError(f"--load-at vertex {sup[0]} is a support: its load goes straight into the ground; "
-                         "load free vertices")
-    if not (np.isfinite(kg) and kg >= 0):
-        raise InputError(f"added mass must be a finite number >= 0 kg, got {kg}")
-    return {v: float(kg) / len(at) for v in at}
