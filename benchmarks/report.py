@@ -192,6 +192,13 @@ SECTIONS: tuple[Section, ...] = (
             "Φ's mean edge length).",
             "python -m studies.koebe --scenes $SCENES/.. --out OUT",
             (Column("quantity", "quantity"), Column("value", "value", "{:.6g}"), Column("about", "what it is"))),
+    Section("theory_whys.csv", "Why not: the theory pages' measurements",
+            "What the theory pages' *why not* paragraphs quote, on generated shapes: the weight fit's Gram "
+            "matrix on its structural pattern against scipy's product, and the coupled position step's cost "
+            "per outer iteration.",
+            "python -m studies.theory_whys --out OUT",
+            (Column("why", "why"), Column("quantity", "quantity"), Column("value", "value", "{:.3g}"),
+             Column("about", "what it is"))),
 )
 _BY_CSV = {s.csv: s for s in SECTIONS}
 

@@ -124,6 +124,9 @@ STUDIES: tuple[Study, ...] = (
     Study("koebe", "studies.koebe", (("koebe.csv", "koebe.csv"), ("koebe_published.csv", "koebe_published.csv")),
           lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)],
           _no_published("enneper-koebe.obj", "enneper-summed.obj")),
+    # the theory pages' "why not" measurements on generated shapes
+    Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
+          lambda s, out: ["--out", str(out)], lambda s: ""),
 )
 _BY_NAME = {st.name: st for st in STUDIES}
 

@@ -22,6 +22,7 @@ from studies import (
     scaling,
     stability_dome,
     table1,
+    theory_whys,
     warm_resolve,
 )
 
@@ -165,7 +166,7 @@ def test_every_committed_result_row_is_stamped():
     files = sorted(report.RESULTS.glob("*.csv"))
     assert {"table1.csv", "warm_resolve.csv", "design_latency.csv", "scaling.csv", "planarity.csv",
             "pq.csv", "stability_dome.csv", "stability_dome_max_load.csv", "destruction.csv", "koebe.csv",
-            "koebe_published.csv"} <= {f.name for f in files}
+            "koebe_published.csv", "theory_whys.csv"} <= {f.name for f in files}
     for f in files:
         rows = common.read_csv_rows(f)
         assert rows, f.name
@@ -179,7 +180,7 @@ def test_every_study_of_the_bench_writes_the_stamp_columns():
     for columns in (table1.COLUMNS, scaling.COLUMNS, scaling.FIT_COLUMNS, peers.ORIGINAL_CSV_COLUMNS,
                     warm_resolve.COLUMNS, design_latency.COLUMNS, planarity.CSV_COLUMNS, pq.CSV_COLUMNS,
                     stability_dome.CSV_COLUMNS, stability_dome.MAX_LOAD_COLUMNS, destruction.CSV_COLUMNS,
-                    koebe.PUBLISHED_COLUMNS):
+                    koebe.PUBLISHED_COLUMNS, theory_whys.COLUMNS):
         assert {c.key for c in common.STAMP_COLUMNS} <= {c.key for c in columns}
 
 

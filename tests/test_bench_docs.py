@@ -273,3 +273,28 @@ def test_paper_comparison_tables_are_generated_not_copied():
         assert page.count(marker) == 1, marker
     for hand_copy in ("| Fig. 9,", "| Fig. 10,", "the family Φ + αR of the Enneper Koebe mesh is", "| 3 | collapse"):
         assert hand_copy not in page, hand_copy
+
+
+# ------------------------------------------------------------------ the theory pages' why-nots
+STAGGERED = "docs/theory/staggered.md"
+
+
+def whys() -> dict[str, float]:
+    return {r["quantity"]: r["value"] for r in rows("theory_whys.csv")}
+
+
+def test_staggered_gram_on_its_structural_pattern():
+    m = sentence(STAGGERED, r"the first fit's matrix loses (\d+)% of its entries, and one CHOLMOD factorization of "
+                            r"what remains takes more than (\w+) times as long as on the full pattern \(a (\S+)-vertex")
+    w = whys()
+    assert_shown(m[1], 100 * w["entries_dropped"], "the share of AᵀA's entries the product drops [%]")
+    assert w["factor_time_ratio"] > {"five": 5, "ten": 10}[m[2]]
+    (about,) = [r["about"] for r in rows("theory_whys.csv") if r["quantity"] == "entries_dropped"]
+    n = int(re.search(r"(\d+) vertices", about)[1])
+    assert abs(n - int(m[3].replace(",", ""))) <= 0.05 * n  # "a 4,000-vertex cross vault": the shape's target size
+
+
+def test_staggered_coupled_step_costs_about_twice_per_iteration():
+    sentence(STAGGERED, r"with one, about twice the time per outer iteration on generated shapes")
+    ratios = [v for k, v in whys().items() if k.startswith("time_per_iteration_ratio")]
+    assert len(ratios) >= 2 and all(1.5 <= r <= 2.5 for r in ratios), ratios
