@@ -294,7 +294,7 @@ def test_staggered_gram_on_its_structural_pattern():
     assert abs(n - int(m[3].replace(",", ""))) <= 0.05 * n  # "a 4,000-vertex cross vault": the shape's target size
 
 
-def test_staggered_coupled_step_costs_about_twice_per_iteration():
-    sentence(STAGGERED, r"with one, about twice the time per outer iteration on generated shapes")
+def test_staggered_coupled_step_costs_two_to_four_times_per_iteration():
+    sentence(STAGGERED, r"with one, two to four times the time per outer iteration on generated shapes")
     ratios = [v for k, v in whys().items() if k.startswith("time_per_iteration_ratio")]
-    assert len(ratios) >= 2 and all(1.5 <= r <= 2.5 for r in ratios), ratios
+    assert len(ratios) >= 2 and all(1.5 <= r <= 4.5 for r in ratios), ratios  # "two to four", rounded
