@@ -325,12 +325,12 @@ def destruction_comparison(rows: Sequence[Mapping[str, object]]) -> str:
             if r.get("kind") == "collapse":
                 lost, too = r.get("paper_lost"), r.get("lost_too")
                 ok = isinstance(lost, int) and isinstance(too, int) and lost > 0 and 2 * too >= lost
-                cells.append(f"{_cell(r.get('faces'), '{:,}')} stand; lost {_cell(too, '{}')} of the paper's "
+                cells.append(f"{_cell(r.get('faces'), '{:,}')} faces stand; lost {_cell(too, '{}')} of the paper's "
                              f"{_cell(lost, '{}')}: {verdict(ok)}")
             else:
                 ok = r.get("status") == "stands" and r.get("our_stages") == 1
-                what = ("stand, nothing more removed" if ok else
-                        f"{r.get('status')} after a cascade of {_cell(r.get('our_stages'), '{}')} stages")
+                what = ("faces stand, nothing more removed" if ok else
+                        f"faces after a cascade of {_cell(r.get('our_stages'), '{}')} stages ({r.get('status')})")
                 cells.append(f"{_cell(r.get('faces'), '{:,}')} {what}: {verdict(ok)}")
         out.append(f"| {k} | {paper} | " + " | ".join(cells) + " |")
     out += ["", f"*benchmarks/results/destruction.csv* — {stamp_line(rows)}"]

@@ -298,3 +298,12 @@ def test_staggered_coupled_step_costs_two_to_four_times_per_iteration():
     sentence(STAGGERED, r"with one, two to four times the time per outer iteration on generated shapes")
     ratios = [v for k, v in whys().items() if k.startswith("time_per_iteration_ratio")]
     assert len(ratios) >= 2 and all(1.5 <= r <= 4.5 for r in ratios), ratios  # "two to four", rounded
+
+
+def test_multilevel_the_weight_fit_needs_more_iterations_as_the_mesh_grows():
+    sentence("docs/theory/multilevel.md", r"its interior point needs more iterations per fit as the mesh grows")
+    stag = [r for r in rows("scaling.csv") if r["method"] == "staggered" and r["status"] == "converged"]
+    for shape in {r["shape"] for r in stag}:
+        by_size = sorted((r["vertices"], r["fit_its_mean"]) for r in stag if r["shape"] == shape)
+        its = [f for _, f in by_size]
+        assert len(its) >= 2 and all(a < b for a, b in zip(its, its[1:])), (shape, by_size)
