@@ -83,6 +83,14 @@ def _no_driver(s: Settings) -> str:
     return _no_scenes(s) or (f"{reason} (make bench: ORIGINAL=OUT)" if reason else "")
 
 
+def _no_published(*files: str) -> Callable[[Settings], str]:
+    """Skip when the paper's published files (beside the scenes folder) are missing."""
+    def skip(s: Settings) -> str:
+        missing = [f for f in files if not (s.scenes.parent / "published" / f).is_file()]
+        return _no_scenes(s) or (f"no {', '.join(missing)} in {s.scenes.parent / 'published'}" if missing else "")
+    return skip
+
+
 def _checker(s: Settings) -> list[str]:
     return ["--checker", str(s.checker)] if s.checker.is_file() else []
 
@@ -106,6 +114,19 @@ STUDIES: tuple[Study, ...] = (
     # pq takes the paper-scenes folder itself (scenes/ and published/ in it)
     Study("pq", "studies.pq", (("pq.csv", "pq.csv"),),
           lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out)], _no_scenes),
+    # the paper's Figs. 9-10, 8 and 15: docs/guide/paper.md's comparisons
+    Study("stability_dome", "studies.stability_dome",
+          (("stability_dome.csv", "stability_dome.csv"), ("stability_dome_max_load.csv", "stability_dome_max_load.csv")),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), "--no-figures"], _no_scenes),
+    Study("destruction", "studies.destruction", (("destruction.csv", "destruction.csv"),),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out)],
+          _no_published("remove-original.obj", *(f"remove-{k}-n.obj" for k in range(1, 5)))),
+    Study("koebe", "studies.koebe", (("koebe.csv", "koebe.csv"), ("koebe_published.csv", "koebe_published.csv")),
+          lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)],
+          _no_published("enneper-koebe.obj", "enneper-summed.obj")),
+    # the theory pages' "why not" measurements on generated shapes
+    Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
+          lambda s, out: ["--out", str(out)], lambda s: ""),
 )
 _BY_NAME = {st.name: st for st in STUDIES}
 

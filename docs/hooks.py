@@ -4,8 +4,9 @@
   help and its ``--help`` text), from :func:`selfsupport.cli.build_parser`;
 * ``<!-- network-schema -->`` becomes the network format's JSON Schema, as packaged
   (``selfsupport/io/network.schema.json``);
-* ``<!-- bench-table1 -->`` becomes the paper's Table 1 beside ours, from the committed
-  ``benchmarks/results/table1.csv`` (:func:`benchmarks.report.table1_comparison`).
+* ``<!-- bench-table1 -->``, ``<!-- bench-dome -->``, ``<!-- bench-destruction -->`` and
+  ``<!-- bench-koebe -->`` become the paper's claims beside ours, from the committed
+  ``benchmarks/results/*.csv`` (:data:`benchmarks.report.PAPER_TABLES`).
 """
 from __future__ import annotations
 
@@ -16,7 +17,6 @@ from pathlib import Path
 
 MARKER = "<!-- cli-reference -->"
 SCHEMA_MARKER = "<!-- network-schema -->"
-TABLE1_MARKER = "<!-- bench-table1 -->"
 #: the checkout (benchmarks/ is not an installed package)
 ROOT = Path(__file__).resolve().parent.parent
 #: The width argparse wraps the help to (it reads COLUMNS), fixed so the page does not depend on
@@ -54,14 +54,13 @@ def network_schema() -> str:
     return f"```json\n{text.rstrip()}\n```"
 
 
-def bench_table1() -> str:
-    """The Table 1 comparison from ``benchmarks/results/table1.csv``."""
+def paper_tables() -> dict:
+    """The comparison tables' markers and their generators (:data:`benchmarks.report.PAPER_TABLES`)."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from benchmarks.report import RESULTS, table1_comparison, typed
-    from studies.common import read_csv_rows
+    from benchmarks.report import PAPER_TABLES
 
-    return table1_comparison(typed(read_csv_rows(RESULTS / "table1.csv")))
+    return PAPER_TABLES
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (mkdocs hook signature)
@@ -70,6 +69,8 @@ def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001
         markdown = markdown.replace(MARKER, cli_reference())
     if SCHEMA_MARKER in markdown:
         markdown = markdown.replace(SCHEMA_MARKER, network_schema())
-    if TABLE1_MARKER in markdown:
-        markdown = markdown.replace(TABLE1_MARKER, bench_table1())
+    if "<!-- bench-" in markdown:
+        for marker, table in paper_tables().items():
+            if marker in markdown:
+                markdown = markdown.replace(marker, table())
     return markdown

@@ -4,7 +4,7 @@
 
     python -m studies.destruction --scenes ../shared/paper-scenes/scenes --out out/destruction
 
-Two parts (t = 0.5 m, ρ = 2500 kg/m³ unless given):
+Two parts (t = 0.5 m and 0.1 m, ρ = 2500 kg/m³ unless given):
 
 * **The paper's sequence replayed** (when ``SCENES/../published/remove-*-n.obj`` exist). The
   published stages are renumbered networks, so the paper's removals are recovered by position:
@@ -14,13 +14,14 @@ Two parts (t = 0.5 m, ρ = 2500 kg/m³ unless given):
   most :data:`CUT_FRACTION` of the faces is taken as the user's cut and applied; a larger one as
   a collapse, which is not applied: our cascade after the previous cut must predict it. Per paper
   stage: faces left (paper, ours), and how much of what the paper lost we lost too.
-* **One removal** (``--remove VERTEX``, default the highest free vertex): its 1-ring deleted, the
-  cascade run (:func:`selfsupport.structure.destruction.destroy`).
+* **One removal** (``--remove VERTEX``, default the highest free vertex), at the first thickness:
+  its 1-ring deleted, the cascade run (:func:`selfsupport.structure.destruction.destroy`).
 
 The hull's mid-surface is, by default, the design's own thrust network — the vault as built (the
 published stage 0 is a network, 3.8 m below twocirc-3's reference at the top); ``--reference
-scene`` uses the scene's surface. Writes ``destruction.md``, ``.json``, ``stages.png`` /
-``replay.png`` and each stage's network.
+scene`` uses the scene's surface. Writes ``destruction.csv`` (the replay, one row per paper step
+and thickness, each stamped: :func:`studies.common.run_stamp`), ``destruction.md``, ``.json``,
+``stages.png`` / ``replay-tT.png`` and each stage's network.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from studies.common import Column, write_markdown
+from studies.common import STAMP_COLUMNS, Column, run_stamp, write_csv, write_markdown
 
 COLUMNS = [Column("stage", "stage"), Column("faces", "faces (ours)"), Column("paper_faces", "faces (paper)"),
            Column("paper_file", "paper file"), Column("status", "status (ours)"), Column("why", "removed before"),
@@ -47,6 +48,9 @@ REPLAY_COLUMNS = [Column("paper_stage", "paper stage"), Column("kind", "paper st
                   Column("paper_faces", "faces (paper)"), Column("faces", "faces (ours)"),
                   Column("paper_lost", "lost (paper, mapped)"), Column("lost_too", "of these lost by us"),
                   Column("our_stages", "our stages"), Column("status", "status (ours)")]
+#: destruction.csv: the replay at every thickness
+CSV_COLUMNS = (Column("thickness_m", "t [m]", "{:g}"), Column("step", "step"), *REPLAY_COLUMNS,
+               Column("paper_before", "faces before (paper)"), *STAMP_COLUMNS)
 
 
 def _faces_in(path: Path) -> int:
@@ -102,7 +106,7 @@ def paper_steps(scene: Any, files: Sequence[Path]) -> list[dict[str, Any]]:
         owner = cKDTree(C_prev[:, :2]).query(C_scene[:, :2])[1]
         mapped = np.flatnonzero(gone[owner] & ~lost).tolist()
         lost[mapped] = True  # (a face lost earlier has a present neighbour as its owner now)
-        steps.append({"file": f.name, "paper_faces": len(F), "paper_lost": mapped,
+        steps.append({"file": f.name, "paper_faces": len(F), "paper_before": len(prev_F), "paper_lost": mapped,
                       "kind": "cut" if gone.sum() <= CUT_FRACTION * len(prev_F) else "collapse"})
         prev_P, prev_F = P, F
     return steps
@@ -127,7 +131,8 @@ def replay(scene: Any, steps: Sequence[Mapping[str, Any]], *, thickness: float, 
             faces, n_stages, status = list(stages[-1].faces), len(stages) - 1, stages[-1].status
         lost_paper = set(st["paper_lost"]) & before
         lost_ours = set().union(*[set(range(scene.mesh.n_faces)) - set(faces)])
-        rows.append({"paper_stage": st["file"], "kind": st["kind"], "paper_faces": st["paper_faces"],
+        rows.append({"step": k, "paper_stage": st["file"], "kind": st["kind"], "paper_faces": st["paper_faces"],
+                     "paper_before": st["paper_before"],
                      "faces": len(faces), "paper_lost": len(lost_paper),
                      "lost_too": len(lost_paper & lost_ours), "our_stages": n_stages, "status": status})
     return rows, shown
@@ -140,13 +145,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--scene", default="twocirc-3")
     ap.add_argument("--remove", type=int, action="append", default=None, help="default: the highest free vertex")
-    ap.add_argument("--thickness", type=float, default=0.5)
+    ap.add_argument("--thickness", default="0.5,0.1",
+                    help="hull thicknesses [m], comma-separated (the one removal: the first)")
     ap.add_argument("--density", type=float, default=2500.0)
     ap.add_argument("--max-stages", type=int, default=20)
     ap.add_argument("--reference", choices=["network", "scene"], default="network",
                     help="the hull's mid-surface: the design's thrust network, i.e. the vault as built (default), "
                          "or the scene's reference surface")
     args = ap.parse_args(argv)
+    thicknesses = [float(t) for t in args.thickness.split(",") if t.strip()]
 
     from selfsupport.figures.hull import stage_strip
     from selfsupport.io import read_scene, write_network
@@ -156,19 +163,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     pub = Path(args.published) if args.published else scenes.parent / "published"
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    scene = read_scene(scenes / f"{args.scene}.sss", name=args.scene)
-    if args.reference == "network":
-        scene = built_vault(scene, density=args.density, thickness=args.thickness)
+    stamp = run_stamp()
+    read = read_scene(scenes / f"{args.scene}.sss", name=args.scene)
     paper = [("remove-original.obj", pub / "remove-original.obj")] + [
         (f"remove-{k}-n.obj", pub / f"remove-{k}-n.obj") for k in range(1, 5)]
     replay_rows: list[dict[str, Any]] = []
-    if all(f.is_file() for _, f in paper):
-        steps = paper_steps(scene, [f for _, f in paper])
-        replay_rows, shown = replay(scene, steps, thickness=args.thickness, density=args.density,
-                                    max_stages=args.max_stages)
-        stage_strip(shown, out / "replay.png", thickness=args.thickness)
+    built: dict[float, Any] = {}
+    for t in thicknesses:
+        scene = built_vault(read, density=args.density, thickness=t) if args.reference == "network" else read
+        built[t] = scene
+        if all(f.is_file() for _, f in paper):
+            steps = paper_steps(scene, [f for _, f in paper])
+            rows_t, shown = replay(scene, steps, thickness=t, density=args.density, max_stages=args.max_stages)
+            replay_rows += [{"thickness_m": t, **r} for r in rows_t]
+            stage_strip(shown, out / f"replay-t{t:g}.png", thickness=t)
+    t0 = thicknesses[0]
+    scene = built[t0]
     remove = args.remove or [int(np.flatnonzero(scene.free)[np.argmax(scene.mesh.vertices[scene.free, 2])])]
-    stages = destroy(scene, remove, thickness=args.thickness, density=args.density, max_stages=args.max_stages,
+    stages = destroy(scene, remove, thickness=t0, density=args.density, max_stages=args.max_stages,
                      progress=lambda s: print(f"stage {s.index}: {s.n_faces} faces, {s.status}", file=sys.stderr))
     rows: list[dict[str, Any]] = []
     for s in stages:
@@ -182,8 +194,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for k in range(len(stages), len(paper)):
         if paper[k][1].is_file():
             rows.append({"stage": k, "paper_file": paper[k][0], "paper_faces": _faces_in(paper[k][1])})
-    stage_strip(stages, out / "stages.png", thickness=args.thickness)
-    notes = [f"{args.scene}: {scene.mesh.n_vertices} vertices, {scene.mesh.n_faces} faces; t = {args.thickness:g} m, "
+    stage_strip(stages, out / "stages.png", thickness=t0)
+    notes = [f"{args.scene}: {scene.mesh.n_vertices} vertices, {scene.mesh.n_faces} faces; t = "
+             f"{', '.join(f'{t:g}' for t in thicknesses)} m (the one removal: {t0:g} m), "
              f"ρ = {args.density:g} kg/m³; the hull's mid-surface: "
              + ("the design's thrust network (the vault as built)" if args.reference == "network" else
                 "the scene's reference surface"),
@@ -194,11 +207,13 @@ def main(argv: Sequence[str] | None = None) -> int:
              "a step removing more than "
              f"{CUT_FRACTION:.0%} of the faces is a collapse our cascade must predict, not a cut",
              f"command: python -m studies.destruction --scenes {args.scenes} --out {args.out}"]
-    tables = ([("The paper's sequence replayed", replay_rows, REPLAY_COLUMNS)] if replay_rows else []) + [
+    tables = ([("The paper's sequence replayed", replay_rows, [CSV_COLUMNS[0], *REPLAY_COLUMNS])]
+              if replay_rows else []) + [
         (f"One removal: the 1-ring of vertex {remove}", rows, COLUMNS)]
     text = write_markdown(out / "destruction.md", "Destruction sequence", notes, tables)
     (out / "destruction.json").write_text(json.dumps({"replay": replay_rows, "one_removal": rows}, indent=1,
                                                      default=float) + "\n", encoding="utf-8")
+    write_csv(out / "destruction.csv", [{**r, **stamp} for r in replay_rows], CSV_COLUMNS)
     print(text)
     return 0
 

@@ -18,7 +18,9 @@ compared with the published ``enneper-koebe.obj`` and ``enneper-summed.obj``.
    network JSON and checked with the independent checker (``--checker``); the same for the
    published Φ itself (its 6-digit coordinates limit the equilibrium).
 
-Writes ``koebe.json`` (every number), ``koebe.md`` (the tables), the networks and, in the axes of
+Writes ``koebe.csv`` (the equilibrium rows), ``koebe_published.csv`` (what the published files are,
+one quantity a row), both stamped (:func:`studies.common.run_stamp`), ``koebe.json`` (every
+number), ``koebe.md`` (the tables), the networks and, in the axes of
 the published files (``up="y"``: Φ a bowl, as in ``enneper-koebe.obj``), ``phi.obj``,
 ``partner.obj`` and ``summed.obj`` (ours, inscribed, at the published α).
 """
@@ -32,7 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from studies.common import DEFAULT_CHECKER, Column, run_checker, write_markdown
+from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_checker, run_stamp, write_csv, write_markdown
 
 ALPHAS = (0.0, 0.5, 1.0, 2.0)
 
@@ -169,7 +171,7 @@ def run(scenes: Path, out: Path, checker: Path | None) -> dict[str, Any]:
     write_mesh(out / "partner.obj", phi_i.with_vertices(np.c_[phi_i.vertices[:, :2], R_i.heights]), up="y")
     write_mesh(out / "summed.obj", phi_i.with_vertices(
         np.c_[phi_i.vertices[:, :2], phi_i.vertices[:, 2] + alpha_pub * R_i.heights]), up="y")
-    return {"published_dir": str(pub), "facts": facts, "same_faces": same_faces, "summed_top_view_diff": top_diff,
+    return {"published_dir": str(pub), "mean_edge": ell, "facts": facts, "same_faces": same_faces, "summed_top_view_diff": top_diff,
             "inverted_grid": grid, "published_koenigs_defect": R_pub.dual.koenigs_defect, "rebuilt": rebuilt,
             "comparisons": comparisons, "alpha_published": alpha_pub, "equilibrium": eq_rows,
             "checker": str(checker) if checker else None}
@@ -189,6 +191,35 @@ EQ_COLUMNS = [Column("mesh", "Φ"), Column("loads", "loads"), Column("alpha", "�
               Column("max_rel_error", "our max rel. error", "{:.2e}"), Column("min_weight", "min w", "{:.4f}"),
               Column("K_min", "K_Φ min", "{:.4f}"), Column("K_max", "K_Φ max", "{:.4f}"),
               Column("harmonic", "|Δφ r|/|Δφ φ|", "{:.1e}")]
+
+
+#: koebe_published.csv: one quantity a row
+PUBLISHED_COLUMNS = (Column("quantity", "quantity"), Column("value", "value", "{:.6g}"), Column("about", "what it is"),
+                     *STAMP_COLUMNS)
+
+
+def published_rows(res: dict[str, Any]) -> list[dict[str, Any]]:
+    """What the published ``enneper-koebe.obj`` and ``enneper-summed.obj`` are, one number a row
+    (lengths over the published Φ's mean edge length)."""
+    phi = res["facts"][0]
+    fit = res["rebuilt"]["inscribed"]["fit"]
+    tangent = res["rebuilt"]["tangent"]
+    return [
+        {"quantity": "phi_vertex_gap_max", "value": phi["vertex_gap_max"],
+         "about": "enneper-koebe.obj: largest |½(x²+y²) − z| of a vertex (0: inscribed in the paraboloid)"},
+        {"quantity": "phi_edge_gap_max", "value": phi["edge_gap_max"],
+         "about": "enneper-koebe.obj: largest gap of an edge's line to the paraboloid (0: tangent; < 0: a chord)"},
+        {"quantity": "inscribed_distance", "value": res["rebuilt"]["inscribed"]["max_distance"] / res["mean_edge"],
+         "about": "largest distance of our inscribed Φ from enneper-koebe.obj"},
+        {"quantity": "tangent_distance", "value": tangent["max_distance"] / res["mean_edge"],
+         "about": "largest distance of our tangent Φ (a Koebe mesh proper) from enneper-koebe.obj"},
+        {"quantity": "alpha", "value": res["alpha_published"],
+         "about": "enneper-summed.obj − enneper-koebe.obj fitted by α R (our R, inscribed Φ; max |r| = Φ's height range)"},
+        {"quantity": "alpha_fit_residual", "value": _rel(fit["max_residual_no_affine"], fit["max_abs_D"]),
+         "about": "that fit's largest residual over the largest height difference"},
+        {"quantity": "published_koenigs_defect", "value": res["published_koenigs_defect"],
+         "about": "Koenigs defect of the published Φ's polar (its coordinates have six digits)"},
+    ]
 
 
 def report(res: dict[str, Any], out: Path) -> str:
@@ -223,7 +254,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="the independent check_network.py (default ../shared/tools/check_network.py)")
     a = ap.parse_args(argv)
     checker = a.checker if a.checker and a.checker.is_file() else None
+    stamp = run_stamp()
     res = run(a.scenes, a.out, checker)
+    write_csv(a.out / "koebe.csv", [{**r, **stamp} for r in res["equilibrium"]], (*EQ_COLUMNS, *STAMP_COLUMNS))
+    write_csv(a.out / "koebe_published.csv", [{**r, **stamp} for r in published_rows(res)], PUBLISHED_COLUMNS)
     from selfsupport.io.network_json import to_jsonable
 
     (a.out / "koebe.json").write_text(json.dumps(to_jsonable(res), indent=1) + "\n", encoding="utf-8")

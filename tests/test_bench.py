@@ -11,7 +11,20 @@ from pathlib import Path
 import pytest
 
 from benchmarks import report, run
-from studies import common, design_latency, peers, planarity, pq, scaling, table1, warm_resolve
+from studies import (
+    common,
+    design_latency,
+    destruction,
+    koebe,
+    peers,
+    planarity,
+    pq,
+    scaling,
+    stability_dome,
+    table1,
+    theory_whys,
+    warm_resolve,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 STAMP = {"commit": "abc1234", "date": "2030-01-02T03:04:05Z", "cpu_model": "Test CPU 9000", "cores": 2,
@@ -65,6 +78,76 @@ def test_report_table1_comparison_puts_the_papers_numbers_beside_ours(tmp_path):
     assert "commit: abc1234" in lines[-1]
 
 
+def _typed(rows: list[dict]) -> list[dict]:
+    return report.typed([{k: str(v) for k, v in r.items()} for r in rows])
+
+
+def _dome(found_9: bool, max_kg: float, found_10: list[bool]) -> tuple[list[dict], list[dict]]:
+    series = [{"configuration": "as stored", "thickness_m": 0.1, "added_kg": 0.0, "found": False, **STAMP},
+              {"configuration": "ground ring", "thickness_m": 0.1, "added_kg": 11000.0, "found": found_9,
+               "outside": 0 if found_9 else 3, "max_hull_excess_m": 0.0 if found_9 else 0.25, **STAMP}]
+    series += [{"configuration": "ground ring", "thickness_m": 1.0, "added_kg": kg, "found": f, **STAMP}
+               for kg, f in zip((0.0, 5000.0, 10000.0, 20000.0), found_10)]
+    max_load = [{"thickness_m": 0.1, "verdict": "certified", "max_load_kg": max_kg, "optimum_kg": max_kg,
+                 "binding": 7, **STAMP}]
+    return _typed(series), _typed(max_load)
+
+
+def _verdicts(text: str) -> list[str]:
+    return [ln.rsplit("|", 2)[-2].strip() for ln in text.splitlines() if ln.startswith("| Fig.")]
+
+
+def test_dome_comparison_gives_each_claim_of_the_paper_its_verdict():
+    """Fig. 9: found under 11,000 kg and a largest load of at least that; Fig. 10: found at 0 kg
+    and not at 20,000 kg (the network leaves the hull as the load grows)."""
+    text = report.dome_comparison(*_dome(True, 12000.0, [True, True, False, False]))
+    assert _verdicts(text) == ["**reproduced**"] * 3
+    text = report.dome_comparison(*_dome(False, 7000.0, [True, True, True, True]))
+    assert _verdicts(text) == ["**not reproduced**"] * 3
+    assert "no network found (3 vertices outside, up to 0.25 m)" in text
+    assert "largest certified load 7,000 kg (7 vertices on the hull's faces)" in text
+    assert "a network inside the hull at every one of these loads" in text
+    assert "| 0.1 | 7,000 | 7,000 |" in text  # the largest load per thickness
+    # the file as stored is not the experiment: its unloaded row is no Fig. 10 row
+    assert "commit: abc1234" in text.splitlines()[-1]
+
+
+def test_destruction_comparison_judges_cuts_and_the_collapse():
+    base = {"paper_before": 1364, "paper_faces": 938, **STAMP}
+    rows = _typed([
+        {"thickness_m": 0.5, "step": 1, "kind": "cut", "faces": 1400, "our_stages": 1, "status": "stands",
+         "paper_lost": 14, "lost_too": 14, **base},
+        {"thickness_m": 0.5, "step": 3, "kind": "collapse", "faces": 1382, "our_stages": 0,
+         "status": "(collapse not applied: predicted?)", "paper_lost": 448, "lost_too": 0, **base},
+        {"thickness_m": 0.1, "step": 1, "kind": "cut", "faces": 1300, "our_stages": 3, "status": "stands",
+         "paper_lost": 14, "lost_too": 14, **base},
+        {"thickness_m": 0.1, "step": 3, "kind": "collapse", "faces": 900, "our_stages": 0,
+         "status": "(collapse not applied: predicted?)", "paper_lost": 448, "lost_too": 224, **base},
+    ])
+    lines = report.destruction_comparison(rows).splitlines()
+    assert lines[0] == "| step | the paper (faces) | ours, t = 0.5 m | ours, t = 0.1 m |"
+    cut = next(ln for ln in lines if ln.startswith("| 1 |"))
+    collapse = next(ln for ln in lines if ln.startswith("| 3 |"))
+    # a cut stands with nothing more removed (one stage) at 0.5 m, not after a cascade at 0.1 m
+    assert cut.count("**reproduced**") == 1 and cut.count("**not reproduced**") == 1
+    assert "lost 0 of the paper's 448: **not reproduced**" in collapse
+    assert "lost 224 of the paper's 448: **reproduced**" in collapse  # half of the paper's collapse
+    assert "collapse: 1,364 → 938" in collapse
+
+
+def test_koebe_comparison_needs_round_off_equilibrium_and_the_files_digits():
+    eq = [{"mesh": "enneper-inscribed", "loads": "reciprocal", "alpha": a, "checker_max_rel_error": e, **STAMP}
+          for a, e in ((0.0, 2e-13), (1.0, 6e-13))]
+    eq.append({"mesh": "enneper-tangent", "loads": "top-view", "alpha": 1.0, "checker_max_rel_error": 0.09, **STAMP})
+    pub = [{"quantity": "alpha", "value": -0.2199098, **STAMP}, {"quantity": "alpha_fit_residual", "value": 5.4e-6, **STAMP}]
+    text = report.koebe_comparison(_typed(eq), _typed(pub))
+    assert "to 6.0e-13 for α = 0, 1" in text  # the top-view loads are not the family's
+    assert text.count("**reproduced**") == 2 and "α = -0.21991, to 5.4e-06" in text
+    eq[0]["checker_max_rel_error"] = 1e-6
+    pub[1]["value"] = 1e-3
+    assert report.koebe_comparison(_typed(eq), _typed(pub)).count("**not reproduced**") == 2
+
+
 def test_report_without_results_folder_is_one_line_and_exit_2(tmp_path):
     p = subprocess.run([sys.executable, "-m", "benchmarks.report", "--results", str(tmp_path / "none"),
                         "--page", str(tmp_path / "page.md")], cwd=ROOT, capture_output=True, text=True)
@@ -82,7 +165,8 @@ def test_the_committed_page_is_the_one_the_committed_results_give():
 def test_every_committed_result_row_is_stamped():
     files = sorted(report.RESULTS.glob("*.csv"))
     assert {"table1.csv", "warm_resolve.csv", "design_latency.csv", "scaling.csv", "planarity.csv",
-            "pq.csv"} <= {f.name for f in files}
+            "pq.csv", "stability_dome.csv", "stability_dome_max_load.csv", "destruction.csv", "koebe.csv",
+            "koebe_published.csv", "theory_whys.csv"} <= {f.name for f in files}
     for f in files:
         rows = common.read_csv_rows(f)
         assert rows, f.name
@@ -94,7 +178,9 @@ def test_every_committed_result_row_is_stamped():
 
 def test_every_study_of_the_bench_writes_the_stamp_columns():
     for columns in (table1.COLUMNS, scaling.COLUMNS, scaling.FIT_COLUMNS, peers.ORIGINAL_CSV_COLUMNS,
-                    warm_resolve.COLUMNS, design_latency.COLUMNS, planarity.CSV_COLUMNS, pq.CSV_COLUMNS):
+                    warm_resolve.COLUMNS, design_latency.COLUMNS, planarity.CSV_COLUMNS, pq.CSV_COLUMNS,
+                    stability_dome.CSV_COLUMNS, stability_dome.MAX_LOAD_COLUMNS, destruction.CSV_COLUMNS,
+                    koebe.PUBLISHED_COLUMNS, theory_whys.COLUMNS):
         assert {c.key for c in common.STAMP_COLUMNS} <= {c.key for c in columns}
 
 
@@ -198,6 +284,16 @@ def _hooks():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def test_the_paper_page_shows_every_comparison_from_the_committed_csvs():
+    page = (ROOT / "docs" / "guide" / "paper.md").read_text(encoding="utf-8")
+    md = _hooks().on_page_markdown(page, None, None, None)
+    assert "<!-- bench-" not in md
+    for name in ("stability_dome.csv", "stability_dome_max_load.csv", "destruction.csv", "koebe.csv"):
+        commit = common.read_csv_rows(report.RESULTS / name)[0]["commit"]
+        assert f"*benchmarks/results/{name}* — commit: {commit}" in md, name
+    assert md.count("| Fig. 9, t = 0.1 m") == 2 and md.count("| Fig. 10, t = 1 m") == 1
 
 
 def test_the_paper_page_shows_table1_from_the_committed_csv():

@@ -59,7 +59,7 @@ ABOVE_HULL, BELOW_HULL = "#ff00ff", "#00b000"
 
 
 #: Most pixels of a rendered figure (50 megapixels: ~1,000 dpi at 8 x 6 in). A canvas is four
-#: bytes a pixel before the PNG is encoded: ``--dpi 100000`` asked for 1.9 TB.
+#: bytes a pixel before the PNG is encoded: an 8 x 6 in figure at ``--dpi 100000`` would need 1.9 TB.
 MAX_PIXELS = 50_000_000
 
 

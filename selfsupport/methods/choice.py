@@ -1,15 +1,12 @@
 """Which method solves a problem when the user leaves the choice to us (``--method auto``).
 
 The multilevel method (:mod:`.multilevel`) pays where the single-level staggered method's
-schedule gets long. Measured with ``python -m studies.method_choice`` (one run, CPU seconds of
-the solve, the multilevel method given at least one coarser level; README, *Choosing the
-method*): on the dome the levels cost 2.9-3.4x the CPU up to 3k vertices and broke even at 4k;
-on the pillar vault and the concave disk they paid from 2k (1.6-2.1x); at 4k they paid on every
-shape (1.06-12.8x), at 16k by 1.6-6.7x, and a 64k pillar vault converged by levels in 22 s of
-CPU where one level stopped at its 600 s limit at max relative error 0.34. On the paper's
-Table 1 scenes (527-2,348 vertices) levels saved CPU on lilium and lilium-pillar (1.6-1.7x),
-cost it on the other four (1.2-2.6x) and ended up to 3.7x farther from the reference: they
-stay on one level, with their results as they were.
+schedule gets long: each coarser level is a solve of its own, which costs more than it saves on
+small meshes and less on large ones, and a network carried up the levels can end farther from
+the reference than one solved on its own mesh. So small meshes, the paper's Table 1 scenes
+among them, stay on one level. ``python -m studies.method_choice`` measures both methods on
+built-in shapes and the paper's scenes and says whether :data:`LEVELS_ABOVE` lies between the
+sizes where one level paid and where the levels did.
 
 The rule looks at the problem only, never at the scene's name:
 
@@ -53,8 +50,8 @@ AUTO = "auto"
 #: The methods :func:`choose_method` picks from.
 CANDIDATES = ("staggered", "multilevel")
 #: Meshes with more vertices than this are solved by levels where they can be: above the paper's
-#: scenes (up to 2,348 vertices, see the module docstring) and below 4k, where the levels paid on
-#: every measured shape (the dome lost by them up to 3k; the vaults gained from 2k).
+#: scenes (up to 2,348 vertices), below the sizes where the levels pay on every shape
+#: (``studies.method_choice``).
 LEVELS_ABOVE = 3000
 
 
@@ -86,7 +83,7 @@ class MethodChoice:
 def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int | None = None) -> MethodChoice:
     """The method for ``problem``: ``"multilevel"`` where the mesh has more than
     ``levels_above`` vertices and coarser levels exist or can be built, else ``"staggered"``
-    (the rule and its measurement: see the module docstring).
+    (the rule: see the module docstring).
 
     Parameters
     ----------
@@ -111,7 +108,7 @@ def choose_method(problem: Problem, *, warm_start: Any = None, levels_above: int
         return MethodChoice("staggered", f"{size}; the masonry hull search runs on one level")
     if n <= levels_above:  # (as candidates(n) says for the default levels_above)
         return MethodChoice(CANDIDATES[0], f"{size} <= {levels_above:,}: one level is fastest at this size")
-    # (imported only now: a small mesh's solve does not load the multilevel machinery, 0.5 s)
+    # (imported only now: a small mesh's solve does not pay for loading the multilevel machinery)
     from selfsupport.methods.multilevel import DIRECT_MAX, Multilevel, why_not
 
     why = why_not(problem)

@@ -2,21 +2,14 @@
 
 A solve's peak memory grows with the mesh (the Step-2 normal equations and their Cholesky
 factor dominate in the staggered method, MUMPS's factor of the KKT system in IPOPT), so it
-is estimated from the vertex count with rates measured on domes (peak resident set size of
-``selfsupport solve``, 2-core machine, 2026-11):
-
-==========  ==========  ===========  ======================
-method      vertices    peak RSS     rate between sizes
-==========  ==========  ===========  ======================
-staggered   20k / 50k   313 / 705 MB 13 KB per vertex
-staggered   200k        2.16 GB      9.7 KB per vertex
-ipopt       2k / 8k     212 / 654 MB 74 KB per vertex
-==========  ==========  ===========  ======================
-
-Each method's :class:`~selfsupport.methods.Capabilities` ``bytes_per_vertex`` rounds those rates
-up; an estimate above the memory available (or
-``--max-memory``) is refused with one line instead of ending in an out-of-memory kill (the
-kernel killed ``shape:dome:1000000000`` at ~21 GB after 63 s, without a word).
+is estimated from the vertex count: each method's :class:`~selfsupport.methods.Capabilities`
+``bytes_per_vertex`` is a rate of peak resident set size per vertex, rounded up from solves of
+domes (the staggered method about 10-13 KB per vertex, IPOPT about 74 KB). A rate per vertex,
+because a solve's memory grows about linearly with the mesh: ``python -m studies.scaling``
+records the peak RSS of every size it solves (``peak_rss_mib`` in ``scaling.csv``) and fits its
+exponent (``memory_exponent`` in ``scaling_exponents.csv``, near 1). An estimate above the memory available (or
+``--max-memory``) is refused with one line instead of ending in an out-of-memory kill, which the
+kernel delivers without a word.
 """
 from __future__ import annotations
 
@@ -34,11 +27,12 @@ from selfsupport.methods.choice import AUTO, CANDIDATES, candidates
 from selfsupport.methods.polish import DIRECT_CASES_MAX
 
 GIB = 1024.0 ** 3
-#: The interpreter and libraries before any mesh (measured: 96 MB).
+#: The interpreter and libraries before any mesh, with a margin (the scaling study's
+#: ``rss_before_mib`` is about 100 MB).
 BASE_BYTES = 150e6
 
 
-#: Margin on the measured per-case rates of :func:`case_factor`.
+#: Safety margin on the per-case factors of :func:`case_factor`.
 CASE_MARGIN = 1.25
 
 
@@ -46,9 +40,8 @@ def case_factor(n_cases: int) -> float:
     """How many single-case solves of the same mesh a solve of ``n_cases`` load cases weighs.
     Each case has its own weight fit and factors (linear); up to
     :data:`~selfsupport.methods.polish.DIRECT_CASES_MAX` cases the joint polish also factors a
-    matrix whose blocks pair every two cases (quadratic). Measured on a 5,000-vertex dome (peak
-    RSS less the 0.1 GB interpreter, per vertex): 12 KB one case, 90 KB two, 304 KB four, 85 KB
-    five and 244 KB sixteen (linear beyond four); 300 cases on a 91-vertex dome took 0.23 GB.
+    matrix whose blocks pair every two cases (quadratic), so the factor is ``c (1 + c)`` up to
+    there and ``c`` beyond, each with the margin :data:`CASE_MARGIN`.
 
     >>> case_factor(1), case_factor(2), case_factor(4), case_factor(5)
     (1.0, 7.5, 25.0, 6.25)
@@ -73,7 +66,7 @@ def estimate_solve_bytes(n_vertices: int, method: str = "staggered", n_cases: in
     """Estimated peak memory [bytes] of solving a mesh of ``n_vertices`` with ``method`` under
     ``n_cases`` load cases (:func:`case_factor`), plus ``extra_bytes`` (e.g. :func:`dense_row_bytes`).
 
-    >>> round(estimate_solve_bytes(200_000) / 1e9, 2)  # measured: 2.16 GB
+    >>> round(estimate_solve_bytes(200_000) / 1e9, 2)  # rounded-up rate: an upper estimate
     3.35
     """
     rate = bytes_per_vertex(method, n_vertices)
