@@ -34,7 +34,8 @@ _PHASE_DRIVER = r'''
 import json, sys, time
 t_start = time.perf_counter()
 import numpy as np
-from selfsupport import api, cli
+from selfsupport.cli import common as cli
+from selfsupport.methods import solve as one_solve
 from selfsupport.core import result
 from selfsupport.io import network_json as nj
 from selfsupport.methods.staggered import conclude as staggered_conclude
@@ -53,8 +54,8 @@ def timed(name, f):
     return wrapper
 
 cli.load_scene = timed("scene", cli.load_scene)
-api.validate_scene = timed("validate", api.validate_scene)
-api.Problem.build = classmethod(timed("problem", api.Problem.build.__func__))
+one_solve.validate_scene = timed("validate", one_solve.validate_scene)
+one_solve.Problem.build = classmethod(timed("problem", one_solve.Problem.build.__func__))
 staggered._Run.__init__ = timed("method set-up", staggered._Run.__init__)
 staggered_conclude.hull_report = timed("hull record", staggered_conclude.hull_report)
 staggered_conclude.term_values = timed("objective terms", staggered_conclude.term_values)
