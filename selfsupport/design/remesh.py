@@ -79,6 +79,8 @@ from ..geometry import turning_angles
 from ..mesh import PolyMesh
 from ..result import Network
 from ..scene import Scene
+from .param import _triangle_frames, frame_parametrization, isolines
+from .quadmesh import SMOOTHING, smooth_frames
 
 #: Nodes closer than this fraction of the spacing are merged (slivers where lines meet the boundary).
 MERGE = 0.25
@@ -134,10 +136,19 @@ class Remesh:
 def principal_line_fields(network: Network) -> np.ndarray:
     """``(n, 2, 2)`` per vertex the two relative principal directions of the top view (``[:, :, k]``
     the k-th, unit; NaN where undefined: supports, Φ not strictly convex)."""
+    return _principal_field(network)[0]
+
+
+def _principal_field(network: Network) -> tuple[np.ndarray, np.ndarray]:
+    """The relative principal directions (:func:`principal_line_fields`) and per vertex how
+    distinct they are, ``|κ₂ − κ₁| / (|κ₁| + |κ₂|)`` in ``[0, 1]`` (0 at an umbilic, where every
+    direction is principal, and where undefined)."""
     from ..analysis.curvature import curvatures
 
-    d = curvatures(network).principal_directions
-    return np.asarray(d, float)
+    c = curvatures(network)
+    k = np.asarray(c.principal_curvatures, float)
+    conf = np.abs(k[:, 1] - k[:, 0]) / np.maximum(np.abs(k).sum(axis=1), 1e-300)
+    return np.asarray(c.principal_directions, float), np.nan_to_num(conf, nan=0.0)
 
 
 def _fill_doubled(mesh: PolyMesh, D: np.ndarray) -> np.ndarray:
@@ -469,6 +480,8 @@ class _Setting:
     spacing: float
     domain: object  # shapely Polygon
     max_lines: int
+    confidence: np.ndarray | None = None  # per vertex, in [0, 1] (None: 1 everywhere)
+    smoothing: float = SMOOTHING  # the seamless remesh's smoothing length / the bbox diagonal
 
 
 def _streamline_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
@@ -499,13 +512,32 @@ def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     """Integer iso-lines of a global parametrization along the two fields (:mod:`.param`),
     each end extended a little past the boundary (the arrangement clips it there; an end a
     round-off short of the boundary would be a dangle)."""
-    from .param import frame_parametrization, isolines
-
     ang = np.stack([0.5 * np.arctan2(d[:, 1], d[:, 0]) for d in st.doubled], axis=1)  # (n, 2)
     D = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (n, 2, 2), columns the two directions
     xy = st.mesh.vertices[:, :2]
     tris = np.asarray(st.tri.triangles)
-    p = frame_parametrization(xy, tris, D, st.spacing)
+    return _isoline_lines(st, frame_parametrization(xy, tris, D, st.spacing))
+
+
+def _seamless_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
+    """Integer iso-lines of a seamless integer-grid parametrization (MIQ-style) along the
+    smoothed field (:mod:`.quadmesh`): few singularities, each on an integer point, the
+    boundary on iso-lines."""
+    xy = st.mesh.vertices[:, :2]
+    tris = np.asarray(st.tri.triangles)
+    F0 = _triangle_frames(xy, tris, np.stack(st.doubled, axis=2))
+    conf = None if st.confidence is None else st.confidence[tris].mean(axis=1)
+    diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
+    F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf)
+    p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8)
+    return _isoline_lines(st, p)
+
+
+def _isoline_lines(st: _Setting, p) -> tuple[list[list[np.ndarray]], dict]:
+    """The integer iso-lines of the parametrization ``p`` (:class:`.param.Parametrization`) as
+    the two families' lines, each end extended a little past the boundary."""
+    xy = st.mesh.vertices[:, :2]
+    tris = np.asarray(st.tri.triangles)
     lines: list[list[np.ndarray]] = [[], []]
     for k, fam in enumerate(isolines(xy, tris, p.uv)):
         if sum(len(x) for x in fam) > st.max_lines / STEP:
@@ -525,6 +557,7 @@ def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
 
 #: Line builders by name (``remesh(method=...)``).
 METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = {
+    "seamless": _seamless_lines,
     "streamlines": _streamline_lines,
     "param": _param_lines,
 }
@@ -532,7 +565,8 @@ METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = 
 
 # ---------------------------------------------------------------------------- main
 def remesh(network: Network, *, spacing: float | None = None, relative: bool = False, field: str = "principal",
-           angle: float = 0.0, max_lines: int = 20000, method: str = "streamlines") -> Remesh:
+           angle: float = 0.0, max_lines: int = 20000, method: str = "seamless",
+           smoothing: float = SMOOTHING) -> Remesh:
     """Quad-dominant remesh of ``network``'s top view along a line field, lifted to its heights.
 
     Parameters
@@ -584,8 +618,9 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise InputError(f"--spacing {spacing:g} is below 1/1000 of the top view's size ({diag:g}); choose a larger one")
     tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
     n = mesh.n_vertices
+    conf = None
     if field == "principal":
-        D = principal_line_fields(network)
+        D, conf = _principal_field(network)
     else:
         a = np.radians(angle)
         D = np.broadcast_to(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]), (n, 2, 2)).copy()
@@ -596,8 +631,11 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         nrm = np.linalg.norm(dbl, axis=1, keepdims=True)
         doubled.append(dbl / np.where(nrm > 0, nrm, 1.0))
     domain = _domain(mesh)
+    if not (np.isfinite(smoothing) and smoothing > 0):
+        raise InputError(f"--smoothing must be a positive number, got {smoothing!r}")
     lines, info = METHODS[method](_Setting(mesh=mesh, tri=tri, doubled=(doubled[0], doubled[1]), spacing=spacing,
-                                           domain=domain, max_lines=max_lines))
+                                           domain=domain, max_lines=max_lines, confidence=conf,
+                                           smoothing=float(smoothing)))
     # (a spacing near the top view's size draws a line or two, whose faces merge away: no mesh)
     too_coarse = InputError(f"--spacing {spacing:g} m draws too few lines for a mesh of this top view "
                             f"({np.ptp(xy[:, 0]):.3g} x {np.ptp(xy[:, 1]):.3g} m); choose a smaller --spacing (the "
