@@ -105,7 +105,7 @@ STUDIES: tuple[Study, ...] = (
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out)], _no_scenes),
     # pq takes the paper-scenes folder itself (scenes/ and published/ in it)
     Study("pq", "studies.pq", (("pq.csv", "pq.csv"),),
-          lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out)], _no_scenes),
+          lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)], _no_scenes),
 )
 _BY_NAME = {st.name: st for st in STUDIES}
 

@@ -303,7 +303,8 @@ def _boundary_alignment(xy: np.ndarray, tris: np.ndarray, frames: np.ndarray, we
 def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarray, spacing: float,
                           *, round_seams: bool = True, max_rounds: int | None = None,
                           align_boundary: bool = True, frames: np.ndarray | None = None,
-                          integer_singularities: bool = False, batch: int = 1) -> Parametrization:
+                          integer_singularities: bool = False, batch: int = 1,
+                          align_weight: float | None = None) -> Parametrization:
     """A parametrization ``(u, v)`` of the triangulation ``(xy, tris)`` whose gradients are the
     dual frame of ``directions`` over ``spacing`` (module docstring).
 
@@ -334,6 +335,12 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
         quarter turn) to integers as well: the vertex is then a crossing of integer iso-lines,
         a quad mesh vertex of valence 3 or 5, not a point inside a face (which the iso-lines
         would leave as a face of three or five corners). Whole-turn singularities stay slits.
+    align_weight
+        Weigh the least squares along the frame: the terms that turn the iso-lines away from
+        the directions (``∇u·d2``, ``∇v·d1``) ``align_weight`` times the ones that change their
+        spacing (``∇u·d1 − 1/h``, ``∇v·d2 − 1/h``); where the field is not integrable, the
+        lines then keep to the directions and give way in spacing. ``None``: the plain
+        ``|∇(u, v) − F⁻¹/h|²``.
     batch
         Values fixed per solve in the rounding: the ``1/batch`` of the remaining ones nearest
         an integer (``1``: one at a time, the plain greedy rounding).
@@ -378,14 +385,18 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
     J = np.linalg.inv(F) / spacing  # rows: target ∇u, ∇v
     sw = np.sqrt(area)
     rows, cols, vals, rhs = [], [], [], []
+    # align_weight: rows along the frame, ∇u·d_j − δ_0j / h and ∇v·d_j − δ_1j / h, the ones that
+    # turn the lines (∇u·d2, ∇v·d1) weighted; else rows along x and y, ∇(u, v) − F⁻¹ / h
+    GF = np.einsum("mkd,mdj->mkj", G, F) if align_weight is not None else G
     for c in range(2):  # u, v
-        for d in range(2):  # x, y
+        for d in range(2):  # x, y (or d1, d2)
             r = (2 * c + d) * m + np.arange(m)
+            wr = sw * (np.sqrt(align_weight) if align_weight is not None and c != d else 1.0)
             for k in range(3):
                 rows.append(r)
                 cols.append(2 * wedge[:, k] + c)
-                vals.append(sw * G[:, k, d])
-            rhs.append(sw * J[:, c, d])
+                vals.append(wr * GF[:, k, d])
+            rhs.append(wr * (J[:, c, d] if align_weight is None else np.full(m, float(c == d) / spacing)))
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(4 * m, 2 * W))
     b = np.concatenate(rhs) * spacing  # in units where the lines are 1 apart: ∇ scaled by h
     A = A * spacing

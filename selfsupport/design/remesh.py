@@ -79,8 +79,8 @@ from ..geometry import turning_angles
 from ..mesh import PolyMesh
 from ..result import Network
 from ..scene import Scene
-from .param import _triangle_frames, frame_parametrization, isolines
-from .quadmesh import SMOOTHING, smooth_frames
+from .param import frame_parametrization, isolines
+from .quadmesh import SMOOTHING, cross_indices, cross_to_frame, frame_to_cross, smooth_frames
 
 #: Nodes closer than this fraction of the spacing are merged (slivers where lines meet the boundary).
 MERGE = 0.25
@@ -95,6 +95,12 @@ CORNER_ANGLE = 30.0
 DEGENERATE_ANGLE = 20.0
 #: Integration step of the streamlines, as a fraction of the spacing.
 STEP = 0.2
+#: The seamless remesh's weight of the terms that turn its lines away from the field over the ones
+#: that change their spacing (:func:`.param.frame_parametrization`, ``align_weight``): the planar
+#: faces need the directions; the spacing may give.
+ALIGN_WEIGHT = 10.0
+#: Parameter values within this of an integer (in units of the spacing) are snapped to it (seamless remesh).
+SNAP = 1e-6
 #: Fields the remesher can follow.
 FIELDS = ("principal", "grid")
 
@@ -525,12 +531,22 @@ def _seamless_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     boundary on iso-lines."""
     xy = st.mesh.vertices[:, :2]
     tris = np.asarray(st.tri.triangles)
-    F0 = _triangle_frames(xy, tris, np.stack(st.doubled, axis=2))
+    # per triangle the mean of its corners' cross and stretch (which, unlike each family's
+    # direction, do not depend on which line of a frame is called the first)
+    ang = np.stack([0.5 * np.arctan2(d[:, 1], d[:, 0]) for d in st.doubled], axis=1)
+    z, S = frame_to_cross(np.stack([np.cos(ang), np.sin(ang)], axis=1))
+    F0 = cross_to_frame(z[tris].mean(axis=1), S[tris].mean(axis=1))
     conf = None if st.confidence is None else st.confidence[tris].mean(axis=1)
     diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
     F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf)
-    p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8)
-    return _isoline_lines(st, p)
+    index = cross_indices(xy, tris, F)
+    p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8,
+                              align_weight=ALIGN_WEIGHT)
+    # values an integer to the solve's round-off (the gauge's faint pull, the KKT regularisation)
+    # are that integer: a boundary held on an iso-line is then skipped as one, not traced beside itself
+    near = np.abs(p.uv - np.round(p.uv)) < SNAP
+    lines, info = _isoline_lines(st, dataclasses.replace(p, uv=np.where(near, np.round(p.uv), p.uv)))
+    return lines, {**info, "singular_indices": sorted(float(i) for i in index[index != 0])}
 
 
 def _isoline_lines(st: _Setting, p) -> tuple[list[list[np.ndarray]], dict]:
@@ -566,7 +582,7 @@ METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = 
 # ---------------------------------------------------------------------------- main
 def remesh(network: Network, *, spacing: float | None = None, relative: bool = False, field: str = "principal",
            angle: float = 0.0, max_lines: int = 20000, method: str = "seamless",
-           smoothing: float = SMOOTHING) -> Remesh:
+           smoothing: float = SMOOTHING, directions: np.ndarray | None = None) -> Remesh:
     """Quad-dominant remesh of ``network``'s top view along a line field, lifted to its heights.
 
     Parameters
@@ -581,6 +597,12 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         directions at ``angle`` degrees to the x axis (the naive, unaligned quad mesh of Fig. 12).
     max_lines
         Most lines per family (a guard against a spacing far below the mesh's resolution).
+    smoothing
+        ``method="seamless"``: the smoothing length of the field over the top view's diagonal
+        (:func:`.quadmesh.smooth_frames`).
+    directions
+        ``(n, 2, 2)`` per vertex of the network two top-view directions (columns) to follow
+        instead of ``field``'s (``field`` is then only the name in the report).
     method
         How the lines are drawn (:data:`METHODS`): ``"streamlines"``, evenly spaced streamlines
         of each family (lines end where the field spreads: T-junctions); ``"param"``, the integer
@@ -619,7 +641,11 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
     tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
     n = mesh.n_vertices
     conf = None
-    if field == "principal":
+    if directions is not None:
+        D = np.asarray(directions, float)
+        if D.shape != (n, 2, 2):
+            raise InputError(f"directions must be (n_vertices, 2, 2) = ({n}, 2, 2), got {D.shape}")
+    elif field == "principal":
         D, conf = _principal_field(network)
     else:
         a = np.radians(angle)
