@@ -23,9 +23,13 @@ leaves ``S`` unchanged). Both minimise, per triangle ``t`` and interior edge ``e
 (a discrete ``∫|∇x|² + ℓ⁻² ∫ c |x − x⁰|²``: ``ℓ`` the smoothing length, ``c_t`` the
 confidence of the data), with the boundary triangles' crosses held on their boundary edge's
 direction (``S = I`` there) when ``align_boundary``. A large ``ℓ`` gives the smoothest field
-(the fewest singularities, ±1/4 each), a small one follows the data.
+(the fewest singularities, ±1/4 each), a small one follows the data. The linear smoothing
+leaves a zero of high order where the data turn round a point (a dome's apex: ``z ~ (x + iy)⁴``,
+index +1 in one place, which no quad mesh vertex has); a few steps of diffusion and
+normalisation (:func:`_relax`) split it into quarter turns that repel each other.
 
-Example: a square with a noisy axis-aligned field comes back axis-aligned.
+Example: a square (its corners jittered by 1e-3) with a noisy axis-aligned field comes back
+aligned with the axes, its largest angle to them from 40° to under half a degree.
 
 >>> import numpy as np
 >>> from scipy.spatial import Delaunay
@@ -36,8 +40,9 @@ Example: a square with a noisy axis-aligned field comes back axis-aligned.
 >>> ang = 0.3 * rng.standard_normal(len(tris))
 >>> F0 = np.stack([np.c_[np.cos(ang), np.sin(ang)], np.c_[-np.sin(ang), np.cos(ang)]], axis=2)
 >>> F = smooth_frames(xy, tris, F0, length=10.0)
->>> bool(np.all(np.abs(np.abs(F[:, 0, 0]) - 1) < 1e-6) or np.all(np.abs(np.abs(F[:, 1, 0]) - 1) < 1e-6))
-True
+>>> off = lambda F: float(np.degrees(np.abs(np.angle(frame_to_cross(F)[0]) / 4)).max())
+>>> round(off(F0)), off(F) < 0.5
+(40, True)
 """
 from __future__ import annotations
 

@@ -11,7 +11,11 @@ can be planar on both. This module draws the quad mesh in the top view:
    where Φ is not strictly convex) are filled harmonically from their neighbours;
 2. the lines of each family, drawn by one of :data:`METHODS` (``method=``):
 
-   * ``"streamlines"`` (the default): evenly spaced streamlines (Jobard & Lefer 1997), traced
+   * ``"seamless"`` (the default): the integer iso-lines of a seamless integer-grid
+     parametrization (MIQ-style) of the field smoothed by :mod:`.quadmesh` (few singularities,
+     each on an integer point; the boundary held on iso-lines): quads only, but at the
+     singularities and where the boundary is not along the field;
+   * ``"streamlines"``: evenly spaced streamlines (Jobard & Lefer 1997), traced
      with midpoint steps from seeds at distance ``spacing`` beside the lines already drawn,
      ended at the domain's boundary or closer than ``spacing / 2`` to a line of the same family
      (singularities of the field are where lines end: their faces get five or three corners,
@@ -41,9 +45,10 @@ field is not integrable, so the same ``spacing`` does not give the same number o
 the irregular vertices sit at the field's singularities and where lines meet the boundary. The
 same lilium: 69 triangles, 51 such vertices (and its planar polish stalls as well). libigl's
 MIQ, which does this for cross fields, is not in its Python bindings, and the relative principal
-directions are a frame field (not orthogonal), hence :mod:`.param`. It is an option, not the
-default: measured on four scenes at four spacings (``python -m studies.pq``), with
-what it does and does not change for the planar polish.
+directions are a frame field (not orthogonal), hence :mod:`.param`. The unsmoothed field has many
+singularities (lilium: 37) not on integer points; ``"seamless"`` smooths the field first
+(:mod:`.quadmesh`) and rounds the singular vertices to integer points, which leaves (next to) no
+triangle (measured by ``python -m studies.pq``).
 
 Example
 -------
@@ -51,12 +56,12 @@ Example
 >>> from selfsupport.shapes import make_shape
 >>> net = api.solve(make_shape("dome", n_vertices=300)).network
 >>> q = remesh(net, spacing=0.12, relative=True)
->>> q.scene.mesh.is_valid(), bool((q.scene.mesh.face_sizes == 4).mean() > 0.6)
-(True, True)
+>>> q.scene.mesh.is_valid(), q.face_size_counts == {4: q.scene.mesh.n_faces}, q.info["singular_indices"]
+(True, True, [0.25, 0.25, 0.25, 0.25])
 
-Along a parametrization the lines end only at the boundary: nearly all faces are quads (48 of
-55 here; two of the triangles are a near-triangular quad split, :data:`DEGENERATE_ANGLE`), and
-the only irregular vertices are next to the apex's singularities:
+Along a parametrization of the unsmoothed field the lines end only at the boundary: nearly all
+faces are quads (48 of 55 here; two of the triangles are a near-triangular quad split,
+:data:`DEGENERATE_ANGLE`), and the only irregular vertices are next to the apex's singularities:
 
 >>> p = remesh(net, spacing=0.06, relative=True, method="param")
 >>> p.scene.mesh.is_valid(), bool((p.scene.mesh.face_sizes == 4).mean() > 0.85), p.irregular_vertices <= 4
