@@ -342,8 +342,9 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
         lines then keep to the directions and give way in spacing. ``None``: the plain
         ``|∇(u, v) − F⁻¹/h|²``.
     batch
-        Values fixed per solve in the rounding: the ``1/batch`` of the remaining ones nearest
-        an integer (``1``: one at a time, the plain greedy rounding).
+        Values fixed per solve in the rounding: ``1``, one at a time (the plain greedy
+        rounding); ``k > 1``, the ``1/k`` of the remaining ones nearest an integer (about ``k``
+        solves for ``k`` times fewer; the seamless remesh uses 8).
 
     Returns
     -------
@@ -484,7 +485,7 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
             if not free.size:
                 break
             near = free[np.argsort(np.abs(x[free] - np.round(x[free])), kind="stable")]
-            for i in near[:max(1, len(near) // max(int(batch), 1))]:
+            for i in near[:1 if batch <= 1 else -(-len(near) // int(batch))]:
                 fixed[int(i)] = float(np.round(x[i]))
             x = solve()
         off = np.abs(x[cand] - np.round(x[cand]))

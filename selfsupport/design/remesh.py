@@ -492,6 +492,7 @@ class _Setting:
     domain: object  # shapely Polygon
     max_lines: int
     confidence: np.ndarray | None = None  # per vertex, in [0, 1] (None: 1 everywhere)
+    smooth: bool = True  # the seamless remesh smooths the field (not a fixed grid's: it stays unaligned)
     smoothing: float = SMOOTHING  # the seamless remesh's smoothing length / the bbox diagonal
 
 
@@ -543,7 +544,7 @@ def _seamless_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     F0 = cross_to_frame(z[tris].mean(axis=1), S[tris].mean(axis=1))
     conf = None if st.confidence is None else st.confidence[tris].mean(axis=1)
     diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
-    F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf)
+    F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf) if st.smooth else F0
     index = cross_indices(xy, tris, F)
     p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8,
                               align_weight=ALIGN_WEIGHT)
@@ -666,7 +667,7 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise InputError(f"--smoothing must be a positive number, got {smoothing!r}")
     lines, info = METHODS[method](_Setting(mesh=mesh, tri=tri, doubled=(doubled[0], doubled[1]), spacing=spacing,
                                            domain=domain, max_lines=max_lines, confidence=conf,
-                                           smoothing=float(smoothing)))
+                                           smoothing=float(smoothing), smooth=directions is not None or field != "grid"))
     # (a spacing near the top view's size draws a line or two, whose faces merge away: no mesh)
     too_coarse = InputError(f"--spacing {spacing:g} m draws too few lines for a mesh of this top view "
                             f"({np.ptp(xy[:, 0]):.3g} x {np.ptp(xy[:, 1]):.3g} m); choose a smaller --spacing (the "
@@ -675,7 +676,7 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise too_coarse
     V2, faces = _arrangement(lines[0] + lines[1], domain, _corners(mesh), spacing)
     V2, faces, pillar_ids = _insert_points(V2, faces, xy[pillars], MERGE * spacing)
-    if not faces:
+    if not any(len(f) == 4 for f in faces):  # (none, or a few triangles round singularities rounded onto one point)
         raise too_coarse
     used = np.unique(np.concatenate([np.asarray(f) for f in faces]))
     remap = -np.ones(len(V2), np.int64)
