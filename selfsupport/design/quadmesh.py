@@ -56,7 +56,7 @@ from .param import _gradients, _interior_edges
 __all__ = ["frame_to_cross", "cross_to_frame", "smooth_frames", "cross_indices", "SMOOTHING"]
 
 #: Default smoothing length ``ℓ`` as a fraction of the top view's bounding-box diagonal.
-SMOOTHING = 0.1
+SMOOTHING = 0.05
 #: Steps of the Ginzburg–Landau relaxation of the smoothed cross field (:func:`smooth_frames`).
 RELAX = 30
 #: Smallest relative weight of a triangle's data (the confidence where the relative principal
