@@ -99,7 +99,7 @@ def test_a_disk_along_circles_and_radii_gives_quads_whose_irregular_vertices_are
     assert cross_indices(xy, tris, F0).sum() == 1.0  # the data: index +1 at the centre
     idx = cross_indices(xy, tris, smooth_frames(xy, tris, F0, length=0.2))
     assert idx.sum() == 1.0 and np.all(idx[idx != 0] % 0.25 == 0)  # the smooth field: quarter turns of index
-    q = remesh(scene, spacing=0.15, directions=D, smoothing=0.1, method="seamless")
+    q = remesh(scene, spacing=0.12, directions=D, smoothing=0.1, method="seamless")
     m = q.scene.mesh
     assert m.is_valid() and q.face_size_counts == {4: m.n_faces}
     val = np.bincount(m.edges.ravel(), minlength=m.n_vertices)
@@ -141,10 +141,11 @@ def test_singular_vertices_land_on_integer_points_and_seams_are_integer_jumps():
 
 def test_the_default_remesh_of_a_dome_is_quads_covering_its_top_view():
     """The regression of the remesh along relative principal directions: the streamline remesh it
-    replaces left a triangle at every line's end (on this dome: 20 triangles in 122 faces)."""
+    replaces left a triangle at every line's end (on this dome: 32 triangles in 237 faces). The top view's area is lost only in the chords along the curved boundary
+    (a boundary line every 0.04 of the diagonal or more, where the radial lines spread)."""
     scene = make_shape("dome", n_vertices=400)
     net = api.solve(scene).network
-    q = remesh(net, spacing=0.06, relative=True)
+    q = remesh(net, spacing=0.04, relative=True)
     m = q.scene.mesh
     assert m.is_valid() and q.method == "seamless"
     assert q.face_size_counts.get(4, 0) >= 0.95 * m.n_faces
