@@ -263,9 +263,9 @@ def test_the_planar_homotopy_narrows_the_band_in_equilibrium_and_ends_planar():
     accepted = [h for h in res.history if h["accepted"]]
     bands = [h["band"] for h in accepted]
     assert all(b1 < b0 for b0, b1 in zip(bands[1:], bands[2:]))  # after the first (equilibrium at the start)
-    # it ends at the band's end, or earlier at the first band within the tolerance whose network is planar to it
-    assert BAND_END * 1e-3 * (1 - 1e-9) <= bands[-1] <= 1e-3 and all(h["max_rel_error"] <= STAGE_TOL for h in accepted)
-    assert bands[-1] == pytest.approx(BAND_END * 1e-3) or not any(BAND_END * 1e-3 < b <= 1e-3 for b in bands[:-1])
+    # it ends at the first band within the tolerance whose network is planar to it, here before the
+    # band's end (9.7e-4, where cutting on to BAND_END × tol took more stages)
+    assert BAND_END * 1e-3 < bands[-1] <= 1e-3 < bands[-2] and all(h["max_rel_error"] <= STAGE_TOL for h in accepted)
     assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
     assert res.max_relative_error <= 1e-8 and independent_check(res).ok
 
