@@ -1,7 +1,7 @@
 """Fig. 12 as a study: planar faces on a mesh along the relative principal directions vs a grid.
 
     python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium,cas]
-        [--spacing 1.0] [--time-limit 300] [--remesher seamless[,streamlines,param]] [--checker PATH]
+        [--spacing 1.0] [--time-limit 300] [--remesher seamless,streamlines[,param]] [--checker PATH]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
 scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.design.remesh.remesh` along the relative principal
@@ -124,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
     p.add_argument("--no-finish", dest="finish", action="store_false",
                    help="the staggered method alone (no finish, selfsupport.design.pq)")
-    p.add_argument("--remesher", default="seamless",
+    p.add_argument("--remesher", default="seamless,streamlines",
                    help="remeshers to compare (comma-separated: seamless, streamlines, param; "
                         "selfsupport.design.remesh)")
     p.add_argument("--checker", type=Path, default=None, help="the shared independent checker (check_network.py)")
