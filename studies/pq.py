@@ -71,7 +71,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
         todo_meshes = [("as is", "")] if (scene.mesh.face_sizes == 4).any() else []
         todo_meshes += [(field, how) for how in remeshers for field in ("principal", "grid")]
         for field, how in todo_meshes:
-            tag = "" if how in ("", "seamless") else f" ({how})"  # (the default remesher: no tag)
+            tag = "" if how in ("", "streamlines") else f" ({how})"  # (the rows the docs quote keep their names)
             row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}",
                                    **stamp}
             t0 = time.perf_counter()
