@@ -1,7 +1,7 @@
 """Fig. 12 as a study: planar faces on a mesh along the relative principal directions vs a grid.
 
-    python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium]
-        [--spacing 1.0] [--time-limit 300] [--remesher streamlines[,param]]
+    python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium,cas]
+        [--spacing 1.0] [--time-limit 300] [--remesher seamless,streamlines[,param]] [--checker PATH]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
 scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.remesh.streamlines.remesh` along the relative principal
@@ -13,7 +13,8 @@ the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method 
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
 (/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
-(its distance to the reference and its non-planarity). Writes ``pq.csv``, ``pq.md`` and the networks.
+(its distance to the reference and its non-planarity). With ``--checker``, the shared independent
+checker's max relative error of every written network. Writes ``pq.csv``, ``pq.md`` and the networks.
 """
 from __future__ import annotations
 
@@ -24,12 +25,23 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .common import STAMP_COLUMNS, Column, json_max_relative_error, read_study_scene, run_stamp, write_csv, write_markdown
+from .common import (
+    STAMP_COLUMNS,
+    Column,
+    json_max_relative_error,
+    read_study_scene,
+    run_checker,
+    run_stamp,
+    write_csv,
+    write_markdown,
+)
 
 COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
+           Column("quads", "quads", "{:.1%}"),
            Column("irregular", "interior valence ≠ 4"), Column("status", "status"),
            Column("solved_by", "solved by"),
            Column("max_rel_error", "max rel. error", "{:.1e}"),
+           Column("checker", "checker max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
            Column("dist_mean", "dist. to reference (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}")]
@@ -46,7 +58,8 @@ def _nonplanarity(mesh) -> tuple[float, float]:
 
 
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
-        finish: bool = True, remeshers: Sequence[str] = ("streamlines",)) -> list[dict[str, Any]]:
+        finish: bool = True, remeshers: Sequence[str] = ("seamless",),
+        checker: Path | None = None) -> list[dict[str, Any]]:
     from selfsupport import api
     from selfsupport.core.errors import SelfSupportError
     from selfsupport.core.evidence import distance_stats
@@ -66,7 +79,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
         todo_meshes = [("as is", "")] if (scene.mesh.face_sizes == 4).any() else []
         todo_meshes += [(field, how) for how in remeshers for field in ("principal", "grid")]
         for field, how in todo_meshes:
-            tag = "" if how in ("", "streamlines") else f" ({how})"
+            tag = "" if how in ("", "streamlines") else f" ({how})"  # (the rows the docs quote keep their names)
             row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}",
                                    **stamp}
             t0 = time.perf_counter()
@@ -84,6 +97,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
             val = np.bincount(todo.mesh.edges.ravel(), minlength=todo.mesh.n_vertices)
             row.update(faces=" ".join(f"{k}:{v}" for k, v in zip(*sizes)), status=res.status,
+                       quads=float((todo.mesh.face_sizes == 4).mean()), checker=run_checker(checker, path),
                        irregular=int(((val != 4) & ~todo.mesh.boundary_vertex_mask).sum()),
                        solved_by=finish_summary(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
@@ -98,6 +112,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             mx, mn = _nonplanarity(m)
             rows.append({"scene": name, "mesh": "published pq-n", "faces": " ".join(
                 f"{k}:{v}" for k, v in zip(*np.unique(m.face_sizes, return_counts=True))),
+                "quads": float((m.face_sizes == 4).mean()),
                 "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "dist_mean": distance_stats(m.vertices, scene.mesh)[0],
                 **stamp})
     write_csv(out / "pq.csv", rows, CSV_COLUMNS)
@@ -112,15 +127,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m studies.pq", description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", type=Path, required=True, help="the paper-scenes folder (with scenes/ and published/)")
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--only", default="dome,vault,lilium", help="scenes (comma-separated; dome is generated)")
+    p.add_argument("--only", default="dome,vault,lilium,cas", help="scenes (comma-separated; dome is generated)")
     p.add_argument("--spacing", type=float, default=1.0, help="line spacing / the network's mean top-view edge length")
     p.add_argument("--time-limit", type=float, default=300.0, help="per planar solve, the finish included [s]")
     p.add_argument("--no-finish", dest="finish", action="store_false",
                    help="the staggered method alone (no finish, selfsupport.remesh.planar)")
-    p.add_argument("--remesher", default="streamlines",
-                   help="remeshers to compare (comma-separated: streamlines, param; selfsupport.remesh.streamlines)")
+    p.add_argument("--remesher", default="seamless,streamlines",
+                   help="remeshers to compare (comma-separated: seamless, streamlines, param; "
+                        "selfsupport.remesh.streamlines)")
+    p.add_argument("--checker", type=Path, default=None, help="the shared independent checker (check_network.py)")
     a = p.parse_args(argv)
-    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","))
+    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","), a.checker)
     return 0
 
 

@@ -673,6 +673,7 @@ def test_a_point_load_on_a_support_is_warned_and_changes_nothing(tmp_path, capsy
     (["render", "N.json", "--out", "OUT", "--azim", "inf"], "[-360, 360]"),
     (["pq", "N.json", "--out", "OUT", "--angle", "nan"], "[-360, 360]"),
     (["pq", "N.json", "--out", "OUT", "--tol", "5"], "(0, 1]"),
+    (["pq", "N.json", "--out", "OUT", "--smoothing", "0"], "(0, inf)"),
     (["construct", "--disk", "3", "--out", "OUT", "--load", "5"], "(-inf, 0)"),
     (["construct", "--disk", "3", "--out", "OUT", "--boundary-height", "nan"], "(-inf, inf)"),
     (["construct", "--random", "9", "--out", "OUT", "--seed", "-1"], "[0, inf)"),

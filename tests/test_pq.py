@@ -75,7 +75,7 @@ def test_remesh_lies_on_the_network_and_keeps_its_supports(dome):
     scene, net = dome
     q = remesh(net, spacing=0.06, relative=True)
     m = q.scene.mesh
-    assert m.is_valid() and set(q.face_size_counts) <= {3, 4} and q.face_size_counts[4] > 3 * q.face_size_counts[3]
+    assert m.is_valid() and set(q.face_size_counts) <= {3, 4} and q.face_size_counts[4] > 3 * q.face_size_counts.get(3, 0)
     diag = float(np.linalg.norm(np.ptp(net.vertices, axis=0)))
     assert distance_to_surface(m.vertices, net.mesh).max() <= 1e-9 * diag  # heights from the network
     # every boundary vertex of the new mesh is supported (the dome stands on its whole rim), no other
@@ -198,7 +198,8 @@ def test_the_finishes_make_a_remeshed_barrel_vault_planar_where_the_staggered_me
     from selfsupport.remesh.planar import finish_method, finish_summary, solve_planar
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
-    scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
+    # (the streamlines' quads start far from planar; the seamless remesh's of a barrel vault are planar)
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
     alone = solve_planar(scene, tol=1e-3, finish=False)
     assert alone.status != "converged" and alone.parameters["planar_finish"] is None
     # (a bare mesh and its supports: every run, the homotopy included, solves that scene)
@@ -254,7 +255,7 @@ def test_the_planar_homotopy_narrows_the_band_in_equilibrium_and_ends_planar():
     from selfsupport.methods.planar_homotopy import BAND_END, STAGE_TOL, planar_homotopy
 
     net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
-    scene = remesh(net, field="principal", spacing=0.1, relative=True).scene
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
     eq = api.solve(scene)
     start = diagonal_gaps(eq.network.mesh, scene.supports).max()
     assert eq.max_relative_error <= 1e-9 and start > 1e-3  # (3.9e-3)
@@ -263,8 +264,10 @@ def test_the_planar_homotopy_narrows_the_band_in_equilibrium_and_ends_planar():
     accepted = [h for h in res.history if h["accepted"]]
     bands = [h["band"] for h in accepted]
     assert all(b1 < b0 for b0, b1 in zip(bands[1:], bands[2:]))  # after the first (equilibrium at the start)
-    assert bands[-1] == pytest.approx(BAND_END * 1e-3) and all(h["max_rel_error"] <= STAGE_TOL for h in accepted)
-    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= BAND_END * 1e-3 * 1.01
+    # it ends at the first band within the tolerance whose network is planar to it, here before the
+    # band's end (9.7e-4, where cutting on to BAND_END × tol took more stages)
+    assert BAND_END * 1e-3 < bands[-1] <= 1e-3 < bands[-2] and all(h["max_rel_error"] <= STAGE_TOL for h in accepted)
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
     assert res.max_relative_error <= 1e-8 and independent_check(res).ok
 
 

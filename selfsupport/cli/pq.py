@@ -3,17 +3,19 @@
 ::
 
     selfsupport pq NET.json --out PQ.json [--spacing H] [--field principal|grid] [--angle DEG]
-                   [--remesher streamlines|param] [--tol 1e-3] [--density RHO] [--thickness T]
+                   [--remesher seamless|streamlines|param] [--smoothing L] [--tol 1e-3] [--density RHO] [--thickness T]
                    [--method staggered|ipopt] [--no-finish] [--time-limit S]
 
 Remeshes the network's top view along its relative principal directions
-(:mod:`selfsupport.remesh.streamlines`: quads, and triangles where a line of the field ends) and
+(:mod:`selfsupport.remesh.streamlines`: by default the integer iso-lines of a seamless integer-grid
+parametrization of the smoothed field, :mod:`selfsupport.remesh.quadmesh`: quads, with irregular
+vertices at the field's few singularities) and
 solves the remeshed design with planar faces required (:class:`formulations.Planar`): a
 network in equilibrium whose quads are planar to ``--tol`` (distance of the diagonals over the
 mean edge length). ``--field grid`` remeshes along a fixed grid instead (the naive, unaligned
-mesh of the paper's Fig. 12). ``--remesher param`` draws the lines as the integer iso-lines of
-a global parametrization along the field instead of streamlines (no line ends inside the
-domain; irregular vertices only at the field's singularities). When the method does not
+mesh of the paper's Fig. 12). ``--remesher streamlines`` draws evenly spaced streamlines
+instead (triangles where a line ends), ``--remesher param`` the iso-lines of a parametrization
+along the unsmoothed field. When the method does not
 converge, the planar homotopy (and where that does not converge, IPOPT) finishes from the
 network in equilibrium without planar faces (:func:`selfsupport.remesh.planar.solve_planar`;
 ``--no-finish``: not). Prints the summary; exit codes as ``solve``.
@@ -40,6 +42,7 @@ from selfsupport.cli.common import (
 )
 from selfsupport.io.network_json import read_network
 from selfsupport.remesh.planar import finish_summary, solve_planar
+from selfsupport.remesh.quadmesh import SMOOTHING
 from selfsupport.remesh.streamlines import FIELDS, METHODS, remesh
 
 __all__ = ["COMMANDS", "add_pq_arguments", "run_pq"]
@@ -53,9 +56,14 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                    help="distance between neighbouring lines [m] (default: the network's mean top-view edge length)")
     p.add_argument("--field", choices=FIELDS, default="principal",
                    help="directions to follow: the relative principal directions, or a fixed grid (default principal)")
-    p.add_argument("--remesher", choices=tuple(METHODS), default="streamlines",
-                   help="how the lines are drawn: evenly spaced streamlines (T-junctions where a line ends), or the "
-                        "integer iso-lines of a global parametrization along the field (default streamlines)")
+    p.add_argument("--remesher", choices=tuple(METHODS), default="seamless",
+                   help="how the lines are drawn: the integer iso-lines of a seamless integer-grid parametrization "
+                        "along the smoothed field (quads only but at its few singularities), evenly spaced streamlines "
+                        "(T-junctions where a line ends), or the integer iso-lines of a parametrization along the "
+                        "unsmoothed field (default seamless)")
+    p.add_argument("--smoothing", type=positive_float, default=SMOOTHING, metavar="L",
+                   help="--remesher seamless: the field's smoothing length over the top view's diagonal (larger: "
+                        f"fewer singularities, less closely along the principal directions; default {SMOOTHING:g})")
     p.add_argument("--angle", type=number_in("[-360, 360]"), default=0.0, metavar="DEG", help="the grid's angle to the x axis (--field grid)")
     p.add_argument("--tol", type=tolerance, default=1e-3, metavar="TOL",
                    help="largest quad non-planarity accepted (default 1e-3)")
@@ -72,7 +80,8 @@ def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
     check_network_out(args.out, args.format, [("network", args.network)])
     net = read_network(args.network)
-    q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher)
+    q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher,
+               smoothing=args.smoothing)
     result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=args.time_limit,
                           density=args.density, thickness=args.thickness)
     planarity = result.parameters.get("planarity") or {}

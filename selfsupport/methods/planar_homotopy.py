@@ -63,7 +63,10 @@ from selfsupport.methods.warm import as_warm_start, transfer
 __all__ = ["planar_homotopy", "BAND_END"]
 
 #: The band ends at this fraction of the problem's planarity tolerance (the margin keeps the
-#: reported non-planarity, measured in SI units after the scaling's round trip, below it).
+#: reported non-planarity, measured in SI units after the scaling's round trip, below it). A
+#: stage whose band is within the tolerance ends the homotopy already when its network, in SI
+#: units, is planar to the tolerance and in equilibrium (the margin is for the round trip, not a
+#: goal).
 BAND_END = 0.7
 #: First cut of the band (b ← shrink · b).
 FIRST_SHRINK = 0.9
@@ -98,10 +101,12 @@ class _Band:
 
 def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
             loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, band: float, target: float,
+            tol: float, planar_enough: Callable[[np.ndarray, np.ndarray], bool],
             deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
     """The homotopy's stages from the band ``band`` down to ``target``: each a joint polish with
     the faces held within the next band (``form_at(X, band)``); an accepted stage cuts faster, a
-    failed one retries a finer cut. Returns (X, W, band reached, polish steps, history, status)."""
+    failed one retries a finer cut. A stage within the tolerance ``tol`` ends it already when
+    ``planar_enough(X, W)``. Returns (X, W, band reached, polish steps, history, status)."""
     shrink, steps, history = FIRST_SHRINK, 0, []
     status = "stalled"
     first = True
@@ -124,7 +129,7 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
         if ok:
             X, W, band = Xn, Wn, trial
             shrink = shrink if first else shrink ** 1.5
-            if band <= target:
+            if band <= target or (band <= tol and planar_enough(X, W)):
                 status = "converged"
                 break
         elif first:
@@ -157,7 +162,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     -------
     SolveResult
         ``converged`` when the band reached :data:`BAND_END` × the tolerance with every stage in
-        equilibrium (the planarity report and the max relative error are recomputed from the
+        equilibrium, or the tolerance with the network planar to it in SI units (the planarity report and the max relative error are recomputed from the
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first;
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
     """
@@ -191,8 +196,13 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         return ThrustNetworkProblem(top, Y, loads_at(Y), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
                                     planar=_Band(rows, trial, mesh0.n_vertices))
 
+    def planar_enough(Y: np.ndarray, Wy: np.ndarray) -> bool:  # (every face within the tolerance, in SI units)
+        net, _ = case_networks(problem, sc, Y, list(Wy))
+        return bool(planarity_report(problem, net)["met"] and net.in_equilibrium(STAGE_TOL))
+
     X, W, band, steps, history, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac, band=band,
-                                                target=target, deadline=deadline, progress=progress)
+                                                target=target, tol=planar.tol, planar_enough=planar_enough,
+                                                deadline=deadline, progress=progress)
     net, cases = case_networks(problem, sc, X, list(W))
     report = planarity_report(problem, net)
     if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):  # (recomputed in SI)

@@ -93,6 +93,16 @@ def _triangle_frames(xy: np.ndarray, tris: np.ndarray, doubled: np.ndarray) -> n
     to at least MIN_FRAME_ANGLE."""
     mean = doubled[tris].mean(axis=1)  # (m, 2, 2)
     ang = 0.5 * np.arctan2(mean[:, 1, :], mean[:, 0, :])  # (m, 2)
+    return _spread_angles(ang)
+
+
+def _spread(F: np.ndarray) -> np.ndarray:
+    """Frames ``(m, 2, 2)`` (unit columns) with their two lines spread apart to at least MIN_FRAME_ANGLE."""
+    return _spread_angles(np.arctan2(F[:, 1, :], F[:, 0, :]))
+
+
+def _spread_angles(ang: np.ndarray) -> np.ndarray:
+    """Frames ``(m, 2, 2)`` from two line angles ``(m, 2)`` each, spread apart to at least MIN_FRAME_ANGLE."""
     # the two line angles, brought within 90° of each other, then spread about their bisector
     diff = (ang[:, 1] - ang[:, 0] + 0.5 * np.pi) % np.pi - 0.5 * np.pi
     lo = np.radians(MIN_FRAME_ANGLE)
@@ -293,7 +303,9 @@ def _boundary_alignment(xy: np.ndarray, tris: np.ndarray, frames: np.ndarray, we
 
 def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarray, spacing: float,
                           *, round_seams: bool = True, max_rounds: int | None = None,
-                          align_boundary: bool = True) -> Parametrization:
+                          align_boundary: bool = True, frames: np.ndarray | None = None,
+                          integer_singularities: bool = False, batch: int = 1,
+                          align_weight: float | None = None) -> Parametrization:
     """A parametrization ``(u, v)`` of the triangulation ``(xy, tris)`` whose gradients are the
     dual frame of ``directions`` over ``spacing`` (module docstring).
 
@@ -316,6 +328,24 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
         Hold boundary edges that run along a direction of the field on an iso-line of the
         other parameter, rounded to an integer with the seams (so that the boundary is a mesh
         line there, not cut obliquely by lines that end on it in slivers).
+    frames
+        ``(m, 2, 2)`` per triangle the frame (unit columns), instead of the mean of
+        ``directions`` over its corners (e.g. a smoothed field, :mod:`.quadmesh`).
+    integer_singularities
+        Round the ``(u, v)`` of every singular vertex of index ±1/4 (the matchings around it a
+        quarter turn) to integers as well: the vertex is then a crossing of integer iso-lines,
+        a quad mesh vertex of valence 3 or 5, not a point inside a face (which the iso-lines
+        would leave as a face of three or five corners). Whole-turn singularities stay slits.
+    align_weight
+        Weigh the least squares along the frame: the terms that turn the iso-lines away from
+        the directions (``∇u·d2``, ``∇v·d1``) ``align_weight`` times the ones that change their
+        spacing (``∇u·d1 − 1/h``, ``∇v·d2 − 1/h``); where the field is not integrable, the
+        lines then keep to the directions and give way in spacing. ``None``: the plain
+        ``|∇(u, v) − F⁻¹/h|²``.
+    batch
+        Values fixed per solve in the rounding: ``1``, one at a time (the plain greedy
+        rounding); ``k > 1``, the ``1/k`` of the remaining ones nearest an integer (about ``k``
+        solves for ``k`` times fewer; the seamless remesh uses 8).
 
     Returns
     -------
@@ -323,12 +353,15 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
     """
     xy = np.asarray(xy, float)
     tris = np.asarray(tris, np.int64)
-    D = np.asarray(directions, float)
-    if not np.all(np.isfinite(D)):
-        raise InputError("the frame field has undefined directions; fill them before parametrizing")
     n, m = len(xy), len(tris)
-    doubled = np.stack([D[:, 0, :] ** 2 - D[:, 1, :] ** 2, 2 * D[:, 0, :] * D[:, 1, :]], axis=1)
-    F = _triangle_frames(xy, tris, doubled)
+    if frames is None:
+        D = np.asarray(directions, float)
+        if not np.all(np.isfinite(D)):
+            raise InputError("the frame field has undefined directions; fill them before parametrizing")
+        doubled = np.stack([D[:, 0, :] ** 2 - D[:, 1, :] ** 2, 2 * D[:, 0, :] * D[:, 1, :]], axis=1)
+        F = _triangle_frames(xy, tris, doubled)
+    else:
+        F = _spread(np.asarray(frames, float).copy())
     G, area = _gradients(xy, tris)
     edges, edge_tris, bnd = _interior_edges(tris)
     singular, whole = _singular_vertices(xy, tris, F, bnd)
@@ -354,14 +387,18 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
     J = np.linalg.inv(F) / spacing  # rows: target ∇u, ∇v
     sw = np.sqrt(area)
     rows, cols, vals, rhs = [], [], [], []
+    # align_weight: rows along the frame, ∇u·d_j − δ_0j / h and ∇v·d_j − δ_1j / h, the ones that
+    # turn the lines (∇u·d2, ∇v·d1) weighted; else rows along x and y, ∇(u, v) − F⁻¹ / h
+    GF = np.einsum("mkd,mdj->mkj", G, F) if align_weight is not None else G
     for c in range(2):  # u, v
-        for d in range(2):  # x, y
+        for d in range(2):  # x, y (or d1, d2)
             r = (2 * c + d) * m + np.arange(m)
+            wr = sw * (np.sqrt(align_weight) if align_weight is not None and c != d else 1.0)
             for k in range(3):
                 rows.append(r)
                 cols.append(2 * wedge[:, k] + c)
-                vals.append(sw * G[:, k, d])
-            rhs.append(sw * J[:, c, d])
+                vals.append(wr * GF[:, k, d])
+            rhs.append(wr * (J[:, c, d] if align_weight is None else np.full(m, float(c == d) / spacing)))
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(4 * m, 2 * W))
     b = np.concatenate(rhs) * spacing  # in units where the lines are 1 apart: ∇ scaled by h
     A = A * spacing
@@ -427,18 +464,30 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
         while r in parent:
             r = parent[r]
         runs.setdefault(r, r)
-    cand = np.r_[2 * W + np.arange(nT), np.array(sorted(runs), np.int64)].astype(np.int64)
+    sing_vals = np.zeros(0, np.int64)
+    if integer_singularities:
+        quarter = np.setdiff1d(singular, whole)
+        corner = np.isin(tris, quarter)
+        sing_vals = np.unique(np.r_[2 * wedge[corner], 2 * wedge[corner] + 1]).astype(np.int64)
+    cand = np.r_[2 * W + np.arange(nT), np.array(sorted(runs), np.int64), sing_vals].astype(np.int64)
     rounded = cand.size == 0
     if round_seams and cand.size:
-        # greedy: the value nearest an integer is fixed to it, then solve again
+        # greedy: the values nearest an integer are fixed to it, then solve again; the singular
+        # vertices first (a seam's translation T = (I − R) p at its singular end is an integer
+        # when p is, not the other way round)
         rounds = max_rounds if max_rounds is not None else cand.size
         for _ in range(rounds):
-            free = np.array([i for i in cand if i not in fixed], np.int64)
-            free = free[np.abs(x[free] - np.round(x[free])) > ROUND_TOL] if free.size else free
+            free = np.zeros(0, np.int64)
+            for todo in (sing_vals, cand):
+                free = np.array([i for i in todo if i not in fixed], np.int64)
+                free = free[np.abs(x[free] - np.round(x[free])) > ROUND_TOL] if free.size else free
+                if free.size:
+                    break
             if not free.size:
                 break
-            i = int(free[np.argmin(np.abs(x[free] - np.round(x[free])))])
-            fixed[i] = float(np.round(x[i]))
+            near = free[np.argsort(np.abs(x[free] - np.round(x[free])), kind="stable")]
+            for i in near[:1 if batch <= 1 else -(-len(near) // int(batch))]:
+                fixed[int(i)] = float(np.round(x[i]))
             x = solve()
         off = np.abs(x[cand] - np.round(x[cand]))
         rounded = bool(np.all(off <= 1e2 * ROUND_TOL))

@@ -11,7 +11,11 @@ can be planar on both. This module draws the quad mesh in the top view:
    where Φ is not strictly convex) are filled harmonically from their neighbours;
 2. the lines of each family, drawn by one of :data:`METHODS` (``method=``):
 
-   * ``"streamlines"`` (the default): evenly spaced streamlines (Jobard & Lefer 1997), traced
+   * ``"seamless"`` (the default): the integer iso-lines of a seamless integer-grid
+     parametrization (MIQ-style) of the field smoothed by :mod:`.quadmesh` (few singularities,
+     each on an integer point; the boundary held on iso-lines): quads only, but at the
+     singularities and where the boundary is not along the field;
+   * ``"streamlines"``: evenly spaced streamlines (Jobard & Lefer 1997), traced
      with midpoint steps from seeds at distance ``spacing`` beside the lines already drawn,
      ended at the domain's boundary or closer than ``spacing / 2`` to a line of the same family
      (singularities of the field are where lines end: their faces get five or three corners,
@@ -41,9 +45,10 @@ field is not integrable, so the same ``spacing`` does not give the same number o
 the irregular vertices sit at the field's singularities and where lines meet the boundary. The
 same lilium: 69 triangles, 51 such vertices (and its planar polish stalls as well). libigl's
 MIQ, which does this for cross fields, is not in its Python bindings, and the relative principal
-directions are a frame field (not orthogonal), hence :mod:`.param`. It is an option, not the
-default: measured on four scenes at four spacings (``python -m studies.pq``), with
-what it does and does not change for the planar polish.
+directions are a frame field (not orthogonal), hence :mod:`.param`. The unsmoothed field has many
+singularities (lilium: 37) not on integer points; ``"seamless"`` smooths the field first
+(:mod:`.quadmesh`) and rounds the singular vertices to integer points, which leaves (next to) no
+triangle (measured by ``python -m studies.pq``).
 
 Example
 -------
@@ -51,12 +56,12 @@ Example
 >>> from selfsupport.core.shapes import make_shape
 >>> net = api.solve(make_shape("dome", n_vertices=300)).network
 >>> q = remesh(net, spacing=0.12, relative=True)
->>> q.scene.mesh.is_valid(), bool((q.scene.mesh.face_sizes == 4).mean() > 0.6)
-(True, True)
+>>> q.scene.mesh.is_valid(), q.face_size_counts == {4: q.scene.mesh.n_faces}, q.info["singular_indices"]
+(True, True, [0.25, 0.25, 0.25, 0.25])
 
-Along a parametrization the lines end only at the boundary: nearly all faces are quads (48 of
-55 here; two of the triangles are a near-triangular quad split, :data:`DEGENERATE_ANGLE`), and
-the only irregular vertices are next to the apex's singularities:
+Along a parametrization of the unsmoothed field the lines end only at the boundary: nearly all
+faces are quads (48 of 55 here; two of the triangles are a near-triangular quad split,
+:data:`DEGENERATE_ANGLE`), and the only irregular vertices are next to the apex's singularities:
 
 >>> p = remesh(net, spacing=0.06, relative=True, method="param")
 >>> p.scene.mesh.is_valid(), bool((p.scene.mesh.face_sizes == 4).mean() > 0.85), p.irregular_vertices <= 4
@@ -81,6 +86,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network
 from selfsupport.core.scene import Scene
 from selfsupport.remesh.param import frame_parametrization, isolines
+from selfsupport.remesh.quadmesh import SMOOTHING, cross_indices, cross_to_frame, frame_to_cross, smooth_frames
 
 #: Nodes closer than this fraction of the spacing are merged (slivers where lines meet the boundary).
 MERGE = 0.25
@@ -95,6 +101,12 @@ CORNER_ANGLE = 30.0
 DEGENERATE_ANGLE = 20.0
 #: Integration step of the streamlines, as a fraction of the spacing.
 STEP = 0.2
+#: The seamless remesh's weight of the terms that turn its lines away from the field over the ones
+#: that change their spacing (:func:`.param.frame_parametrization`, ``align_weight``): the planar
+#: faces need the directions; the spacing may give.
+ALIGN_WEIGHT = 10.0
+#: Parameter values within this of an integer (in units of the spacing) are snapped to it (seamless remesh).
+SNAP = 1e-6
 #: Fields the remesher can follow.
 FIELDS = ("principal", "grid")
 
@@ -136,9 +148,17 @@ class Remesh:
 def principal_line_fields(network: Network) -> np.ndarray:
     """``(n, 2, 2)`` per vertex the two relative principal directions of the top view (``[:, :, k]``
     the k-th, unit; NaN where undefined: supports, Φ not strictly convex)."""
+    return _principal_field(network)[0]
 
-    d = curvatures(network).principal_directions
-    return np.asarray(d, float)
+
+def _principal_field(network: Network) -> tuple[np.ndarray, np.ndarray]:
+    """The relative principal directions (:func:`principal_line_fields`) and per vertex how
+    distinct they are, ``|κ₂ − κ₁| / (|κ₁| + |κ₂|)`` in ``[0, 1]`` (0 at an umbilic, where every
+    direction is principal, and where undefined)."""
+    c = curvatures(network)
+    k = np.asarray(c.principal_curvatures, float)
+    conf = np.abs(k[:, 1] - k[:, 0]) / np.maximum(np.abs(k).sum(axis=1), 1e-300)
+    return np.asarray(c.principal_directions, float), np.nan_to_num(conf, nan=0.0)
 
 
 def _fill_doubled(mesh: PolyMesh, D: np.ndarray) -> np.ndarray:
@@ -470,6 +490,9 @@ class _Setting:
     spacing: float
     domain: object  # shapely Polygon
     max_lines: int
+    confidence: np.ndarray | None = None  # per vertex, in [0, 1] (None: 1 everywhere)
+    smooth: bool = True  # the seamless remesh smooths the field (not a fixed grid's: it stays unaligned)
+    smoothing: float = SMOOTHING  # the seamless remesh's smoothing length / the bbox diagonal
 
 
 def _streamline_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
@@ -505,7 +528,38 @@ def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     D = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (n, 2, 2), columns the two directions
     xy = st.mesh.vertices[:, :2]
     tris = np.asarray(st.tri.triangles)
-    p = frame_parametrization(xy, tris, D, st.spacing)
+    return _isoline_lines(st, frame_parametrization(xy, tris, D, st.spacing))
+
+
+def _seamless_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
+    """Integer iso-lines of a seamless integer-grid parametrization (MIQ-style) along the
+    smoothed field (:mod:`.quadmesh`): few singularities, each on an integer point, the
+    boundary on iso-lines."""
+    xy = st.mesh.vertices[:, :2]
+    tris = np.asarray(st.tri.triangles)
+    # per triangle the mean of its corners' cross and stretch (which, unlike each family's
+    # direction, do not depend on which line of a frame is called the first)
+    ang = np.stack([0.5 * np.arctan2(d[:, 1], d[:, 0]) for d in st.doubled], axis=1)
+    z, S = frame_to_cross(np.stack([np.cos(ang), np.sin(ang)], axis=1))
+    F0 = cross_to_frame(z[tris].mean(axis=1), S[tris].mean(axis=1))
+    conf = None if st.confidence is None else st.confidence[tris].mean(axis=1)
+    diag = float(np.linalg.norm(np.ptp(xy, axis=0)))
+    F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf) if st.smooth else F0
+    index = cross_indices(xy, tris, F)
+    p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8,
+                              align_weight=ALIGN_WEIGHT)
+    # values an integer to the solve's round-off (the gauge's faint pull, the KKT regularisation)
+    # are that integer: a boundary held on an iso-line is then skipped as one, not traced beside itself
+    near = np.abs(p.uv - np.round(p.uv)) < SNAP
+    lines, info = _isoline_lines(st, dataclasses.replace(p, uv=np.where(near, np.round(p.uv), p.uv)))
+    return lines, {**info, "singular_indices": sorted(float(i) for i in index[index != 0])}
+
+
+def _isoline_lines(st: _Setting, p) -> tuple[list[list[np.ndarray]], dict]:
+    """The integer iso-lines of the parametrization ``p`` (:class:`.param.Parametrization`) as
+    the two families' lines, each end extended a little past the boundary."""
+    xy = st.mesh.vertices[:, :2]
+    tris = np.asarray(st.tri.triangles)
     lines: list[list[np.ndarray]] = [[], []]
     for k, fam in enumerate(isolines(xy, tris, p.uv)):
         if sum(len(x) for x in fam) > st.max_lines / STEP:
@@ -525,6 +579,7 @@ def _param_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
 
 #: Line builders by name (``remesh(method=...)``).
 METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = {
+    "seamless": _seamless_lines,
     "streamlines": _streamline_lines,
     "param": _param_lines,
 }
@@ -532,7 +587,8 @@ METHODS: dict[str, Callable[[_Setting], tuple[list[list[np.ndarray]], dict]]] = 
 
 # ---------------------------------------------------------------------------- main
 def remesh(network: Network, *, spacing: float | None = None, relative: bool = False, field: str = "principal",
-           angle: float = 0.0, max_lines: int = 20000, method: str = "streamlines") -> Remesh:
+           angle: float = 0.0, max_lines: int = 20000, method: str = "seamless",
+           smoothing: float = SMOOTHING, directions: np.ndarray | None = None) -> Remesh:
     """Quad-dominant remesh of ``network``'s top view along a line field, lifted to its heights.
 
     Parameters
@@ -547,6 +603,12 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         directions at ``angle`` degrees to the x axis (the naive, unaligned quad mesh of Fig. 12).
     max_lines
         Most lines per family (a guard against a spacing far below the mesh's resolution).
+    smoothing
+        ``method="seamless"``: the smoothing length of the field over the top view's diagonal
+        (:func:`.quadmesh.smooth_frames`).
+    directions
+        ``(n, 2, 2)`` per vertex of the network two top-view directions (columns) to follow
+        instead of ``field``'s (``field`` is then only the name in the report).
     method
         How the lines are drawn (:data:`METHODS`): ``"streamlines"``, evenly spaced streamlines
         of each family (lines end where the field spreads: T-junctions); ``"param"``, the integer
@@ -584,8 +646,13 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise InputError(f"--spacing {spacing:g} is below 1/1000 of the top view's size ({diag:g}); choose a larger one")
     tri = mtri.Triangulation(xy[:, 0], xy[:, 1], triangulate(mesh))
     n = mesh.n_vertices
-    if field == "principal":
-        D = principal_line_fields(network)
+    conf = None
+    if directions is not None:
+        D = np.asarray(directions, float)
+        if D.shape != (n, 2, 2):
+            raise InputError(f"directions must be (n_vertices, 2, 2) = ({n}, 2, 2), got {D.shape}")
+    elif field == "principal":
+        D, conf = _principal_field(network)
     else:
         a = np.radians(angle)
         D = np.broadcast_to(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]), (n, 2, 2)).copy()
@@ -596,8 +663,11 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         nrm = np.linalg.norm(dbl, axis=1, keepdims=True)
         doubled.append(dbl / np.where(nrm > 0, nrm, 1.0))
     domain = _domain(mesh)
+    if not (np.isfinite(smoothing) and smoothing > 0):
+        raise InputError(f"--smoothing must be a positive number, got {smoothing!r}")
     lines, info = METHODS[method](_Setting(mesh=mesh, tri=tri, doubled=(doubled[0], doubled[1]), spacing=spacing,
-                                           domain=domain, max_lines=max_lines))
+                                           domain=domain, max_lines=max_lines, confidence=conf,
+                                           smoothing=float(smoothing), smooth=directions is not None or field != "grid"))
     # (a spacing near the top view's size draws a line or two, whose faces merge away: no mesh)
     too_coarse = InputError(f"--spacing {spacing:g} m draws too few lines for a mesh of this top view "
                             f"({np.ptp(xy[:, 0]):.3g} x {np.ptp(xy[:, 1]):.3g} m); choose a smaller --spacing (the "
@@ -606,7 +676,7 @@ def remesh(network: Network, *, spacing: float | None = None, relative: bool = F
         raise too_coarse
     V2, faces = _arrangement(lines[0] + lines[1], domain, _corners(mesh), spacing)
     V2, faces, pillar_ids = _insert_points(V2, faces, xy[pillars], MERGE * spacing)
-    if not faces:
+    if not any(len(f) == 4 for f in faces):  # (none, or a few triangles round singularities rounded onto one point)
         raise too_coarse
     used = np.unique(np.concatenate([np.asarray(f) for f in faces]))
     remap = -np.ones(len(V2), np.int64)
