@@ -147,7 +147,6 @@ def test_a_finish_that_would_cost_closeness_is_refused_though_in_equilibrium(nea
 #: Functions in selfsupport/methods longer than MAX_LINES, with the reason they stay so for now.
 LONG_FUNCTIONS = {
     ("simultaneous.py", "run"): "the IPOPT method: its own rework (Simultaneous.run)",
-    ("sensitivity.py", "sensitivity"): "one KKT assembly in sequence (active set, multipliers, ∂F/∂z, ∂F/∂θ)",
     ("multilevel.py", "solve"): "the level loop of the multilevel driver; not split yet",
     ("polish.py", "polish_joint"): "the joint Newton polish's loop; not split yet",
     ("prolong.py", "prolong"): "the prolongation's stages; not split yet",
