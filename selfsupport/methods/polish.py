@@ -484,6 +484,25 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
     return dX, Wn
 
 
+def _joint_error(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.ndarray
+                 ) -> tuple[float, tuple | None]:
+    """The joint polish's error: the max relative error of every case, and of the planarity rows
+    (``form.planar``), which count like relative residuals; with those rows ``(r, J)`` (None
+    without planarity)."""
+    err = max_rel_error(form.topology, V, W, L)
+    if not form.n_planar:
+        return err, None
+    rp, Jp = form.planar.linearize(V)
+    return max(err, float(np.abs(rp).max())), (rp, Jp)
+
+
+def _inner_weights(form: ThrustNetworkProblem, W: np.ndarray) -> np.ndarray:
+    """``(n_cases, m)`` mask of the weights strictly inside their bounds (the joint polish's unknowns)."""
+    lo, up = form.lower, form.upper
+    below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
+    return (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up
+
+
 def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                  loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
                  max_iter: int = JOINT_POLISH_MAX_ITER,
@@ -529,14 +548,10 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     err = np.inf
     best = (np.inf, V.copy(), W.copy())
     since, best_before, t_step = 0, np.inf, 0.0
-    planar = form.planar if form.n_planar else None
     for k in range(max_iter + 1):
         t0 = time.perf_counter()
         L = loads_at(V)
-        err = max_rel_error(top, V, W, L)
-        if planar is not None:  # planarity rows count like relative residuals
-            rp, Jp = planar.linearize(V)
-            err = max(err, float(np.abs(rp).max()))
+        err, planar_rows = _joint_error(form, V, W, L)
         if err < best[0]:
             best = (err, V.copy(), W.copy())
         if err <= tol:
@@ -548,21 +563,17 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             break  # round-off floor reached, or no progress for 4 steps (far from a solution: the
             # caller iterates on and polishes from closer): keep the best iterate
         S = form.row_scale(L)  # (C, nf)
-        lo, up = form.lower, form.upper
-        below_up = W < up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # ∞ stays ∞
-        inner = (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up  # (C, m)
         dL = load_jacobian(V, L, deadline=deadline) if load_jacobian is not None else [None] * C
         if dL is None:  # the deadline passed while the load Jacobians were formed
             break
-        JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols,
-                               planar_rows=(rp, Jp) if planar is not None else None)
-        step = _held_step(form, V, W, JX, b_eq, S=S, inner=inner, xcols=xcols, hull_rows_all=hull_rows_all,
-                          deadline=deadline)
+        JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols, planar_rows=planar_rows)
+        step = _held_step(form, V, W, JX, b_eq, S=S, inner=_inner_weights(form, W), xcols=xcols,
+                          hull_rows_all=hull_rows_all, deadline=deadline)
         if step is None:
             break
         dX, Wn = step
         V[free] += dX.reshape(-1, 3)
-        W = np.clip(Wn, lo, up)
+        W = np.clip(Wn, form.lower, form.upper)
         t_step = time.perf_counter() - t0
     err, V, W = best
     return V, W, k, err, err <= tol

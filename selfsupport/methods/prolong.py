@@ -79,12 +79,12 @@ import dataclasses
 import functools
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from formulations import Problem
+from formulations import Problem, ScaledProblem
 from selfsupport.analysis.airy import _J, face_orientation
 from selfsupport.analysis.construction import restore_horizontal_equilibrium
 from selfsupport.core.evidence import relative_errors
@@ -316,28 +316,28 @@ class Prolongation:
     nearest: Network | None = None
 
 
-def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: float | None = None,
-            subdivision: Subdivision | None = None) -> Prolongation:
-    """Carry ``network`` (solved for ``reference``, a coarser mesh of the same surface) to the
-    scene of ``problem`` through its stress field (see the module docstring); ``subdivision``:
-    the Catmull–Clark step that made the fine scene, applied to the network (its positions and
-    :func:`subdivided_weights` are the last candidate, step 5). The returned
-    network is in equilibrium on the fine mesh with loads of its own geometry when
-    ``max_relative_error`` ≤ :data:`PROLONG_TOL`; otherwise ``network`` is None, ``nearest`` the
-    candidate whose polish came nearest (its error in ``max_relative_error``) and ``info``
-    says why (a problem with several load cases, a fixed top view or a hull is not prolonged:
-    its frozen weights cannot balance every case or hold the constraint)."""
-    t0 = time.perf_counter()
+class _Candidate(NamedTuple):
+    """A start for the polish of step 4."""
 
-    def failed(why: str, err: float = float("inf")) -> Prolongation:
-        return Prolongation(None, err, time.perf_counter() - t0, {"why": why})
+    name: str
+    #: scaled positions
+    X: np.ndarray
+    #: scaled active weights, or a function making them when first tried (the fallback's stress
+    #: carry is seconds at 256k vertices)
+    weights: np.ndarray | Callable[[], np.ndarray]
 
-    if len(problem.loads) != 1 or problem.constraints:
-        return failed("several load cases or a constraint: the prolongation balances one case, unconstrained")
-    if out_of_time(deadline):
-        return failed("the time limit was reached")
+
+def _failed(t0: float, why: str, err: float = float("inf")) -> Prolongation:
+    """A prolongation that returns no network, begun at ``t0`` (``time.perf_counter()``)."""
+    return Prolongation(None, err, time.perf_counter() - t0, {"why": why})
+
+
+def _stress_candidates(problem: Problem, sp_: ScaledProblem, network: Network, reference: PolyMesh
+                       ) -> tuple[list[_Candidate], list[str]]:
+    """Steps 1–3: the projected stress weights, the weights as carried and the fallback (the
+    coarse boundary edges counted in the stress), all on the interpolated positions; and why
+    there are none (the stress weights are not finite)."""
     scene = problem.scene
-    sp_ = problem.scaled()
     top, sc = sp_.top, sp_.scaling
     # positions: the coarse network's offsets interpolated (methods/warm.py)
     V, w_near, _ = transfer(WarmStart(network, reference=reference), scene)
@@ -354,55 +354,78 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
         return w[scene.active_edges]
 
     w = carried(False)
-    candidates, tried = [], []
-    if np.all(np.isfinite(w)):
-        # step 3 with relative changes (small weights stay small rather than being pushed across
-        # zero by the large ones' corrections); where the polish cannot balance those, the weights
-        # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
-        # concave disk needed that, its 2,400- and 16,000-vertex versions the first). Where
-        # neither comes within START_TOL, the stress with the boundary edges counted: cas subdivided twice carried by its own levels, 9.5e-2 without them,
-        # in equilibrium with them
-        projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
-                                                   metric=np.maximum(w, sp_.lower) ** 2)
-        # (the fallback's weights made only when it is tried: a stress carry is seconds at 256k)
-        candidates += [("projected", X, projected), ("as carried", X, w),
-                       (FALLBACK, X, functools.cache(lambda: carried(True)))]
-    else:
-        tried.append("the stress weights are not finite")
-    if subdivision is not None and subdivision.mesh.n_vertices == scene.mesh.n_vertices \
-            and np.array_equal(subdivision.mesh.face_vertices, scene.mesh.face_vertices):
-        # the network itself subdivided, its weights along (a quad network's top view must move
-        # with its weights, which the interpolated top view and the projection cannot: cyl2)
-        ws = sc.weight(subdivided_weights(network.mesh, subdivision, np.asarray(network.weights, float)))
-        Vs = subdivision.mesh.vertices.copy()
-        sup = np.asarray(scene.supports, bool)
-        Vs[sup] = scene.mesh.vertices[sup]  # (a support beside a free vertex would follow it: stays put)
-        candidates.append(("subdivided", sc.pos(Vs), ws[scene.active_edges]))
+    if not np.all(np.isfinite(w)):
+        return [], ["the stress weights are not finite"]
+    # step 3 with relative changes (small weights stay small rather than being pushed across
+    # zero by the large ones' corrections); where the polish cannot balance those, the weights
+    # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
+    # concave disk needed that, its 2,400- and 16,000-vertex versions the first). Where
+    # neither comes within START_TOL, the stress with the boundary edges counted: cas subdivided twice carried by its own levels, 9.5e-2 without them,
+    # in equilibrium with them
+    projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
+                                               metric=np.maximum(w, sp_.lower) ** 2)
+    # (the fallback's weights made only when it is tried: a stress carry is seconds at 256k)
+    return [_Candidate("projected", X, projected), _Candidate("as carried", X, w),
+            _Candidate(FALLBACK, X, functools.cache(lambda: carried(True)))], []
 
-    def balanced(X: np.ndarray, wc: np.ndarray, newton: bool) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
-        # the polish (Anderson's rounds, or Newton's steps), judged by the max relative error
-        Xp, _, rounds = polish(top, X, wc, problem.loads.primary, scene.mesh, sc, newton=newton,
-                               fallbacks=not newton, krylov=False, deadline=deadline)
-        V = sc.pos_back(Xp)
-        L_phys = problem.loads.primary.nodal(scene.mesh, V)
-        weights = np.zeros(scene.mesh.n_edges)
-        weights[scene.active_edges] = sc.weight_back(wc)
-        if not np.all(np.isfinite(Xp)) or not np.all(np.isfinite(L_phys)):
-            return float("inf"), V, weights, L_phys, rounds
-        rel = relative_errors(vertices=V, edges=scene.mesh.edges, weights=weights, loads=L_phys,
-                              supports=scene.supports)
-        return (float(rel.max()) if rel.size else 0.0), V, weights, L_phys, rounds
 
+def _subdivided_candidate(problem: Problem, sp_: ScaledProblem, network: Network, subdivision: Subdivision | None
+                          ) -> _Candidate | None:
+    """Step 5: the network itself subdivided, its weights along, where ``subdivision`` made the
+    fine scene (a quad network's top view must move with its weights, which the interpolated
+    top view and the projection cannot: cyl2); None otherwise."""
+    scene, sc = problem.scene, sp_.scaling
+    if subdivision is None or subdivision.mesh.n_vertices != scene.mesh.n_vertices \
+            or not np.array_equal(subdivision.mesh.face_vertices, scene.mesh.face_vertices):
+        return None
+    ws = sc.weight(subdivided_weights(network.mesh, subdivision, np.asarray(network.weights, float)))
+    Vs = subdivision.mesh.vertices.copy()
+    sup = np.asarray(scene.supports, bool)
+    Vs[sup] = scene.mesh.vertices[sup]  # (a support beside a free vertex would follow it: stays put)
+    return _Candidate("subdivided", sc.pos(Vs), ws[scene.active_edges])
+
+
+def _balanced(problem: Problem, sp_: ScaledProblem, X: np.ndarray, wc: np.ndarray, *, newton: bool,
+              deadline: float | None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Step 4 for one candidate: the polish (Anderson's rounds, or Newton's steps) of the positions
+    ``X`` with the scaled weights ``wc``. Returns its max relative error (∞ where it broke down),
+    positions, mesh-edge weights and loads (SI), and the polish's rounds."""
+    scene, top, sc = problem.scene, sp_.top, sp_.scaling
+    Xp, _, rounds = polish(top, X, wc, problem.loads.primary, scene.mesh, sc, newton=newton,
+                           fallbacks=not newton, krylov=False, deadline=deadline)
+    V = sc.pos_back(Xp)
+    L_phys = problem.loads.primary.nodal(scene.mesh, V)
+    weights = np.zeros(scene.mesh.n_edges)
+    weights[scene.active_edges] = sc.weight_back(wc)
+    if not np.all(np.isfinite(Xp)) or not np.all(np.isfinite(L_phys)):
+        return float("inf"), V, weights, L_phys, rounds
+    rel = relative_errors(vertices=V, edges=scene.mesh.edges, weights=weights, loads=L_phys,
+                          supports=scene.supports)
+    return (float(rel.max()) if rel.size else 0.0), V, weights, L_phys, rounds
+
+
+def _polish_order(candidates: list[_Candidate]) -> list[tuple[_Candidate, bool]]:
+    """(candidate, Newton?) in the order tried: per candidate Anderson's rounds (cheap: 2.8 s at
+    256k vertices), then Newton's steps; with a subdivided candidate, Anderson's rounds for every
+    candidate first (the stress candidates' Newton steps, failing, took most of a 370k cas
+    level's 72 s)."""
+    subdivided = candidates[-1].name == "subdivided" if candidates else False
+    return [(c, nw) for nw in (False, True) for c in candidates] if subdivided else \
+        [(c, nw) for c in candidates for nw in (False, True)]
+
+
+def _polish_candidates(problem: Problem, sp_: ScaledProblem, candidates: list[_Candidate], *, deadline: float | None
+                       ) -> tuple[tuple[Network, float, dict[str, Any]] | None, tuple[float, Network | None, str],
+                                  dict[str, float]]:
+    """Step 4 for the candidates in turn until one polishes to :data:`PROLONG_TOL`.
+
+    Returns that one (network, max relative error, info) or None; the nearest so far
+    (error, network, name); and each candidate's lowest error."""
+    scene = problem.scene
     best: tuple[float, Network | None, str] = (float("inf"), None, "")
     ended: dict[str, float] = {}
-    # per candidate Anderson's rounds (cheap: 2.8 s at 256k vertices), then Newton's steps where
-    # they do not settle; with a subdivided candidate, Anderson's rounds for every candidate first
-    # (the stress candidates' Newton steps, failing, took most of a 370k cas level's 72 s)
-    subdivided = candidates[-1][0] == "subdivided" if candidates else False
-    order = [(c, nw) for nw in (False, True) for c in candidates] if subdivided else \
-        [(c, nw) for c in candidates for nw in (False, True)]
     floored: set[str] = set()  # candidates whose Anderson rounds ended at their round-off floor
-    for (name, Xs, cand), newton in order:
+    for (name, Xs, cand), newton in _polish_order(candidates):
         if out_of_time(deadline):
             break
         if name == FALLBACK and best[0] <= START_TOL:
@@ -410,7 +433,7 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
         if newton and name in floored:
             continue  # (no positions balance it better: 30 s of Newton's steps at 256k, for nothing)
         wc = np.clip(cand() if callable(cand) else cand, sp_.lower, sp_.upper)
-        err, V, weights, L_phys, rounds = balanced(Xs, wc, newton)
+        err, V, weights, L_phys, rounds = _balanced(problem, sp_, Xs, wc, newton=newton, deadline=deadline)
         ended[name] = min(err, ended.get(name, np.inf))
         near = not newton and PROLONG_TOL < err <= START_TOL
         if err <= PROLONG_TOL or err < best[0] or near:
@@ -421,12 +444,39 @@ def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: f
             if near and net.roundoff_limit(PROLONG_TOL) is not None:
                 floored.add(name)
         if err <= PROLONG_TOL:
-            return Prolongation(net, err, time.perf_counter() - t0, {
-                "weights": name, "polish": "newton" if newton else "anderson", "polish_rounds": int(rounds),
-                "at_lower": int(np.sum(wc <= sp_.lower))})
+            return (net, err, {"weights": name, "polish": "newton" if newton else "anderson",
+                               "polish_rounds": int(rounds), "at_lower": int(np.sum(wc <= sp_.lower))}), best, ended
+    return None, best, ended
+
+
+def prolong(problem: Problem, network: Network, reference: PolyMesh, deadline: float | None = None,
+            subdivision: Subdivision | None = None) -> Prolongation:
+    """Carry ``network`` (solved for ``reference``, a coarser mesh of the same surface) to the
+    scene of ``problem`` through its stress field (see the module docstring); ``subdivision``:
+    the Catmull–Clark step that made the fine scene, applied to the network (its positions and
+    :func:`subdivided_weights` are the last candidate, step 5). The returned
+    network is in equilibrium on the fine mesh with loads of its own geometry when
+    ``max_relative_error`` ≤ :data:`PROLONG_TOL`; otherwise ``network`` is None, ``nearest`` the
+    candidate whose polish came nearest (its error in ``max_relative_error``) and ``info``
+    says why (a problem with several load cases, a fixed top view or a hull is not prolonged:
+    its frozen weights cannot balance every case or hold the constraint)."""
+    t0 = time.perf_counter()
+    if len(problem.loads) != 1 or problem.constraints:
+        return _failed(t0, "several load cases or a constraint: the prolongation balances one case, unconstrained")
+    if out_of_time(deadline):
+        return _failed(t0, "the time limit was reached")
+    sp_ = problem.scaled()
+    candidates, tried = _stress_candidates(problem, sp_, network, reference)
+    sub = _subdivided_candidate(problem, sp_, network, subdivision)
+    if sub is not None:
+        candidates.append(sub)
+    found, best, ended = _polish_candidates(problem, sp_, candidates, deadline=deadline)
+    if found is not None:
+        net, err, info = found
+        return Prolongation(net, err, time.perf_counter() - t0, info)
     tried += [f"{name}: the polish ended at {err:.2e}" if np.isfinite(err) else f"{name}: the polish broke down"
               for name, err in ended.items()]
-    out = failed("; ".join(tried) or "the time limit was reached", best[0])
+    out = _failed(t0, "; ".join(tried) or "the time limit was reached", best[0])
     if best[1] is None:
         return out
     return dataclasses.replace(out, nearest=best[1], info={**out.info, "nearest": best[2]})

@@ -406,6 +406,239 @@ def problem_of(result: SolveResult) -> Problem:
     return prob
 
 
+# ------------------------------------------------------------------------- the KKT steps
+@dataclass(frozen=True, eq=False)
+class _Optimum:
+    """The optimum in the NLP's scaled units, with the loads of its own geometry."""
+
+    problem: Problem
+    form: ThrustNetworkProblem
+    sc: Scaling
+    #: ``(n, 3)`` positions [m] and scaled
+    V: np.ndarray
+    X: np.ndarray
+    #: ``(n_cases, m)`` scaled weights of the active edges
+    W: np.ndarray
+    #: the NLP's variables and parameters at the optimum, and the NLP itself
+    x: np.ndarray
+    p: np.ndarray
+    nlp: dict
+    #: ``(n_cases, n)`` loads [N] and scaled
+    L_si: np.ndarray
+    Lh: np.ndarray
+
+    @property
+    def load_offset(self) -> int:
+        """Where the first case's free loads sit in ``p`` (after the supports' positions)."""
+        return 3 * int((~self.form.topology.free).sum())
+
+
+@dataclass(frozen=True, eq=False)
+class _ActiveSet:
+    """The active set held: bounds as equalities (``A``: entries of x), rows of g held (``E``)."""
+
+    #: the bounds tiled over the cases (scaled), and the weights on them
+    lo: np.ndarray
+    up: np.ndarray
+    on_lo: np.ndarray
+    on_up: np.ndarray
+    #: entries of x held: the fixed top view's x, y, the weights on their lower, upper bound
+    fixed: np.ndarray
+    A_lo: np.ndarray
+    A_up: np.ndarray
+    A: np.ndarray
+    #: the equilibrium rows (``n_eq``), then the active hull rows
+    n_eq: int
+    E: np.ndarray
+    #: mask of the hull's vertices on its face (None: no hull) and the side of each
+    hull_on: np.ndarray | None
+    hull_sign: np.ndarray
+    #: ``(|A|, n_x)`` selection of the held entries of x
+    PA: sp.csr_matrix
+
+
+def _converged_result(result_or_run: Any) -> tuple[SolveResult, Any]:
+    """The result (and the run's answer, or None) of a converged simultaneous solve; else InputError."""
+    answer = None
+    if isinstance(result_or_run, SimultaneousRun):
+        result, answer = result_or_run.result, result_or_run.answer
+    elif isinstance(result_or_run, SolveResult):
+        result = result_or_run
+    else:
+        raise InputError(f"sensitivity needs a SolveResult or a SimultaneousRun, got {type(result_or_run).__name__}")
+    simultaneous = result.method in METHODS and capabilities(result.method).simultaneous
+    if not simultaneous or result.status != "converged":
+        raise InputError(f"sensitivities are of a converged simultaneous (IPOPT) optimum; this result is "
+                         f"{result.method} / {result.status}: solve with method='ipopt'")
+    return result, answer
+
+
+def _formulation(result: SolveResult, answer: Any, problem: Problem) -> tuple[ThrustNetworkProblem, Scaling]:
+    """The solved NLP and its scaling: the run's own, or rebuilt for a cold start (which starts
+    at the reference); a warm start's NLP depends on its start, so it cannot be rebuilt."""
+    if answer is not None:
+        return answer.formulation, answer.scaling
+    if not result.parameters.get("warm_start", False):
+        return Simultaneous.formulation(
+            problem, problem.scene.mesh.vertices, weight_regularization=result.parameters.get("weight_regularization"))
+    raise InputError("a warm-started solve's NLP depends on its start; pass the SimultaneousRun")
+
+
+def _optimum(result: SolveResult, problem: Problem, form: ThrustNetworkProblem, sc: Scaling) -> _Optimum:
+    """The optimum in scaled units, its loads those of its own geometry."""
+    act = problem.scene.active_edges
+    V = result.network.vertices
+    X = sc.pos(V)
+    W = np.stack([sc.weight(n.weights[act]) for _, n in result.case_networks])
+    L_si = problem.loads.nodal(problem.scene.mesh, V)
+    Lh = sc.load(L_si)
+    return _Optimum(problem=problem, form=form, sc=sc, V=V, X=X, W=W, x=form.pack(X, W), p=form.parameters(Lh),
+                    nlp=form.nlp(), L_si=L_si, Lh=Lh)
+
+
+def _active_set(opt: _Optimum) -> _ActiveSet:
+    """Weights on a bound (the polish's criterion), the fixed top view's x, y, hull rows on the face."""
+    form, x = opt.form, opt.x
+    C, nf = form.n_cases, form.topology.n_free
+    lo, up = np.tile(form.lower, C), np.tile(form.upper, C)
+    wx = x[3 * nf:]
+    on_lo = wx <= lo + BOUND_ACTIVE_REL * np.maximum(np.abs(lo), 1e-300)  # (a tension bound is negative)
+    on_up = wx >= up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))
+    bnd = form.bounds_args()
+    fixed = np.flatnonzero(bnd["lbx"] == bnd["ubx"])  # the fixed top view's x, y
+    A_lo, A_up = 3 * nf + np.flatnonzero(on_lo), 3 * nf + np.flatnonzero(on_up & ~on_lo)
+    A = np.concatenate([fixed, A_lo, A_up])
+    n_eq = 3 * nf * C
+    E = np.arange(n_eq)
+    hull_on, hull_sign = None, np.zeros(0)
+    if form.hull is not None:
+        sd = form.hull.signed_distance(opt.X)
+        hull_on = np.abs(sd) >= form.hull.half_thickness * (1 - HULL_ACTIVE_REL)
+        E = np.concatenate([E, n_eq + np.flatnonzero(hull_on)])
+        hull_sign = np.sign(sd[hull_on])
+    PA = sp.csr_matrix((np.ones(A.size), (np.arange(A.size), A)), shape=(A.size, x.size))
+    return _ActiveSet(lo=lo, up=up, on_lo=on_lo, on_up=on_up, fixed=fixed, A_lo=A_lo, A_up=A_up, A=A, n_eq=n_eq,
+                      E=E, hull_on=hull_on, hull_sign=hull_sign, PA=PA)
+
+
+def _multipliers(kkt: ca.Function, opt: _Optimum, act: _ActiveSet) -> tuple[np.ndarray, float, int, sp.csr_matrix]:
+    """Least-squares multipliers on the active set, ``[J_Eᵀ P_Aᵀ] μ ≈ −∇f``.
+
+    Returns λ_g (zero off ``E``), the relative stationarity residual, the number of weakly
+    active bounds and the constraint Jacobian J; InputError where the point is no KKT point."""
+    x, p, form, E = opt.x, opt.p, opt.form, act.E
+    n_x = x.size
+    gf = np.asarray(kkt(x, p, np.zeros(form.n_g))[0]).ravel()
+    J = _scipy(kkt(x, p, np.zeros(form.n_g))[1]).tocsr()
+    B = sp.hstack([J[E].T, act.PA.T]).tocsc()
+    k = B.shape[1]
+    aug = sp.bmat([[sp.identity(n_x), B], [B.T, None]], format="csc")
+    sol = splu(aug).solve(np.concatenate([-gf, np.zeros(k)]))
+    mu = sol[n_x:]
+    stationarity = float(np.abs(gf + B @ mu).max() / max(np.abs(gf).max(), np.abs(B @ mu).max(), 1e-300))
+    if not stationarity <= KKT_ACCEPT:
+        raise InputError(f"the result is not a KKT point of the simultaneous NLP (relative stationarity residual "
+                         f"{stationarity:.1e} with its active set); sensitivities need IPOPT's optimum")
+    lam_g = np.zeros(form.n_g)
+    lam_g[E] = mu[:E.size]
+    lam_A = mu[E.size:]
+    weak = int(np.sum(np.abs(lam_A[act.fixed.size:]) <= 1e-8 * max(np.abs(lam_A).max(initial=0.0), 1e-300)))
+    return lam_g, stationarity, weak, J
+
+
+def _kkt_matrix(kkt: ca.Function, opt: _Optimum, act: _ActiveSet, *, lam_g: np.ndarray, J: sp.csr_matrix
+                ) -> tuple[sp.csc_matrix, sp.csr_matrix, sp.csr_matrix]:
+    """∂F/∂z with the loads' dependence on the geometry (chain rule through p), and the
+    parameter Jacobians ``∂(∇ₓℒ)/∂p``, ``∂g/∂p`` (for ∂F/∂θ)."""
+    form, E, PA = opt.form, act.E, act.PA
+    top = form.topology
+    C, m, nf = form.n_cases, top.m, top.n_free
+    n_x, n_p = opt.x.size, opt.p.size
+    _, _, H, Mp, Gp = (o for o in kkt(opt.x, opt.p, lam_g))
+    H, Mp, Gp = _scipy(H), _scipy(Mp).tocsr(), _scipy(Gp).tocsr()
+    n_sup = opt.load_offset
+    DL = _load_jacobians(opt.problem, opt.sc, opt.X, top.free)
+    blocks = [sp.csr_matrix((n_sup, n_x))]
+    for c in range(C):
+        Jc = DL[c] if DL[c] is not None else sp.csr_matrix((nf, 3 * nf))
+        blocks.append(sp.hstack([Jc, sp.csr_matrix((nf, C * m))]))
+    blocks.append(sp.csr_matrix((n_p - n_sup - C * nf, n_x)))
+    dp_dx = sp.vstack(blocks).tocsr()
+    K11 = (H + Mp @ dp_dx).tocsr()
+    K21 = (J[E] + Gp[E] @ dp_dx).tocsr()
+    if act.A.size:
+        K = sp.bmat([[K11, J[E].T, PA.T], [K21, None, None], [PA, None, None]], format="csc")
+    else:
+        K = sp.bmat([[K11, J[E].T], [K21, None]], format="csc")
+    return K, Mp, Gp
+
+
+def _parameter_rhs(par: Parameter, opt: _Optimum, act: _ActiveSet, *, Mp: sp.csr_matrix, Gp: sp.csr_matrix
+                   ) -> tuple[np.ndarray, float]:
+    """``−∂F/∂θ`` and ``d ln F̄ / dθ`` (the force unit's change, taken at the optimum's geometry)."""
+    form, sc, problem = opt.form, opt.sc, opt.problem
+    free, C, m, nf = form.topology.free, form.n_cases, form.topology.m, form.topology.n_free
+    dL = par.d_loads(problem, opt.V)  # ∂L/∂θ at fixed geometry [N]
+    dlnF = -float(dL[0][free].mean()) / float(np.abs(opt.L_si[0][free]).mean())  # d ln F̄ / dθ
+    dLh = dL / sc.force - opt.Lh * dlnF
+    dp = np.zeros(opt.p.size)
+    for c in range(C):
+        row = opt.load_offset + c * nf  # where case c's L_free sits in p
+        dp[row:row + nf] = dLh[c][free]
+    r1 = Mp @ dp
+    if par.objective_name is not None:
+        r1 = r1 + _objective_gradient(form, par.objective_name, opt.nlp["x"], opt.x, opt.nlp["p"], opt.p)
+    r2 = Gp[act.E] @ dp
+    if act.hull_sign.size:  # active hull rows: g = ±h, h = t / 2 in scaled lengths
+        r2[act.n_eq:] -= act.hull_sign * 0.5 * par.d_thickness(problem) / sc.length
+    # bounds in scaled units: ŵ = w D / F̄. The default ε is stated in scaled units (fixed);
+    # an explicit ε or w_max [N/m] moves with 1 / F̄ and w_max with its own derivative.
+    lo_si, _ = problem.bounds.active(problem.scene)
+    # (per-edge NaN entries are the default ε, fixed in scaled units)
+    d_lo = np.zeros(C * m) if lo_si is None else np.where(np.tile(np.isnan(np.broadcast_to(lo_si, (m,))), C), 0.0,
+                                                          -act.lo * dlnF)
+    d_up = np.tile(np.broadcast_to(par.d_upper(problem) * sc.length / sc.force, (m,)), C) - \
+        np.where(np.isfinite(act.up), act.up, 0.0) * dlnF
+    r3 = -np.concatenate([np.zeros(act.fixed.size), d_lo[act.A_lo - 3 * nf], d_up[act.A_up - 3 * nf]])
+    return -np.concatenate([r1, r2, r3]), dlnF
+
+
+def _solve_kkt(K: sp.csc_matrix, rhs: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """``dz = K⁻¹ rhs`` by sparse LU, its relative residual and K's 1-norm condition estimate."""
+    try:
+        lu = splu(K)
+    except RuntimeError as e:  # "Factor is exactly singular"
+        raise InputError(f"the KKT matrix is singular at this optimum ({e}): the active set is degenerate") from None
+    dz = lu.solve(rhs)
+    solve_res = float(np.abs(K @ dz - rhs).max() / max(np.abs(rhs).max(), 1e-300))
+    n_K = K.shape[0]
+    inv = LinearOperator((n_K, n_K), matvec=lu.solve, rmatvec=lambda v: lu.solve(v, trans="T"), dtype=float)
+    return dz, solve_res, float(onenormest(K) * onenormest(inv))
+
+
+def _in_si(opt: _Optimum, act: _ActiveSet, *, dz: np.ndarray, dlnF: float) -> tuple[np.ndarray, tuple, dict]:
+    """dV/dθ, dw/dθ per case (SI, mesh order) and the active set by mesh index:
+    ``V = D X̂ + c``; ``w = ŵ F̄ / D`` with F̄ moving as ``d ln F̄ / dθ``."""
+    form, sc, scene = opt.form, opt.sc, opt.problem.scene
+    free, C, m, nf = form.topology.free, form.n_cases, form.topology.m, form.topology.n_free
+    act_edges = scene.active_edges
+    dX, dW = dz[:3 * nf].reshape(nf, 3), dz[3 * nf:opt.x.size].reshape(C, m)
+    d_vertices = np.zeros_like(opt.V)
+    d_vertices[free] = sc.length * dX
+    d_weights = []
+    for c in range(C):
+        dw = np.zeros(scene.mesh.n_edges)
+        dw[act_edges] = sc.force / sc.length * (dW[c] + opt.W[c] * dlnF)
+        d_weights.append(dw)
+    act_idx = np.flatnonzero(act_edges)
+    on_up = act.on_up & ~act.on_lo
+    active = {"lower": tuple(act_idx[np.flatnonzero(act.on_lo[c * m:(c + 1) * m])] for c in range(C)),
+              "upper": tuple(act_idx[np.flatnonzero(on_up[c * m:(c + 1) * m])] for c in range(C)),
+              "fixed_xy": np.flatnonzero(free)[np.unique(act.fixed // 3)] if act.fixed.size else np.zeros(0, int),
+              "hull": form.hull.idx[act.hull_on] if form.hull is not None else np.zeros(0, int)}
+    return d_vertices, tuple(d_weights), active
+
+
 # -------------------------------------------------------------------------------- main
 def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Problem | None = None) -> Sensitivity:
     """dV/dθ and dw/dθ of a converged simultaneous (IPOPT) solve, from its KKT system.
@@ -431,150 +664,20 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
         The result is not a converged simultaneous optimum (not a KKT point), the parameter is
         not part of the problem, or the KKT matrix is singular at that active set.
     """
-
-    answer = None
-    if isinstance(result_or_run, SimultaneousRun):
-        result, answer = result_or_run.result, result_or_run.answer
-    elif isinstance(result_or_run, SolveResult):
-        result = result_or_run
-    else:
-        raise InputError(f"sensitivity needs a SolveResult or a SimultaneousRun, got {type(result_or_run).__name__}")
-    simultaneous = result.method in METHODS and capabilities(result.method).simultaneous
-    if not simultaneous or result.status != "converged":
-        raise InputError(f"sensitivities are of a converged simultaneous (IPOPT) optimum; this result is "
-                         f"{result.method} / {result.status}: solve with method='ipopt'")
+    result, answer = _converged_result(result_or_run)
     if problem is None:
         problem = problem_of(result)
     par = parse_parameter(parameter)
     theta = par.value(problem)
-    scene = problem.scene
-    if answer is not None:
-        form, sc = answer.formulation, answer.scaling
-    elif not result.parameters.get("warm_start", False):
-        form, sc = Simultaneous.formulation(  # a cold start starts at the reference
-            problem, scene.mesh.vertices, weight_regularization=result.parameters.get("weight_regularization"))
-    else:
-        raise InputError("a warm-started solve's NLP depends on its start; pass the SimultaneousRun")
-    top = form.topology
-    free, C, m, nf = top.free, form.n_cases, top.m, top.n_free
-    act = scene.active_edges
-
-    # ---- the optimum in scaled units, loads of its own geometry
-    V = result.network.vertices
-    X = sc.pos(V)
-    W = np.stack([sc.weight(n.weights[act]) for _, n in result.case_networks])
-    x = form.pack(X, W)
-    L_si = problem.loads.nodal(scene.mesh, V)
-    Lh = sc.load(L_si)
-    p = form.parameters(Lh)
-    nlp = form.nlp()
-    n_x, n_p = x.size, p.size
-
-    # ---- active set: weights on a bound (the polish's criterion), fixed x, y, hull rows on the face
-    lo, up = np.tile(form.lower, C), np.tile(form.upper, C)
-    wx = x[3 * nf:]
-    on_lo = wx <= lo + BOUND_ACTIVE_REL * np.maximum(np.abs(lo), 1e-300)  # (a tension bound is negative)
-    on_up = wx >= up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))
-    bnd = form.bounds_args()
-    fixed = np.flatnonzero(bnd["lbx"] == bnd["ubx"])  # the fixed top view's x, y
-    A_lo, A_up = 3 * nf + np.flatnonzero(on_lo), 3 * nf + np.flatnonzero(on_up & ~on_lo)
-    A = np.concatenate([fixed, A_lo, A_up])
-    n_eq = 3 * nf * C
-    E = np.arange(n_eq)
-    hull_sign = np.zeros(0)
-    if form.hull is not None:
-        sd = form.hull.signed_distance(X)
-        on = np.abs(sd) >= form.hull.half_thickness * (1 - HULL_ACTIVE_REL)
-        E = np.concatenate([E, n_eq + np.flatnonzero(on)])
-        hull_sign = np.sign(sd[on])
-    PA = sp.csr_matrix((np.ones(A.size), (np.arange(A.size), A)), shape=(A.size, n_x))
-
-    # ---- least-squares multipliers on that active set: [J_Eᵀ P_Aᵀ] μ ≈ −∇f
-    kkt = _kkt_functions(form, nlp)
-    gf = np.asarray(kkt(x, p, np.zeros(form.n_g))[0]).ravel()
-    J = _scipy(kkt(x, p, np.zeros(form.n_g))[1]).tocsr()
-    B = sp.hstack([J[E].T, PA.T]).tocsc()
-    k = B.shape[1]
-    aug = sp.bmat([[sp.identity(n_x), B], [B.T, None]], format="csc")
-    sol = splu(aug).solve(np.concatenate([-gf, np.zeros(k)]))
-    mu = sol[n_x:]
-    stationarity = float(np.abs(gf + B @ mu).max() / max(np.abs(gf).max(), np.abs(B @ mu).max(), 1e-300))
-    if not stationarity <= KKT_ACCEPT:
-        raise InputError(f"the result is not a KKT point of the simultaneous NLP (relative stationarity residual "
-                         f"{stationarity:.1e} with its active set); sensitivities need IPOPT's optimum")
-    lam_g = np.zeros(form.n_g)
-    lam_g[E] = mu[:E.size]
-    lam_A = mu[E.size:]
-    weak = int(np.sum(np.abs(lam_A[fixed.size:]) <= 1e-8 * max(np.abs(lam_A).max(initial=0.0), 1e-300)))
-
-    # ---- ∂F/∂z with the loads' dependence on the geometry (chain rule through p)
-    _, _, H, Mp, Gp = (o for o in kkt(x, p, lam_g))
-    H, Mp, Gp = _scipy(H), _scipy(Mp).tocsr(), _scipy(Gp).tocsr()
-    n_sup = 3 * int((~free).sum())
-    L_rows = [n_sup + c * nf for c in range(C)]  # where each case's L_free sits in p
-    DL = _load_jacobians(problem, sc, X, free)
-    blocks = [sp.csr_matrix((n_sup, n_x))]
-    for c in range(C):
-        Jc = DL[c] if DL[c] is not None else sp.csr_matrix((nf, 3 * nf))
-        blocks.append(sp.hstack([Jc, sp.csr_matrix((nf, C * m))]))
-    blocks.append(sp.csr_matrix((n_p - n_sup - C * nf, n_x)))
-    dp_dx = sp.vstack(blocks).tocsr()
-    K11 = (H + Mp @ dp_dx).tocsr()
-    K21 = (J[E] + Gp[E] @ dp_dx).tocsr()
-    if A.size:
-        K = sp.bmat([[K11, J[E].T, PA.T], [K21, None, None], [PA, None, None]], format="csc")
-    else:
-        K = sp.bmat([[K11, J[E].T], [K21, None]], format="csc")
-
-    # ---- ∂F/∂θ
-    dL = par.d_loads(problem, V)  # ∂L/∂θ at fixed geometry [N]
-    dlnF = -float(dL[0][free].mean()) / float(np.abs(L_si[0][free]).mean())  # d ln F̄ / dθ
-    dLh = dL / sc.force - Lh * dlnF
-    dp = np.zeros(n_p)
-    for c in range(C):
-        dp[L_rows[c]:L_rows[c] + nf] = dLh[c][free]
-    r1 = Mp @ dp
-    if par.objective_name is not None:
-        r1 = r1 + _objective_gradient(form, par.objective_name, nlp["x"], x, nlp["p"], p)
-    r2 = Gp[E] @ dp
-    if hull_sign.size:  # active hull rows: g = ±h, h = t / 2 in scaled lengths
-        r2[n_eq:] -= hull_sign * 0.5 * par.d_thickness(problem) / sc.length
-    # bounds in scaled units: ŵ = w D / F̄. The default ε is stated in scaled units (fixed);
-    # an explicit ε or w_max [N/m] moves with 1 / F̄ and w_max with its own derivative.
-    lo_si, up_si = problem.bounds.active(scene)
-    # (per-edge NaN entries are the default ε, fixed in scaled units)
-    d_lo = np.zeros(C * m) if lo_si is None else np.where(np.tile(np.isnan(np.broadcast_to(lo_si, (m,))), C), 0.0,
-                                                          -lo * dlnF)
-    d_up = np.tile(np.broadcast_to(par.d_upper(problem) * sc.length / sc.force, (m,)), C) - \
-        np.where(np.isfinite(up), up, 0.0) * dlnF
-    r3 = -np.concatenate([np.zeros(fixed.size), d_lo[A_lo - 3 * nf], d_up[A_up - 3 * nf]])
-    rhs = -np.concatenate([r1, r2, r3])
-
-    try:
-        lu = splu(K)
-    except RuntimeError as e:  # "Factor is exactly singular"
-        raise InputError(f"the KKT matrix is singular at this optimum ({e}): the active set is degenerate") from None
-    dz = lu.solve(rhs)
-    solve_res = float(np.abs(K @ dz - rhs).max() / max(np.abs(rhs).max(), 1e-300))
-    n_K = K.shape[0]
-    inv = LinearOperator((n_K, n_K), matvec=lu.solve, rmatvec=lambda v: lu.solve(v, trans="T"), dtype=float)
-    cond = float(onenormest(K) * onenormest(inv))
-
-    # ---- back to SI: V = D X̂ + c; w = ŵ F̄ / D with F̄ moving as d ln F̄ / dθ
-    dX, dW = dz[:3 * nf].reshape(nf, 3), dz[3 * nf:n_x].reshape(C, m)
-    d_vertices = np.zeros_like(V)
-    d_vertices[free] = sc.length * dX
-    d_weights = []
-    for c in range(C):
-        dw = np.zeros(scene.mesh.n_edges)
-        dw[act] = sc.force / sc.length * (dW[c] + W[c] * dlnF)
-        d_weights.append(dw)
-    act_idx = np.flatnonzero(act)
-    active = {"lower": tuple(act_idx[np.flatnonzero(on_lo[c * m:(c + 1) * m])] for c in range(C)),
-              "upper": tuple(act_idx[np.flatnonzero((on_up & ~on_lo)[c * m:(c + 1) * m])] for c in range(C)),
-              "fixed_xy": np.flatnonzero(free)[np.unique(fixed // 3)] if fixed.size else np.zeros(0, int),
-              "hull": (form.hull.idx[np.abs(form.hull.signed_distance(X)) >= form.hull.half_thickness
-                                     * (1 - HULL_ACTIVE_REL)] if form.hull is not None else np.zeros(0, int))}
-    return Sensitivity(parameter=par.label, value=theta, d_vertices=d_vertices, d_weights=tuple(d_weights),
+    form, sc = _formulation(result, answer, problem)
+    opt = _optimum(result, problem, form, sc)
+    act = _active_set(opt)
+    kkt = _kkt_functions(form, opt.nlp)
+    lam_g, stationarity, weak, J = _multipliers(kkt, opt, act)
+    K, Mp, Gp = _kkt_matrix(kkt, opt, act, lam_g=lam_g, J=J)
+    rhs, dlnF = _parameter_rhs(par, opt, act, Mp=Mp, Gp=Gp)
+    dz, solve_res, cond = _solve_kkt(K, rhs)
+    d_vertices, d_weights, active = _in_si(opt, act, dz=dz, dlnF=dlnF)
+    return Sensitivity(parameter=par.label, value=theta, d_vertices=d_vertices, d_weights=d_weights,
                        case_names=tuple(form.case_names), active=active, kkt_residual=stationarity,
                        weakly_active=weak, condition=cond, solve_residual=solve_res)
