@@ -166,11 +166,12 @@ def test_absurd_built_in_shapes_are_refused_up_front(capsys):
 def test_a_solve_beyond_the_available_memory_is_refused_before_any_work(monkeypatch, tmp_path, capsys):
     from selfsupport.core.errors import TooLarge
     from selfsupport.methods import memory
+    from selfsupport.methods import solve as one_solve
 
     # pretend the machine has 100 MB free: the refusal must come from the estimate, not an allocation
     monkeypatch.setattr(memory, "available_bytes", lambda: 100e6)
     called = []
-    monkeypatch.setattr(api, "validate_scene", lambda *a, **k: called.append(1))
+    monkeypatch.setattr(one_solve, "validate_scene", lambda *a, **k: called.append(1))
     with pytest.raises(TooLarge, match=r"needs about 0\.\d+ GiB, this machine has 0\.093 GiB available"):
         api.solve(make_shape("dome", n_vertices=2000))
     assert not called  # refused before the validation, the first work proportional to the mesh

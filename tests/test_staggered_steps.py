@@ -146,7 +146,17 @@ def test_a_finish_that_would_cost_closeness_is_refused_though_in_equilibrium(nea
 
 #: Functions in selfsupport/methods longer than MAX_LINES, each with the reason it stays so (none).
 LONG_FUNCTIONS: dict[tuple[str, str], str] = {}
+#: Lines of a function from its ``def`` to its end, its docstring not counted (a public function's
+#: numpy-style docstring documents every parameter; the rule is about the code a reader follows).
 MAX_LINES = 80
+
+
+def _code_lines(node: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    first = node.body[0]
+    doc = (first.end_lineno - first.lineno + 1
+           if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str)
+           else 0)
+    return node.end_lineno - node.lineno + 1 - doc
 
 
 def test_no_function_in_the_methods_is_longer_than_80_lines_but_the_named_ones():
@@ -155,6 +165,6 @@ def test_no_function_in_the_methods_is_longer_than_80_lines_but_the_named_ones()
     for path in root.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                if node.end_lineno - node.lineno + 1 > MAX_LINES:
+                if _code_lines(node) > MAX_LINES:
                     long.add((path.relative_to(root).as_posix(), node.name))
     assert long <= set(LONG_FUNCTIONS), sorted(long - set(LONG_FUNCTIONS))

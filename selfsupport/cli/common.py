@@ -287,7 +287,7 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                           f"total load {float(case.loads.sum()):.6g} N"))
     hull = result.parameters.get("hull")
     if hull:
-        from selfsupport.structure.stability import stands_line
+        from selfsupport.methods.hull_search import stands_line
 
         rows.append(("masonry hull", f"t = {hull['thickness']:g} m: {hull['outside']} free vertices outside "
                                      f"(max excess {hull['max_excess']:.3g} m)"))
