@@ -350,7 +350,7 @@ def judge_table1(ctx: Context) -> Judgement:
 
 def judge_table1_ipopt(ctx: Context) -> Judgement:
     if ctx.quick:
-        return "", not_covered(f"the quick mode runs no {TABLE1_IPOPT} rows (run without --quick)"), ()
+        return NO_RESULT, not_covered(f"the quick mode runs no {TABLE1_IPOPT} rows (run without --quick)"), ()
     rows = _table1_rows(ctx, TABLE1_IPOPT)
     ours = "; ".join(f"{n}: {rows[n].get('status')} ({_num(rows[n].get('time_s')):.0f} s of "
                      f"{_num(rows[n].get('time_limit_s')):g})" if n in rows else f"{n}: no row" for n in PAPER_TABLE1)
@@ -552,7 +552,8 @@ ITEMS: tuple[Item, ...] = (
          "lilium-n-recip.obj, lilium-n-stress.obj)", ("airy",), judge_airy),
     Item("Fig. 6", "cas", "a self-supporting thrust network: " + _table1_claim(["cas"]), ("table1",),
          _figure_of_scenes(["cas"])),
-    Item("Fig. 7", "", "", (), absent="the paper-scenes folder holds no scene or published result of Fig. 7 "
+    Item("Fig. 7", "(not recorded)", "the project records no scene, published result or statement of Fig. 7", (),
+         absent="the paper-scenes folder holds no scene or published result of Fig. 7 "
                                       "(its README maps none to it)"),
     Item("Fig. 8", "destruction of twocirc-3",
          "twocirc-3 cut in four steps; its third step is a collapse of 445 faces (from 1,364 to 938); faces left "
@@ -579,21 +580,25 @@ ITEMS: tuple[Item, ...] = (
 )
 
 
+#: The "ours" of a row without a result (its verdict says why).
+NO_RESULT = "no result"
+
+
 def judge_item(item: Item, ctx: Context) -> Row:
     """The report's line of one item: not covered when a study it needs did not finish or its
     output cannot be read (saying which and why)."""
     base = dict(item=item.item, subject=item.subject, claim=item.claim, studies=item.studies)
     if item.judge is None:
-        return Row(**base, ours="", verdict=not_covered(item.absent))
+        return Row(**base, ours=NO_RESULT, verdict=not_covered(item.absent))
     for name in item.studies:
         o = ctx.outcomes.get(name)
         if o is None or o.status != "done":
             why = "it was not run" if o is None else f"{o.status}: {o.why}"
-            return Row(**base, ours="", verdict=not_covered(f"study {name} {why}"))
+            return Row(**base, ours=NO_RESULT, verdict=not_covered(f"study {name} {why}"))
     try:
         ours, verdict, pics = item.judge(ctx)
     except (OSError, KeyError, ValueError, TypeError, IndexError) as exc:
-        return Row(**base, ours="", verdict=not_covered(
+        return Row(**base, ours=NO_RESULT, verdict=not_covered(
             f"the output of {', '.join(item.studies)} could not be read ({type(exc).__name__}: {exc})"))
     return Row(**base, ours=ours, verdict=verdict, pictures=pics)
 
