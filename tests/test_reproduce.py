@@ -218,3 +218,15 @@ def test_a_study_is_skipped_without_its_inputs_and_stopped_at_its_limit(tmp_path
                           ())
     o = rp.run_study(sleeper, tmp_path, tmp_path / "runs", quick=True, checker=None, timeout=1.0, log=lambda s: None)
     assert o.status == "failed" and "study limit of 1 s" in o.why and o.seconds < 30
+
+
+def test_a_planar_solve_cut_short_by_the_quick_mode_is_not_a_difference(ctx):
+    rows = read_csv_rows(ctx.runs / "pq" / "pq.csv")
+    rows[0].update(status="time_limit", nonplanar_max="6.8e-3")
+    write_csv(ctx.runs / "pq" / "pq.csv", rows, [Column(k, k) for k in rows[0]])
+    quick = _row(rp.assemble(ctx, [i for i in rp.ITEMS if i.item == "Figs. 12–14"]), "Figs. 12–14")
+    assert quick.verdict.startswith(f"not covered: the quick mode's {rp.PQ_TIME_LIMIT_QUICK:g} s limit")
+    ctx.quick = False  # the full run's limit is the study's own: not planar within it is a difference
+    full = _row(rp.assemble(ctx, [i for i in rp.ITEMS if i.item == "Figs. 12–14"]), "Figs. 12–14")
+    assert full.verdict == rp.differs("the mesh along the principal directions did not become a planar-quad "
+                                      "network in equilibrium")
