@@ -733,7 +733,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if a.quick else "full"
     ctx = Context(runs=runs, figures=out / "figures", quick=a.quick)
     needed = [s for s in STUDY_RUNS if any(s in it.studies for it in items)]
-    previous = _previous_outcomes(out) if a.reuse else {}
+    previous = _previous_outcomes(out, quick=a.quick) if a.reuse else {}
     for name in needed:
         if name in previous and previous[name].status == "done":
             ctx.outcomes[name] = previous[name]
@@ -749,10 +749,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 1 if any(o.status == "failed" for o in ctx.outcomes.values()) else 0
 
 
-def _previous_outcomes(out: Path) -> dict[str, Outcome]:
-    """The study outcomes of an earlier report in ``out`` (none when there is no readable one)."""
+def _previous_outcomes(out: Path, *, quick: bool) -> dict[str, Outcome]:
+    """The study outcomes of an earlier report in ``out`` made in the same mode (none when there
+    is no readable one, or it was made in the other mode: the outputs would not be this mode's)."""
     try:
         d = json.loads((out / "report.json").read_text(encoding="utf-8"))
+        if d.get("mode", "").startswith("quick") != quick:
+            return {}
         return {n: Outcome(**o) for n, o in d.get("studies", {}).items()}
     except (OSError, ValueError, TypeError):
         return {}

@@ -230,3 +230,13 @@ def test_a_planar_solve_cut_short_by_the_quick_mode_is_not_a_difference(ctx):
     full = _row(rp.assemble(ctx, [i for i in rp.ITEMS if i.item == "Figs. 12–14"]), "Figs. 12–14")
     assert full.verdict == rp.differs("the mesh along the principal directions did not become a planar-quad "
                                       "network in equilibrium")
+
+
+def test_reuse_takes_the_studies_of_an_earlier_report_of_the_same_mode_only(ctx, tmp_path):
+    rows = rp.assemble(ctx, [i for i in rp.ITEMS if i.item == "Fig. 7"])
+    rp.write_report(tmp_path, rows, {**rp.run_stamp(), "load_end": "0"}, "quick (--quick: ...)", tmp_path,
+                    ctx.outcomes)
+    again = rp._previous_outcomes(tmp_path, quick=True)
+    assert {n: o.status for n, o in again.items()} == {n: "done" for n in rp.STUDY_RUNS}
+    assert rp._previous_outcomes(tmp_path, quick=False) == {}  # a full report never takes quick outputs
+    assert rp._previous_outcomes(tmp_path / "none", quick=True) == {}
