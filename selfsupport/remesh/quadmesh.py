@@ -51,7 +51,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from selfsupport.core.errors import InputError
-from selfsupport.remesh.param import _gradients, _interior_edges
+from selfsupport.remesh.param import _gradients, _interior_edges, _vertex_fans
 
 __all__ = ["frame_to_cross", "cross_to_frame", "smooth_frames", "cross_indices", "SMOOTHING"]
 
@@ -218,16 +218,10 @@ def cross_indices(xy: np.ndarray, tris: np.ndarray, frames: np.ndarray) -> np.nd
     th = np.angle(z) / 4.0
     n = len(xy)
     _, _, bnd = _interior_edges(tris)
-    # triangles around each vertex in angular order (star-shaped stars of a planar triangulation)
-    v = tris.ravel()
-    t = np.repeat(np.arange(len(tris)), 3)
-    c = xy[tris].mean(axis=1)[t] - xy[v]
-    order = np.lexsort((np.arctan2(c[:, 1], c[:, 0]), v))
-    v, t = v[order], t[order]
-    cuts = np.searchsorted(v, np.arange(n + 1))
+    fans = _vertex_fans(n, xy, tris)  # triangles around each vertex in angular order
     out = np.zeros(n)
     for i in np.flatnonzero(~bnd):
-        f = t[cuts[i]:cuts[i + 1]]
+        f = fans[i]
         if len(f) < 3:
             continue
         d = np.diff(th[np.r_[f, f[:1]]])
