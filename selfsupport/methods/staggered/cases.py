@@ -1,4 +1,4 @@
-"""Several load cases that are not proportional: a continuation from the dominant case.
+"""Several load cases that are not proportional: a continuation from the cases' envelope.
 
 Why the staggered iteration stalls with such cases: Step 3 moves the positions with every case's
 weights held and sums the cases' residuals, so a move that balances one case unbalances another;
@@ -176,7 +176,7 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
     Returns
     -------
     The converged result (None when the envelope does not converge alone, or the cases are
-    blocked, or its share :data:`SHARE` of the time ran out) and the continuation's record: the dominant case, the stages
+    blocked, or its share :data:`SHARE` of the time ran out) and the continuation's record: the stages
     (``t``, polish steps, max relative error), the ``t`` reached and, when blocked, the
     measurement of :func:`blocking`.
     """
@@ -192,7 +192,7 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
         return None, rec
     X = run.sc.pos(single.network.vertices)
     wb = run.sc.weight(single.network.weights[run.scene.active_edges])
-    full = run.fit(X, [wb] * run.C)  # every case's own weights at the dominant case's network
+    full = run.fit(X, [wb] * run.C)  # every case's own weights at the envelope's network
     if full is None:
         return None, rec
     W_full = np.array(full.w)
@@ -227,7 +227,7 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
 
 def _conclude(run: _Run, X: np.ndarray, ws: list[np.ndarray], single: SolveResult, rec: dict) -> SolveResult:
     """The result of a continuation that reached every case: the staggered method's verdict
-    (:func:`~.conclude.conclude`) on the last stage's network, with the dominant case's history."""
+    (:func:`~.conclude.conclude`) on the last stage's network, with the envelope's history."""
     fit = run.fit(X, ws)
     err = max_rel_error(run.top, X, np.array(ws), run.loads_at(X))
     s = IterState(X=X, fit=fit, schedule=Schedule.start(run.opt), w_start=ws, polish_tol=run.opt.joint_polish_tol,

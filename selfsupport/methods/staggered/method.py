@@ -83,13 +83,13 @@ class StaggeredLinearization:
         loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
-        if opt.coupled is None and len(problem.loads) > 1 and not cases_proportional(problem):
+        if opt.continuation and opt.coupled is None and len(problem.loads) > 1 and not cases_proportional(problem):
             return self._cases(problem, opt, progress, warm_start, deadline)
         return self._iterate(problem, opt, progress, warm_start, deadline)
 
     def _cases(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
                warm_start: Any, deadline: float | None) -> SolveResult:
-        """Load cases that are not proportional: the continuation from the dominant case
+        """Load cases that are not proportional: the continuation from the cases' envelope
         (:mod:`.cases`); when it is blocked, the iteration over every case at once in the time left,
         and the continuation's measurement of what blocks it in the message of a result that did not
         converge."""
@@ -102,7 +102,7 @@ class StaggeredLinearization:
         if other is not None and other.status == "converged":
             return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
                                        parameters={**other.parameters, "load_continuation": rec})
-        if other is None:  # (no time left: the continuation's dominant case alone is no answer)
+        if other is None:  # (no time left: the envelope's network is no answer)
             other = _Run(self, problem, replace(opt, coupled=False, time_limit=0.0), progress, None, None).solve()
         return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
                                    message="; ".join(m for m in (other.message, rec.get("message")) if m),
