@@ -15,6 +15,16 @@ on the positions and every case's weights off their bounds, loads of the geometr
 last stage's network, so the geometry moves no more than the cases require. ``t = 1`` is tried
 first; a stage that does not converge halves the step, down to :data:`MIN_STEP`.
 
+Before any stage, one least-squares solve per case decides whether a stage can succeed at all
+(:func:`difference_fit`): at ``t = 0`` every case carries ``L_e`` with the envelope's weights, so
+a path of networks leaving it moves every case's equilibrium alike through the positions and the
+loads' dependence on them, and only the weights can carry the cases' differences: to first order
+in ``t``, ``A(X) (ẇ_c − ẇ_mean) = L_c − L_mean``, with ``ẇ`` on the weights the joint polish moves
+(those off their bounds). Where that system leaves a relative residual ``r``, a stage of step
+``t`` leaves about ``t r``, and no stage converges: the stages (each a joint polish, tens of
+seconds on a thousand vertices) are skipped and the block reported. Each stage is started only
+when the last one's duration fits in the continuation's share of the time.
+
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
@@ -32,16 +42,15 @@ import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import load_vector, residual, weight_matrix
-from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import SolveResult
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.polish import max_rel_error
+from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
 from selfsupport.methods.staggered.conclude import conclude, final_polish
 from selfsupport.methods.staggered.options import StaggeredOptions
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import Schedule
-from selfsupport.methods.staggered.state import FinishAttempt, IterState
+from selfsupport.methods.staggered.state import FinishAttempt, FitState, IterState
 
 if TYPE_CHECKING:
     from selfsupport.methods.staggered.method import StaggeredLinearization
@@ -52,8 +61,13 @@ MIN_STEP = 1.0 / 64
 #: Max relative residual at which a stage counts as converged (the joint polish's target is
 #: round-off, ~1e-12; the final network is checked against the solve's ``tol`` as any other).
 STAGE_TOL = 1e-10
-#: Share of the solve's time the continuation may take (the envelope's solve included).
-SHARE = 0.5
+#: Share of the solve's time the continuation may take (the envelope's solve included); the rest
+#: is the iteration's when the continuation does not reach every case.
+SHARE = 0.25
+#: Max relative residual of :func:`difference_fit` above which the continuation is blocked at its
+#: start: the smallest step's first-order error ``MIN_STEP · r`` a hundred times a stage's target
+#: (the margin: the fit's round-off, ~1e-10, and the step's second-order terms).
+BLOCKED_RESIDUAL = 100 * STAGE_TOL / MIN_STEP
 #: Vertices and bound edges named in the report of a blocked continuation.
 REPORTED = 5
 
@@ -84,25 +98,33 @@ def _base_problem(problem: Problem, run: _Run) -> Problem:
                                  sc.weight_back(np.broadcast_to(run.upper, (run.top.m,)).astype(float))))
 
 
-def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray) -> dict[str, dict[str, Any]]:
-    """Per case ``c``: can the network at ``X`` carry the difference ``L_c − L_e`` of its loads
-    from the cases' envelope by a change of its weights of either sign, with no bound? A network
-    that carries both does (its two weight vectors' difference), and any network near one that
-    carries ``t`` of the difference does to first order in ``t``; where it cannot, no
-    continuation from ``X`` exists. The least-squares weight change's relative residual per
-    vertex (over ``|L_c|``): its max and the vertices where it is largest."""
+def _moved(run: _Run, ws: list[np.ndarray]) -> np.ndarray:
+    """The weights the joint polish moves from any of ``ws``: those off their bounds (as
+    :func:`~selfsupport.methods.polish.polish_joint` counts them)."""
+    lo = np.broadcast_to(run.lower, (run.top.m,))
+    up = np.broadcast_to(run.upper, (run.top.m,))
+    below_up = up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # (∞ stays ∞)
+    above_lo = lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)
+    return np.any([(w > above_lo) & (w < below_up) for w in ws], axis=0)
+
+
+def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]) -> dict[str, dict[str, Any]]:
+    """Per case ``c``: can the network at ``X`` carry the difference ``L_c − L_mean`` of its loads
+    from the cases' mean by a change, of either sign, of the weights the joint polish moves (those
+    off their bounds in any of ``ws``)? This is the first-order condition of a continuation from a
+    network where every case has the same weights (see the module docstring): where it fails, no
+    stage of the continuation from ``X`` converges. The minimum-norm weight change of the polish
+    (:func:`~selfsupport.methods.polish.min_norm_step`); its relative residual per vertex (over
+    ``|L_c|``): its max, the largest load difference, and the vertices where it is largest."""
     top = run.top
-    A = weight_matrix(top, X)
+    A = weight_matrix(top, X).tocsc()[:, _moved(run, ws)]
     out = {}
-    Le = L.min(axis=0)
+    Lm = L.mean(axis=0)
     for c, name in enumerate(run.loads.names):
         s = np.repeat(1.0 / np.abs(L[c, run.free]), 3)
-        As = (sp.diags(s) @ A).tocsc()
-        b = s * load_vector(top, L[c] - Le)
-        N = (As.T @ As).tocsc()
-        mu = 1e-12 * float(N.diagonal().max(initial=1.0))  # (A has a null space: the self-stresses)
-        d = spd_factor(N + mu * sp.identity(N.shape[0], format="csc")).solve(As.T @ b)
-        r = np.linalg.norm((As @ d - b).reshape(-1, 3), axis=1)
+        J = (sp.diags(s) @ A).tocsr()
+        b = s * load_vector(top, L[c] - Lm)
+        r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
         order = np.argsort(r)[::-1][:REPORTED]
         out[name] = {"max_relative_residual": float(r.max(initial=0.0)),
                      "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
@@ -110,18 +132,19 @@ def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray) -> dict[str, dict[st
     return out
 
 
-def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray]) -> dict[str, Any]:
+def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | None = None) -> dict[str, Any]:
     """What blocks the cases at positions ``X`` (scaled): each case's own weight fit within the
-    bounds, from ``ws``: per case its max relative residual, the worst case, its vertices of
-    largest residual, and the edges its fit holds at a bound with the largest multipliers (the
-    fit's gradient on a weight at its bound: how much the residual would fall per unit the bound
-    gave way); and :func:`difference_fit`."""
-    fit = run.fit(X, ws)
+    bounds, from ``ws`` (``fit``: that fit, when it is at hand): per case its max relative
+    residual, the worst case, its vertices of largest residual, and the edges its fit holds at a
+    bound with the largest multipliers (the fit's gradient on a weight at its bound: how much the
+    residual would fall per unit the bound gave way); and :func:`difference_fit` (from ``ws`` and
+    the fit's weights)."""
+    fit = run.fit(X, ws) if fit is None else fit
     top = run.top
     out: dict[str, Any] = {"fit_errors": {}, "case": None}
     if fit is None:
         return out
-    out["difference"] = difference_fit(run, X, fit.L)
+    out["difference"] = difference_fit(run, X, fit.L, [*ws, *fit.w])
     worst, worst_err = 0, -1.0
     per_vertex = []
     for c, name in enumerate(run.loads.names):
@@ -150,22 +173,31 @@ def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray]) -> dict[str, Any]:
 
 
 def _message(rec: dict[str, Any]) -> str:
-    """The continuation's report in one sentence (blocked, with its measurements)."""
-    b = rec["blocking"]
+    """The continuation's report in one sentence (why it did not reach every case, with its
+    measurements)."""
+    b = rec.get("blocking") or {}
     if b.get("case") is None:
-        return "the continuation from the cases' envelope failed at its start"
+        return rec.get("message") or "the continuation from the cases' envelope failed at its start"
     edges = ", ".join(f"{i}-{j} ({k})" for (i, j), k in zip(b["bound_edges"], b["bound"])) or "none"
-    diff = b["difference"].get(b["case"])
-    unbounded = "" if diff is None else (
-        "; no change of the weights of either sign carries that case's difference from the envelope on this "
-        f"geometry (least-squares relative residual {diff['max_relative_residual']:.2e} of a difference up to "
-        f"{diff['load_difference']:.2e}, largest at vertices {diff['vertices']}), so no network near it carries "
-        "both")
-    return (f"the continuation from the cases' envelope carries {rec['reached']:.0%} of the cases' "
-            f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, case {b['case']!r} "
-            f"fits at best to max relative error {b['max_relative_error']:.2e} within the bounds, at vertices "
-            f"{b['vertices']} ({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}); the edges its fit holds at a "
-            f"bound with the largest multipliers: {edges}{unbounded}")
+    diffs = b["difference"]
+    worst = max(diffs, key=lambda k: diffs[k]["max_relative_residual"])
+    diff = diffs[worst]
+    carried = (f"the weights the polish moves (those off their bounds) carry the difference of case {worst!r} from "
+               f"the cases' mean load only to relative residual {diff['max_relative_residual']:.2e} (of a "
+               f"difference up to {diff['load_difference']:.2e}), largest at vertices {diff['vertices']}")
+    if rec.get("blocked_at_start"):
+        lead = (f"at the network of the cases' envelope (solved alone), {carried}: no continuation from it "
+                f"exists to first order (a step t leaves about t times that), so its stages were skipped")
+    elif rec.get("stopped") == "time":
+        lead = (f"the continuation from the cases' envelope carried {rec['reached']:.0%} of the cases' difference "
+                f"from it in equilibrium when its share of the time ({SHARE:.0%}) could not hold another stage "
+                f"(the last took {rec['stages'][-1]['t_stage']:.1f} s); there, {carried}")
+    else:
+        lead = (f"the continuation from the cases' envelope carries {rec['reached']:.0%} of the cases' "
+                f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, {carried}")
+    return (f"{lead}; case {b['case']!r} fits at best to max relative error {b['max_relative_error']:.2e} "
+            f"within the bounds, at vertices {b['vertices']} ({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}); "
+            f"the edges its fit holds at a bound with the largest multipliers: {edges}")
 
 
 def continuation(method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
@@ -176,11 +208,13 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
     Returns
     -------
     The converged result (None when the envelope does not converge alone, or the cases are
-    blocked, or its share :data:`SHARE` of the time ran out) and the continuation's record: the stages
-    (``t``, polish steps, max relative error), the ``t`` reached and, when blocked, the
-    measurement of :func:`blocking`.
+    blocked, or its share :data:`SHARE` of the time ran out) and the continuation's record: the
+    stages (``t``, polish steps, max relative error, seconds), the ``t`` reached and, when it is
+    short of 1, why (``message``) with the measurement of :func:`blocking`; ``blocked_at_start``
+    when :func:`difference_fit` at the envelope's network exceeded :data:`BLOCKED_RESIDUAL`.
     """
     t0 = time.perf_counter()
+    whole = deadline
     # (its share of the time: a blocked continuation leaves the rest to the iteration over every case)
     deadline = t0 + SHARE * (deadline - t0)
     run = _Run(method, problem, replace(opt, coupled=False), progress, None, deadline)
@@ -189,15 +223,32 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
                           progress=progress, warm_start=warm_start, deadline=deadline)
     rec.update(base_status=single.status, base_time=single.wall_time, base_iterations=single.iterations)
     if single.status != "converged":
+        rec["message"] = (f"the continuation did not start: the cases' envelope alone ended {single.status} at max "
+                          f"relative error {single.max_relative_error:.2e} within the continuation's share of the "
+                          f"time ({SHARE:.0%})")
         return None, rec
     X = run.sc.pos(single.network.vertices)
     wb = run.sc.weight(single.network.weights[run.scene.active_edges])
     full = run.fit(X, [wb] * run.C)  # every case's own weights at the envelope's network
     if full is None:
+        rec["message"] = "the continuation did not start: no case has a weight fit at the envelope's network"
         return None, rec
     W_full = np.array(full.w)
+    # whether any stage can converge, before the first (see the module docstring)
+    run.deadline = whole  # (one fit and one least-squares solve per case: the report of a block)
+    start = blocking(run, X, [wb] * run.C, fit=full)
+    run.deadline = deadline
+    rec["difference_residual"] = max(d["max_relative_residual"] for d in start["difference"].values())
+    if rec["difference_residual"] > BLOCKED_RESIDUAL:
+        rec.update(blocked_at_start=True, blocking=start, time=time.perf_counter() - t0)
+        rec["message"] = _message(rec)
+        return None, rec
     X_ok, W_ok, t_ok, dt = X, np.array([wb] * run.C), 0.0, 1.0
-    while t_ok < 1.0 and dt >= MIN_STEP and not out_of_time(deadline):
+    t_stage = 0.0  # (the last stage's duration: the next one's estimate)
+    while t_ok < 1.0 and dt >= MIN_STEP:
+        if out_of_time(deadline, t_stage):
+            rec["stopped"] = "time"
+            break
         t = min(1.0, t_ok + dt)
         # the weights' start: the last stage's, moved towards the full fit as far as t has gone
         frac = (t - t_ok) / (1.0 - t_ok)
@@ -206,8 +257,8 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
         Xp, W, L, steps = run.polish(X_ok, list(W0), blend=t)
         err = max_rel_error(run.top, Xp, np.array(W), L) if np.all(np.isfinite(Xp)) else np.inf
         ok = bool(err <= STAGE_TOL)
-        rec["stages"].append({"t": t, "steps": steps, "max_rel_error": err, "ok": ok,
-                              "t_stage": time.perf_counter() - ts})
+        t_stage = time.perf_counter() - ts
+        rec["stages"].append({"t": t, "steps": steps, "max_rel_error": err, "ok": ok, "t_stage": t_stage})
         if progress:
             progress({"iteration": "load continuation", **rec["stages"][-1]})
         if ok:
@@ -216,12 +267,13 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
         else:
             dt *= 0.5
     rec["reached"] = t_ok
-    rec["time"] = time.perf_counter() - t0
     if t_ok < 1.0:
-        if not out_of_time(deadline):
-            rec["blocking"] = blocking(run, X_ok, list(W_ok))
-            rec["message"] = _message(rec)
+        run.deadline = whole
+        rec["blocking"] = blocking(run, X_ok, list(W_ok))
+        rec["message"] = _message(rec)
+        rec["time"] = time.perf_counter() - t0
         return None, rec
+    rec["time"] = time.perf_counter() - t0
     return _conclude(run, X_ok, list(W_ok), single, rec), rec
 
 
