@@ -10,9 +10,11 @@ the load-cases issue (empty; snow 80 kg/m²; a point load of 5% of the self-weig
 free vertex); on vault-pillar also empty + 500 N at that vertex and the format reference's
 example (snow, 5 kN at vertex 40 and 300 kg at vertex 12); on a generated 300-vertex dome the
 guide's example. Each solve is ``selfsupport solve --time-limit 120`` in its own process, with
-``--option continuation=false`` for "before". Per run: status, wall time, every case's max
-relative error by the shared independent checker, and, when the continuation was blocked, its
-reach and the vertices it names. Writes ``load_cases.md`` and ``load_cases.json``.
+``--option continuation=false`` for "before"; with ``--repeat N`` each job runs N times, "before"
+and "after" alternately (the machine's load drifts). Per run: status, wall time, every case's max
+relative error by the shared independent checker, and, when the continuation did not reach every
+case, its reach, the seconds it took, whether it was blocked before any stage, and the vertices
+it names. Writes ``load_cases.md`` and ``load_cases.json``.
 """
 from __future__ import annotations
 
@@ -65,7 +67,7 @@ def _checked(path: Path) -> dict[str, float]:
     return out
 
 
-def runs(scenes: Path, out: Path) -> list[dict]:
+def runs(scenes: Path, out: Path, repeat: int = 1) -> list[dict]:
     """The study's solves (see the module docstring)."""
     jobs = []
     for name in ("vault-pillar", "lilium", "cas"):
@@ -83,18 +85,21 @@ def runs(scenes: Path, out: Path) -> list[dict]:
     for scene, arg, label, cases in jobs:
         toml = out / f"{scene.replace(':', '-')}-{label}.toml"
         toml.write_text(_toml(cases))
-        for variant, extra in (("before", ["--option", "continuation=false"]), ("after", [])):
-            net = out / f"{scene.replace(':', '-')}-{label}-{variant}.json"
+        for run, (variant, extra) in ((r, v) for r in range(repeat)
+                                      for v in (("before", ["--option", "continuation=false"]), ("after", []))):
+            net = out / f"{scene.replace(':', '-')}-{label}-{variant}-{run}.json"
             t0 = time.perf_counter()
             p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", arg, "--load-cases", str(toml),
                                 "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q", *extra],
                                capture_output=True, text=True)
             wall = time.perf_counter() - t0
-            row = {"scene": scene, "cases": label, "variant": variant, "exit": p.returncode, "wall_s": round(wall, 1)}
+            row = {"scene": scene, "cases": label, "variant": variant, "run": run, "exit": p.returncode,
+                   "wall_s": round(wall, 1)}
             if net.is_file():
                 d = json.loads(net.read_text())
                 rec = d.get("parameters", {}).get("load_continuation") or {}
                 row.update(status=d.get("status"), checked=_checked(net), reached=rec.get("reached"),
+                           continuation_s=rec.get("time"), blocked_at_start=rec.get("blocked_at_start", False),
                            blocking_case=(rec.get("blocking") or {}).get("case"),
                            blocking_vertices=(rec.get("blocking") or {}).get("vertices"))
             rows.append(row)
@@ -104,14 +109,17 @@ def runs(scenes: Path, out: Path) -> list[dict]:
 
 def table(rows: list[dict]) -> str:
     """The rows as Markdown."""
-    lines = ["| scene | cases | variant | status | wall [s] | max relative error per case (checker) | "
-             "continuation reached | blocking case: vertices |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | cases | variant | run | status | wall [s] | max relative error per case (checker) | "
+             "continuation reached (its seconds) | blocking case: vertices |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         errs = ", ".join(f"{k} {v:.1e}" for k, v in (r.get("checked") or {}).items())
         block = f"{r['blocking_case']}: {r['blocking_vertices']}" if r.get("blocking_case") else ""
-        reached = "" if r.get("reached") is None else f"{r['reached']:.0%}"
-        lines.append(f"| {r['scene']} | {r['cases']} | {r['variant']} | {r.get('status')} | {r['wall_s']} | {errs} | "
-                     f"{reached} | {block} |")
+        reached = "" if r.get("reached") is None else (
+            f"{r['reached']:.0%}" + (" (blocked before any stage" if r.get("blocked_at_start") else " (")
+            + ("" if r.get("continuation_s") is None else f"{', ' if r.get('blocked_at_start') else ''}"
+               f"{r['continuation_s']:.1f} s") + ")")
+        lines.append(f"| {r['scene']} | {r['cases']} | {r['variant']} | {r.get('run', 0) + 1} | {r.get('status')} | "
+                     f"{r['wall_s']} | {errs} | {reached} | {block} |")
     return "\n".join(lines) + "\n"
 
 
@@ -119,9 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", type=Path, default=Path("../shared/paper-scenes/scenes"))
     ap.add_argument("--out", type=Path, default=Path("out/load_cases"))
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each job, before and after alternately")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
-    rows = runs(a.scenes, a.out)
+    rows = runs(a.scenes, a.out, a.repeat)
     (a.out / "load_cases.json").write_text(json.dumps(rows, indent=1))
     (a.out / "load_cases.md").write_text(table(rows))
     print(table(rows))

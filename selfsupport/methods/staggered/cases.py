@@ -21,9 +21,11 @@ a path of networks leaving it moves every case's equilibrium alike through the p
 loads' dependence on them, and only the weights can carry the cases' differences: to first order
 in ``t``, ``A(X) (ẇ_c − ẇ_mean) = L_c − L_mean``, with ``ẇ`` on the weights the joint polish moves
 (those off their bounds). Where that system leaves a relative residual ``r``, a stage of step
-``t`` leaves about ``t r``, and no stage converges: the stages (each a joint polish, tens of
-seconds on a thousand vertices) are skipped and the block reported. Each stage is started only
-when the last one's duration fits in the continuation's share of the time.
+``t`` leaves about ``t r`` to first order, and no stage converges: the stages (each a joint
+polish, tens of seconds on a thousand vertices) are skipped and the block reported. The test is
+necessary, not sufficient: weights that a finite step pushes onto their bounds can still block
+a stage. So each stage is started only when the last one's duration fits in the continuation's
+share of the time (:data:`SHARE`), and the rest is the iteration's.
 
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
@@ -66,7 +68,7 @@ STAGE_TOL = 1e-10
 SHARE = 0.25
 #: Max relative residual of :func:`difference_fit` above which the continuation is blocked at its
 #: start: the smallest step's first-order error ``MIN_STEP · r`` a hundred times a stage's target
-#: (the margin: the fit's round-off, ~1e-10, and the step's second-order terms).
+#: (the margin: the least-squares solve's round-off, 1e-14 on a dome, and the step's second-order terms).
 BLOCKED_RESIDUAL = 100 * STAGE_TOL / MIN_STEP
 #: Vertices and bound edges named in the report of a blocked continuation.
 REPORTED = 5
@@ -112,8 +114,8 @@ def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]
     """Per case ``c``: can the network at ``X`` carry the difference ``L_c − L_mean`` of its loads
     from the cases' mean by a change, of either sign, of the weights the joint polish moves (those
     off their bounds in any of ``ws``)? This is the first-order condition of a continuation from a
-    network where every case has the same weights (see the module docstring): where it fails, no
-    stage of the continuation from ``X`` converges. The minimum-norm weight change of the polish
+    network where every case has the same weights (see the module docstring): where it fails, the
+    continuation's polish finds no path from ``X``, to first order. The minimum-norm weight change of the polish
     (:func:`~selfsupport.methods.polish.min_norm_step`); its relative residual per vertex (over
     ``|L_c|``): its max, the largest load difference, and the vertices where it is largest."""
     top = run.top
