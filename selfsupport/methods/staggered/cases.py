@@ -22,7 +22,9 @@ loads' dependence on them, and only the weights can carry the cases' differences
 in ``t``, ``A(X) (ẇ_c − ẇ_mean) = L_c − L_mean``, with ``ẇ`` on the weights the joint polish moves
 (those off their bounds). Where that system leaves a relative residual ``r``, a stage of step
 ``t`` leaves about ``t r`` to first order, and no stage converges: the stages (each a joint
-polish, tens of seconds on a thousand vertices) are skipped and the block reported. The test is
+polish, tens of seconds on a thousand vertices) are skipped and the block reported. It is made
+first at the envelope's network as its iteration ends, then, if that passes, again after the
+refinement towards the reference (most of the envelope's time with a point load). The test is
 necessary, not sufficient: weights that a finite step pushes onto their bounds can still block
 a stage. So each stage is started only when the last one's duration fits in the continuation's
 share of the time (:data:`SHARE`), and the rest is the iteration's.
@@ -45,10 +47,10 @@ import scipy.sparse as sp
 from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import load_vector, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
-from selfsupport.core.result import SolveResult
+from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
-from selfsupport.methods.staggered.conclude import conclude, final_polish
+from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
 from selfsupport.methods.staggered.options import StaggeredOptions
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import Schedule
@@ -202,6 +204,23 @@ def _message(rec: dict[str, Any]) -> str:
             f"the edges its fit holds at a bound with the largest multipliers: {edges}")
 
 
+def _start(run: _Run, envelope: Network, deadline: float) -> dict[str, Any] | None:
+    """The continuation's start at the envelope's network: its scaled positions ``X`` and weights
+    ``wb``, every case's own weight fit there ``W_full``, and :func:`blocking` with the max
+    residual of its :func:`difference_fit` (whether any stage can converge); None when no case
+    fits there. ``deadline``: the solve's (the measurement is the report of a block)."""
+    X = run.sc.pos(envelope.vertices)
+    wb = run.sc.weight(envelope.weights[run.scene.active_edges])
+    full = run.fit(X, [wb] * run.C)
+    if full is None:
+        return None
+    share, run.deadline = run.deadline, deadline
+    b = blocking(run, X, [wb] * run.C, fit=full)
+    run.deadline = share
+    return {"X": X, "wb": wb, "W_full": np.array(full.w), "blocking": b,
+            "difference_residual": max(d["max_relative_residual"] for d in b["difference"].values())}
+
+
 def continuation(method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
                  progress: Callable[[dict], None] | None, warm_start: Any, deadline: float
                  ) -> tuple[SolveResult | None, dict[str, Any]]:
@@ -221,7 +240,10 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
     deadline = t0 + SHARE * (deadline - t0)
     run = _Run(method, problem, replace(opt, coupled=False), progress, None, deadline)
     rec: dict[str, Any] = {"stages": [], "reached": 0.0}
-    single = method.solve(_base_problem(problem, run), dataclasses.asdict(replace(opt, coupled=None)),
+    base = _base_problem(problem, run)
+    # the envelope unrefined first: the refinement (most of its time with a point load) only
+    # pays when the stages run
+    single = method.solve(base, dataclasses.asdict(replace(opt, coupled=None, refine=0, refine_concentrated=0)),
                           progress=progress, warm_start=warm_start, deadline=deadline)
     rec.update(base_status=single.status, base_time=single.wall_time, base_iterations=single.iterations)
     if single.status != "converged":
@@ -229,22 +251,25 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
                           f"relative error {single.max_relative_error:.2e} within the continuation's share of the "
                           f"time ({SHARE:.0%})")
         return None, rec
-    X = run.sc.pos(single.network.vertices)
-    wb = run.sc.weight(single.network.weights[run.scene.active_edges])
-    full = run.fit(X, [wb] * run.C)  # every case's own weights at the envelope's network
-    if full is None:
-        rec["message"] = "the continuation did not start: no case has a weight fit at the envelope's network"
+    start = _start(run, single.network, whole)
+    if start is not None and start["difference_residual"] <= BLOCKED_RESIDUAL:
+        base_run = _Run(method, base, replace(opt, coupled=False), progress, None, deadline)
+        steps = refinement_steps(base_run)
+        if steps > 0:
+            rec["difference_residual_unrefined"] = start["difference_residual"]
+            net, _, _ = base_run.refine(single.network, single.case_networks, single.max_relative_error,
+                                        rec.setdefault("base_refinement", []), steps)
+            start = _start(run, net, whole)
+    if start is None or start["difference_residual"] > BLOCKED_RESIDUAL:
+        rec.update(blocked_at_start=start is not None, time=time.perf_counter() - t0)
+        if start is not None:
+            rec.update(difference_residual=start["difference_residual"], blocking=start["blocking"])
+            rec["message"] = _message(rec)
+        else:
+            rec["message"] = "the continuation did not start: no case has a weight fit at the envelope's network"
         return None, rec
-    W_full = np.array(full.w)
-    # whether any stage can converge, before the first (see the module docstring)
-    run.deadline = whole  # (one fit and one least-squares solve per case: the report of a block)
-    start = blocking(run, X, [wb] * run.C, fit=full)
-    run.deadline = deadline
-    rec["difference_residual"] = max(d["max_relative_residual"] for d in start["difference"].values())
-    if rec["difference_residual"] > BLOCKED_RESIDUAL:
-        rec.update(blocked_at_start=True, blocking=start, time=time.perf_counter() - t0)
-        rec["message"] = _message(rec)
-        return None, rec
+    X, wb, W_full = start["X"], start["wb"], start["W_full"]
+    rec["difference_residual"] = start["difference_residual"]
     X_ok, W_ok, t_ok, dt = X, np.array([wb] * run.C), 0.0, 1.0
     t_stage = 0.0  # (the last stage's duration: the next one's estimate)
     while t_ok < 1.0 and dt >= MIN_STEP:
