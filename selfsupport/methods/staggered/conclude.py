@@ -104,13 +104,19 @@ def retry_polish(run: _Run, s: IterState, cases: Cases, final: dict) -> bool:
     return True
 
 
+def refinement_steps(run: _Run) -> int:
+    """The refinement's step limit: ``refine``, else ``refine_concentrated`` where a case
+    concentrates a load on a free vertex, else 0 (none)."""
+    # (a load on a support goes into the ground: it concentrates nothing on the network)
+    concentrated = any(run.free[c.concentrated_at()].any() for c in run.loads.models)
+    return run.opt.refine or (run.opt.refine_concentrated if concentrated else 0)
+
+
 def conclude(run: _Run, s: IterState, net: Network, cases: Cases) -> SolveResult:
     """The solve's result: refinement, weight refit, the verdict and the record."""
     opt = run.opt
     err = cases_max_error(cases)
-    # (a load on a support goes into the ground: it concentrates nothing on the network)
-    concentrated = any(run.free[c.concentrated_at()].any() for c in run.loads.models)
-    steps = opt.refine or (opt.refine_concentrated if concentrated else 0)
+    steps = refinement_steps(run)
     if steps > 0 and s.status == "converged" and err <= opt.tol:
         net, cases, err = run.refine(net, cases, err, s.history, steps)
         if not s.history[-1].get("applied") and s.history[-1].get("tried"):

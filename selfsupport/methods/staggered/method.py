@@ -13,6 +13,7 @@ from selfsupport.core.scene import Scene
 from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.staggered.cases import continuation
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import coupled_fits
@@ -82,6 +83,35 @@ class StaggeredLinearization:
         loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
+        if opt.continuation and opt.coupled is None and len(problem.loads) > 1 and not cases_proportional(problem):
+            return self._cases(problem, opt, progress, warm_start, deadline)
+        return self._iterate(problem, opt, progress, warm_start, deadline)
+
+    def _cases(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
+               warm_start: Any, deadline: float | None) -> SolveResult:
+        """Load cases that are not proportional: the continuation from the cases' envelope
+        (:mod:`.cases`); when it is blocked, the iteration over every case at once in the time left,
+        and the continuation's measurement of what blocks it in the message of a result that did not
+        converge."""
+        t0 = time.perf_counter()
+        deadline = t0 + opt.time_limit if deadline is None else deadline
+        res, rec = continuation(self, problem, opt, progress, warm_start, deadline)
+        if res is not None:
+            return res
+        other = self._iterate(problem, opt, progress, warm_start, deadline) if not out_of_time(deadline) else None
+        if other is not None and other.status == "converged":
+            return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
+                                       parameters={**other.parameters, "load_continuation": rec})
+        if other is None:  # (no time left: the envelope's network is no answer)
+            other = _Run(self, problem, replace(opt, coupled=False, time_limit=0.0), progress, None, None).solve()
+        return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
+                                   message="; ".join(m for m in (other.message, rec.get("message")) if m),
+                                   parameters={**other.parameters, "load_continuation": rec})
+
+    def _iterate(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
+                 warm_start: Any, deadline: float | None) -> SolveResult:
+        """The staggered iteration over every case at once: the plain or the coupled Step 3, or
+        the coupled one first and the plain one when it stalls."""
         why = _couples_first(problem) if opt.coupled is None else None
         if why is None:
             return _Run(self, problem, replace(opt, coupled=bool(opt.coupled)), progress, warm_start, deadline).solve()

@@ -272,26 +272,65 @@ class _Run:
             return None
         return max(reports, key=lambda r: r["max_relative_error"])
 
-    def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True, stop: bool = False):
+    def blended(self, t: float) -> tuple[Callable, Callable]:
+        """Loads ``L_e + t (L_c − L_e)`` of every case ``c``, ``L_e`` their envelope (at each vertex
+        the heaviest of the cases' loads), and their Jacobians: the load path of the continuation
+        over the cases (:mod:`.cases`)."""
+        if "load_jacobians" not in self.polish_ws:
+            self.polish_ws["load_jacobians"] = case_load_jacobians(self.loads.models, self.mesh0, self.sc, self.free)
+        jacobians = self.polish_ws["load_jacobians"]
+
+        def loads_at(X: np.ndarray) -> np.ndarray:
+            L = self.loads_at(X)
+            Le = L.min(axis=0)[None]  # (loads are negative: the heaviest is the least)
+            return Le + t * (L - Le)
+
+        def load_jacobian(X: np.ndarray, Lt: np.ndarray, deadline: float | None = None) -> list | None:
+            L = self.loads_at(X)
+            J = jacobians(X, L, deadline=deadline)
+            if J is None:
+                return None
+            heaviest = L[:, self.free].argmin(axis=0)  # the envelope's rows: each from its heaviest case
+            Je = None
+            for c, Jc in enumerate(J):
+                if Jc is not None:
+                    rows = sp.diags(np.repeat((heaviest == c).astype(float), 3)) @ Jc
+                    Je = rows if Je is None else Je + rows
+            out = []
+            for Jc in J:  # (None: no term depends on the geometry)
+                terms = [f * M for f, M in ((1.0 - t, Je), (t, Jc)) if M is not None and f != 0.0]
+                out.append(None if not terms else terms[0] if len(terms) == 1 else terms[0] + terms[1])
+            return out
+
+        return loads_at, load_jacobian
+
+    def polish(self, X: np.ndarray, ws: list[np.ndarray], *, fallbacks: bool = True, stop: bool = False,
+               blend: float | None = None):
         """Positions (and, with several cases, a fixed top view, a hull or planar faces, weights)
         in exact equilibrium: (X, ws, L, rounds). ``stop``: what the polishes return past their
-        deadline (``X`` as it is, with its loads), without their set-up."""
+        deadline (``X`` as it is, with its loads), without their set-up. ``blend``: ``t``, the
+        loads of :meth:`blended` instead of the cases' own."""
         if stop:
             return X.copy(), ws, self.loads_at(X), 0
-        if not self.joint:
+        if blend is not None:
+            loads_at, load_jacobian = self.blended(blend)
+        elif not self.joint:
             Xp, L, rounds = _polish(self.top, X, ws[0], self.loads.primary, self.mesh0, self.sc,
                                     workspace=self.polish_ws, fallbacks=fallbacks, deadline=self.deadline)
             return Xp, ws, L[None], rounds
+        else:
+            loads_at, load_jacobian = self.loads_at, None
         top = self.top
         h = float(np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1).mean())
-        form = ThrustNetworkProblem(top, X, self.loads_at(X), WeightBounds(self.lower, self.upper),
+        form = ThrustNetworkProblem(top, X, loads_at(X), WeightBounds(self.lower, self.upper),
                                     weight_scale=1.0 / h ** 2, hull=self.hull, planar=self.planar,
                                     fixed_xy=self.X0[self.free, :2] if self.fixed_xy else None)
         if "load_jacobians" not in self.polish_ws:
             self.polish_ws["load_jacobians"] = case_load_jacobians(self.loads.models, self.mesh0, self.sc, self.free)
-        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=self.loads_at,
-                                            load_jacobian=self.polish_ws["load_jacobians"], deadline=self.deadline)
-        return Xp, list(W), self.loads_at(Xp), rounds
+        Xp, W, rounds, _, _ = _polish_joint(form, X, np.array(ws), loads_at=loads_at,
+                                            load_jacobian=load_jacobian or self.polish_ws["load_jacobians"],
+                                            deadline=self.deadline)
+        return Xp, list(W), loads_at(Xp), rounds
 
     def refine(self, net: Network, cases, err: float, history: list, steps: int) -> tuple[Network, Any, float]:
         """The optional refinement phase (:mod:`~selfsupport.methods.refine`), one load case, at

@@ -1,0 +1,321 @@
+"""Several load cases that are not proportional: a continuation from the cases' envelope.
+
+Why the staggered iteration stalls with such cases: Step 3 moves the positions with every case's
+weights held and sums the cases' residuals, so a move that balances one case unbalances another;
+where one case's weights sit at their bound, the only moves left trade the cases' errors against
+each other, and the fit error stops falling although a geometry for every case may exist. The
+coupled Step 3 moves the weights too, but from the reference, far from any such geometry.
+
+The continuation starts where one load is solved: the cases' envelope ``L_e`` (at each vertex the
+heaviest of the cases' loads, :class:`Envelope`) is solved alone by the staggered method, so the
+geometry is shaped for the largest load each vertex sees. Every case's load is then moved from
+the envelope towards its own, ``L_c(t) = L_e + t (L_c − L_e)``, ``t`` from 0 to 1; each stage is the joint
+polish (:func:`~selfsupport.methods.polish.polish_joint`: Gauss–Newton with minimum-norm steps
+on the positions and every case's weights off their bounds, loads of the geometry) from the
+last stage's network, so the geometry moves no more than the cases require. ``t = 1`` is tried
+first; a stage that does not converge halves the step, down to :data:`MIN_STEP`.
+
+Before any stage, one least-squares solve per case decides whether a stage can succeed at all
+(:func:`difference_fit`): at ``t = 0`` every case carries ``L_e`` with the envelope's weights, so
+a path of networks leaving it moves every case's equilibrium alike through the positions and the
+loads' dependence on them, and only the weights can carry the cases' differences: to first order
+in ``t``, ``A(X) (ẇ_c − ẇ_mean) = L_c − L_mean``, with ``ẇ`` on the weights the joint polish moves
+(those off their bounds). Where that system leaves a relative residual ``r``, a stage of step
+``t`` leaves about ``t r`` to first order, and no stage converges: the stages (each a joint
+polish, tens of seconds on a thousand vertices) are skipped and the block reported. It is made
+first at the envelope's network as its iteration ends, then, if that passes, again after the
+refinement towards the reference (most of the envelope's time with a point load). The test is
+necessary, not sufficient: weights that a finite step pushes onto their bounds can still block
+a stage. So each stage is started only when the last one's duration fits in the continuation's
+share of the time (:data:`SHARE`), and the rest is the iteration's.
+
+Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
+carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
+relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
+it (:func:`blocking`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from formulations import Bounds, LoadCases, Problem
+from formulations.equilibrium import load_vector, residual, weight_matrix
+from selfsupport.core.loads import LoadCase
+from selfsupport.core.result import Network, SolveResult
+from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
+from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
+from selfsupport.methods.staggered.options import StaggeredOptions
+from selfsupport.methods.staggered.run import _Run
+from selfsupport.methods.staggered.schedule import Schedule
+from selfsupport.methods.staggered.state import FinishAttempt, FitState, IterState
+
+if TYPE_CHECKING:
+    from selfsupport.methods.staggered.method import StaggeredLinearization
+
+#: Smallest continuation step in ``t``: a stage that does not converge at this step ends the
+#: continuation (the cases are blocked at the last ``t`` reached).
+MIN_STEP = 1.0 / 64
+#: Max relative residual at which a stage counts as converged (the joint polish's target is
+#: round-off, ~1e-12; the final network is checked against the solve's ``tol`` as any other).
+STAGE_TOL = 1e-10
+#: Share of the solve's time the continuation may take (the envelope's solve included); the rest
+#: is the iteration's when the continuation does not reach every case.
+SHARE = 0.25
+#: Max relative residual of :func:`difference_fit` above which the continuation is blocked at its
+#: start: the smallest step's first-order error ``MIN_STEP · r`` a hundred times a stage's target
+#: (the margin: the least-squares solve's round-off, 1e-14 on a dome, and the step's second-order terms).
+BLOCKED_RESIDUAL = 100 * STAGE_TOL / MIN_STEP
+#: Vertices and bound edges named in the report of a blocked continuation.
+REPORTED = 5
+
+
+@dataclass(frozen=True)
+class Envelope(LoadCase):
+    """At each vertex the heaviest load of the ``cases`` (the base of the continuation)."""
+
+    cases: tuple[LoadCase, ...]
+
+    def nodal(self, mesh: Any, vertices: np.ndarray) -> np.ndarray:
+        return np.min([c.nodal(mesh, vertices) for c in self.cases], axis=0)  # (down is negative)
+
+    @property
+    def depends_on_geometry(self) -> bool:
+        return any(c.depends_on_geometry for c in self.cases)
+
+    def concentrated_at(self) -> np.ndarray:
+        return np.unique(np.concatenate([c.concentrated_at() for c in self.cases]))
+
+
+def _base_problem(problem: Problem, run: _Run) -> Problem:
+    """The problem of the cases' envelope alone, with the full problem's bounds stated per edge
+    (the default ε is relative to the first case's loads: the same edges keep the same bounds)."""
+    sc = run.sc
+    return replace(problem, loads=LoadCases((("envelope", Envelope(problem.loads.models)),)),
+                   bounds=Bounds(sc.weight_back(np.broadcast_to(run.lower, (run.top.m,)).astype(float)),
+                                 sc.weight_back(np.broadcast_to(run.upper, (run.top.m,)).astype(float))))
+
+
+def _moved(run: _Run, ws: list[np.ndarray]) -> np.ndarray:
+    """The weights the joint polish moves from any of ``ws``: those off their bounds (as
+    :func:`~selfsupport.methods.polish.polish_joint` counts them)."""
+    lo = np.broadcast_to(run.lower, (run.top.m,))
+    up = np.broadcast_to(run.upper, (run.top.m,))
+    below_up = up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # (∞ stays ∞)
+    above_lo = lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)
+    return np.any([(w > above_lo) & (w < below_up) for w in ws], axis=0)
+
+
+def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]) -> dict[str, dict[str, Any]]:
+    """Per case ``c``: can the network at ``X`` carry the difference ``L_c − L_mean`` of its loads
+    from the cases' mean by a change, of either sign, of the weights the joint polish moves (those
+    off their bounds in any of ``ws``)? This is the first-order condition of a continuation from a
+    network where every case has the same weights (see the module docstring): where it fails, the
+    continuation's polish finds no path from ``X``, to first order. The minimum-norm weight change of the polish
+    (:func:`~selfsupport.methods.polish.min_norm_step`); its relative residual per vertex (over
+    ``|L_c|``): its max, the largest load difference, and the vertices where it is largest."""
+    top = run.top
+    A = weight_matrix(top, X).tocsc()[:, _moved(run, ws)]
+    out = {}
+    Lm = L.mean(axis=0)
+    for c, name in enumerate(run.loads.names):
+        s = np.repeat(1.0 / np.abs(L[c, run.free]), 3)
+        J = (sp.diags(s) @ A).tocsr()
+        b = s * load_vector(top, L[c] - Lm)
+        r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
+        order = np.argsort(r)[::-1][:REPORTED]
+        out[name] = {"max_relative_residual": float(r.max(initial=0.0)),
+                     "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
+                     "vertices": [int(v) for v in run.free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
+    return out
+
+
+def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | None = None) -> dict[str, Any]:
+    """What blocks the cases at positions ``X`` (scaled): each case's own weight fit within the
+    bounds, from ``ws`` (``fit``: that fit, when it is at hand): per case its max relative
+    residual, the worst case, its vertices of largest residual, and the edges its fit holds at a
+    bound with the largest multipliers (the fit's gradient on a weight at its bound: how much the
+    residual would fall per unit the bound gave way); and :func:`difference_fit` (from ``ws`` and
+    the fit's weights)."""
+    fit = run.fit(X, ws) if fit is None else fit
+    top = run.top
+    out: dict[str, Any] = {"fit_errors": {}, "case": None}
+    if fit is None:
+        return out
+    out["difference"] = difference_fit(run, X, fit.L, [*ws, *fit.w])
+    worst, worst_err = 0, -1.0
+    per_vertex = []
+    for c, name in enumerate(run.loads.names):
+        r = np.linalg.norm(residual(top, X, fit.w[c], fit.L[c]), axis=1) / np.abs(fit.L[c, run.free])
+        per_vertex.append(r)
+        out["fit_errors"][name] = float(r.max(initial=0.0))
+        if r.max(initial=0.0) > worst_err:
+            worst, worst_err = c, float(r.max(initial=0.0))
+    r = per_vertex[worst]
+    order = np.argsort(r)[::-1][:REPORTED]
+    s = np.repeat(1.0 / np.abs(fit.L[worst, run.free]), 3)
+    A = weight_matrix(top, X)
+    g = (A.T @ (s * (s * (A @ fit.w[worst] - load_vector(top, fit.L[worst])))))  # ∇ ½‖S(Aw − b)‖²
+    w = fit.w[worst]
+    lo = np.broadcast_to(run.lower, w.shape)
+    up = np.broadcast_to(run.upper, w.shape)
+    tol = 1e-9 * np.maximum(np.abs(lo), np.finfo(float).tiny)
+    mult = np.where(w <= lo + tol, np.maximum(g, 0.0), 0.0) + np.where(w >= up - tol, np.maximum(-g, 0.0), 0.0)
+    edges = np.argsort(mult)[::-1][:REPORTED]
+    edges = edges[mult[edges] > 0]
+    out.update(case=run.loads.names[worst], max_relative_error=worst_err,
+               vertices=[int(v) for v in run.free_idx[order]], vertex_errors=[float(x) for x in r[order]],
+               bound_edges=[[int(i), int(j)] for i, j in top.edges[edges]],
+               bound=["lower" if w[e] <= lo[e] + tol[e] else "upper" for e in edges])
+    return out
+
+
+def _message(rec: dict[str, Any]) -> str:
+    """The continuation's report in one sentence (why it did not reach every case, with its
+    measurements)."""
+    b = rec.get("blocking") or {}
+    if b.get("case") is None:
+        return rec.get("message") or "the continuation from the cases' envelope failed at its start"
+    edges = ", ".join(f"{i}-{j} ({k})" for (i, j), k in zip(b["bound_edges"], b["bound"])) or "none"
+    diffs = b["difference"]
+    worst = max(diffs, key=lambda k: diffs[k]["max_relative_residual"])
+    diff = diffs[worst]
+    carried = (f"the weights the polish moves (those off their bounds) carry the difference of case {worst!r} from "
+               f"the cases' mean load only to relative residual {diff['max_relative_residual']:.2e} (of a "
+               f"difference up to {diff['load_difference']:.2e}), largest at vertices {diff['vertices']}")
+    if rec.get("blocked_at_start"):
+        lead = (f"at the network of the cases' envelope (solved alone), {carried}: no continuation from it "
+                f"exists to first order (a step t leaves about t times that), so its stages were skipped")
+    elif rec.get("stopped") == "time":
+        lead = (f"the continuation from the cases' envelope carried {rec['reached']:.0%} of the cases' difference "
+                f"from it in equilibrium when its share of the time ({SHARE:.0%}) could not hold another stage "
+                f"(the last took {rec['stages'][-1]['t_stage']:.1f} s); there, {carried}")
+    else:
+        lead = (f"the continuation from the cases' envelope carries {rec['reached']:.0%} of the cases' "
+                f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, {carried}")
+    return (f"{lead}; case {b['case']!r} fits at best to max relative error {b['max_relative_error']:.2e} "
+            f"within the bounds, at vertices {b['vertices']} ({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}); "
+            f"the edges its fit holds at a bound with the largest multipliers: {edges}")
+
+
+def _start(run: _Run, envelope: Network, deadline: float) -> dict[str, Any] | None:
+    """The continuation's start at the envelope's network: its scaled positions ``X`` and weights
+    ``wb``, every case's own weight fit there ``W_full``, and :func:`blocking` with the max
+    residual of its :func:`difference_fit` (whether any stage can converge); None when no case
+    fits there. ``deadline``: the solve's (the measurement is the report of a block)."""
+    X = run.sc.pos(envelope.vertices)
+    wb = run.sc.weight(envelope.weights[run.scene.active_edges])
+    full = run.fit(X, [wb] * run.C)
+    if full is None:
+        return None
+    share, run.deadline = run.deadline, deadline
+    b = blocking(run, X, [wb] * run.C, fit=full)
+    run.deadline = share
+    return {"X": X, "wb": wb, "W_full": np.array(full.w), "blocking": b,
+            "difference_residual": max(d["max_relative_residual"] for d in b["difference"].values())}
+
+
+def continuation(method: StaggeredLinearization, problem: Problem, opt: StaggeredOptions,
+                 progress: Callable[[dict], None] | None, warm_start: Any, deadline: float
+                 ) -> tuple[SolveResult | None, dict[str, Any]]:
+    """The continuation over the load cases (see the module docstring).
+
+    Returns
+    -------
+    The converged result (None when the envelope does not converge alone, or the cases are
+    blocked, or its share :data:`SHARE` of the time ran out) and the continuation's record: the
+    stages (``t``, polish steps, max relative error, seconds), the ``t`` reached and, when it is
+    short of 1, why (``message``) with the measurement of :func:`blocking`; ``blocked_at_start``
+    when :func:`difference_fit` at the envelope's network exceeded :data:`BLOCKED_RESIDUAL`.
+    """
+    t0 = time.perf_counter()
+    whole = deadline
+    # (its share of the time: a blocked continuation leaves the rest to the iteration over every case)
+    deadline = t0 + SHARE * (deadline - t0)
+    run = _Run(method, problem, replace(opt, coupled=False), progress, None, deadline)
+    rec: dict[str, Any] = {"stages": [], "reached": 0.0}
+    base = _base_problem(problem, run)
+    # the envelope unrefined first: the refinement (most of its time with a point load) only
+    # pays when the stages run
+    single = method.solve(base, dataclasses.asdict(replace(opt, coupled=None, refine=0, refine_concentrated=0)),
+                          progress=progress, warm_start=warm_start, deadline=deadline)
+    rec.update(base_status=single.status, base_time=single.wall_time, base_iterations=single.iterations)
+    if single.status != "converged":
+        rec["message"] = (f"the continuation did not start: the cases' envelope alone ended {single.status} at max "
+                          f"relative error {single.max_relative_error:.2e} within the continuation's share of the "
+                          f"time ({SHARE:.0%})")
+        return None, rec
+    start = _start(run, single.network, whole)
+    if start is not None and start["difference_residual"] <= BLOCKED_RESIDUAL:
+        base_run = _Run(method, base, replace(opt, coupled=False), progress, None, deadline)
+        steps = refinement_steps(base_run)
+        if steps > 0:
+            rec["difference_residual_unrefined"] = start["difference_residual"]
+            net, _, _ = base_run.refine(single.network, single.case_networks, single.max_relative_error,
+                                        rec.setdefault("base_refinement", []), steps)
+            start = _start(run, net, whole)
+    if start is None or start["difference_residual"] > BLOCKED_RESIDUAL:
+        rec.update(blocked_at_start=start is not None, time=time.perf_counter() - t0)
+        if start is not None:
+            rec.update(difference_residual=start["difference_residual"], blocking=start["blocking"])
+            rec["message"] = _message(rec)
+        else:
+            rec["message"] = "the continuation did not start: no case has a weight fit at the envelope's network"
+        return None, rec
+    X, wb, W_full = start["X"], start["wb"], start["W_full"]
+    rec["difference_residual"] = start["difference_residual"]
+    X_ok, W_ok, t_ok, dt = X, np.array([wb] * run.C), 0.0, 1.0
+    t_stage = 0.0  # (the last stage's duration: the next one's estimate)
+    while t_ok < 1.0 and dt >= MIN_STEP:
+        if out_of_time(deadline, t_stage):
+            rec["stopped"] = "time"
+            break
+        t = min(1.0, t_ok + dt)
+        # the weights' start: the last stage's, moved towards the full fit as far as t has gone
+        frac = (t - t_ok) / (1.0 - t_ok)
+        W0 = W_ok + frac * (W_full - W_ok)
+        ts = time.perf_counter()
+        Xp, W, L, steps = run.polish(X_ok, list(W0), blend=t)
+        err = max_rel_error(run.top, Xp, np.array(W), L) if np.all(np.isfinite(Xp)) else np.inf
+        ok = bool(err <= STAGE_TOL)
+        t_stage = time.perf_counter() - ts
+        rec["stages"].append({"t": t, "steps": steps, "max_rel_error": err, "ok": ok, "t_stage": t_stage})
+        if progress:
+            progress({"iteration": "load continuation", **rec["stages"][-1]})
+        if ok:
+            X_ok, W_ok, t_ok = Xp, np.array(W), t
+            dt *= 2.0
+        else:
+            dt *= 0.5
+    rec["reached"] = t_ok
+    if t_ok < 1.0:
+        run.deadline = whole
+        rec["blocking"] = blocking(run, X_ok, list(W_ok))
+        rec["message"] = _message(rec)
+        rec["time"] = time.perf_counter() - t0
+        return None, rec
+    rec["time"] = time.perf_counter() - t0
+    return _conclude(run, X_ok, list(W_ok), single, rec), rec
+
+
+def _conclude(run: _Run, X: np.ndarray, ws: list[np.ndarray], single: SolveResult, rec: dict) -> SolveResult:
+    """The result of a continuation that reached every case: the staggered method's verdict
+    (:func:`~.conclude.conclude`) on the last stage's network, with the envelope's history."""
+    fit = run.fit(X, ws)
+    err = max_rel_error(run.top, X, np.array(ws), run.loads_at(X))
+    s = IterState(X=X, fit=fit, schedule=Schedule.start(run.opt), w_start=ws, polish_tol=run.opt.joint_polish_tol,
+                  coupled=False, t_iteration=0.0, it=single.iterations, status="converged",
+                  history=list(single.history) + [{"iteration": "load continuation", **rec}])
+    s.finished = FinishAttempt(ok=True, X=X, w=ws, rounds=sum(st["steps"] for st in rec["stages"]), error=err)
+    net, cases, final = final_polish(run, s)
+    s.history.append(final)
+    s.message = (f"the cases' envelope solved alone, then every case carried by a continuation in "
+                 f"{len(rec['stages'])} stage(s)")
+    res = conclude(run, s, net, cases)
+    return dataclasses.replace(res, parameters={**res.parameters, "load_continuation": rec})

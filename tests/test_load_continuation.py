@@ -1,0 +1,130 @@
+"""Several load cases on one geometry: the continuation from the cases' envelope
+(selfsupport/methods/staggered/cases.py) and its report when it is blocked."""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from formulations import Problem
+from selfsupport.core.loads import PointLoad, SelfWeight
+from selfsupport.core.shapes import barrel_vault, make_shape
+from selfsupport.methods.deadline import remaining
+from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
+from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
+from selfsupport.methods.staggered.run import _Run
+from tests.conftest import independent_check
+
+SW = SelfWeight(density=2000.0, thickness=0.1)
+
+
+def _point_case(scene, vertex: int, share: float) -> PointLoad:
+    """A point load of ``share`` of the self-weight at ``vertex``."""
+    f = np.zeros(scene.mesh.n_vertices)
+    f[vertex] = share * float(SW.nodal(scene.mesh, scene.mesh.vertices).sum())  # (negative: down)
+    return PointLoad(f)
+
+
+def test_two_proportional_cases_converge_exactly_like_one():
+    """A heavier material is the self-weight times 1.5: the geometry of the one case, each case
+    in equilibrium by the independent checker."""
+    scene = make_shape("dome", n_vertices=100)
+    one = StaggeredLinearization().solve(scene, SW)
+    two = StaggeredLinearization().solve(scene, {"a": SW, "b": SelfWeight(density=3000.0, thickness=0.1)})
+    assert one.status == two.status == "converged"
+    diag = float(np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0)))
+    np.testing.assert_allclose(two.network.vertices, one.network.vertices, rtol=0, atol=1e-9 * diag)
+    for _, net in two.case_networks:
+        report = independent_check(net, tol=1e-9)
+        assert report.ok, report.stdout
+
+
+def test_a_symmetric_dome_carries_an_apex_load_case_by_the_continuation():
+    """Self-weight, and self-weight with 5% of it on the apex of a dome (a triangle mesh):
+        the continuation carries both cases on one geometry, each case passes the independent checker,
+    and the geometry is nearer the reference than the iteration over both cases at once finds."""
+    scene = make_shape("dome", n_vertices=100)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    res = StaggeredLinearization().solve(scene, {"empty": SW, "apex": SW + _point_case(scene, apex, 0.05)})
+    rec = res.parameters["load_continuation"]
+    assert res.status == "converged" and rec["reached"] == 1.0 and rec["base_refinement"][0]["applied"]
+    for _, net in res.case_networks:
+        report = independent_check(net, tol=1e-9)
+        assert report.ok, report.stdout
+    (_, a), (_, b) = res.case_networks
+    assert np.abs(a.weights - b.weights).max() > 1e-3 * np.abs(a.weights).max()  # (two weight vectors)
+    plain = StaggeredLinearization(continuation=False).solve(
+        scene, {"empty": SW, "apex": SW + _point_case(scene, apex, 0.05)})
+    assert plain.status == "converged" and res.distance_mean < plain.distance_mean
+
+
+def _quad_grid_point_case():
+    """A quad barrel vault supported all round; self-weight, and self-weight with 5% of it on the
+    middle vertex v."""
+    scene = barrel_vault(nx=6, ny=6, quads=True)
+    V, free = scene.mesh.vertices, np.flatnonzero(~scene.supports)
+    v = int(free[np.argmin(np.linalg.norm(V[free, :2] - V[free, :2].mean(0), axis=1))])
+    return Problem.build(scene, {"empty": SW, "point": SW + _point_case(scene, v, 0.05)}), v
+
+
+def test_a_point_load_on_a_quad_grid_is_blocked_at_the_loaded_vertex_before_any_stage():
+    """Inner vertices of a quad grid have four edges: the horizontal equilibrium has as many rows
+    as weights, so at the envelope's network no change of the weights the polish moves carries
+    the cases' difference (a load at v alone). The first-order test sees it before any stage, at
+    the unrefined envelope: no stage is run, both cases' difference fits leave a residual above
+    the threshold, and the case without the point load fits worst at v."""
+    problem, v = _quad_grid_point_case()
+    res, rec = continuation(StaggeredLinearization(), problem, StaggeredOptions(), None, None,
+                            time.perf_counter() + 60)
+    assert res is None and rec["reached"] == 0.0
+    assert rec["blocked_at_start"] and rec["stages"] == []
+    assert "base_refinement" not in rec  # (blocked at the unrefined envelope: its refinement is skipped)
+    b = rec["blocking"]
+    assert b["case"] == "empty" and b["vertices"][0] == v and b["max_relative_error"] > 0.1
+    for d in b["difference"].values():
+        assert d["max_relative_residual"] > BLOCKED_RESIDUAL
+    assert rec["difference_residual"] == max(d["max_relative_residual"] for d in b["difference"].values())
+    assert f"vertices [{v}," in rec["message"] and "stages were skipped" in rec["message"]
+
+
+def test_a_blocked_continuation_is_reported_on_a_result_that_does_not_converge(monkeypatch):
+    """The iteration over both cases converges on the quad grid after the blocked continuation;
+    held to two iterations, it does not, and the result's message carries the continuation's
+    report."""
+    problem, v = _quad_grid_point_case()
+    iterate = StaggeredLinearization._iterate
+    monkeypatch.setattr(StaggeredLinearization, "_iterate", lambda self, problem, opt, *a: iterate(
+        self, problem, replace(opt, max_iter=2) if len(problem.loads) > 1 else opt, *a))  # (not the envelope's)
+    res = StaggeredLinearization().solve(problem)
+    assert res.status != "converged"
+    rec = res.parameters["load_continuation"]
+    assert rec["blocking"]["case"] == "empty" and rec["message"] in res.message
+
+
+def test_a_stage_starts_only_when_the_last_stages_time_fits_in_the_share(monkeypatch):
+    """Stages that take 0.5 s each and never converge (a stand-in for the joint polish, which
+    stops at the deadline it is given): no stage starts with less time left in the
+    continuation's share than the last one took, and the blocked continuation still reports
+    what blocks it (one fit per case, in the solve's time after the share)."""
+    scene = make_shape("dome", n_vertices=100)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    problem = Problem.build(scene, {"empty": SW, "apex": SW + _point_case(scene, apex, 0.05)})
+    starts, polish = [], _Run.polish
+
+    def slow_polish(self, X, ws, *, fallbacks=True, stop=False, blend=None):
+        if blend is None:  # (the envelope's own solve)
+            return polish(self, X, ws, fallbacks=fallbacks, stop=stop)
+        starts.append(remaining(self.deadline))
+        time.sleep(min(0.5, remaining(self.deadline)))
+        return X.copy(), ws, self.blended(blend)[0](X), 0
+
+    monkeypatch.setattr(_Run, "polish", slow_polish)
+    t0 = time.perf_counter()
+    res, rec = continuation(StaggeredLinearization(), problem, StaggeredOptions(), None, None,
+                            t0 + 3.0 / cases.SHARE)
+    assert res is None and rec["reached"] == 0.0 and len(starts) == len(rec["stages"]) >= 1
+    for left, last in zip(starts[1:], rec["stages"][:-1]):
+        assert left >= last["t_stage"]
+    assert rec["stopped"] == "time" and rec["blocking"]["case"] in ("empty", "apex")
+    assert "share of the time" in rec["message"]
