@@ -160,10 +160,9 @@ def structural_gram(A: sp.spmatrix, shift: float = 0.0) -> sp.csc_matrix:
 
     Why: scipy's product drops the entries that come out exactly zero, and CHOLMOD orders the
     thinner pattern it is given far worse. The first weight fit of a cross vault sits at the
-    reference, whose grid edges have zero x, y or z differences: its matrix lost 24% of its
-    entries and each factorization took 0.109 s against 0.010 s with the full pattern (4,000
-    vertices, 11,408 edges), the whole fit 3.9 s where the next ones take 0.4 s. A fixed pattern
-    also lets every fit of a solve reuse one symbolic analysis. (:class:`GramPattern` keeps the
+    reference, whose grid edges have zero x, y or z differences, so its matrix loses entries and
+    its factorizations slow down many times (``studies.theory_whys`` measures both). A fixed
+    pattern also lets every fit of a solve reuse one symbolic analysis. (:class:`GramPattern` keeps the
     pattern for a series of matrices of one structure.)
 
     >>> A = sp.csc_matrix(np.array([[1.0, 1.0], [1.0, -1.0]]))
@@ -180,16 +179,16 @@ def structural_gram(A: sp.spmatrix, shift: float = 0.0) -> sp.csc_matrix:
 #: A row of ``A`` with more stored entries than this is a *dense row*: :class:`GramPattern` leaves
 #: it out of ``AᵀA`` and the solvers add it back as a low-rank term (:class:`SplitGram`,
 #: :class:`LowRankUpdatedFactor`). A row is a free vertex's coordinate and its entries are the
-#: vertex's edges, so a vertex of valence ``k`` puts a dense ``k × k`` block into ``AᵀA``: a fan of
-#: 8,000 supported rim vertices around one free apex took 4 GB and over 100 s. Ordinary meshes have
-#: no row near this length (valence 3-12).
+#: vertex's edges, so a vertex of valence ``k`` puts a dense ``k × k`` block into ``AᵀA`` (a fan of
+#: thousands of supported rim vertices around one free apex would fill gigabytes). Ordinary meshes
+#: have no row near this length (valence 3-12).
 DENSE_ROW_MIN = 256
 
 
 class GramPattern:
     """The structural pattern of ``AᵀA + I`` for one sparsity structure of ``A`` (see
     :func:`structural_gram`), computed once: each fit of a staggered solve has a new ``A`` on
-    the same structure (2 ms of its 2.5 ms at 3,500 edges went into the pattern). ``gram``
+    the same structure (building the pattern is most of the cost of the product). ``gram``
     gives the matrix on it, ``lower`` its lower triangle's data (sorted CSC, diagonal stored).
 
     Rows with more than :data:`DENSE_ROW_MIN` entries (``dense``, their indices) are left out of
