@@ -138,11 +138,9 @@ def _run_stability(args: argparse.Namespace) -> int:
     if args.max_load:
         m = max_load(scene, thickness=args.thickness, density=args.density, at=at, time_limit=args.time_limit)
         r = m.limit
-        atomic_write_text(out / "max-load-program.json", json.dumps({
-            "scene": info, "verdict": r.verdict, "max_load_kg": r.value, "optimum_kg": r.optimum,
-            "ipopt_status": r.ipopt_status, "message": r.message, "rounds": list(r.rounds),
-            "binding": [{"vertex": v, "distance_over_half_thickness": d} for v, d in r.binding]},
-            indent=1, default=float) + "\n")
+        atomic_write_text(out / "max-load-program.json", json.dumps(
+            {"scene": info, **_program_record(r), "max_load_kg": r.value, "optimum_kg": r.optimum}, indent=1,
+            default=float) + "\n")
         if not r.certified:
             print(f"selfsupport: no max load: {r.message}", file=sys.stderr)
             return EXIT_CODES["not_converged"]
