@@ -41,6 +41,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from selfsupport.core.errors import InputError
+from selfsupport.io.atomic import atomic_write_bytes
+from selfsupport.io.safety import check_output_dir, write_target
 from studies.common import (
     DEFAULT_CHECKER,
     PAPER_TABLE1,
@@ -186,7 +189,7 @@ def run_study(study: StudyRun, root: Path, runs: Path, *, quick: bool, checker: 
     command = f"python -m {study.module} {' '.join(argv)}"
     log(f"reproduce: [{time.strftime('%H:%M:%S')}] {study.name}: {command}")
     t0 = time.perf_counter()
-    with open(out / "log.txt", "w", encoding="utf-8") as f:
+    with open(write_target(out / "log.txt", what="study log"), "w", encoding="utf-8") as f:
         proc = subprocess.Popen([sys.executable, "-m", study.module, *argv], cwd=REPO, stdout=f,
                                 stderr=subprocess.STDOUT, start_new_session=True)
         try:
@@ -220,8 +223,7 @@ class Context:
 
     def picture(self, src: Path, name: str) -> str:
         """Copy a PNG a study drew into the report's figures; its path relative to the report."""
-        self.figures.mkdir(parents=True, exist_ok=True)
-        (self.figures / name).write_bytes(Path(src).read_bytes())
+        atomic_write_bytes(self.figures / name, Path(src).read_bytes())
         return f"{self.figures.name}/{name}"
 
     def render(self, network_json: Path, name: str, kind: str = "network", title: str | None = None,
@@ -726,6 +728,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise SystemExit(f"reproduce: --study-timeout needs a positive number of seconds, got {a.study_timeout}")
     items = [by_name[n] for n in names] if names else list(ITEMS)
     out = a.out.resolve()
+    try:  # before any study runs: a report that could not be written would waste them
+        check_output_dir(out, what="--out", files=("index.md", "index.html", "report.json"))
+    except InputError as e:
+        raise SystemExit(f"reproduce: {e}") from None
     runs = out / "runs"
     checker = a.checker.resolve() if a.checker and a.checker.is_file() else None
     stamp = run_stamp()

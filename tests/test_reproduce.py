@@ -210,6 +210,20 @@ def test_bad_input_is_one_line(tmp_path):
     assert rp.paper_root(tmp_path / "scenes") == tmp_path.resolve()  # its scenes/ folder is accepted too
 
 
+def test_a_report_that_could_not_be_written_is_refused_before_any_study(tmp_path, monkeypatch):
+    """A read-only index.html (someone's file) is refused at the start, not after hours of studies."""
+    (tmp_path / "scenes").mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    page = out / "index.html"
+    page.write_text("keep")
+    page.chmod(0o444)
+    monkeypatch.setattr(rp, "run_study", lambda *a, **k: pytest.fail("a study ran"))
+    with pytest.raises(SystemExit, match="reproduce: refusing to write .*index.html.*read-only"):
+        rp.main(["--scenes", str(tmp_path), "--out", str(out), "--only", "Fig. 15"])
+    assert page.read_text() == "keep"
+
+
 def test_a_study_is_skipped_without_its_inputs_and_stopped_at_its_limit(tmp_path):
     study = rp.STUDY_RUNS["koebe"]
     o = rp.run_study(study, tmp_path, tmp_path / "runs", quick=True, checker=None, timeout=60, log=lambda s: None)
