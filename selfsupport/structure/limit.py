@@ -721,11 +721,10 @@ def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: flo
     """
     t_start = time.perf_counter()
     deadline = t_start + time_limit
-    added, at_ = _added_pattern(scene, at, kg)
-    problem = _base_problem(scene, thickness, density, w_max)
-    V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
-    run = _program_run(problem, "feasibility", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
-                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    added, at_, how, run = _fixed_load_run("feasibility", scene, thickness, density=density, kg=kg, at=at,
+                                           w_max=w_max, start=start, options=options,
+                                           slide_supports=slide_supports, deadline=deadline, tol=tol,
+                                           max_iter=max_iter, progress=progress)
     tried = f"searched for a network inside t = {thickness:g} m under {kg:g} kg at {list(at_)} from {how}"
     if not run.settled:
         return _unsettled("feasibility", scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
@@ -741,6 +740,20 @@ def feasible(scene: Scene, *, thickness: float, density: float = 2000.0, kg: flo
                f"{hull['max_excess']:.3g} m)")
     return LimitResult("feasibility", None, float(kg), False, dataclasses.replace(res, message=message),
                        "not certified", run.raw, message, tuple(run.rounds), _binding(scene, hull), thickness)
+
+
+def _fixed_load_run(mode: str, scene: Scene, thickness: float, *, density: float, kg: float,
+                    at: Sequence[int] | None, w_max: Any, start: Network | SolveResult | None,
+                    options: Mapping[str, Any] | None, slide_supports: bool, deadline: float, tol: float,
+                    max_iter: int, progress: Callable[[dict], None] | None) -> tuple[np.ndarray, tuple, str, _Run]:
+    """The limit program ``mode`` under self-weight plus a fixed ``kg`` at ``at`` (feasibility,
+    min thickness), run from its start: (added pattern, loaded vertices, the start in words, the run)."""
+    added, at_ = _added_pattern(scene, at, kg)
+    problem = _base_problem(scene, thickness, density, w_max)
+    V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
+    run = _program_run(problem, mode, V, W, added, kg=float(kg), deadline=deadline, tol=tol,
+                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    return added, at_, how, run
 
 
 def _added_pattern(scene: Scene, at: Sequence[int] | None, kg: float) -> tuple[np.ndarray, tuple]:
@@ -778,11 +791,10 @@ def min_thickness(scene: Scene, *, density: float = 2000.0, guess: float, kg: fl
     """
     t_start = time.perf_counter()
     deadline = t_start + time_limit
-    added, at_ = _added_pattern(scene, at, kg)
-    problem = _base_problem(scene, guess, density, w_max)
-    V, W, how = _start(problem, start, float(kg), added, options, slide_supports)
-    run = _program_run(problem, "min_thickness", V, W, added, kg=float(kg), deadline=deadline, tol=tol,
-                       max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    added, at_, how, run = _fixed_load_run("min_thickness", scene, guess, density=density, kg=kg, at=at,
+                                           w_max=w_max, start=start, options=options,
+                                           slide_supports=slide_supports, deadline=deadline, tol=tol,
+                                           max_iter=max_iter, progress=progress)
     tried = f"minimised the thickness under {kg:g} kg at {list(at_)} from {how}"
     if not run.settled:
         return _unsettled("min_thickness", scene, guess, run, how, added, tried, t_start=t_start, deadline=deadline)
