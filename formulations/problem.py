@@ -200,9 +200,7 @@ class Planar:
 
     tol: float = 1e-3
     # a gentle penalty: faces and equilibrium then converge together and the polish finishes
-    # both; a strong one flattens the faces first and leaves the fit stuck (measured over 8 cases,
-    # generated cap, domes remeshed two ways at two spacings, the paper's vault as is and remeshed
-    # two ways: 1e-2 converged on 6, 1e-1 and 1e-3 on 5, 1e2 on 4)
+    # both; a strong one flattens the faces first and leaves the fit stuck
     penalty: float = 1e-2
     name: ClassVar[str] = "planar"
 

@@ -213,12 +213,11 @@ def check(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: Any 
     fits = fit_weights(prob, L, backend=backend)
     starts = [sw[scene.active_edges] if sw is not None and sw.size == scene.mesh.n_edges else None for sw in stored_w]
     if any(w is not None for w in starts):
-        # The fit from eps can stall above tol where the file's weights are in equilibrium (a
-        # solved dome: 2.2e-6 against 5.7e-13), and the verdict would deny what the file proves:
-        # fit from those weights too, and keep the better fit of each case. eps (which only keeps
-        # fits off zero) comes down to their smallest weight: the solve computed its eps on the
-        # reference, and a flattened pillar vault's 397 weights 0.25% under this geometry's, once
-        # clipped, stalled like the fit from eps.
+        # The fit from eps can stall above tol where the file's weights are in equilibrium, and
+        # the verdict would deny what the file proves: fit from those weights too, and keep the
+        # better fit of each case. eps (which only keeps fits off zero) comes down to their
+        # smallest weight: the solve computed its eps on the reference, and weights clipped to
+        # this geometry's eps stall like the fit from eps.
         floor = min(float(w.min(initial=np.inf)) for w in starts if w is not None)
         loose = eps is None and 0.0 < floor < fits[0].eps
         prob_s = replace(prob, bounds=replace(prob.bounds, lower=floor)) if loose else prob

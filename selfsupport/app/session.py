@@ -260,8 +260,7 @@ class SolveWorker:
     analysis_delay
         Seconds a frame's analysis waits for the edits to pause; a newer edit in that time drops
         it. While a drag goes on, the analysis would share the CPUs with the next edit's solve
-        (25-35 ms more per drawn frame, measured at 1,200 vertices), and the page draws the
-        panels only when the edits pause anyway.
+        and delay its frame, and the page draws the panels only when the edits pause anyway.
     max_stale
         Seconds without a frame after which a newer request no longer cancels the running
         solve: it finishes, its (one edit old) frame goes out, then the newest request is

@@ -100,9 +100,8 @@ STATUS_HINT: dict[str, str] = {
 #: network inside the hull proves nothing (see selfsupport.structure.stability).
 HULL_HINT = ("not finding a network inside the hull is no proof of collapse; try a larger --thickness or more "
              "supports, or --method ipopt")
-#: Above this many vertices a hint does not suggest IPOPT: the largest meshes its simultaneous
-#: solve converged on are lilium-pillar (1,200 vertices, 107 s) and a 1,000-vertex disk (15 s);
-#: it ran out of time on lilium, cyl2 and dome2 (README, *Why IPOPT fails on the complex scenes*).
+#: Above this many vertices a hint does not suggest IPOPT: its simultaneous solve runs out of time
+#: on the paper's larger scenes (docs/guide/methods.md).
 IPOPT_HINT_MAX = 2000
 #: How each hint's IPOPT alternative is struck out for a mesh above IPOPT_HINT_MAX.
 _NO_IPOPT = (("try --method ipopt, ", "try "), (", or try --method ipopt", ""), (", or --method ipopt", ""),
@@ -330,8 +329,7 @@ def _not_converged_line(result) -> str:
         from selfsupport.methods.multilevel import DIRECT_MAX
 
         if n > DIRECT_MAX:
-            # (lilium and lilium-pillar subdivided twice, 28k quads: the single level stalled at
-            # max relative error 7.8 and 2.6, the multilevel solve converged in 47 and 53 s)
+            # (a single level can stall far from equilibrium at this size where the levels converge)
             hint = (f"try --method {find_method(levels=True)} (a mesh this large, e.g. a subdivided design); "
                     f"otherwise {hint}")
     if caps is not None and caps.simultaneous:  # (IPOPT or nlopt ran already: the other one to try is staggered)

@@ -136,24 +136,21 @@ def relative_errors(*, vertices: np.ndarray, edges: np.ndarray, weights: np.ndar
 
 
 #: A vertex whose relative error is at most this many times its round-off floor
-#: (:func:`roundoff_floors`) is in equilibrium as far as double precision can tell. Measured on
-#: polished 64k pillar vaults: the worst vertex's error / its floor 1.7 and 2.0 (99.9th
-#: percentile 1.2–1.3): the floor bounds the coordinates' rounding, the solve adds a little.
+#: (:func:`roundoff_floors`) is in equilibrium as far as double precision can tell: the floor
+#: bounds the coordinates' rounding, and a polished solve adds a little (about twice the floor).
 FLOOR_MARGIN = 4.0
 #: ... but never a relative error above this: the floor grows without bound where a vertex's load
-#: vanishes (vertices slid together: a 256k prolongation's boundary vertices 5e-6 m apart, loads
-#: 1.6e-7 N, floor 1.6e-5), and such a network is degenerate, not in equilibrium.
+#: vanishes (vertices slid together), and such a network is degenerate, not in equilibrium.
 FLOOR_CAP = 1e-8
 #: A vertex whose load is below this fraction of the median free vertex's load has (nearly) no
 #: area of its own: it slid onto its neighbours. Its floor is then large because the network is
-#: degenerate, so :func:`roundoff_limit` does not blame rounding (the 256k pillar vault's
-#: vertices held above 1e-9 by rounding carry at least 0.026 of the median load).
+#: degenerate, so :func:`roundoff_limit` does not blame rounding (vertices held by rounding alone
+#: carry a few hundredths of the median load or more).
 DEGENERATE_LOAD = 1e-3
 #: ... and one whose load is below this fraction (but above DEGENERATE_LOAD) sits in squashed
 #: faces: on an unsquashed mesh even a free corner carries about a quarter of a typical load.
 #: :func:`roundoff_message` then names it, since the small load raises the floor as much as the
-#: forces do (the failing 256k pillar vault networks: 0.006–0.04 beside their free edges; the
-#: one that reached 1e-8: 0.23).
+#: forces do.
 SQUASHED_LOAD = 0.1
 
 

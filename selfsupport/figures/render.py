@@ -264,9 +264,8 @@ _PREFIXES: tuple[tuple[float, str], ...] = ((1e9, "G"), (1e6, "M"), (1e3, "k"), 
 class Unit:
     """The one unit in which a figure writes a quantity: ``value_SI / scale`` in ``symbol``.
 
-    Tick labels used to carry their own prefixes (``0 N``, ``8 kN``; ``20000`` on an axis
-    labelled N·m next to a colorbar in kN·m): one prefix per quantity, named once in the
-    label, reads unambiguously. The data stay in SI units; only the labels are scaled.
+    One prefix per quantity, named once in the label, reads unambiguously (prefixes per tick,
+    ``0 N`` next to ``8 kN``, or ``20000`` on an axis in N·m beside a colorbar in kN·m, do not). The data stay in SI units; only the labels are scaled.
 
     Attributes
     ----------

@@ -253,16 +253,8 @@ def load_cases_note(problem: Problem) -> str | None:
     extra mass in one case, not a uniform surcharge, which scales the self-weight). One geometry
     must carry every case; their difference, a load on that same geometry, must be carried by a
     difference of weights of either sign. Free edges leave that little room, and the sentence
-    names them when the mesh has boundary vertices that are not supports. Measured
-    (``selfsupport solve --load-cases``): generated domes and dented disks of ~400 vertices with a
-    supported boundary converge under self-weight and self-weight plus a point load of up to a
-    third of it; a pillar vault with free edges stalls under the same cases with both methods, as
-    do a triangulated vault with free edges, dome2 with an oculus, and the pillar vault under a
-    surcharge on half of it; lilium and lilium-pillar, their boundaries supported, stall too with
-    5% or 20% of the weight on one vertex (each converges with that load as its only case) with
-    the plain step; lilium at 5% converges with the coupled step from the start (38 iterations),
-    which the staggered method now tries first for such cases
-    (:func:`selfsupport.methods.staggered._couples_first`).
+    names them when the mesh has boundary vertices that are not supports (``python -m
+    studies.load_cases`` shows which of the paper's designs stand under which cases).
 
     >>> from selfsupport.core.shapes import make_shape
     >>> from selfsupport.core.loads import PointLoad, SelfWeight

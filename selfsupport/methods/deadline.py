@@ -69,10 +69,8 @@ def ipopt_stop_callback(nx: int, ng: int, n_p: int):
 
 #: Seconds per vertex that finishing takes once the solve has stopped: the final polish, the
 #: networks, the objective terms and the distance evidence (one closest-point index and one
-#: query), the JSON text and its write (70 MB at 200k vertices). Measured with
-#: ``python -m studies.fixed_costs``: 12.5-13.9 µs per vertex at 200k vertices (2.5-2.8 s) on
-#: a 2-core machine at load 0.8.
-#: Kept at 1.5x that, because a loaded machine is slower at the end of a run too.
+#: query), the JSON text and its write: about 1.5x what ``python -m studies.fixed_costs`` measures
+#: on a 2-core machine, because a loaded machine is slower at the end of a run too.
 FINISH_SECONDS_PER_VERTEX = 2e-5
 
 

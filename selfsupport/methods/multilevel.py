@@ -102,14 +102,13 @@ from selfsupport.methods.weightfit import WeightFitBackend
 __all__ = ["Multilevel", "solve_warm", "coarsen", "coarse_problem", "why_not", "DIRECT_MAX", "FACTOR", "WARM_ALPHA0",
            "START_TOL"]
 
-#: Meshes up to this many vertices are solved on one level (a cold 4k solve takes 1–3 s; at 8k
-#: two levels took half the time of one: pillar vault 11.7 vs 23.6 s, concave disk 10.0 vs 30.9 s).
+#: Meshes up to this many vertices are solved on one level: a cold solve there takes seconds, and
+#: above it two levels cost less than one (``python -m studies.method_choice`` measures the crossover).
 DIRECT_MAX = 6000
 #: Vertex ratio between neighbouring levels (halving the spacing).
 FACTOR = 4.0
-#: α at the start of a warm level. Measured on the 4k → 16k pillar vault (iterations / time /
-#: mean distance to the reference; cold 16k: 25 it.): α₀ = 1 → 23 it. (the schedule from the
-#: top), 1e-2 → 18, 1e-4 → 7–10 it. at the cold solve's distance (±5%), 1e-6 → 8 it.
+#: α at the start of a warm level: small, so that the level keeps its warm start's shape instead of
+#: repeating the α schedule from the top (α₀ = 1), which costs nearly a cold solve's iterations.
 WARM_ALPHA0 = 1e-4
 #: How a level's network starts the next: "stress" (its stress field carried to the finer mesh
 #: and the network put in equilibrium there, :mod:`.prolong`; the interpolation where that fails)
@@ -117,21 +116,17 @@ WARM_ALPHA0 = 1e-4
 PROLONGATIONS = ("stress", "interpolation")
 #: A level prolonged by its stress that ends more than this many times farther from the reference
 #: than the level below (mean distance) is probed by one cold iteration and, unless that converges,
-#: refined by up to RECLAIM_STEPS SQP steps in equilibrium (refine.py). Measured, prolonged / below:
-#: concave disk 0.3–0.4, cross vault 0.95, pillar vault 1.24–1.34, dome 3.6 and barrel vault 68
-#: (4e-4 of the diagonal against 6e-6: a surface already in equilibrium, which the stress field
-#: reproduces only to the fine mesh's discretization). 1.25 until a 256k pillar vault's 64k level
-#: at 1.34 (what that grid can do: 8.3e-3, the single level 8.0e-3) spent 228 s in a probe and ten
-#: refinement steps that stalled.
+#: refined by up to RECLAIM_STEPS SQP steps in equilibrium (refine.py). Not lower: a prolonged level
+#: may end somewhat farther than the one below where its grid can do no better (a surface already
+#: in equilibrium is reproduced only to the fine mesh's discretization), and a probe there costs
+#: minutes at large sizes for nothing.
 RECLAIM = 2.0
 RECLAIM_STEPS = 10
 #: ... but an intermediate level of at most this many vertices is solved cold instead (its first
 #: iteration is that probe; it is to start the next level, not to be the answer, where the
-#: refinement walks back closer): the level below's stress did not carry (its coarser mesh
-#: held a stress whose directions this mesh's edges cannot carry in compression: a 256k pillar vault's 4,527-vertex
-#: level, 4.3e-3 of the diagonal from the reference, put 21% of the next level's carried weights
-#: below zero; the polished 16k network lay 1.8e-2 away and ten refinement steps stalled there),
-#: and a cold solve at this size takes 10–25 s (16k dome, pillar vault). Larger levels are refined.
+#: refinement walks back closer): the level below's stress did not carry (a coarse mesh can hold a
+#: stress whose directions this mesh's edges cannot carry in compression, and refining from there
+#: stalls), and a cold solve at this size takes seconds. Larger levels are refined.
 #: A fine level this small that iterated from interpolated heights without converging is solved cold
 #: (a larger one only when it stopped out of equilibrium, not held there by rounding alone).
 COLD_MAX = 4 * DIRECT_MAX
@@ -343,7 +338,7 @@ def coarsen(scene: Scene, n_target: int) -> Scene:
     hole_pts = np.asarray(holes, float).reshape(-1, 2)
     for _ in range(3):  # Triangle's triangles stay below the area bound, ~0.65 of it on average: rescale
         # (the area in positional notation: Triangle reads "5e-05" as a = 5 and the switch "e",
-        # whose extra output crashed the process — lilium subdivided three times, 2 m across)
+        # whose extra output crashes the process)
         flags = f"pq30a{np.format_float_positional(area, trim='-')}YQ"
         V2, F2, *_ = igl.triangle.triangulate(pts, segs, hole_pts, flags=flags)
         ratio = len(V2) / max(int(n_target), 3)
@@ -573,10 +568,9 @@ class Multilevel:
         if pro is not None and pro.network is not None:
             return self._carried_by_stress(prob, pro, below, opts, extra, fine=fine, step=step, deadline=deadline)
         if pro is not None and pro.nearest is not None and pro.max_relative_error <= START_TOL:
-            # the polish came near equilibrium but not to PROLONG_TOL (a 256k pillar vault:
-            # 1.0e-7, at the round-off floor of its free-boundary arches): a start as good as
-            # a level's network (START_TOL), far nearer than interpolated heights (measured
-            # there, 900 s limit: 4 iterations ended at 5.6e-6, from the interpolation at 1.25)
+            # the polish came near equilibrium but not to PROLONG_TOL (held by the round-off
+            # floor of free-boundary arches): a start as good as a level's network (START_TOL),
+            # far nearer than interpolated heights
             carried = {"by": "stress, nearest", "seconds": pro.seconds,
                        "max_relative_error": pro.max_relative_error, "why": pro.info.get("why")}
             return _LevelStart(warm=WarmStart(pro.nearest, reference=scene.mesh), extra=extra, carried=carried,
@@ -663,10 +657,8 @@ class Multilevel:
                                        and problem.scene.mesh.n_vertices <= COLD_MAX))
                 or out_of_time(deadline)):
             return res, None
-        # (the Fig. 16 vault subdivided twice, turned or mirrored: 49 iterations from interpolated
-        # heights stalled at 8e-5 / 5e-5 where the design as read converged in 19; cold: 43
-        # iterations, 3.7 s, converged. cyl2 subdivided twice: by clusters stalled at 2.05, by its
-        # own levels turned 37° at 1.7e-7; on one level both converge, 61 s / 72 s)
+        # (interpolated heights can hold a level near a stall that a cold solve of the same level
+        # does not meet)
         cold = self.staggered.solve(problem, opts, progress=step, deadline=deadline)
         levels.append({**self._level(cold, problem.scene), "cold_after": res.status})
         if cold.status in ("converged", "interrupted") or cold.max_relative_error < res.max_relative_error:

@@ -76,9 +76,8 @@ MAX_SHRINK = 0.9999
 STAGE_TOL = 1e-9
 #: Gauss–Newton steps a stage may take.
 STAGE_STEPS = 15
-#: Most stages ("iteration_limit" after them). Runs that converged took 32–148 (the paper's vault
-#: and lilium remeshed); runs that stalled crawled on for 530–570 stages at a fold, cutting the
-#: band by 1e-4 per stage.
+#: Most stages ("iteration_limit" after them): a converging homotopy needs tens to a few hundred;
+#: beyond, it is crawling along a fold, cutting the band by ~1e-4 per stage.
 MAX_STAGES = 400
 
 

@@ -40,8 +40,7 @@ from selfsupport.methods.deadline import DeadlineReached, out_of_time
 
 #: Anderson's rounds tried before Newton (each one load evaluation and one solve with the stress
 #: Laplacian's factor). From a start near equilibrium they converge where Newton first spends a
-#: coloured finite-difference Jacobian and a SuperLU factorization: the final polish of a
-#: prolonged 256k concave disk (error 4e-10 on entry) took 10 s by Newton.
+#: coloured finite-difference Jacobian and a SuperLU factorization (seconds at large sizes).
 ANDERSON_FIRST = 8
 
 

@@ -2,9 +2,9 @@
 
 A network interpolated to a finer mesh is not in equilibrium there: its heights are a C¹
 interpolant whose second derivatives jump across the coarse edges, and a vertex load shrinks
-with the area it carries (h²), so a 4× finer level's first weight fit had a max relative error
-of 1.8 (concave disk, 4k → 16k; median 0.05, 90th percentile 0.6) and 36 (pillar vault,
-64k → 256k), and the fine level needed 10–21 staggered iterations to recover. What carries over
+with the area it carries (h²), so a 4× finer level's first weight fit is far from equilibrium
+(max relative errors of order 1 to 10) and the fine level needs a dozen or more staggered
+iterations to recover. What carries over
 from level to level is the *stress*: the horizontal force per length, a smooth 2×2 tensor field
 ``σ`` (the cofactor of the Airy function's Hessian, docs/theory/airy.md), which the coarse weights
 sample along the coarse edges. So:
@@ -14,20 +14,17 @@ sample along the coarse edges. So:
    boundary), averaged to the vertices by area, is interpolated linearly to each fine edge's
    midpoint. The boundary edges' weights are left out of it: the lifting of a smooth Airy
    function gives them none, so what they carry is a line force (an arch along a free edge),
-   which step 2 carries as a force. Counted in the face stress as well, that force was carried
-   twice, smeared over the interior edges beside the boundary; there the polish pulled those
-   edges straight beside the arch and squashed the strip between them in plan (a 256k pillar
-   vault's 64k level: smallest vertex load 0.078 of the median, 0.165 without;
-   docs/theory/multilevel.md);
+   which step 2 carries as a force. Counted in the face stress as well, that force would be
+   carried twice, smeared over the interior edges beside the boundary, where the polish would
+   squash the strip beside the arch in plan (docs/theory/multilevel.md);
 2. each interior fine edge takes the weight of the Airy function ``φ_e = ½ (p − m_e)ᵀ H_e (p − m_e)``
    with ``H_e = cof σ(m_e)`` lifted over its two faces (the jump of the faces' gradients across
    it, as :func:`selfsupport.analysis.construction.lifting_weights`); a boundary edge the
    horizontal force ``w ℓ`` (top-view length) of the nearest coarse *boundary* edge that carries
    any, over its own length (:func:`boundary_weights`: along a free boundary that force is what
    balances the interior's pull, ``H κ = σ``, and stays as the edges shorten; the nearest edge of
-   any kind, often an interior one beside the boundary, gave a 256k pillar vault boundary edges
-   from 1.9 to 1.8e4 N/m side by side, and its polish slid boundary vertices to within 5e-6 m of
-   each other);
+   any kind, often an interior one beside the boundary, would give neighbouring boundary edges
+   weights orders of magnitude apart);
 3. the smallest relative change that puts those weights in horizontal equilibrium on the fine
    top view (``δw = −DAᵀ(ADAᵀ)⁻¹Aw``, ``D = diag(w²)``, one vertex-sized factorization),
    clipped to the bounds;
@@ -38,26 +35,21 @@ sample along the coarse edges. So:
    floor). Where that fails, step 4 with the
    weights of step 2 as they are (clipped): the polish then moves the top view into horizontal
    equilibrium with them. Where neither comes within :data:`START_TOL`, the weights of steps
-   1–2 with the boundary edges counted in the stress after all, as they are (a fallback: on Catmull–Clark quads the boundary-free stress did not balance
-   where that did, cas subdivided twice 9.5e-2, twocirc-3's clusters 2.9).
+   1–2 with the boundary edges counted in the stress after all, as they are (a fallback for
+   Catmull–Clark quads, where the boundary-free stress may not balance).
 5. Where the fine scene is the coarse one refined by Catmull–Clark (a designer's subdivided
    design, :func:`~selfsupport.core.subdivision.subdivide_like`) and steps 1–4 fail: the
    network itself subdivided by the same step, its weights carried edge by edge
    (:func:`subdivided_weights`), its supports put back where the design has them, polished as in
-   step 4. A quad network has about as many edges as horizontal equations (2 per free vertex;
-   cyl2 subdivided once: 15,916 edges that carry force against 16,422 equations), so its top
-   view has to move with its weights: the projection of step 3 drove 98% of the weights to the
-   lower bound there, and the stress of step 2 lifted over quads did not balance either (cyl2
-   2,348 → 8,566 vertices: the polishes ended at 1.2 and 11). The subdivided network polished
-   to 2.5e-10 in 1.1 s, 0.98× as far from the reference as the coarse network. Tried first it
-   lands farther than steps 1–4 where those work (lilium ×1 → ×2: 4.4e-2 against 2.7e-2 of the
-   diagonal, twocirc-3 1.1e-2 against 2.9e-3), and over triangles, whose subdivision is not a
-   grid, it does not balance (lilium: 3.2), hence last.
+   step 4. A quad network has about as many edges as horizontal equations (2 per free vertex),
+   so its top view has to move with its weights: the projection of step 3 drives most weights to
+   the lower bound there, and the stress of step 2 lifted over quads does not balance either.
+   It comes last because where steps 1–4 work they land nearer the reference, and over
+   triangles, whose subdivision is not a grid, it does not balance.
 
-The result is a fine network in equilibrium to round-off, as near the reference as the coarse
-one was (measured at 16k: concave disk 3.8e-3 of the diagonal, its coarse network 3.8e-3;
-pillar vault 8.4e-3 against 7.4e-3), in a fraction of a second, where iterating from the
-interpolated network took 10 staggered iterations at 16k and 15–21 at 64k.
+The result is a fine network in equilibrium to round-off, about as near the reference as the
+coarse one was, in a fraction of the time that iterating from the interpolated network takes
+(``python -m studies.scaling`` measures both).
 
 Example
 -------
@@ -103,8 +95,8 @@ __all__ = ["face_stress", "vertex_stress", "cofactor", "quadratic_lifting_weight
 #: 1e-11–1e-10; a polish that did not converge is far above).
 PROLONG_TOL = 1e-8
 #: A coarser level's network starts the next one when its max relative error is at most this (a
-#: start needs to be near equilibrium, not at round-off: a 64k level of a 256k pillar vault that
-#: stalled and was polished to 2.8e-9 is a network near the reference all the same). Below it a
+#: start needs to be near equilibrium, not at round-off: a level polished only to 1e-9 is a
+#: network near the reference all the same). Below it a
 #: candidate's polish has come near; above it, the next candidate is tried (:func:`prolong`).
 START_TOL = 1e-6
 #: The candidate tried only when none before it came within START_TOL: the stress with the
@@ -358,10 +350,8 @@ def _stress_candidates(problem: Problem, sp_: ScaledProblem, network: Network, r
         return [], ["the stress weights are not finite"]
     # step 3 with relative changes (small weights stay small rather than being pushed across
     # zero by the large ones' corrections); where the polish cannot balance those, the weights
-    # as carried, the polish moving the top view into equilibrium with them (a 3,000-vertex
-    # concave disk needed that, its 2,400- and 16,000-vertex versions the first). Where
-    # neither comes within START_TOL, the stress with the boundary edges counted: cas subdivided twice carried by its own levels, 9.5e-2 without them,
-    # in equilibrium with them
+    # as carried, the polish moving the top view into equilibrium with them. Where neither comes
+    # within START_TOL, the stress with the boundary edges counted (FALLBACK)
     projected = restore_horizontal_equilibrium(X[:, :2], top.edges, w, top.free,
                                                metric=np.maximum(w, sp_.lower) ** 2)
     # (the fallback's weights made only when it is tried: a stress carry is seconds at 256k)
@@ -405,10 +395,9 @@ def _balanced(problem: Problem, sp_: ScaledProblem, X: np.ndarray, wc: np.ndarra
 
 
 def _polish_order(candidates: list[_Candidate]) -> list[tuple[_Candidate, bool]]:
-    """(candidate, Newton?) in the order tried: per candidate Anderson's rounds (cheap: 2.8 s at
-    256k vertices), then Newton's steps; with a subdivided candidate, Anderson's rounds for every
-    candidate first (the stress candidates' Newton steps, failing, took most of a 370k cas
-    level's 72 s)."""
+    """(candidate, Newton?) in the order tried: per candidate Anderson's rounds (cheap), then
+    Newton's steps; with a subdivided candidate, Anderson's rounds for every candidate first (the
+    stress candidates' Newton steps, when they fail, cost most of a large level's time)."""
     subdivided = candidates[-1].name == "subdivided" if candidates else False
     return [(c, nw) for nw in (False, True) for c in candidates] if subdivided else \
         [(c, nw) for c in candidates for nw in (False, True)]

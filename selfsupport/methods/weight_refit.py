@@ -57,8 +57,7 @@ from selfsupport.core.result import Network
 __all__ = ["refit_weights", "edge_bounds", "MAX_CHANGE"]
 
 #: A refit that needs a larger relative change of any weight is not removing rounding, and is not
-#: applied. Measured: 2e-7 on a 256k pillar vault; 2.9e-4 on a 600-vertex one 10⁶ m from the
-#: origin, at a weight 4e-4 of the median (a force change of 9e-7 of the median load).
+#: applied (rounding needs far less, even 10⁶ m from the origin).
 MAX_CHANGE = 0.01
 #: Tikhonov shift of the normal equations, relative to their largest diagonal entry: ``B Bᵀ`` is
 #: singular along the flexes, whose part of the residual the refit leaves (``Bᵀ`` maps them to 0).
@@ -84,8 +83,7 @@ def refit_weights(network: Network, tol: float, *, lower: np.ndarray | float = 0
     A = weight_matrix(top, V)
     SA = (sp.diags(rows) @ A).tocsc()
     b = load_vector(top, L)
-    # held: an edge that carries nothing, and a weight at a bound (a 256k pillar vault has 34k at
-    # its lower bound: let move, half of them went below it)
+    # held: an edge that carries nothing, and a weight at a bound (let move, many would cross it)
     held = (w0 == 0.0) | (w0 <= lo * (1 + 1e-12)) | (w0 >= up * (1 - 1e-12))
     for _ in range(BOUND_ROUNDS):
         w = _refit(SA, A, b, rows, w0, np.where(held, 0.0, np.abs(w0)), rounds)

@@ -398,7 +398,7 @@ class _Run:
             self.warm_info["used"] = warm_try = True
         elif cur is not None and opt.warm_iterate:
             self.warm_info["used"] = True
-        else:  # (a warm start this far from equilibrium measured slower than a cold one)
+        else:  # (a warm start this far from equilibrium is slower than a cold one)
             if self.w_warm is not None:
                 self.warm_info.update(used=False, first_error=cur.max_rel_error if cur else None)
                 X = self.X0.copy()
