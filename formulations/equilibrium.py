@@ -100,23 +100,50 @@ class Topology:
     def m(self) -> int:
         return int(self.edges.shape[0])
 
+    @cached_property
+    def weight_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The CSC structure of :func:`weight_matrix` (sorted row indices, the layout scipy's
+        COO conversion gives) and, per stored entry, its edge, coordinate and sign:
+        ``(indptr, indices, edge, coord, sign)``. Built once; each assembly fills the values."""
+        e = self.edges
+        k = np.arange(self.m)
+        rows, cols, coord, sign = [], [], [], []
+        for end, s in ((0, 1.0), (1, -1.0)):
+            fi = self.free_index[e[:, end]]
+            ok = fi >= 0
+            for c in range(3):
+                rows.append(3 * fi[ok] + c)
+                cols.append(k[ok])
+                coord.append(np.full(int(ok.sum()), c))
+                sign.append(np.full(int(ok.sum()), s))
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        order = np.lexsort((rows, cols))
+        indptr = np.r_[0, np.cumsum(np.bincount(cols, minlength=self.m))]
+        return (indptr, rows[order], cols[order], np.concatenate(coord)[order], np.concatenate(sign)[order])
+
+    @cached_property
+    def laplacian_pattern(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], np.ndarray]:
+        """The structures of :func:`position_blocks`' ``K_ff`` and ``K_fs`` (CSR ``(indptr,
+        indices, source)``: entry ``source`` of ``[w, w, −Σ_j w_ij]``, the edges in both
+        directions, then the diagonal) and the permutation that orders ``[w, w]`` as the CSR
+        data of the weight graph (whose row sums are the diagonal). Built once."""
+        e, n, m = self.edges, self.n, self.m
+        ids = np.arange(1, 2 * m + 1, dtype=float)  # (exact identifiers: no duplicates to sum)
+        W = sp.coo_matrix((ids, (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+        L = (W + sp.diags(2 * m + 1 + np.arange(n, dtype=float))).tocsr()[self.free]
+        Kff, Kfs = L[:, self.free].tocsr(), L[:, ~self.free].tocsr()
+        blocks = tuple((K.indptr.copy(), K.indices.copy(), K.data.astype(np.int64) - 1) for K in (Kff, Kfs))
+        return blocks[0], blocks[1], (W.indptr.copy(), W.indices.copy(), W.data.astype(np.int64) - 1)
+
 
 def weight_matrix(top: Topology, vertices: np.ndarray) -> sp.csc_matrix:
     """``A(V)``, shape ``(3 n_free, m)``: column ``k`` holds ``v_j − v_i`` at free ``i`` and
-    ``v_i − v_j`` at free ``j`` for edge ``k = (i, j)``."""
+    ``v_i − v_j`` at free ``j`` for edge ``k = (i, j)``. The structure is the topology's
+    (:attr:`Topology.weight_pattern`); only the values are computed here."""
+    indptr, indices, edge, coord, sign = top.weight_pattern
     e = top.edges
     d = vertices[e[:, 1]] - vertices[e[:, 0]]
-    rows, cols, vals = [], [], []
-    k = np.arange(top.m)
-    for end, sign in ((0, 1.0), (1, -1.0)):
-        fi = top.free_index[e[:, end]]
-        ok = fi >= 0
-        for c in range(3):
-            rows.append(3 * fi[ok] + c)
-            cols.append(k[ok])
-            vals.append(sign * d[ok, c])
-    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(3 * top.n_free, top.m))
+    return sp.csc_matrix((sign * d[edge, coord], indices, indptr), shape=(3 * top.n_free, top.m))
 
 
 def load_vector(top: Topology, loads: np.ndarray) -> np.ndarray:
@@ -141,10 +168,22 @@ def stress_laplacian(top: Topology, weights: np.ndarray) -> sp.csr_matrix:
 def position_blocks(top: Topology, weights: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """Rows of ``L_w`` at free vertices, split into free columns ``K_ff`` and support columns ``K_fs``.
 
-    Per coordinate, the residual at free vertices is ``K_ff X_free + K_fs X_sup − b_c``.
+    Per coordinate, the residual at free vertices is ``K_ff X_free + K_fs X_sup − b_c``. The
+    structures are the topology's (:attr:`Topology.laplacian_pattern`), the values those of
+    :func:`stress_laplacian`; a zero weight or row sum, which that drops from the structure,
+    takes its path.
     """
-    L = stress_laplacian(top, weights)[top.free]
-    return L[:, top.free].tocsr(), L[:, ~top.free].tocsr()
+    weights = np.asarray(weights, float)
+    ff, fs, (w_ptr, w_idx, w_src) = top.laplacian_pattern
+    both = np.r_[weights, weights]
+    W = sp.csr_matrix((both[w_src], w_idx, w_ptr), shape=(top.n, top.n))
+    src = np.r_[both, -np.asarray(W.sum(axis=1)).ravel()]
+    if not np.all(src):
+        L = stress_laplacian(top, weights)[top.free]
+        return L[:, top.free].tocsr(), L[:, ~top.free].tocsr()
+    nf = top.n_free
+    return tuple(sp.csr_matrix((src[source], indices, indptr), shape=(nf, cols))
+                 for (indptr, indices, source), cols in ((ff, nf), (fs, top.n - nf)))
 
 
 def residual(top: Topology, vertices: np.ndarray, weights: np.ndarray, loads: np.ndarray) -> np.ndarray:
