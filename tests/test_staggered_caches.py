@@ -117,3 +117,30 @@ def test_step3_keeps_one_gram_matrix_per_constant_term_across_iterations(scene):
         assert _identical(kept[0], fresh[0])
         for a, b in zip(kept[1:4], fresh[1:4]):
             assert np.array_equal(a, b)
+
+
+def test_the_finish_screen_and_the_polish_share_one_factor_and_polish_alike(scene):
+    """The screen's factor of −K_ff is the polish's: the polish with that workspace gives the
+    positions a polish without one gives, bit for bit."""
+    from formulations import Problem
+    from selfsupport.core.loads import SelfWeight
+    from selfsupport.methods.polish import polish
+    from selfsupport.methods.staggered.finish import screen_ratio
+
+    prob = Problem.build(scene, SelfWeight())
+    sp_ = prob.scaled()
+    top, sc, X = sp_.top, sp_.scaling, sp_.X
+    rng = np.random.default_rng(4)
+    w = rng.uniform(0.5, 1.5, top.m) * float(np.median(np.abs(sp_.L[0])))
+    L = sc.loads_at(prob.loads, scene.mesh, X)[0]
+    ref = scene.mesh.with_vertices(X)
+    ws: dict = {}
+    d_it = np.full(len(X), 1e-3)
+    assert screen_ratio(top=top, X=X, w=w, L=L, reference=ref, d_it=d_it, workspace=ws) > 0
+    shared = ws["laplacian"]
+    kept = polish(top, X, w, prob.loads.primary, scene.mesh, sc, workspace=ws, fallbacks=False)
+    alone = polish(top, X, w, prob.loads.primary, scene.mesh, sc, fallbacks=False)
+    assert ws["laplacian"] is shared
+    assert np.array_equal(kept[0], alone[0]) and np.array_equal(kept[1], alone[1]) and kept[2] == alone[2]
+    assert screen_ratio(top=top, X=X, w=w, L=L, reference=ref, d_it=d_it, workspace=ws) == \
+        screen_ratio(top=top, X=X, w=w, L=L, reference=ref, d_it=d_it)

@@ -70,6 +70,8 @@ class SPDFactor:
         n = L.shape[0]
         same = (self._pattern is not None and self._symbolic is not None
                 and np.array_equal(self._pattern[0], L.indptr) and np.array_equal(self._pattern[1], L.indices))
+        if same and self.backend == "cholmod" and np.array_equal(self._values, L.data):
+            return True  # (the very matrix factored last: its factor stands)
         try:
             if same:
                 S = self._S
@@ -84,7 +86,7 @@ class SPDFactor:
         except (ArithmeticError, ValueError):  # not (numerically) positive definite
             self._symbolic, self._pattern = None, None
             return False
-        self._S = S
+        self._S, self._values = S, L.data.copy()
         self.backend, self._f = "cholmod", self._symbolic
         return True
 
