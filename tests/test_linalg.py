@@ -141,3 +141,28 @@ def test_refactoring_the_very_same_matrix_keeps_the_factor_and_new_values_refact
     lower.sort_indices()
     spd_factor(lower, lower=True, reuse=f)
     assert len(calls) == 3 and np.array_equal(f.solve(b), fresh)
+
+
+@pytest.mark.parametrize("at_reference", [True, False])
+def test_the_gram_matrix_from_kept_products_is_scipys_bit_for_bit(at_reference, monkeypatch):
+    """A pattern keeps the products of AᵀA (small meshes) or not (GRAM_PRODUCTS_MAX): the same
+    matrix either way, to the last bit, with A's exact zeros (a grid at its reference) too."""
+    from formulations.equilibrium import weight_matrix
+    from selfsupport.core import linalg
+
+    scene = make_shape("cross_vault", n_vertices=400)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    rng = np.random.default_rng(5)
+    V = scene.mesh.vertices + (0 if at_reference else 0.05 * rng.standard_normal(scene.mesh.vertices.shape))
+    A = weight_matrix(top, V)
+    A = sp.csc_matrix((A.data * rng.uniform(0.5, 2.0, A.shape[0])[A.indices], A.indices, A.indptr), shape=A.shape)
+    kept = linalg.GramPattern(A)
+    assert kept.products is not None
+    monkeypatch.setattr(linalg, "GRAM_PRODUCTS_MAX", 0)
+    plain = linalg.GramPattern(A)
+    assert plain.products is None
+    Qk, Qp = kept.gram(A, 0.25), plain.gram(A, 0.25)
+    assert np.array_equal(Qk.indptr, Qp.indptr) and np.array_equal(Qk.indices, Qp.indices)
+    assert np.array_equal(Qk.data, Qp.data)
+    np.testing.assert_allclose(Qk.toarray(), (A.T @ A).toarray() + 0.25 * np.eye(A.shape[1]), rtol=1e-13, atol=1e-13)
+    assert at_reference is False or int((A.data == 0).sum()) > 0  # (the reference's grid: exact zeros)
