@@ -101,25 +101,35 @@ class Topology:
         return int(self.edges.shape[0])
 
     @cached_property
-    def weight_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def weight_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The CSC structure of :func:`weight_matrix` (sorted row indices, the layout scipy's
-        COO conversion gives) and, per stored entry, its edge, coordinate and sign:
-        ``(indptr, indices, edge, coord, sign)``. Built once; each assembly fills the values."""
-        e = self.edges
+        COO conversion gives) and the order that takes its entries, listed end by end and
+        coordinate by coordinate as :meth:`weight_entries` gives them, into it: ``(indptr,
+        indices, order)``, 32-bit indices where they fit. Built once; each assembly orders values."""
+        rows, cols = [], []
         k = np.arange(self.m)
-        rows, cols, coord, sign = [], [], [], []
-        for end, s in ((0, 1.0), (1, -1.0)):
-            fi = self.free_index[e[:, end]]
+        for end in (0, 1):
+            fi = self.free_index[self.edges[:, end]]
             ok = fi >= 0
             for c in range(3):
                 rows.append(3 * fi[ok] + c)
                 cols.append(k[ok])
-                coord.append(np.full(int(ok.sum()), c))
-                sign.append(np.full(int(ok.sum()), s))
         rows, cols = np.concatenate(rows), np.concatenate(cols)
-        order = np.lexsort((rows, cols))
-        indptr = np.r_[0, np.cumsum(np.bincount(cols, minlength=self.m))]
-        return (indptr, rows[order], cols[order], np.concatenate(coord)[order], np.concatenate(sign)[order])
+        index = np.int32 if max(3 * self.n_free, rows.size) < np.iinfo(np.int32).max else np.int64
+        order = np.lexsort((rows, cols)).astype(index)
+        indptr = np.r_[0, np.cumsum(np.bincount(cols, minlength=self.m))].astype(index)
+        return indptr, rows[order].astype(index), order
+
+    def weight_entries(self, vertices: np.ndarray) -> np.ndarray:
+        """The entries of :func:`weight_matrix` listed end by end (``v_j − v_i`` where the edge's
+        first end is free, then ``v_i − v_j`` where its second is), each as x, y, z blocks."""
+        e = self.edges
+        d = vertices[e[:, 1]] - vertices[e[:, 0]]
+        vals = []
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            ok = self.free_index[e[:, end]] >= 0
+            vals += [sign * d[ok, c] for c in range(3)]
+        return np.concatenate(vals)
 
     @cached_property
     def laplacian_pattern(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], np.ndarray]:
@@ -132,18 +142,17 @@ class Topology:
         W = sp.coo_matrix((ids, (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
         L = (W + sp.diags(2 * m + 1 + np.arange(n, dtype=float))).tocsr()[self.free]
         Kff, Kfs = L[:, self.free].tocsr(), L[:, ~self.free].tocsr()
-        blocks = tuple((K.indptr.copy(), K.indices.copy(), K.data.astype(np.int64) - 1) for K in (Kff, Kfs))
-        return blocks[0], blocks[1], (W.indptr.copy(), W.indices.copy(), W.data.astype(np.int64) - 1)
+        index = np.int32 if 2 * m + n < np.iinfo(np.int32).max else np.int64
+        blocks = tuple((K.indptr.copy(), K.indices.copy(), (K.data - 1).astype(index)) for K in (Kff, Kfs))
+        return blocks[0], blocks[1], (W.indptr.copy(), W.indices.copy(), (W.data - 1).astype(index))
 
 
 def weight_matrix(top: Topology, vertices: np.ndarray) -> sp.csc_matrix:
     """``A(V)``, shape ``(3 n_free, m)``: column ``k`` holds ``v_j − v_i`` at free ``i`` and
     ``v_i − v_j`` at free ``j`` for edge ``k = (i, j)``. The structure is the topology's
     (:attr:`Topology.weight_pattern`); only the values are computed here."""
-    indptr, indices, edge, coord, sign = top.weight_pattern
-    e = top.edges
-    d = vertices[e[:, 1]] - vertices[e[:, 0]]
-    return sp.csc_matrix((sign * d[edge, coord], indices, indptr), shape=(3 * top.n_free, top.m))
+    indptr, indices, order = top.weight_pattern
+    return sp.csc_matrix((top.weight_entries(vertices)[order], indices, indptr), shape=(3 * top.n_free, top.m))
 
 
 def load_vector(top: Topology, loads: np.ndarray) -> np.ndarray:
