@@ -100,23 +100,59 @@ class Topology:
     def m(self) -> int:
         return int(self.edges.shape[0])
 
+    @cached_property
+    def weight_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The CSC structure of :func:`weight_matrix` (sorted row indices, the layout scipy's
+        COO conversion gives) and the order that takes its entries, listed end by end and
+        coordinate by coordinate as :meth:`weight_entries` gives them, into it: ``(indptr,
+        indices, order)``, 32-bit indices where they fit. Built once; each assembly orders values."""
+        rows, cols = [], []
+        k = np.arange(self.m)
+        for end in (0, 1):
+            fi = self.free_index[self.edges[:, end]]
+            ok = fi >= 0
+            for c in range(3):
+                rows.append(3 * fi[ok] + c)
+                cols.append(k[ok])
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        index = np.int32 if max(3 * self.n_free, rows.size) < np.iinfo(np.int32).max else np.int64
+        order = np.lexsort((rows, cols)).astype(index)
+        indptr = np.r_[0, np.cumsum(np.bincount(cols, minlength=self.m))].astype(index)
+        return indptr, rows[order].astype(index), order
+
+    def weight_entries(self, vertices: np.ndarray) -> np.ndarray:
+        """The entries of :func:`weight_matrix` listed end by end (``v_j − v_i`` where the edge's
+        first end is free, then ``v_i − v_j`` where its second is), each as x, y, z blocks."""
+        e = self.edges
+        d = vertices[e[:, 1]] - vertices[e[:, 0]]
+        vals = []
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            ok = self.free_index[e[:, end]] >= 0
+            vals += [sign * d[ok, c] for c in range(3)]
+        return np.concatenate(vals)
+
+    @cached_property
+    def laplacian_pattern(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], np.ndarray]:
+        """The structures of :func:`position_blocks`' ``K_ff`` and ``K_fs`` (CSR ``(indptr,
+        indices, source)``: entry ``source`` of ``[w, w, −Σ_j w_ij]``, the edges in both
+        directions, then the diagonal) and the permutation that orders ``[w, w]`` as the CSR
+        data of the weight graph (whose row sums are the diagonal). Built once."""
+        e, n, m = self.edges, self.n, self.m
+        ids = np.arange(1, 2 * m + 1, dtype=float)  # (exact identifiers: no duplicates to sum)
+        W = sp.coo_matrix((ids, (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+        L = (W + sp.diags(2 * m + 1 + np.arange(n, dtype=float))).tocsr()[self.free]
+        Kff, Kfs = L[:, self.free].tocsr(), L[:, ~self.free].tocsr()
+        index = np.int32 if 2 * m + n < np.iinfo(np.int32).max else np.int64
+        blocks = tuple((K.indptr.copy(), K.indices.copy(), (K.data - 1).astype(index)) for K in (Kff, Kfs))
+        return blocks[0], blocks[1], (W.indptr.copy(), W.indices.copy(), (W.data - 1).astype(index))
+
 
 def weight_matrix(top: Topology, vertices: np.ndarray) -> sp.csc_matrix:
     """``A(V)``, shape ``(3 n_free, m)``: column ``k`` holds ``v_j − v_i`` at free ``i`` and
-    ``v_i − v_j`` at free ``j`` for edge ``k = (i, j)``."""
-    e = top.edges
-    d = vertices[e[:, 1]] - vertices[e[:, 0]]
-    rows, cols, vals = [], [], []
-    k = np.arange(top.m)
-    for end, sign in ((0, 1.0), (1, -1.0)):
-        fi = top.free_index[e[:, end]]
-        ok = fi >= 0
-        for c in range(3):
-            rows.append(3 * fi[ok] + c)
-            cols.append(k[ok])
-            vals.append(sign * d[ok, c])
-    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(3 * top.n_free, top.m))
+    ``v_i − v_j`` at free ``j`` for edge ``k = (i, j)``. The structure is the topology's
+    (:attr:`Topology.weight_pattern`); only the values are computed here."""
+    indptr, indices, order = top.weight_pattern
+    return sp.csc_matrix((top.weight_entries(vertices)[order], indices, indptr), shape=(3 * top.n_free, top.m))
 
 
 def load_vector(top: Topology, loads: np.ndarray) -> np.ndarray:
@@ -141,10 +177,22 @@ def stress_laplacian(top: Topology, weights: np.ndarray) -> sp.csr_matrix:
 def position_blocks(top: Topology, weights: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """Rows of ``L_w`` at free vertices, split into free columns ``K_ff`` and support columns ``K_fs``.
 
-    Per coordinate, the residual at free vertices is ``K_ff X_free + K_fs X_sup − b_c``.
+    Per coordinate, the residual at free vertices is ``K_ff X_free + K_fs X_sup − b_c``. The
+    structures are the topology's (:attr:`Topology.laplacian_pattern`), the values those of
+    :func:`stress_laplacian`; a zero weight or row sum, which that drops from the structure,
+    takes its path.
     """
-    L = stress_laplacian(top, weights)[top.free]
-    return L[:, top.free].tocsr(), L[:, ~top.free].tocsr()
+    weights = np.asarray(weights, float)
+    ff, fs, (w_ptr, w_idx, w_src) = top.laplacian_pattern
+    both = np.r_[weights, weights]
+    W = sp.csr_matrix((both[w_src], w_idx, w_ptr), shape=(top.n, top.n))
+    src = np.r_[both, -np.asarray(W.sum(axis=1)).ravel()]
+    if not np.all(src):
+        L = stress_laplacian(top, weights)[top.free]
+        return L[:, top.free].tocsr(), L[:, ~top.free].tocsr()
+    nf = top.n_free
+    return tuple(sp.csr_matrix((src[source], indices, indptr), shape=(nf, cols))
+                 for (indptr, indices, source), cols in ((ff, nf), (fs, top.n - nf)))
 
 
 def residual(top: Topology, vertices: np.ndarray, weights: np.ndarray, loads: np.ndarray) -> np.ndarray:

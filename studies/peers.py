@@ -499,12 +499,14 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _run_timed(cmd: list[str], time_limit: float, who: str) -> tuple[subprocess.CompletedProcess | None, float, dict | None]:
-    """Run ``cmd`` with ``time_limit`` + 120 s to spare: ``(process, its CPU seconds, None)``, or
-    ``(None, nan, a 'killed' row)`` when it ran out of that time."""
+def _run_timed(cmd: list[str], time_limit: float, who: str,
+               env: Mapping[str, str] | None = None) -> tuple[subprocess.CompletedProcess | None, float, dict | None]:
+    """Run ``cmd`` (in ``env``, default this process's) with ``time_limit`` + 120 s to spare:
+    ``(process, its CPU seconds, None)``, or ``(None, nan, a 'killed' row)`` when it ran out of
+    that time."""
     c0 = _children_cpu()
     try:
-        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120)
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=time_limit + 120, env=env)
     except subprocess.TimeoutExpired:
         return None, float("nan"), {"status": "killed", "message": f"{who}: no result within {time_limit + 120:g} s"}
     return p, _children_cpu() - c0, None
@@ -571,6 +573,24 @@ def run_original(driver: Path, inputs: Sequence[str], prefix: Path, *, time_limi
     return {**out, **_network_errors(Path(f"{prefix}.json"), checker)}
 
 
+def selfsupport_env() -> dict[str, str]:
+    """The environment of the timed ``selfsupport`` processes: this one's, with the project's
+    bytecode read from and written to its ``__pycache__`` folders even where
+    ``PYTHONDONTWRITEBYTECODE`` is set. An installed package is compiled once, at install; with
+    the variable set, each process would compile the project's ~80 modules from source again
+    (~0.15 s of a process's CPU), a cost of this checkout, not of the tool."""
+    return {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
+def compile_project() -> bool:
+    """Compile the project's modules once (``compileall``, untimed), as an install does. True
+    when that succeeded (a read-only checkout cannot keep its bytecode: then every timed
+    process compiles, as before)."""
+    p = subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "selfsupport"),
+                        str(REPO / "formulations")], env=selfsupport_env(), capture_output=True, text=True)
+    return p.returncode == 0
+
+
 def selfsupport_command() -> list[str]:
     """``selfsupport`` of this interpreter's environment (its console script, else ``-m``)."""
     script = Path(sys.executable).parent / "selfsupport"
@@ -594,7 +614,7 @@ def run_selfsupport(scenes_dir: Path, name: str, net: Path, *, time_limit: float
     net.unlink(missing_ok=True)
     cmd = [*selfsupport_command(), "solve", str(path), *([f"--up={up}"] if up else []),
            *(["--supports", str(supports)] if supports else []), "--out", str(net), "--time-limit", f"{time_limit:g}"]
-    p, cpu, killed = _run_timed(cmd, time_limit, "selfsupport")
+    p, cpu, killed = _run_timed(cmd, time_limit, "selfsupport", env=selfsupport_env())
     if killed:
         return killed
     if not net.is_file():
@@ -654,6 +674,8 @@ def run_original_study(scenes_dir: Path, names: Sequence[str], out: Path, *, dri
                 for name in names]
     work = out / "original-runs"
     work.mkdir(parents=True, exist_ok=True)
+    if not compile_project():
+        log("peers: the project's bytecode could not be written; each selfsupport process compiles it")
     rows = []
     for name in names:
         inputs = original_input(scenes_dir, name, work)
@@ -712,7 +734,8 @@ def write_original_outputs(out: Path, rows: list[dict[str, Any]], *, repeat: int
              "of the current geometry (its trace); final error recomputed from its network file (loads of the "
              "final geometry)",
              "selfsupport: CPU from the solve's start to 1e-3 / 1e-4 / 1e-9 (its history records), of the whole "
-             "solve, and of the whole process (start-up, reading, writing); error recomputed from its network file",
+             "solve, and of the whole process (start-up, reading, writing; the project's bytecode compiled once "
+             "beforehand, as an install has it); error recomputed from its network file",
              "original status \"displayed tol\": the error it displays (loads of the geometry before its last "
              "step) fell below 1e-4; the final error, with the loads of the final geometry, can be larger",
              "× columns: original / selfsupport; an empty time: that error was never reached"]

@@ -115,3 +115,54 @@ def test_structural_gram_is_the_gram_on_a_pattern_fixed_by_the_structure(shift):
     assert np.array_equal(G.toarray(), grams[0].toarray())
     low = sp.csc_matrix((pattern.lower(G.data), pattern.lower_indices, pattern.lower_indptr), shape=G.shape)
     assert np.array_equal(low.toarray(), np.tril(G.toarray()))
+
+
+def test_refactoring_the_very_same_matrix_keeps_the_factor_and_new_values_refactor(monkeypatch):
+    """The finish's screen and the polish factor one matrix: the second factorization is skipped
+    (the values are compared with a copy, so a caller changing its array in place is seen)."""
+    from selfsupport.core import linalg
+
+    M1, M2 = _stress_matrix(seed=0), _stress_matrix(seed=1)
+    b = np.random.default_rng(2).standard_normal(M1.shape[0])
+    fresh = spd_factor(M1).solve(b)
+    calls = []
+    numeric = linalg._cholmod.numeric
+    monkeypatch.setattr(linalg._cholmod, "numeric", lambda *a: (calls.append(1), numeric(*a))[1])
+    f = spd_factor(M1)
+    assert spd_factor(M1.copy(), reuse=f) is f and len(calls) == 1
+    assert np.array_equal(f.solve(b), fresh)
+    M = M1.copy()
+    spd_factor(M, reuse=f)
+    M.data[:] = M2.data  # (new values in the same array, as an iterative caller writes them)
+    spd_factor(M, reuse=f)
+    assert len(calls) == 2
+    np.testing.assert_allclose(f.solve(b), np.linalg.solve(M2.toarray(), b), rtol=1e-10, atol=1e-12)
+    lower = sp.tril(M1, format="csc")
+    lower.sort_indices()
+    spd_factor(lower, lower=True, reuse=f)
+    assert len(calls) == 3 and np.array_equal(f.solve(b), fresh)
+
+
+@pytest.mark.parametrize("at_reference", [True, False])
+def test_the_gram_matrix_from_kept_products_is_scipys_bit_for_bit(at_reference, monkeypatch):
+    """A pattern keeps the products of AᵀA (small meshes) or not (GRAM_PRODUCTS_MAX): the same
+    matrix either way, to the last bit, with A's exact zeros (a grid at its reference) too."""
+    from formulations.equilibrium import weight_matrix
+    from selfsupport.core import linalg
+
+    scene = make_shape("cross_vault", n_vertices=400)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    rng = np.random.default_rng(5)
+    V = scene.mesh.vertices + (0 if at_reference else 0.05 * rng.standard_normal(scene.mesh.vertices.shape))
+    A = weight_matrix(top, V)
+    A = sp.csc_matrix((A.data * rng.uniform(0.5, 2.0, A.shape[0])[A.indices], A.indices, A.indptr), shape=A.shape)
+    kept = linalg.GramPattern(A)
+    assert kept.products is not None
+    monkeypatch.setattr(linalg, "GRAM_PRODUCTS_MAX", 0)
+    plain = linalg.GramPattern(A)
+    assert plain.products is None
+    Qk, Qp = kept.gram(A, 0.25), plain.gram(A, 0.25)
+    assert np.array_equal(Qk.indptr, Qp.indptr) and np.array_equal(Qk.indices, Qp.indices)
+    assert np.array_equal(Qk.data, Qp.data)
+    np.testing.assert_allclose(Qk.toarray(), (A.T @ A).toarray() + 0.25 * np.eye(A.shape[1]), rtol=1e-13, atol=1e-13)
+    assert at_reference is False or int((A.data == 0).sum()) > 0  # (the reference's grid: exact zeros)

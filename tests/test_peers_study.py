@@ -301,3 +301,25 @@ def test_the_original_and_selfsupport_side_by_side_on_a_small_held_out_scene(sce
         <= f["ss_process_cpu_s"]
     assert f["ratio_process"] == pytest.approx(f["orig_cpu_s"] / f["ss_process_cpu_s"], rel=1e-9)
     assert row["commit"] and int(row["cores"]) >= 1
+
+
+def test_the_timed_selfsupport_processes_keep_the_projects_bytecode(monkeypatch, tmp_path):
+    """Where PYTHONDONTWRITEBYTECODE is set, the study still compiles the project once
+    (compile_project) where a timed process finds it: every module's bytecode exists."""
+    import importlib.util
+    import os
+    import sys
+
+    from studies import peers
+    from studies.common import REPO
+
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    monkeypatch.setenv("PYTHONPYCACHEPREFIX", str(tmp_path))  # (the bytecode goes there, not into the checkout)
+    env = peers.selfsupport_env()
+    assert "PYTHONDONTWRITEBYTECODE" not in env and env["PYTHONPYCACHEPREFIX"] == str(tmp_path)
+    assert env["PATH"] == os.environ["PATH"]
+    assert peers.compile_project()
+    monkeypatch.setattr(sys, "pycache_prefix", str(tmp_path))
+    sources = [f for pkg in ("selfsupport", "formulations") for f in (REPO / pkg).rglob("*.py")]
+    assert len(sources) > 50
+    assert all(Path(importlib.util.cache_from_source(str(f))).is_file() for f in sources)

@@ -153,7 +153,8 @@ class Term:
         return self.weight * self.raw(X_all)
 
     def __mul__(self, s: float) -> "Term":
-        return dataclasses.replace(self, weight=self.weight * float(s))
+        # (× 1 is the term itself: what it caches, e.g. a constant Jacobian, stays with it)
+        return self if float(s) == 1.0 else dataclasses.replace(self, weight=self.weight * float(s))
 
     __rmul__ = __mul__
 

@@ -52,7 +52,7 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
     of those positions, and the rounds taken: Anderson's first rounds (:data:`ANDERSON_FIRST`),
     Newton's steps, plus Anderson's rounds and Newton–Krylov's evaluations of G when it came to
     those. ``max_rounds`` bounds Newton's steps and each of Anderson's tries; ``workspace`` (a
-    dict kept by the caller) caches the colouring. ``fallbacks=False``: Anderson's first rounds
+    dict kept by the caller) caches the colouring and the stress Laplacian's factor. ``fallbacks=False``: Anderson's first rounds
     and Newton only, Newton's last point returned when it does not converge (a cheap trial; the
     fixed-point fallbacks can take hundreds of load evaluations). Past
     ``deadline`` (``time.perf_counter()``) every method returns its best point so far: ``X``
@@ -65,7 +65,9 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         return X.copy(), sc.loads_at(loads, mesh0, X), 0
     Kff, Kfs = position_blocks(top, w)
     K = (-Kff).tocsc()
-    chol = spd_factor(K)
+    ws = workspace if workspace is not None else {}
+    # (the finish's screen factors this very matrix first: its factor is reused)
+    chol = ws["laplacian"] = spd_factor(K, reuse=ws.get("laplacian"))
     Xn = X.copy()
     Xn[free, :2] = chol.solve(Kfs @ X[~free][:, :2])  # −K_ff X = K_fs X_s − B, B = 0 for x and y
     zs = Kfs @ X[~free, 2]
@@ -88,7 +90,6 @@ def polish(top: Topology, X: np.ndarray, w: np.ndarray, loads: LoadCase, mesh0, 
         za, rounds, converged = anderson(G, z_start, tol=ftol, max_rounds=first, deadline=deadline)
         z = za if converged else z_start
     if newton and not converged:
-        ws = workspace if workspace is not None else {}
         constant = not loads.depends_on_geometry  # then J = 0 and one Newton step is exact
         if "colouring" not in ws and not constant:
             ws["colouring"] = load_colouring(mesh0, free)

@@ -27,16 +27,20 @@ if TYPE_CHECKING:
 
 
 def screen_ratio(*, top: Topology, X: np.ndarray, w: np.ndarray, L: np.ndarray, reference: PolyMesh,
-                 d_it: np.ndarray) -> float | None:
+                 d_it: np.ndarray, workspace: dict | None = None) -> float | None:
     """Mean distance to ``reference`` of the positions in equilibrium with ``w`` and the
     iterate's loads ``L`` (one stress-Laplacian solve), over the iterate's ``d_it``: a
-    prediction of the polished distance. None when that solve breaks down."""
+    prediction of the polished distance. None when that solve breaks down. ``workspace`` (a
+    dict kept across tries, the polish's) holds the factor: the polish that follows factors the
+    same matrix, and the next try reuses its symbolic analysis."""
     free = top.free
     Kff, Kfs = position_blocks(top, w)
     B = np.zeros((top.n_free, 3))
     B[:, 2] = L[free]
     Xs = X.copy()
-    Xs[free] = spd_factor((-Kff).tocsc()).solve(Kfs @ X[~free] - B)  # −K_ff X_f = K_fs X_s − B
+    ws = workspace if workspace is not None else {}
+    ws["laplacian"] = spd_factor((-Kff).tocsc(), reuse=ws.get("laplacian"))  # (the polish's factor too)
+    Xs[free] = ws["laplacian"].solve(Kfs @ X[~free] - B)  # −K_ff X_f = K_fs X_s − B
     if not np.all(np.isfinite(Xs)):
         return None
     return float(closest_points(Xs, reference)[1].mean() / max(float(d_it.mean()), 1e-300))
@@ -52,7 +56,8 @@ def try_finish(run: _Run, X: np.ndarray, fit: FitState, *, d_it: np.ndarray, sla
     opt = run.opt
     screened = None
     if not run.joint:  # one case, free top view: a screen first, then Newton only
-        screened = screen_ratio(top=run.top, X=X, w=fit.w[0], L=fit.L[0], reference=run.reference, d_it=d_it)
+        screened = screen_ratio(top=run.top, X=X, w=fit.w[0], L=fit.L[0], reference=run.reference, d_it=d_it,
+                                workspace=run.polish_ws)
         if screened is None:
             return None
         if screened > 1 + opt.finish_screen:

@@ -124,11 +124,11 @@ def _stress_gram(top: Topology, X: np.ndarray, *, weights: list[np.ndarray], loa
         Kff, Kfs = position_blocks(top, w)
         s = 1.0 / np.abs(Lc[free])
         cvals.append(float(np.mean((-Kff.diagonal() * s) ** 2)))
-        S = sp.diags(s)
-        Kt = (S @ Kff).tocsr()
+        # rows scaled in place (the products diag(s) @ K_ff would form, without the sparse product)
+        Kt = sp.csr_matrix((Kff.data * np.repeat(s, np.diff(Kff.indptr)), Kff.indices, Kff.indptr), shape=Kff.shape)
         B = np.zeros((nf, 3))
         B[:, 2] = Lc[free]
-        target = S @ (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
+        target = s[:, None] * (B - Kfs @ X[~free])  # (nf, 3): target of Kt X_free
         H = (Kt.T @ Kt).tocsr() if H is None else (H + Kt.T @ Kt).tocsr()
         rhs += Kt.T @ target
         Kts.append(Kt)
