@@ -68,6 +68,22 @@ def test_max_load_certificate_is_inside_the_hull_and_carries_the_load():
     assert r.binding and abs(r.binding[0][1]) == pytest.approx(1.0, abs=1e-3)
 
 
+def test_max_load_hull_multipliers_predict_the_gain_of_a_thicker_hull():
+    """IPOPT's multipliers of the active hull bounds are dλ/d(t/2) per vertex: widening the hull
+    by dt at the same self-weight (ρ t held) raises the optimum by Σ multipliers × dt/2 to first order."""
+    scene = cap()
+    t, dt = 0.2, 0.002
+    a = limit_load(scene, thickness=t, density=2000.0, at=[0])
+    b = limit_load(scene, thickness=t + dt, density=2000.0 * t / (t + dt), at=[0], start=a.certificate)
+    hull = a.active["hull"]
+    assert hull and {side for _, side, _ in hull} <= {-1, 1}
+    assert hull[0][0] == 0 and hull[0][1] == 1  # the loaded apex on the extrados binds most
+    predicted = sum(m for _, _, m in hull) * dt / 2
+    assert b.optimum - a.optimum == pytest.approx(predicted, rel=0.02)
+    # the hull's active vertices are the certificate's binding ones
+    assert {v for v, _, _ in hull} <= {v for v, _ in a.binding}
+
+
 def test_shallow_cap_max_apex_load_grows_with_thickness():
     scene = cap()
     kg = [limit_load(scene, thickness=t, density=2000.0, at=[0]).value for t in (0.1, 0.2, 0.3)]

@@ -396,11 +396,11 @@ def _evidence(scene: Scene, net: Network, thickness: float, supports_too: bool =
     return ok, {**hull, "max_relative_error": err, "certified": ok}
 
 
-def _active(run: _Run, rel: float = 1e-6) -> dict[str, list]:
+def _active(run: _Run, rel: float = 1e-4) -> dict[str, list]:
     """The bounds active at the run's point, with IPOPT's multipliers in the units of the answer
     per unit of the bound: λ [kg or g] per metre of the hull's half thickness (``side`` +1 the
     extrados, −1 the intrados) and per N/m of a weight bound; each list largest multiplier first.
-    A bound counts as active within ``rel`` of its range (the hull's h, the weight's bound)."""
+    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8)."""
     prog = run.prog
     if run.lam_x is None:
         return {}
