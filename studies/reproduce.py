@@ -483,6 +483,10 @@ def _fig9_limit(data: Mapping[str, Any], t: float) -> tuple[float | None, list[s
         if best_row is not None and best_row.get("hull_active"):
             said.append(f"at the best optimum hull bounds active (extrados / intrados) {best_row['hull_active']}, "
                         f"largest multipliers {best_row.get('hull_top')}; weights at ε {best_row.get('weights_at_lower')}")
+    for r in data["starts"]:
+        if len(str(r.get("load_at", "")).split()) > 1 and r.get("max_load_kg") not in (None, ""):
+            said.append(f"sensitivity, the mass spread over {len(str(r['load_at']).split())} vertices around the apex: "
+                        f"{_num(r['max_load_kg']):,.0f} kg certified")
     for r in data["published_in_hull"]:
         if r.get("published", "").endswith("-0kg-n"):
             said.append(f"the published 0 kg network is outside our hull: {r['outside']} of {r['free']} free vertices "

@@ -181,6 +181,7 @@ def test_fig9_verdict_reads_the_limit_programs_of_the_study(ctx):
     assert row.verdict.endswith("not reproduced: the limit program certifies at most 7,300 kg on this mesh and "
                                 "reference (best over its starts)")
     assert "from the published network" in row.ours and "255 of 477 free vertices beyond t/2" in row.ours
+    assert "the mass spread over 4 vertices around the apex: 12,000 kg certified" in row.ours
     assert "3 starts" not in row.ours and "2 starts, program optima 7,150–7,310 kg" in row.ours
     starts[1]["max_load_kg"] = 11500.0
     path.write_text(json.dumps(data))
