@@ -120,6 +120,14 @@ def test_hemisphere_min_thickness_matches_heyman_within_15_percent():
     assert abs(r.value / 5.0 - HEYMAN) <= 0.15 * HEYMAN, r.value / 5.0
     assert_certificate(r.certificate, scene.mesh, r.value, supports_too=True)
     assert independent_check(r.certificate).ok
+    # Heyman's mechanism: below 51.8° from the crown (where the membrane solution's hoops would pull)
+    # the dome stands as separate lunes, its hoops idle beside the meridians' thrust
+    net, ref = r.certificate.network, scene.mesh.vertices
+    e = net.edges
+    force = net.weights * np.linalg.norm(net.vertices[e[:, 0]] - net.vertices[e[:, 1]], axis=1)
+    hoop = np.isclose(ref[e[:, 0], 2], ref[e[:, 1], 2])
+    low = np.degrees(np.arccos(np.minimum(ref[e, 2].max(axis=1) / 5.0, 1.0))) > 51.8
+    assert force[hoop & low].max() <= 1e-3 * force[~hoop & low].mean()
 
 
 @pytest.mark.slow
