@@ -170,6 +170,18 @@ SECTIONS: tuple[Section, ...] = (
              Column("max_load_kg", "certified [kg]", "{:,.0f}"), Column("optimum_kg", "program's optimum [kg]", "{:,.0f}"),
              Column("binding", "vertices on the hull's faces", "{:d}"),
              Column("max_relative_error", "max rel. error", "{:.1e}"), Column("seconds", "time [s]", "{:.0f}"))),
+    Section("stability_dome_starts.csv", "The dome's largest load from many starts (Fig. 9)",
+            "The limit program at t = 0.1 m from many starts: the staggered network, the published networks "
+            "(weights fitted), the reference surface, perturbed starts, a lower weight bound near zero, the supports "
+            "sliding across the springing and the load spread over the apex's one-ring; per start the certified "
+            "load, the program's optimum and the bounds active there (hull faces on the extrados / intrados, "
+            "weights at ε) with IPOPT's multipliers.",
+            "python -m studies.stability_dome --scenes $SCENES --out OUT",
+            (Column("start", "start"), Column("load_at", "load at"), Column("verdict", "verdict"),
+             Column("max_load_kg", "certified [kg]", "{:,.0f}"), Column("optimum_kg", "program's optimum [kg]", "{:,.0f}"),
+             Column("hull_active", "hull bounds active (extrados / intrados)"),
+             Column("hull_top", "largest hull multipliers: vertex (side) kg per m"),
+             Column("weights_at_lower", "weights at ε"), Column("seconds", "time [s]", "{:.0f}"))),
     Section("destruction.csv", "Destruction (Fig. 8)",
             "twocirc-3 as built (its own thrust network as the hull's mid-surface), ρ = 2,500 kg/m³: the paper's "
             "cuts, recovered by position from its published stages, applied in turn, each followed by our "

@@ -116,7 +116,8 @@ STUDIES: tuple[Study, ...] = (
           lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)], _no_scenes),
     # the paper's Figs. 9-10, 8 and 15: docs/guide/paper.md's comparisons
     Study("stability_dome", "studies.stability_dome",
-          (("stability_dome.csv", "stability_dome.csv"), ("stability_dome_max_load.csv", "stability_dome_max_load.csv")),
+          (("stability_dome.csv", "stability_dome.csv"), ("stability_dome_max_load.csv", "stability_dome_max_load.csv"),
+           ("stability_dome_starts.csv", "stability_dome_starts.csv")),
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), "--no-figures"], _no_scenes),
     Study("destruction", "studies.destruction", (("destruction.csv", "destruction.csv"),),
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out)],

@@ -151,6 +151,117 @@ def max_load_row(scene: Any, at: list[int] | None, thickness: float, out: Path, 
             "message": r.message}
 
 
+#: stability_dome_starts.csv: the max-load program at Fig. 9's thickness from many starts
+STARTS_COLUMNS = (Column("start", "start"), Column("thickness_m", "t [m]", "{:g}"), Column("load_at", "load at"),
+                  Column("verdict", "verdict"), Column("max_load_kg", "certified [kg]", "{:.0f}"),
+                  Column("optimum_kg", "program's optimum [kg]", "{:.0f}"), Column("ipopt_status", "IPOPT status"),
+                  Column("hull_active", "hull bounds active (extrados / intrados)"),
+                  Column("hull_top", "largest hull multipliers: vertex (side) kg per m"),
+                  Column("weights_at_lower", "weights at ε"),
+                  Column("weight_lower_top", "largest ε multipliers: edge kg per N/m"),
+                  Column("seconds", "time [s]", "{:.0f}"), *STAMP_COLUMNS)
+#: the lower weight bound of the "ε ≈ 0" start [N/m] (the default ε is scale-free, of order 1e-2 of a weight)
+EPS_ZERO = 1e-6
+
+
+def hull_problem(scene: Any, thickness: float) -> Any:
+    """The problem of the scene in its hull: self-weight of ρ = :data:`DENSITY` and ``thickness``."""
+    from formulations.problem import Hull
+    from selfsupport.io.problem import problem
+
+    return problem(scene, density=DENSITY, thickness=thickness, constraints=[Hull(thickness=thickness)])
+
+
+def fitted_start(scene: Any, V: np.ndarray, thickness: float) -> Any:
+    """A start network at positions ``V``: its weights the nonnegative least-squares fit of the
+    equilibrium rows to the reference's self-weight (a published network carries no weights)."""
+    from scipy.optimize import lsq_linear
+
+    from formulations.equilibrium import Topology, load_vector, weight_matrix
+    from selfsupport.core.result import Network
+
+    L = hull_problem(scene, thickness).loads.nodal(scene.mesh, scene.mesh.vertices)[0]
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges, scene.supports)
+    w = lsq_linear(weight_matrix(top, V), load_vector(top, L), bounds=(0.0, np.inf), lsmr_tol="auto").x
+    return Network(mesh=scene.mesh.with_vertices(V), weights=w, loads=L, supports=scene.supports)
+
+
+def perturbed(net: Any, scene: Any, amplitude: float, seed: int) -> Any:
+    """``net`` with each free vertex moved by a uniform random offset in ±``amplitude`` along
+    the reference's vertex normal."""
+    import dataclasses
+
+    rng = np.random.default_rng(seed)
+    from selfsupport.core.geometry import vertex_normals
+
+    V = net.vertices.copy()
+    n = vertex_normals(scene.mesh)
+    free = ~scene.supports
+    V[free] += rng.uniform(-amplitude, amplitude, int(free.sum()))[:, None] * n[free]
+    return dataclasses.replace(net, mesh=net.mesh.with_vertices(V))
+
+
+def starts_rows(scene: Any, at: list[int], thickness: float, published: dict[float, np.ndarray], *,
+                time_limit: float) -> list[dict[str, Any]]:
+    """The max-load program at ``thickness`` from many starts (the staggered network, the published
+    networks with fitted weights, perturbed starts, ε ≈ 0, the supports sliding, the load over the
+    apex's one-ring): per start the certified load, the program's optimum and its active bounds
+    with IPOPT's multipliers (:attr:`LimitResult.active <selfsupport.structure.limit.LimitResult>`)."""
+    from selfsupport.methods.hull_search import solve_in_hull
+    from selfsupport.structure.limit import limit_load
+
+    ring = sorted({int(v) for e in scene.mesh.edges for v in e if at[0] in e} | set(at))
+    stag = solve_in_hull(hull_problem(scene, thickness)).network
+    cases: list[tuple[str, dict]] = [("staggered network (in the hull, unloaded)", {"start": stag})]
+    cases += [(f"published dome2-{PUBLISHED[kg]}kg-n network, weights fitted", {"start": fitted_start(scene, P, thickness)})
+              for kg, P in sorted(published.items())]
+    cases += [("reference surface, weights fitted", {"start": fitted_start(scene, scene.mesh.vertices, thickness)})]
+    cases += [(f"staggered network perturbed ±t/2 along the normals (seed {k})",
+               {"start": perturbed(stag, scene, 0.5 * thickness, k)}) for k in (1, 2)]
+    cases += [(f"staggered network, ε = {EPS_ZERO:g} N/m", {"start": stag, "eps": EPS_ZERO}),
+              ("staggered network, supports sliding across the springing", {"start": stag, "slide_supports": True}),
+              (f"staggered network, load spread over the apex's one-ring {ring}", {"start": stag, "at": ring})]
+    rows = []
+    for name, kw in cases:
+        t0 = time.perf_counter()
+        kw = {"at": at, **kw}
+        r = limit_load(scene, thickness=thickness, density=DENSITY, time_limit=time_limit, **kw)
+        act = r.active or {}
+        hull = act.get("hull", [])
+        low = act.get("weight_lower", [])
+        row = {"start": name, "thickness_m": thickness, "load_at": " ".join(map(str, kw["at"])), "verdict": r.verdict,
+               "max_load_kg": r.value, "optimum_kg": r.optimum, "ipopt_status": r.ipopt_status,
+               "hull_active": f"{sum(1 for h in hull if h[1] > 0)} / {sum(1 for h in hull if h[1] < 0)}",
+               "hull_top": "; ".join(f"{v} ({'+' if sd > 0 else '-'}) {m:.3g}" for v, sd, m in hull[:5]),
+               "weights_at_lower": len(low), "weight_lower_top": "; ".join(f"{e} {m:.3g}" for e, m in low[:5]),
+               "seconds": time.perf_counter() - t0}
+        print(f"starts, t={thickness:g} m, {name}: {r.verdict} {r.value} (optimum {r.optimum}) "
+              f"{row['seconds']:.0f} s", file=sys.stderr)
+        rows.append(row)
+    return rows
+
+
+def published_in_hull(scene: Any, published: dict[float, np.ndarray], thickness: float) -> list[dict[str, Any]]:
+    """Whether each published network's free vertices lie within t/2 of our reference surface
+    (closest points on the reference, :func:`~selfsupport.methods.base.hull_signed_distance`)."""
+    from selfsupport.methods.base import hull_signed_distance
+
+    free = ~scene.supports
+    rows = []
+    for kg, P in sorted(published.items()):
+        d = np.abs(hull_signed_distance(scene.mesh, P))[free]
+        rows.append({"published": f"dome2-{PUBLISHED[kg]}kg-n", "thickness_m": thickness,
+                     "max_distance_m": float(d.max()), "mean_distance_m": float(d.mean()),
+                     "outside": int((d > 0.5 * thickness).sum()), "free": int(free.sum())})
+    return rows
+
+
+PUBLISHED_COLUMNS = [Column("published", "published network"), Column("thickness_m", "t [m]", "{:g}"),
+                     Column("max_distance_m", "max distance to our reference [m]", "{:.3g}"),
+                     Column("mean_distance_m", "mean [m]", "{:.3g}"),
+                     Column("outside", "free vertices beyond t/2"), Column("free", "free vertices")]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", required=True, help="folder with dome2.sss")
@@ -161,6 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--max-load-thickness", default=",".join(f"{t:g}" for t in MAX_LOAD_THICKNESSES),
                     help="thicknesses of the largest-load programs (empty: none)")
     ap.add_argument("--time-limit", type=float, default=900.0, help="wall-clock limit of each largest-load program [s]")
+    ap.add_argument("--starts-thickness", default="0.1",
+                    help="thickness of the max-load program from many starts (Fig. 9's; empty: none)")
     ap.add_argument("--no-figures", action="store_true")
     ap.add_argument("--as-stored", action="store_true",
                     help="the .sss's own pins and handled vertices instead of the experiment's ground ring and apex")
@@ -176,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     stored = read_scene(scenes / "dome2.sss", name="dome2")
     scene, at = (stored, None) if args.as_stored else experiment_configuration(stored)
     configuration = AS_STORED if args.as_stored else EXPERIMENT
-    thicknesses = [float(x) for x in args.thickness.split(",")]
+    thicknesses = [float(x) for x in args.thickness.split(",") if x.strip()]
     loads = [float(x) for x in args.loads.split(",")]
     published: dict[float, np.ndarray] = {}
     for kg, tag in PUBLISHED.items():
@@ -184,13 +297,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         if p.is_file():
             published[kg] = read_scene(p, up="-y", supports="boundary").mesh.vertices
     rows: list[dict[str, Any]] = []
-    if not args.as_stored:  # the file as it is, unloaded: the reason for the experiment's configuration
+    if not args.as_stored and thicknesses:  # the file as it is, unloaded: the reason for the experiment's configuration
         rows += series_rows(stored, None, thicknesses[0], [0.0], {}, out, configuration=AS_STORED, figures=False)
     for t in thicknesses:
         rows += series_rows(scene, at, t, loads, published, out, configuration=configuration,
                             figures=not args.no_figures)
     max_rows = [max_load_row(scene, at, float(t), out, time_limit=args.time_limit)
                 for t in args.max_load_thickness.split(",") if t.strip()]
+    start_rows, pub_rows = [], []
+    if args.starts_thickness.strip() and not args.as_stored:
+        t_s = float(args.starts_thickness)
+        start_rows = starts_rows(scene, at, t_s, published, time_limit=args.time_limit)
+        pub_rows = published_in_hull(scene, published, t_s)
     pub_note = []
     if published:
         P0 = published.get(0.0)
@@ -211,11 +329,16 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"command: python -m studies.stability_dome --scenes {args.scenes} --out {args.out}"]
     text = write_markdown(out / "stability_dome.md", "Stability of dome2 under added load", notes,
                           [("", rows, [Column("configuration", "configuration"), *COLUMNS]),
-                           ("Largest certified load", max_rows, MAX_LOAD_COLUMNS[:-len(STAMP_COLUMNS)])])
-    (out / "stability_dome.json").write_text(json.dumps({"series": rows, "max_load": max_rows}, indent=1,
+                           ("Largest certified load", max_rows, MAX_LOAD_COLUMNS[:-len(STAMP_COLUMNS)]),
+                           ("The max-load program from many starts", start_rows, STARTS_COLUMNS[:-len(STAMP_COLUMNS)]),
+                           ("The published networks against our hull", pub_rows, PUBLISHED_COLUMNS)])
+    (out / "stability_dome.json").write_text(json.dumps({"series": rows, "max_load": max_rows, "starts": start_rows,
+                                                         "published_in_hull": pub_rows}, indent=1,
                                                         default=float) + "\n", encoding="utf-8")
     write_csv(out / "stability_dome.csv", [{**r, **stamp} for r in rows], CSV_COLUMNS)
     write_csv(out / "stability_dome_max_load.csv", [{**r, **stamp} for r in max_rows], MAX_LOAD_COLUMNS)
+    if start_rows:
+        write_csv(out / "stability_dome_starts.csv", [{**r, **stamp} for r in start_rows], STARTS_COLUMNS)
     print(text)
     return 0
 

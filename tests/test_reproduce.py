@@ -79,6 +79,13 @@ def _stub_runs(runs: Path, dome_json: Path, dome_png: Path) -> None:
         "equilibrium": [{"mesh": m, "loads": "reciprocal", "alpha": a, "checker_max_rel_error": 1e-12,
                          "min_weight": 0.45} for m in ("enneper-inscribed", "enneper-tangent") for a in (0.0, alpha)]}))
     shutil.copyfile(dome_json, runs / "koebe" / f"enneper-inscribed-alpha{alpha:g}.json")
+    (runs / "heyman").mkdir()
+    (runs / "heyman" / "heyman.json").write_text(json.dumps({"heyman": 0.042, "rows": [
+        {"layout": "meridian", "mesh": "8×16", "vertices": 129, "verdict": "certified", "t_over_r": 0.0405,
+         "network": "meridian-8x16.json"},
+        {"layout": "rings", "mesh": "8 rings", "vertices": 217, "verdict": "certified", "t_over_r": 0.0504,
+         "network": "rings-8.json"}]}))
+    shutil.copyfile(dome_json, runs / "heyman" / "meridian-8x16.json")
 
 
 @pytest.fixture()
@@ -97,7 +104,7 @@ def _row(rows, item):
 def test_every_item_has_a_claim_ours_a_verdict_and_its_pictures(ctx, tmp_path):
     rows = rp.assemble(ctx)
     assert [r.item for r in rows] == [it.item for it in rp.ITEMS]
-    covered = {"Table 1", "Fig. 5b, 5d", "Fig. 5c", "Fig. 6", "Fig. 8", "Fig. 9", "Fig. 10", "Fig. 11",
+    covered = {"Table 1", "Fig. 5b, 5d", "Fig. 5c", "Fig. 6", "Fig. 8", "Fig. 9", "Fig. 10", "Heyman", "Fig. 11",
                "Figs. 12–14", "Fig. 15", "Fig. 16"}
     assert covered | {"Fig. 7", "Table 1 (IPOPT)"} == {r.item for r in rows}
     for r in rows:
@@ -146,6 +153,51 @@ def test_verdicts_follow_the_numbers(ctx):
     assert got["Fig. 8"] == rp.differs("step 3: 1379 faces against the paper's 938")
     assert got["Figs. 12–14"] == rp.differs("the mesh along a grid became planar too")
     assert got["Fig. 15"] == rp.differs("a family member has a tensile weight")
+
+
+def test_fig9_verdict_reads_the_limit_programs_of_the_study(ctx):
+    """The study's JSON as it writes it (series with the file's own row, max load, starts,
+    published networks against our hull): the largest certified load over the apex-vertex starts
+    decides; the one-ring row (another load position) does not count."""
+    path = ctx.runs / "dome_fig9" / "stability_dome.json"
+    series = [{"configuration": "as stored", "thickness_m": 0.1, "added_kg": 0.0, "found": False, "outside": 129,
+               "max_hull_excess_m": 1.8},
+              {"configuration": "ground ring, apex loaded", "thickness_m": 0.1, "added_kg": 0.0, "found": True,
+               "outside": 0, "max_hull_excess_m": 0.0},
+              {"configuration": "ground ring, apex loaded", "thickness_m": 0.1, "added_kg": 11000.0, "found": False,
+               "outside": 3, "max_hull_excess_m": 0.02}]
+    starts = [{"start": "staggered network", "thickness_m": 0.1, "load_at": "0", "max_load_kg": 7150.0,
+               "optimum_kg": 7150.0, "hull_active": "40 / 60", "hull_top": "0 (+) 3e+04", "weights_at_lower": 900},
+              {"start": "published network", "thickness_m": 0.1, "load_at": "0", "max_load_kg": 7300.0,
+               "optimum_kg": 7310.0, "hull_active": "41 / 62", "hull_top": "0 (+) 3e+04", "weights_at_lower": 880},
+              {"start": "one-ring", "thickness_m": 0.1, "load_at": "0 1 2 3", "max_load_kg": 12000.0,
+               "optimum_kg": 12000.0}]
+    data = {"series": series, "max_load": [{"thickness_m": 0.1, "max_load_kg": 7150.0}], "starts": starts,
+            "published_in_hull": [{"published": "dome2-0kg-n", "thickness_m": 0.1, "max_distance_m": 2.0,
+                                   "outside": 255, "free": 477}]}
+    path.write_text(json.dumps(data))
+    row = _row(rp.assemble(ctx), "Fig. 9")
+    assert row.verdict.startswith(rp.differs("no network inside the hull found under 11,000 kg (3 vertices out"))
+    assert row.verdict.endswith("not reproduced: the limit program certifies at most 7,300 kg on this mesh and "
+                                "reference (best over its starts)")
+    assert "from the published network" in row.ours and "255 of 477 free vertices beyond t/2" in row.ours
+    assert "the mass spread over 4 vertices around the apex: 12,000 kg certified" in row.ours
+    assert "3 starts" not in row.ours and "2 starts, program optima 7,150–7,310 kg" in row.ours
+    starts[1]["max_load_kg"] = 11500.0
+    path.write_text(json.dumps(data))
+    assert _row(rp.assemble(ctx), "Fig. 9").verdict == rp.REPRODUCED
+
+
+def test_heyman_verdict_is_the_finest_meridian_mesh_within_15_percent(ctx):
+    path = ctx.runs / "heyman" / "heyman.json"
+    d = json.loads(path.read_text())
+    row = _row(rp.assemble(ctx), "Heyman")
+    assert row.verdict == rp.REPRODUCED and "meridian 8×16 (129 V): t/R = 0.0405 (-3.6%)" in row.ours
+    assert "rings 8 rings (217 V): t/R = 0.0504 (+20.0%)" in row.ours
+    d["rows"].append({"layout": "meridian", "mesh": "16×64", "vertices": 1025, "verdict": "certified",
+                      "t_over_r": 0.0490, "network": "meridian-8x16.json"})  # the finest decides
+    path.write_text(json.dumps(d))
+    assert _row(rp.assemble(ctx), "Heyman").verdict == rp.differs("t/R 0.0490, +16.7% from Heyman's")
 
 
 def test_table1_verdict_names_the_scenes_that_differ(ctx):

@@ -18,6 +18,7 @@ from selfsupport.core.shapes import (
     disk_points,
     dome,
     make_shape,
+    meridian_dome,
     pillar_vault,
 )
 
@@ -157,6 +158,21 @@ def test_dome_area_matches_the_spherical_cap():
     assert v[:, 2].max() == pytest.approx(2.5)
     np.testing.assert_allclose(v[scene.supports, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(v[scene.supports, :2], axis=1), 5.0)
+
+
+@pytest.mark.parametrize("height", [2.5, 5.0])
+def test_meridian_dome_edges_run_along_meridians_and_hoops(height):
+    scene = meridian_dome(6, 12, radius=5.0, height=height)
+    mesh, v = scene.mesh, scene.mesh.vertices
+    assert mesh.problems() == [] and len(mesh.boundary_loops) == 1 and mesh.n_vertices == 1 + 6 * 12
+    assert np.all(face_normals(mesh)[:, 2] > 0) and np.all(mesh.boundary_vertex_mask[scene.supports])
+    R = (5.0 ** 2 + height ** 2) / (2 * height)
+    np.testing.assert_allclose(np.linalg.norm(v - [0, 0, height - R], axis=1), R, rtol=1e-12)
+    a, b = v[mesh.edges[:, 0]], v[mesh.edges[:, 1]]
+    hoop = np.isclose(a[:, 2], b[:, 2], atol=1e-12)
+    meridian = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) < 1e-9      # in one vertical plane through the axis
+    assert np.all(hoop ^ meridian) and hoop.sum() == 6 * 12 and meridian.sum() == 6 * 12
+    assert np.all(~scene.supports[1:-12]) and v[scene.supports, 2].max() == 0.0
 
 
 @pytest.mark.parametrize("rings", [3, 5, 18, 73])

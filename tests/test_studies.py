@@ -294,6 +294,30 @@ def test_dome_study_configuration_supports_the_ground_ring_and_loads_the_apex():
     assert at == [int(np.argmax(V[:, 2]))] and not scene.supports[at[0]]
 
 
+def test_dome_study_fitted_start_and_published_networks_against_the_hull():
+    """A published network carries no weights: fitted at a solved network's positions they balance
+    its loads (nonnegative); a network offset 0.03 m along the normals is inside a 0.1 m hull and
+    outside a 0.05 m one, every free vertex."""
+    from formulations.equilibrium import Topology, load_vector, weight_matrix
+    from selfsupport import api
+    from selfsupport.core.geometry import vertex_normals
+    from studies.stability_dome import fitted_start, published_in_hull
+
+    scene = make_shape("dome", rings=5, radius=5.0, height=2.0)
+    solved = api.solve(scene, density=2500.0, thickness=0.1).network
+    net = fitted_start(scene, solved.vertices, 0.1)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges, scene.supports)
+    b = load_vector(top, net.loads)
+    assert net.weights.min() >= 0
+    assert np.linalg.norm(weight_matrix(top, net.vertices) @ net.weights - b) <= 1e-6 * np.linalg.norm(b)
+    V = scene.mesh.vertices + 0.03 * vertex_normals(scene.mesh) * (~scene.supports)[:, None]
+    free = int((~scene.supports).sum())
+    for t, outside in ((0.1, 0), (0.05, free)):
+        (row,) = published_in_hull(scene, {0.0: V}, t)
+        assert row["outside"] == outside and row["free"] == free and row["published"] == "dome2-0kg-n"
+        assert row["max_distance_m"] == pytest.approx(0.03, rel=0.05)
+
+
 def _dome_as_structural(tmp_path: Path):
     """A 150-vertex dome stored as the scenes folder's 'structural' (OBJ, -y up, supports file)."""
     scenes, out = tmp_path / "scenes", tmp_path / "out"

@@ -7,6 +7,9 @@ deterministic; 64k vertices build in a few tens of milliseconds.
 
 * ``disk(n_rings)``, ``dome(rings)``, ``concave_disk(rings)``: ``1 + 3 n (n + 1)``
   vertices (n rings), supported on the boundary ring.
+* ``meridian_dome(parallels, meridians)``: the same cap on a meridian × parallel grid
+  (``1 + parallels · meridians`` vertices; triangles at the crown, quads elsewhere), its
+  edges along the meridians and the hoops; not in :data:`SHAPES`.
 * ``barrel_vault(nx, ny)``: ``(nx + 1)(ny + 1)`` vertices (nx, ny cells), supported on the
   whole boundary by default (see its docstring).
 * ``cross_vault(n)`` (n even) and ``pillar_vault(n)``: ``(n + 1)²`` vertices; the cross
@@ -38,7 +41,7 @@ from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 
-__all__ = ["SHAPES", "make_shape", "disk", "disk_points", "dome", "concave_disk", "barrel_vault",
+__all__ = ["SHAPES", "make_shape", "disk", "disk_points", "dome", "meridian_dome", "concave_disk", "barrel_vault",
            "cross_vault", "pillar_vault"]
 
 
@@ -230,6 +233,41 @@ def dome(rings: int = 18, radius: float = 5.0, height: float = 2.5) -> Scene:
     v[rho >= 1.0, 2] = 0.0
     return _scene(_tri_mesh(v, tris), rho >= 1.0, f"dome(rings={n})",
                   params={"rings": n, "radius": radius, "height": height},
+                  sphere_radius=R, area=2.0 * math.pi * R * height)
+
+
+def meridian_dome(parallels: int = 16, meridians: int = 32, radius: float = 5.0, height: float = 2.5) -> Scene:
+    """The spherical cap of :func:`dome` on a meridian × parallel grid: the crown vertex and
+    ``parallels`` rings of ``meridians`` vertices, equally spaced in arc length along the
+    meridians, joined by triangles at the crown and planar quads (isosceles trapezoids)
+    elsewhere, so that every edge runs along a meridian or a hoop. Supports: the outer ring.
+    """
+    n = _count("parallels", parallels, 1)
+    m = _count("meridians", meridians, 3)
+    radius = _positive("radius", radius)
+    height = _positive("height", height)
+    if height > radius:
+        raise InputError(f"dome height {height} exceeds the plan radius {radius}: the cap would overhang; "
+                         "use height <= radius")
+    R = (radius ** 2 + height ** 2) / (2.0 * height)
+    psi = math.atan2(radius, R - height) * np.repeat(np.arange(1, n + 1) / n, m)
+    theta = np.tile(2.0 * np.pi * np.arange(m) / m, n)
+    r = R * np.sin(psi)
+    v = np.vstack([[0.0, 0.0, height],
+                   np.stack([r * np.cos(theta), r * np.sin(theta), R * np.cos(psi) - (R - height)], axis=1)])
+    v[-m:, 2] = 0.0
+    j = np.arange(m)
+    crown = np.stack([np.zeros(m, np.int64), 1 + j, 1 + (j + 1) % m], axis=1)
+    k = np.repeat(np.arange(n - 1), m)
+    jj = np.tile(j, n - 1)
+    quads = np.stack([1 + k * m + jj, 1 + (k + 1) * m + jj, 1 + (k + 1) * m + (jj + 1) % m, 1 + k * m + (jj + 1) % m],
+                     axis=1)
+    faces = np.concatenate([crown.ravel(), quads.ravel()])
+    offsets = np.r_[np.arange(0, 3 * m + 1, 3), 3 * m + 4 * np.arange(1, len(quads) + 1)]
+    supports = np.zeros(len(v), dtype=bool)
+    supports[-m:] = True
+    return _scene(PolyMesh(v, faces, offsets), supports, f"meridian_dome(parallels={n}, meridians={m})",
+                  params={"parallels": n, "meridians": m, "radius": radius, "height": height},
                   sphere_radius=R, area=2.0 * math.pi * R * height)
 
 

@@ -123,6 +123,10 @@ class LimitResult:
         network) on the hull's faces (|d| within 1% of t/2), worst first.
     thickness
         The hull's thickness [m] of the certificate (for min thickness: the certified one).
+    active
+        The bounds active at the program's optimum (max load, max horizontal) with IPOPT's
+        multipliers (:func:`_active`): ``hull`` ``(vertex, side, multiplier)`` and
+        ``weight_lower`` / ``weight_upper`` ``(edge, multiplier)``, largest multiplier first.
     """
 
     kind: str
@@ -136,6 +140,7 @@ class LimitResult:
     rounds: tuple[dict, ...] = ()
     binding: tuple[tuple[int, float], ...] = ()
     thickness: float | None = None
+    active: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------ the program
@@ -306,6 +311,7 @@ class _Run:
     raw: str
     settled: bool
     rounds: list
+    lam_x: np.ndarray | None = None  # IPOPT's bound multipliers of the last round's point
 
 
 def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fixed: bool, h_over: float | None,
@@ -314,7 +320,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
     s = np.clip(prog.offsets(Vs), -prog.h, prog.h)
     half = prog.h * (1 - HULL_MARGIN)
     h = h_over
-    warm, raw, rounds, settled = None, "not run", [], False
+    warm, raw, rounds, settled, lam_x = None, "not run", [], False, None
     for rnd in range(1, MAX_ROUNDS + 1):
         remaining = deadline - time.perf_counter()
         if remaining <= 0:
@@ -329,6 +335,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
         ok = np.all(np.isfinite(out["x"]))
         if ok and out["status"] in ("converged", "stalled"):
             s, Vs, w, lam, h = prog.unpack(out["x"])
+            lam_x = np.asarray(out["warm"]["lam_x0"]).ravel()
             rec.update({"acceleration_g" if prog.horizontal else "lambda_kg": lam * prog.lam_unit,
                         **({"thickness": 2 * h * prog.sc.length} if h else {})})
         rounds.append(rec)
@@ -338,7 +345,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
             settled = out["status"] == "converged" and bool(ok)
             break
         warm = out["warm"]
-    return _Run(prog, Vs, w, lam, h, raw, settled, rounds)
+    return _Run(prog, Vs, w, lam, h, raw, settled, rounds, lam_x)
 
 
 def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -389,6 +396,31 @@ def _evidence(scene: Scene, net: Network, thickness: float, supports_too: bool =
     return ok, {**hull, "max_relative_error": err, "certified": ok}
 
 
+def _active(run: _Run, rel: float = 1e-4) -> dict[str, list]:
+    """The bounds active at the run's point, with IPOPT's multipliers in the units of the answer
+    per unit of the bound: λ [kg or g] per metre of the hull's half thickness (``side`` +1 the
+    extrados, −1 the intrados) and per N/m of a weight bound; each list largest multiplier first.
+    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8)."""
+    prog = run.prog
+    if run.lam_x is None:
+        return {}
+    nm, m = len(prog.order), prog.form.topology.m
+    s, w, mult = prog.offsets(run.Vs), run.w, run.lam_x
+    half = prog.h * (1 - HULL_MARGIN)
+    on = np.flatnonzero(np.abs(np.abs(s) - half) <= rel * half)
+    per_m = prog.lam_unit / prog.sc.length
+    hull = sorted(((int(prog.order[i]), int(np.sign(s[i])), float(abs(mult[i]) * per_m)) for i in on),
+                  key=lambda r: -r[2])
+    edges = np.flatnonzero(prog.problem.scene.active_edges)  # the program's weights, in mesh edge numbers
+    per_w = prog.lam_unit * float(prog.sc.weight(np.ones(1))[0])
+    lo, up = np.broadcast_to(prog.form.lower, (m,)), np.broadcast_to(prog.form.upper, (m,))
+    out: dict[str, list] = {"hull": hull}
+    for key, bound in (("weight_lower", lo), ("weight_upper", up)):
+        k = np.flatnonzero(np.isfinite(bound) & (np.abs(w - bound) <= rel * np.maximum(np.abs(bound), 1e-300)))
+        out[key] = sorted(((int(edges[j]), float(abs(mult[nm + j]) * per_w)) for j in k), key=lambda r: -r[1])
+    return out
+
+
 def _binding(scene: Scene, hull: dict) -> tuple[tuple[int, float], ...]:
     d = np.asarray(hull["signed_distance"]) / (0.5 * hull["thickness"])
     free = np.flatnonzero(~scene.supports)
@@ -408,8 +440,8 @@ def _pattern(scene: Scene, at: Sequence[int] | None) -> tuple[np.ndarray, tuple[
     return P, tuple(sorted(share))
 
 
-def _base_problem(scene: Scene, thickness: float, density: float, w_max: Any = None) -> Problem:
-    return stated_problem(scene, density=density, thickness=thickness, w_max=w_max,
+def _base_problem(scene: Scene, thickness: float, density: float, w_max: Any = None, eps: Any = None) -> Problem:
+    return stated_problem(scene, density=density, thickness=thickness, w_max=w_max, eps=eps,
                        constraints=[Hull(thickness=thickness)])
 
 
@@ -499,13 +531,13 @@ def _unsettled(kind: str, scene: Scene, thickness: float, run: _Run, how: str, a
 
 
 def _certified(kind: str, scene: Scene, value: float, optimum: float | None, res: SolveResult, run: _Run,
-               hull: dict, thickness: float, message: str) -> LimitResult:
+               hull: dict, thickness: float, message: str, active: Mapping[str, Any] | None = None) -> LimitResult:
     return LimitResult(kind, value, optimum, True, dataclasses.replace(res, message=message), "certified", run.raw,
-                       message, tuple(run.rounds), _binding(scene, hull), thickness)
+                       message, tuple(run.rounds), _binding(scene, hull), thickness, dict(active or {}))
 
 
 def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: Sequence[int] | None = None,
-               w_max: Any = None, start: Network | SolveResult | None = None, start_kg: float = 0.0,
+               w_max: Any = None, eps: Any = None, start: Network | SolveResult | None = None, start_kg: float = 0.0,
                slide_supports: bool = False, options: Mapping[str, Any] | None = None, time_limit: float = 600.0,
                tol: float = 1e-9, max_iter: int = 3000,
                progress: Callable[[dict], None] | None = None) -> LimitResult:
@@ -522,6 +554,8 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
         Loaded vertices (free).
     w_max
         Upper weight bound [N/m] (``None``: none).
+    eps
+        Lower weight bound [N/m] (``None``: the scale-free default ε).
     start
         A network on this mesh to start from; default the staggered network under
         ``start_kg`` (:func:`~selfsupport.methods.hull_search.solve_in_hull`).
@@ -550,7 +584,7 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     t_start = time.perf_counter()
     deadline = t_start + time_limit
     added, at_ = _pattern(scene, at)
-    problem = _base_problem(scene, thickness, density, w_max)
+    problem = _base_problem(scene, thickness, density, w_max, eps)
     V, W, how = _start(problem, start, float(start_kg), added, options, slide_supports)
     tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
              f"{start_kg:g} kg")
@@ -573,6 +607,7 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
     if not run.settled:
         return _unsettled(kind, scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
     optimum = run.lam * run.prog.lam_unit
+    active = _active(run)
     ok, res, hull = _finish(kind, scene, thickness, run, how, added, t_start=t_start, deadline=deadline, extra=extra)
     rounds, best = run.rounds, run
     for back in BACK_OFF if not ok else ():
@@ -595,13 +630,13 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
         message = (f"certified: {what}{value:.6g} {unit}{where} (the program's optimum {optimum:.6g} {unit}) is "
                    f"carried by a compressive network in equilibrium (max relative error {hull['max_relative_error']:.1e}) "
                    f"within t/2 = {0.5 * thickness:g} m of the reference")
-        return _certified(kind, scene, value, optimum, res, best, hull, thickness, message)
+        return _certified(kind, scene, value, optimum, res, best, hull, thickness, message, active)
     message = (f"not certified: the program's optimum {optimum:.6g} {unit} left a network that fails the check "
                f"(max relative error {hull['max_relative_error']:.1e}, {hull['outside']} free vertices beyond t/2 by "
                f"up to {hull['max_excess']:.3g} m), and so did the feasibility program at λ backed off by "
                f"{', '.join(f'{b:g}' for b in BACK_OFF)}")
     return LimitResult(kind, None, optimum, False, dataclasses.replace(res, message=message), "not certified",
-                       best.raw, message, tuple(rounds), _binding(scene, hull), thickness)
+                       best.raw, message, tuple(rounds), _binding(scene, hull), thickness, active)
 
 
 def max_horizontal(scene: Scene, *, thickness: float, direction: str | float = "x", density: float = 2000.0,
