@@ -2,12 +2,16 @@
 (selfsupport/methods/staggered/cases.py) and its report when it is blocked."""
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from formulations import Problem
+from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.core.shapes import barrel_vault, make_shape
 from selfsupport.methods.deadline import remaining
@@ -88,18 +92,66 @@ def test_a_point_load_on_a_quad_grid_is_blocked_at_the_loaded_vertex_before_any_
     assert f"vertices [{v}," in rec["message"] and "stages were skipped" in rec["message"]
 
 
-def test_a_blocked_continuation_is_reported_on_a_result_that_does_not_converge(monkeypatch):
-    """The iteration over both cases converges on the quad grid after the blocked continuation;
-    held to two iterations, it does not, and the result's message carries the continuation's
-    report."""
-    problem, v = _quad_grid_point_case()
+def _two_iterations(monkeypatch) -> None:
+    """Hold the staggered iteration over every case to two iterations (not the envelope's)."""
     iterate = StaggeredLinearization._iterate
     monkeypatch.setattr(StaggeredLinearization, "_iterate", lambda self, problem, opt, *a: iterate(
-        self, problem, replace(opt, max_iter=2) if len(problem.loads) > 1 else opt, *a))  # (not the envelope's)
-    res = StaggeredLinearization().solve(problem)
-    assert res.status != "converged"
+        self, problem, replace(opt, max_iter=2) if len(problem.loads) > 1 else opt, *a))
+
+
+def test_a_blocked_continuation_is_reported_on_a_result_that_does_not_converge(monkeypatch):
+    """The iteration over both cases converges on the quad grid after the blocked continuation;
+    held to two iterations, without IPOPT's finish, it does not, and the result's message carries
+    the continuation's report."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    assert res.status != "converged" and "ipopt_from_staggered" not in res.parameters
     rec = res.parameters["load_continuation"]
     assert rec["blocking"]["case"] == "empty" and rec["message"] in res.message
+
+
+def test_ipopt_finishes_a_stalled_iteration_over_every_case(monkeypatch):
+    """The same stalled iteration handed to IPOPT over both cases, warm from its network and
+    each case's weights: the method's answer is IPOPT's, every case in equilibrium by the
+    independent checker to 1e-8, with the staggered numbers it started from on record."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    alone = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    res = StaggeredLinearization().solve(problem)
+    assert alone.status == "iteration_limit"
+    fin = res.parameters["ipopt_from_staggered"]
+    assert res.status == fin["status"] == "converged" and fin["ipopt_status"] == "Solve_Succeeded"
+    assert res.parameters["staggered"]["max_relative_error"] == pytest.approx(alone.max_relative_error, rel=1e-6)
+    assert fin["start_distance_mean"] == pytest.approx(alone.distance_mean, rel=1e-6)
+    assert "IPOPT over every case jointly, started from its network, converged" in res.message
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-8)
+        assert report.ok, (name, report.stdout)
+
+
+def test_ipopt_finish_runs_within_the_solves_deadline(monkeypatch):
+    """The finish gets the solve's own deadline (IPOPT's max_wall_time and its polish stop
+    there), not a fresh time limit; and where IPOPT does not converge either, the result is the
+    staggered one with IPOPT's status and the joint count beside its numbers."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    seen = {}
+    solve = cases.Simultaneous.solve
+
+    def held(self, problem, options=None, *, deadline=None, **kw):
+        seen["deadline"], seen["time_limit"] = deadline, options["time_limit"]
+        return solve(self, problem, {**options, "max_iter": 1}, deadline=deadline, **kw)
+
+    monkeypatch.setattr(cases.Simultaneous, "solve", held)
+    t0 = time.perf_counter()
+    res = StaggeredLinearization().solve(problem, time_limit=30.0)
+    assert t0 + 30.0 - 1.0 <= seen["deadline"] <= t0 + 30.0 + 1.0
+    assert seen["time_limit"] <= seen["deadline"] - t0
+    fin = res.parameters["ipopt_from_staggered"]
+    assert res.status != "converged" and fin["status"] != "converged" and fin["ipopt_status"] is not None
+    assert f"ended {fin['status']} (IPOPT: {fin['ipopt_status']})" in res.message
+    assert f"{fin['unknowns']} unknowns for {fin['equations']} equations" in res.message
 
 
 def test_a_stage_starts_only_when_the_last_stages_time_fits_in_the_share(monkeypatch):
@@ -128,3 +180,38 @@ def test_a_stage_starts_only_when_the_last_stages_time_fits_in_the_share(monkeyp
         assert left >= last["t_stage"]
     assert rec["stopped"] == "time" and rec["blocking"]["case"] in ("empty", "apex")
     assert "share of the time" in rec["message"]
+
+
+def test_the_joint_count_of_a_supported_quad_grid():
+    """A quad grid of nx × ny cells supported all round: (nx−1)(ny−1) free vertices and
+    2·nx·ny − nx − ny edges that are not between two supports, so C cases leave
+    3·n_free + C·m − 3·C·n_free = (3 − C)·n_free + C·(nx + ny − 2) unknowns beyond the equations:
+    with three cases only the boundary's 3·(nx + ny − 2)."""
+    nx, ny = 6, 8
+    scene = barrel_vault(nx=nx, ny=ny, quads=True)
+    n_free = (nx - 1) * (ny - 1)
+    for C in (1, 2, 3):
+        loads = {f"c{k}": SelfWeight(density=2000.0 * (k + 1), thickness=0.1) for k in range(C)}
+        count = cases.joint_freedom(Problem.build(scene, loads))
+        assert count["free_vertices"] == n_free and count["edges"] == 2 * nx * ny - nx - ny
+        assert count["freedom"] == count["unknowns"] - count["equations"] == (3 - C) * n_free + C * (nx + ny - 2)
+
+
+def test_the_refinement_refuses_several_load_cases(tmp_path):
+    """The refinement's SQP step carries one weight vector: asked for with two cases, the solve
+    refuses in one line that names the way out (IPOPT), in the API and on the command line
+    (exit 2, nothing written)."""
+    scene = make_shape("dome", n_vertices=60)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    loads = {"empty": SW, "apex": SW + _point_case(scene, apex, 0.05)}
+    with pytest.raises(InputError, match="handles one load case .* --method ipopt"):
+        StaggeredLinearization(refine=3).solve(scene, loads)
+    toml = tmp_path / "cases.toml"
+    toml.write_text('[cases.empty]\n\n[cases.hoist]\npoint_loads = { "0" = 3000.0 }\n')
+    out = tmp_path / "net.json"
+    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", "shape:dome:60", "--load-cases", str(toml),
+                        "--method", "staggered", "--option", "refine=3", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and len(lines) == 1 and "handles one load case" in lines[0], p.stderr
+    assert "Traceback" not in p.stderr and not out.exists()

@@ -29,6 +29,14 @@ necessary, not sufficient: weights that a finite step pushes onto their bounds c
 a stage. So each stage is started only when the last one's duration fits in the continuation's
 share of the time (:data:`SHARE`), and the rest is the iteration's.
 
+When neither the continuation nor the iteration over every case converges, the simultaneous
+method (IPOPT over the positions and every case's weights at once) starts from the iteration's
+network and each case's weights, in the time left (:func:`ipopt_finish`): its answer is the
+method's when it converges, else its status stands beside the staggered numbers in the report
+("Infeasible_Problem_Detected" or a failed restoration: IPOPT's evidence of a local
+infeasibility; "Feasible_Point_Found": the joint problem has as many equations as unknowns, see
+:func:`joint_freedom`).
+
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
@@ -48,8 +56,9 @@ from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import load_vector, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
-from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.deadline import out_of_time, remaining
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
+from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
 from selfsupport.methods.staggered.options import StaggeredOptions
 from selfsupport.methods.staggered.run import _Run
@@ -319,3 +328,45 @@ def _conclude(run: _Run, X: np.ndarray, ws: list[np.ndarray], single: SolveResul
                  f"{len(rec['stages'])} stage(s)")
     res = conclude(run, s, net, cases)
     return dataclasses.replace(res, parameters={**res.parameters, "load_continuation": rec})
+
+
+def joint_freedom(problem: Problem) -> dict[str, int]:
+    """The count of the joint problem over the cases: unknowns (three coordinates per free
+    vertex, one weight per active edge and case) less equations (three per free vertex and
+    case). At zero or below the equations fix the network without any room for the objective
+    (and the weights' bounds, inequalities, are not even counted): a network exists only where the
+    loads happen to fit. A quad mesh has about two edges per vertex, so three cases leave it about
+    nothing; a triangle mesh about three, room for any number of cases."""
+    scene = problem.scene
+    n_free, m, C = int(np.sum(~scene.supports)), int(np.count_nonzero(scene.active_edges)), len(problem.loads)
+    return {"free_vertices": n_free, "edges": m, "cases": C, "unknowns": 3 * n_free + C * m,
+            "equations": 3 * C * n_free, "freedom": 3 * n_free + C * m - 3 * C * n_free}
+
+
+def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,
+                 progress: Callable[[dict], None] | None) -> tuple[SolveResult, dict[str, Any]]:
+    """IPOPT over every case jointly (the simultaneous method), started from the staggered
+    network ``stalled`` (its positions and each case's weights), until ``deadline`` (each IPOPT
+    run's ``max_wall_time``, the polish's deadline). Returns its result and a record: its status
+    and IPOPT's last one, every case's max relative error, the mean distance to the reference
+    against the start's, the seconds, and :func:`joint_freedom`."""
+    t0 = time.perf_counter()
+    res = Simultaneous().solve(problem, {"warm_start": stalled, "time_limit": remaining(deadline)},
+                               progress=progress, deadline=deadline)
+    raw = [h["solver_status"] for h in res.history if h.get("stage") == Simultaneous.backend]
+    rec = {"status": res.status, "ipopt_status": raw[-1] if raw else None, "rounds": len(raw),
+           "max_relative_error": res.max_relative_error,
+           "case_errors": {name: net.max_relative_error() for name, net in res.case_networks},
+           "distance_mean": res.distance_mean, "start_distance_mean": stalled.distance_mean,
+           "seconds": time.perf_counter() - t0, **joint_freedom(problem)}
+    return res, rec
+
+
+def finish_note(stalled: SolveResult, rec: dict[str, Any]) -> str:
+    """One sentence: IPOPT's finish from the staggered network, beside the staggered numbers."""
+    errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["case_errors"].items())
+    count = (f"; the joint problem has {rec['unknowns']} unknowns for {rec['equations']} equations "
+             f"({rec['free_vertices']} free vertices, {rec['edges']} edges, {rec['cases']} cases)")
+    return (f"IPOPT over every case jointly, started from this network (max relative error "
+            f"{stalled.max_relative_error:.2e}), ended {rec['status']} (IPOPT: {rec['ipopt_status']}) in "
+            f"{rec['seconds']:.1f} s at max relative error per case {errs}" + count)
