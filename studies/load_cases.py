@@ -4,7 +4,7 @@ not, what blocks it.
 ::
 
     python -m studies.load_cases --scenes ../shared/paper-scenes/scenes --out out/load_cases \\
-        --csv benchmarks/results/load_cases.csv
+        --csv benchmarks/results/load_cases.csv   # (or: make bench, which copies OUT/load_cases.csv there)
 
 Cases (written as TOML files under ``--out``): on vault-pillar, lilium and cas the three of the
 load-cases issue — empty; snow 80 kg/m² on all faces; a point load of a share of the self-weight
@@ -146,12 +146,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", type=Path, default=Path("../shared/paper-scenes/scenes"))
     ap.add_argument("--out", type=Path, default=Path("out/load_cases"), help="networks, TOML files, runs.json")
-    ap.add_argument("--csv", type=Path, default=Path("benchmarks/results/load_cases.csv"))
+    ap.add_argument("--csv", type=Path, default=None, help="the CSV (default: OUT/load_cases.csv)")
     ap.add_argument("--only", nargs="+", default=list(SCENES), choices=SCENES, help="these scenes only")
     ap.add_argument("--shares", nargs="+", type=float, default=list(SHARES), help="point load shares of the self-weight")
     ap.add_argument("--checker", type=Path, default=DEFAULT_CHECKER)
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
+    a.csv = a.out / "load_cases.csv" if a.csv is None else a.csv
     stamp, rows = run_stamp(), []
     for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares))):
         rows.append({**run(job, a.out, a.checker), **stamp})

@@ -14,10 +14,12 @@ from formulations import Problem
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.core.shapes import barrel_vault, make_shape
+from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
 from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
 from selfsupport.methods.staggered.run import _Run
+from studies import load_cases as study
 from tests.conftest import independent_check
 
 SW = SelfWeight(density=2000.0, thickness=0.1)
@@ -215,3 +217,21 @@ def test_the_refinement_refuses_several_load_cases(tmp_path):
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and len(lines) == 1 and "handles one load case" in lines[0], p.stderr
     assert "Traceback" not in p.stderr and not out.exists()
+
+
+def test_the_load_cases_study_states_the_issues_cases(tmp_path):
+    """The study's TOML, read back by the CLI's reader, gives the issue's cases: the self-weight
+    alone, the self-weight plus 80 kg/m² (a factor on the self-weight at every vertex, so
+    proportional to the first), and the self-weight plus the point load at its one vertex."""
+    scene = make_shape("dome", n_vertices=60)
+    v, weight = 7, 1000.0
+    cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(0.05 * weight, 2)}}}
+    toml = tmp_path / "cases.toml"
+    toml.write_text(study.toml_text(cases))
+    L = load_spec(load_cases=toml).cases(scene.mesh.n_vertices)
+    nodal = {k: c.nodal(scene.mesh, scene.mesh.vertices) for k, c in L.items()}
+    assert list(nodal) == ["empty", "snow", "point"]
+    ratio = nodal["snow"] / nodal["empty"]
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)  # (proportional: a factor on the self-weight)
+    diff = nodal["point"] - nodal["empty"]
+    assert diff[v] == pytest.approx(-50.0) and np.count_nonzero(diff) == 1
