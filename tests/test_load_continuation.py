@@ -13,6 +13,8 @@ import pytest
 from formulations import Problem
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.shapes import barrel_vault, make_shape
 from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
@@ -235,3 +237,40 @@ def test_the_load_cases_study_states_the_issues_cases(tmp_path):
     np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)  # (proportional: a factor on the self-weight)
     diff = nodal["point"] - nodal["empty"]
     assert diff[v] == pytest.approx(-50.0) and np.count_nonzero(diff) == 1
+
+
+def _pyramid_cases(height: float) -> SolveResult:
+    """One free apex over a unit square of four supports at ``height`` above them; case "a"
+    loads it with 1 N, case "b" with 3 N (weights of no account here)."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, height]], float)
+    mesh = PolyMesh.from_faces(V, [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    supports = np.array([True, True, True, True, False])
+    nets = [Network(mesh=mesh, weights=np.ones(mesh.n_edges), loads=np.array([0, 0, 0, 0, -f]), supports=supports)
+            for f in (1.0, 3.0)]
+    return SolveResult.build(nets[0], cases=(("a", nets[0]), ("b", nets[1])), status="stalled", method="test",
+                             backend="test", iterations=0, wall_time=0.0)
+
+
+def test_any_weights_carry_a_load_difference_at_a_raised_apex_but_not_at_a_flat_one():
+    """The apex's four edges carry any vertical load once it is raised: the difference of 2 N is
+    carried to round-off. At the supports' height its edges are horizontal, no weights carry a
+    vertical load, and the relative residual is the whole difference over case b's load, 2/3;
+    the note then says the geometry blocks."""
+    raised = cases.any_weights_carry(_pyramid_cases(0.5))
+    assert raised["b"]["from"] == "a" and raised["b"]["max_relative_residual"] < 1e-12
+    assert "bounds, or the iteration's reach, block it" in cases.carry_note(raised)
+    flat = cases.any_weights_carry(_pyramid_cases(0.0))
+    assert flat["b"]["max_relative_residual"] == pytest.approx(2.0 / 3.0, rel=1e-12) and flat["b"]["vertices"] == [4]
+    assert "the geometry blocks" in cases.carry_note(flat) and "vertices [4]" in cases.carry_note(flat)
+
+
+def test_a_stalled_result_over_several_cases_says_whether_any_weights_carry_them(monkeypatch):
+    """The quad grid's two-iteration result, without the IPOPT finish: its message carries the
+    measurement of :func:`any_weights_carry` at its network, the same as recomputed from it."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    carry = res.parameters["any_weights_carry"]
+    again = cases.any_weights_carry(res)
+    assert carry["point"]["max_relative_residual"] == pytest.approx(again["point"]["max_relative_residual"], abs=1e-12)
+    assert cases.carry_note(carry) in res.message

@@ -53,7 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
-from formulations.equilibrium import load_vector, residual, weight_matrix
+from formulations.equilibrium import Topology, load_vector, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods.deadline import out_of_time, remaining
@@ -131,18 +131,40 @@ def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]
     ``|L_c|``): its max, the largest load difference, and the vertices where it is largest."""
     top = run.top
     A = weight_matrix(top, X).tocsc()[:, _moved(run, ws)]
-    out = {}
     Lm = L.mean(axis=0)
-    for c, name in enumerate(run.loads.names):
-        s = np.repeat(1.0 / np.abs(L[c, run.free]), 3)
-        J = (sp.diags(s) @ A).tocsr()
-        b = s * load_vector(top, L[c] - Lm)
-        r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
-        order = np.argsort(r)[::-1][:REPORTED]
-        out[name] = {"max_relative_residual": float(r.max(initial=0.0)),
-                     "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
-                     "vertices": [int(v) for v in run.free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
-    return out
+    return {name: _carried(top, A, L[c] - Lm, L[c], run.free_idx) for c, name in enumerate(run.loads.names)}
+
+
+def _carried(top: Any, A: sp.spmatrix, diff: np.ndarray, scale: np.ndarray, free_idx: np.ndarray) -> dict[str, Any]:
+    """How far a change of the weights of ``A``'s columns (the minimum-norm least-squares one)
+    carries the nodal load difference ``diff``: its relative residual per free vertex (over
+    ``|scale|``), its max, the largest relative load difference, and the vertices where it is largest."""
+    s = np.repeat(1.0 / np.abs(scale[top.free]), 3)
+    J = (sp.diags(s) @ A).tocsr()
+    b = s * load_vector(top, diff)
+    r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
+    order = np.argsort(r)[::-1][:REPORTED]
+    return {"max_relative_residual": float(r.max(initial=0.0)),
+            "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
+            "vertices": [int(v) for v in free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
+
+
+def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
+    """At the geometry of ``result`` (several cases): per case after the first, whether *any*
+    change of the weights — either sign, no bound — carries the case's load difference from the
+    first case there (:func:`_carried` over every active edge). The cases share the geometry, so
+    ``A(X) (w_c − w_1) = L_c − L_1`` holds exactly in any network that carries both: a residual
+    well above round-off says this geometry cannot carry them with any weights (the geometry
+    blocks, not the bounds); near round-off, weights of some sign exist here, and the bounds or
+    the iteration's reach are what is missing."""
+    (first_name, first), *rest = result.case_networks
+    net = first
+    active = ~(net.supports[net.edges[:, 0]] & net.supports[net.edges[:, 1]])
+    top = Topology.build(net.mesh.n_vertices, net.edges[active], net.supports)
+    A = weight_matrix(top, net.vertices).tocsc()
+    free_idx = np.flatnonzero(top.free)
+    return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx)}
+            for name, other in rest}
 
 
 def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | None = None) -> dict[str, Any]:
@@ -370,3 +392,17 @@ def finish_note(stalled: SolveResult, rec: dict[str, Any]) -> str:
     return (f"IPOPT over every case jointly, started from this network (max relative error "
             f"{stalled.max_relative_error:.2e}), ended {rec['status']} (IPOPT: {rec['ipopt_status']}) in "
             f"{rec['seconds']:.1f} s at max relative error per case {errs}" + count)
+
+
+def carry_note(carry: dict[str, dict[str, Any]]) -> str:
+    """:func:`any_weights_carry` in one sentence: the case whose difference is carried worst, and
+    whether the geometry (residual above :data:`BLOCKED_RESIDUAL`) or the bounds block."""
+    name = max(carry, key=lambda k: carry[k]["max_relative_residual"])
+    c = carry[name]
+    if c["max_relative_residual"] > BLOCKED_RESIDUAL:
+        return (f"at this network no change of the weights, of either sign and unbounded, carries case {name!r}'s "
+                f"load difference from case {c['from']!r} (relative residual {c['max_relative_residual']:.2e}, at "
+                f"vertices {c['vertices']}): the geometry blocks, not the weights' bounds")
+    return (f"at this network weights of either sign carry every case's load difference from case {c['from']!r} "
+            f"(relative residual at most {c['max_relative_residual']:.1e}): the weights' bounds, or the "
+            "iteration's reach, block it")

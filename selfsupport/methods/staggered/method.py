@@ -14,7 +14,7 @@ from selfsupport.core.scene import Scene
 from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.staggered.cases import continuation, finish_note, ipopt_finish
+from selfsupport.methods.staggered.cases import any_weights_carry, carry_note, continuation, finish_note, ipopt_finish
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import coupled_fits
@@ -122,8 +122,12 @@ class StaggeredLinearization:
                                                        "staggered": {"status": other.status,
                                                                      "max_relative_error": other.max_relative_error}})
             note = finish_note(other, params["ipopt_from_staggered"])
+        carry = None
+        if len(other.case_networks) > 1 and other.status != "converged":
+            params["any_weights_carry"] = any_weights_carry(other)
+            carry = carry_note(params["any_weights_carry"])
         return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
-                                   message="; ".join(m for m in (other.message, rec.get("message"), note) if m),
+                                   message="; ".join(m for m in (other.message, rec.get("message"), carry, note) if m),
                                    parameters=params)
 
     def _iterate(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
