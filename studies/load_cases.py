@@ -23,7 +23,10 @@ the first measurement of how far the design is from standing). At 5% also:
 Each solve is ``selfsupport solve --time-limit 120`` in its own process. Per run: status, wall
 time, every case's max relative error by the shared independent checker (its worst case
 reported), the IPOPT finish's status and the joint count (unknowns less equations:
-:func:`selfsupport.methods.staggered.cases.joint_freedom`). Writes the CSV (``--csv``) and the
+:func:`selfsupport.methods.staggered.cases.joint_freedom`), and, where the result did not
+converge, how far any weights (either sign, unbounded) carry the cases' load differences at its
+geometry (:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off,
+the geometry blocks). Writes the CSV (``--csv``) and the
 runs' JSON beside the networks.
 """
 from __future__ import annotations
@@ -54,10 +57,12 @@ COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_sha
            Column("worst_case", "worst case"), Column("worst_error", "its error (checker)", "{:.1e}"),
            Column("ipopt_status", "IPOPT from the staggered network"),
            Column("freedom", "unknowns − equations", "{:d}"),
+           Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
            Column("errors", "error per case (checker)")) + STAMP_COLUMNS
 #: The benchmark page's columns (benchmarks/report.py): the table kept short.
 SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "variant", "status", "wall_s",
-                                               "worst_case", "worst_error", "ipopt_status", "freedom"))
+                                               "worst_case", "worst_error", "ipopt_status", "freedom",
+                                               "carry_residual"))
 
 
 def highest_free_and_weight(path: Path) -> tuple[int, float]:
@@ -135,9 +140,11 @@ def run(job: dict, out: Path, checker: Path) -> dict:
     errs = checked(net, checker, job["flags"])
     worst = max(errs, key=lambda k: -np.inf if np.isnan(errs[k]) else errs[k])
     fin = d.get("parameters", {}).get("ipopt_from_staggered") or {}
+    carry = d.get("parameters", {}).get("any_weights_carry") or {}
     row.update(status=d.get("status"), errors=" ".join(f"{k}={e:.2e}" for k, e in errs.items()), worst_case=worst,
                worst_error=errs[worst], ipopt_status=fin.get("ipopt_status"), freedom=fin.get("freedom"),
                ipopt_error=fin.get("max_relative_error"), ipopt_seconds=fin.get("seconds"),
+               carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
                message=d.get("message"))
     return row
 
