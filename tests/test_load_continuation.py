@@ -274,3 +274,19 @@ def test_a_stalled_result_over_several_cases_says_whether_any_weights_carry_them
     again = cases.any_weights_carry(res)
     assert carry["point"]["max_relative_residual"] == pytest.approx(again["point"]["max_relative_residual"], abs=1e-12)
     assert cases.carry_note(carry) in res.message
+
+
+def test_a_finish_ipopt_cannot_state_leaves_the_staggered_result(monkeypatch):
+    """IPOPT refusing the problem (an input error of its own) does not lose the staggered
+    result: it is returned with IPOPT's reason in its message and record."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+
+    def refuse(self, *a, **kw):
+        raise InputError("no IPOPT here")
+
+    monkeypatch.setattr(cases.Simultaneous, "solve", refuse)
+    res = StaggeredLinearization().solve(problem)
+    assert res.status == "iteration_limit" and res.method == "staggered"
+    assert res.parameters["ipopt_from_staggered"] == {"status": "not run", "reason": "no IPOPT here"}
+    assert "IPOPT over every case jointly was not run: no IPOPT here" in res.message

@@ -135,7 +135,7 @@ def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]
     return {name: _carried(top, A, L[c] - Lm, L[c], run.free_idx) for c, name in enumerate(run.loads.names)}
 
 
-def _carried(top: Any, A: sp.spmatrix, diff: np.ndarray, scale: np.ndarray, free_idx: np.ndarray) -> dict[str, Any]:
+def _carried(top: Topology, A: sp.spmatrix, diff: np.ndarray, scale: np.ndarray, free_idx: np.ndarray) -> dict[str, Any]:
     """How far a change of the weights of ``A``'s columns (the minimum-norm least-squares one)
     carries the nodal load difference ``diff``: its relative residual per free vertex (over
     ``|scale|``), its max, the largest relative load difference, and the vertices where it is largest."""

@@ -7,7 +7,7 @@ from dataclasses import replace
 from typing import Any, Callable, Mapping
 
 from formulations import LoadCases, Planar, Problem
-from selfsupport.core.errors import InputError
+from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
@@ -110,9 +110,14 @@ class StaggeredLinearization:
         if other is None:  # (no time left: the envelope's network is no answer)
             other = _Run(self, problem, replace(opt, coupled=False, time_limit=0.0), progress, None, None).solve()
         note, params = None, {**other.parameters, "load_continuation": rec}
+        fin = None
         if opt.ipopt_finish and not out_of_time(deadline):
-            fin, params["ipopt_from_staggered"] = ipopt_finish(problem, other, deadline, progress)
-            if fin.status == "converged":
+            try:
+                fin, params["ipopt_from_staggered"] = ipopt_finish(problem, other, deadline, progress)
+            except SelfSupportError as e:  # (a problem IPOPT cannot state: the staggered result stands)
+                params["ipopt_from_staggered"] = {"status": "not run", "reason": str(e)}
+                note = f"IPOPT over every case jointly was not run: {e}"
+            if fin is not None and fin.status == "converged":
                 note = (f"the staggered method over every case ended {other.status} at max relative error "
                         f"{other.max_relative_error:.2e}; IPOPT over every case jointly, started from its network, converged")
                 return dataclasses.replace(fin, wall_time=time.perf_counter() - t0, iterations=other.iterations + fin.iterations,
@@ -121,7 +126,8 @@ class StaggeredLinearization:
                                                        "ipopt_from_staggered": params["ipopt_from_staggered"],
                                                        "staggered": {"status": other.status,
                                                                      "max_relative_error": other.max_relative_error}})
-            note = finish_note(other, params["ipopt_from_staggered"])
+            if fin is not None:
+                note = finish_note(other, params["ipopt_from_staggered"])
         carry = None
         if len(other.case_networks) > 1 and other.status != "converged":
             params["any_weights_carry"] = any_weights_carry(other)
