@@ -18,6 +18,8 @@ from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.shapes import barrel_vault, make_shape
 from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
+from selfsupport.methods.memory import GIB, estimate_solve_bytes
+from selfsupport.methods.solve import solve
 from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
 from selfsupport.methods.staggered.run import _Run
@@ -290,3 +292,18 @@ def test_a_finish_ipopt_cannot_state_leaves_the_staggered_result(monkeypatch):
     assert res.status == "iteration_limit" and res.method == "staggered"
     assert res.parameters["ipopt_from_staggered"] == {"status": "not run", "reason": "no IPOPT here"}
     assert "IPOPT over every case jointly was not run: no IPOPT here" in res.message
+
+
+def test_the_ipopt_finish_is_left_out_where_its_memory_estimate_exceeds_the_limit(tmp_path):
+    """Two cases on a 100-vertex dome under --max-memory 0.17 GiB: the staggered solve's estimate
+    fits (about 0.16 GiB), IPOPT's (about 0.2 GiB) does not, so the solve runs without the
+    finish; with room for both, the finish stays on."""
+    scene = make_shape("dome", n_vertices=100)
+    n = scene.mesh.n_vertices
+    assert estimate_solve_bytes(n, "staggered", 2) < 0.17 * GIB < estimate_solve_bytes(n, "ipopt", 2)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    path = tmp_path / "cases.toml"
+    path.write_text(study.toml_text({"empty": {}, "hoist": {"point_loads": {apex: 500.0}}}))
+    tight = solve(scene, method="staggered", load_cases=path, max_memory=0.17, max_iter=1)
+    roomy = solve(scene, method="staggered", load_cases=path, max_memory=4.0, max_iter=1)
+    assert tight.parameters["ipopt_finish"] is False and roomy.parameters["ipopt_finish"] is True
