@@ -307,3 +307,38 @@ def test_the_ipopt_finish_is_left_out_where_its_memory_estimate_exceeds_the_limi
     tight = solve(scene, method="staggered", load_cases=path, max_memory=0.17, max_iter=1)
     roomy = solve(scene, method="staggered", load_cases=path, max_memory=4.0, max_iter=1)
     assert tight.parameters["ipopt_finish"] is False and roomy.parameters["ipopt_finish"] is True
+
+
+def test_a_case_proportional_to_another_is_carried_by_its_scaled_weights():
+    """Empty, snow (80 kg/m² on the self-weight of 2000 kg/m³ × 0.1 m: the empty loads × 1.4 at
+    any geometry) and a point case on a dome: the snow case is solved as the empty one's weights
+    times 1.4, so the joint problem is the two other cases'; every case passes the independent
+    checker, the snow network's weights are the empty one's × 1.4 and its loads the empty one's ×
+    1.4 at the common geometry."""
+    scene = make_shape("dome", n_vertices=100)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    problem = Problem.build(scene, {"empty": SW, "snow": SW + SelfWeight(density=80.0, thickness=1.0),
+                                    "point": SW + _point_case(scene, apex, 0.05)})
+    assert cases.proportional_members(problem) == {1: (0, pytest.approx(1.4, rel=1e-12))}
+    res = StaggeredLinearization().solve(problem)
+    assert res.status == "converged" and [n for n, _ in res.case_networks] == ["empty", "snow", "point"]
+    nets = dict(res.case_networks)
+    np.testing.assert_allclose(nets["snow"].weights, 1.4 * nets["empty"].weights, rtol=1e-12)
+    np.testing.assert_allclose(nets["snow"].loads, 1.4 * nets["empty"].loads, rtol=1e-12)
+    assert res.parameters["proportional_cases"]["snow"]["of"] == "empty"
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-9)
+        assert report.ok, (name, report.stdout)
+
+
+def test_no_case_is_scaled_where_the_bounds_would_not_hold_it():
+    """With an upper bound, or a lower bound that allows tension, scaled weights may leave the
+    bounds: no case is taken for a member then; nor a lighter case (its scaled weights would go
+    below ε)."""
+    scene = make_shape("dome", n_vertices=60)
+    loads = {"empty": SW, "snow": SW + SelfWeight(density=80.0, thickness=1.0), "point": SW + _point_case(scene, 5, 0.05)}
+    assert cases.proportional_members(Problem.build(scene, loads))
+    assert not cases.proportional_members(Problem.build(scene, loads, w_max=1e6))
+    assert not cases.proportional_members(Problem.build(scene, loads, eps=-1.0))
+    lighter = {"snow": SW + SelfWeight(density=80.0, thickness=1.0), "empty": SW, "point": SW + _point_case(scene, 5, 0.05)}
+    assert not cases.proportional_members(Problem.build(scene, lighter))

@@ -14,7 +14,16 @@ from selfsupport.core.scene import Scene
 from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.staggered.cases import any_weights_carry, carry_note, continuation, finish_note, ipopt_finish
+from selfsupport.methods.staggered.cases import (
+    any_weights_carry,
+    carry_note,
+    continuation,
+    finish_note,
+    ipopt_finish,
+    proportional_members,
+    with_members,
+    without_members,
+)
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import coupled_fits
@@ -89,6 +98,10 @@ class StaggeredLinearization:
                              f"{len(problem.loads)}; drop refine, or solve with --method ipopt, which lowers the "
                              "objective over every case jointly")
         if opt.continuation and opt.coupled is None and len(problem.loads) > 1 and not cases_proportional(problem):
+            members = proportional_members(problem)
+            if members:  # (a case another carries with scaled weights: solved without it, then added)
+                res = self._cases(without_members(problem, members), opt, progress, warm_start, deadline)
+                return with_members(problem, res, members, opt.tol)
             return self._cases(problem, opt, progress, warm_start, deadline)
         return self._iterate(problem, opt, progress, warm_start, deadline)
 
