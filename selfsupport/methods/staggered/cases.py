@@ -29,6 +29,12 @@ necessary, not sufficient: weights that a finite step pushes onto their bounds c
 a stage. So each stage is started only when the last one's duration fits in the continuation's
 share of the time (:data:`SHARE`), and the rest is the iteration's.
 
+A case whose loads are another's times a factor ``k ≥ 1`` (snow on the self-weight) is left out
+of all this and added at the end with that case's weights times ``k``
+(:func:`proportional_members`, :func:`with_members`): it adds no condition on the geometry, but
+left in, it adds equations the iteration must fit (on a quad mesh, three such cases make the
+count square).
+
 When neither the continuation nor the iteration over every case converges, the simultaneous
 method (IPOPT over the positions and every case's weights at once) starts from the iteration's
 network and each case's weights, in the time left (:func:`ipopt_finish`): its answer is the
