@@ -125,6 +125,9 @@ STUDIES: tuple[Study, ...] = (
     Study("koebe", "studies.koebe", (("koebe.csv", "koebe.csv"), ("koebe_published.csv", "koebe_published.csv")),
           lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)],
           _no_published("enneper-koebe.obj", "enneper-summed.obj")),
+    # several load cases on the paper's scenes (the load-cases guide's measurements)
+    Study("load_cases", "studies.load_cases", (("load_cases.csv", "load_cases.csv"),),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), *_checker(s)], _no_scenes),
     # the theory pages' "why not" measurements on generated shapes
     Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
           lambda s, out: ["--out", str(out)], lambda s: ""),

@@ -1,20 +1,33 @@
-"""Several load cases on the paper's scenes: the iteration over every case at once (before) and the
-continuation from the cases' envelope first (after, the default).
+"""Several load cases on the paper's scenes: does one geometry stand under all of them, and if
+not, what blocks it.
 
 ::
 
-    python -m studies.load_cases --scenes ../shared/paper-scenes/scenes --out out/load_cases
+    python -m studies.load_cases --scenes ../shared/paper-scenes/scenes --out out/load_cases \\
+        --csv benchmarks/results/load_cases.csv   # (or: make bench, which copies OUT/load_cases.csv there)
 
-Cases (written as TOML files beside the results): on vault-pillar, lilium and cas the three of
-the load-cases issue (empty; snow 80 kg/m²; a point load of 5% of the self-weight at the highest
-free vertex); on vault-pillar also empty + 500 N at that vertex and the format reference's
-example (snow, 5 kN at vertex 40 and 300 kg at vertex 12); on a generated 300-vertex dome the
-guide's example. Each solve is ``selfsupport solve --time-limit 120`` in its own process, with
-``--option continuation=false`` for "before"; with ``--repeat N`` each job runs N times, "before"
-and "after" alternately (the machine's load drifts). Per run: status, wall time, every case's max
-relative error by the shared independent checker, and, when the continuation did not reach every
-case, its reach, the seconds it took, whether it was blocked before any stage, and the vertices
-it names. Writes ``load_cases.md`` and ``load_cases.json``.
+Cases (written as TOML files under ``--out``): on vault-pillar, lilium and cas the three of the
+load-cases issue — empty; snow 80 kg/m² on all faces; a point load of a share of the self-weight
+at the highest free vertex — with the share 1%, 2% and 5% (the largest share that converges is
+the first measurement of how far the design is from standing). At 5% also:
+
+* ``staggered only``: ``--option ipopt_finish=false`` (the staggered method alone, without the
+  IPOPT finish over every case that the default hands a non-converged result to);
+* ``two cases``: empty and point only (snow is the self-weight times a factor, proportional to
+  the empty case: it changes the count of equations but, where the empty case stands, not
+  whether the cases can);
+* ``tension allowed``: ``--eps -1e12`` (no bound on the weights; checked with
+  ``--allow-tension``): where this converges and the default does not, the compression bound
+  blocks; where this fails too, the geometry (one network for every case's equations) does.
+
+Each solve is ``selfsupport solve --time-limit 120`` in its own process. Per run: status, wall
+time, every case's max relative error by the shared independent checker (its worst case
+reported), the IPOPT finish's status and the joint count (unknowns less equations:
+:func:`selfsupport.methods.staggered.cases.joint_freedom`), and, where the result did not
+converge, how far any weights (either sign, unbounded) carry the cases' load differences at its
+geometry (:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off,
+the geometry blocks). Writes the CSV (``--csv``) and the
+runs' JSON beside the networks.
 """
 from __future__ import annotations
 
@@ -27,21 +40,43 @@ from pathlib import Path
 
 import numpy as np
 
-CHECKER = Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_network.py"
+from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, markdown_table, run_stamp, write_csv
+
 TIME_LIMIT = 120.0
+SHARES = (0.01, 0.02, 0.05)
+SCENES = ("vault-pillar", "lilium", "cas")
+#: variants at the largest share: label -> (extra ``selfsupport solve`` arguments, cases kept, checker flags)
+VARIANTS: dict[str, tuple[list[str], tuple[str, ...], list[str]]] = {
+    "staggered only": (["--option", "ipopt_finish=false"], ("empty", "snow", "point"), []),
+    "two cases": ([], ("empty", "point"), []),
+    "tension allowed": (["--eps", "-1e12"], ("empty", "snow", "point"), ["--allow-tension"]),
+}
+
+COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_share", "point share", "{:.0%}"),
+           Column("variant", "variant"), Column("status", "status"), Column("wall_s", "wall [s]", "{:.0f}"),
+           Column("worst_case", "worst case"), Column("worst_error", "its error (checker)", "{:.1e}"),
+           Column("ipopt_status", "IPOPT from the staggered network"),
+           Column("freedom", "unknowns − equations", "{:d}"),
+           Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
+           Column("errors", "error per case (checker)")) + STAMP_COLUMNS
+#: The benchmark page's columns (benchmarks/report.py): the table kept short.
+SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "variant", "status", "wall_s",
+                                               "worst_case", "worst_error", "ipopt_status", "freedom",
+                                               "carry_residual"))
 
 
-def _highest_free_and_five_percent(path: Path) -> tuple[int, float]:
-    """The highest free vertex of a scene and 5% of its self-weight [N] (the project's defaults)."""
+def highest_free_and_weight(path: Path) -> tuple[int, float]:
+    """The highest free vertex of a scene and its self-weight [N] (the project's defaults)."""
     from selfsupport import api
     from selfsupport.core.loads import SelfWeight
 
     scene = api.as_scene(str(path))
     V, free = scene.mesh.vertices, np.flatnonzero(scene.free)
-    return int(free[np.argmax(V[free, 2])]), 0.05 * -float(SelfWeight().nodal(scene.mesh, V).sum())
+    return int(free[np.argmax(V[free, 2])]), -float(SelfWeight().nodal(scene.mesh, V).sum())
 
 
-def _toml(cases: dict[str, dict]) -> str:
+def toml_text(cases: dict[str, dict]) -> str:
+    """Load cases as the ``--load-cases`` TOML (:mod:`selfsupport.io.loadcases`)."""
     out = []
     for name, c in cases.items():
         out.append(f"[cases.{name}]")
@@ -52,88 +87,87 @@ def _toml(cases: dict[str, dict]) -> str:
     return "\n".join(out)
 
 
-def _checked(path: Path) -> dict[str, float]:
+def checked(path: Path, checker: Path, flags: list[str]) -> dict[str, float]:
     """Every case's max relative error by the independent checker (a copy with that case's
-    weights and loads at the top level)."""
+    weights and loads at the top level; NaN where the checker printed none)."""
     d = json.loads(path.read_text())
     out = {}
     for case in d.get("load_cases") or [{"name": "self-weight", "weights": d["weights"], "loads": d["loads"]}]:
         one = path.with_suffix(f".{case['name']}.json")
         one.write_text(json.dumps({**d, "weights": case["weights"], "loads": case["loads"]}))
-        p = subprocess.run([sys.executable, str(CHECKER), str(one), "--tol", "1e-8"], capture_output=True, text=True)
+        p = subprocess.run([sys.executable, str(checker), str(one), "--tol", "1e-8", *flags],
+                           capture_output=True, text=True)
         vals = dict(t.split("=", 1) for t in p.stdout.split() if "=" in t)
         out[case["name"]] = float(vals.get("max_rel_error", "nan"))
         one.unlink()
     return out
 
 
-def runs(scenes: Path, out: Path, repeat: int = 1) -> list[dict]:
-    """The study's solves (see the module docstring)."""
-    jobs = []
-    for name in ("vault-pillar", "lilium", "cas"):
-        v, p = _highest_free_and_five_percent(scenes / f"{name}.sss")
-        jobs.append((name, str(scenes / f"{name}.sss"), "three", {"empty": {}, "snow": {"uniform_mass": 80.0},
-                                                                   "point": {"point_loads": {v: round(p, 2)}}}))
-        if name == "vault-pillar":
-            jobs.append((name, str(scenes / f"{name}.sss"), "500N", {"empty": {}, "point": {"point_loads": {v: 500.0}}}))
-            jobs.append((name, str(scenes / f"{name}.sss"), "formats-example", {
-                "empty": {}, "snow": {"uniform_mass": 80.0},
-                "hoist": {"point_loads": {40: 5000.0}, "extra_mass": {12: 300.0}}}))
-    jobs.append(("dome:300", "shape:dome:300", "guide-example", {"empty": {}, "snow": {"uniform_mass": 80.0},
-                                                               "hoist": {"point_loads": {0: 3000.0}}}))
-    rows = []
-    for scene, arg, label, cases in jobs:
-        toml = out / f"{scene.replace(':', '-')}-{label}.toml"
-        toml.write_text(_toml(cases))
-        for run, (variant, extra) in ((r, v) for r in range(repeat)
-                                      for v in (("before", ["--option", "continuation=false"]), ("after", []))):
-            net = out / f"{scene.replace(':', '-')}-{label}-{variant}-{run}.json"
-            t0 = time.perf_counter()
-            p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", arg, "--load-cases", str(toml),
-                                "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q", *extra],
-                               capture_output=True, text=True)
-            wall = time.perf_counter() - t0
-            row = {"scene": scene, "cases": label, "variant": variant, "run": run, "exit": p.returncode,
-                   "wall_s": round(wall, 1)}
-            if net.is_file():
-                d = json.loads(net.read_text())
-                rec = d.get("parameters", {}).get("load_continuation") or {}
-                row.update(status=d.get("status"), checked=_checked(net), reached=rec.get("reached"),
-                           continuation_s=rec.get("time"), blocked_at_start=rec.get("blocked_at_start", False),
-                           blocking_case=(rec.get("blocking") or {}).get("case"),
-                           blocking_vertices=(rec.get("blocking") or {}).get("vertices"))
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-    return rows
+def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...]) -> list[dict]:
+    """The study's solves: per scene the three cases at every share, and the variants at the largest."""
+    out = []
+    for name in names:
+        path = scenes / f"{name}.sss"
+        v, weight = highest_free_and_weight(path)
+        for share in shares:
+            cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
+            out.append({"scene": name, "path": path, "point_share": share, "variant": "default", "cases": cases,
+                        "extra": [], "flags": []})
+            if share == max(shares):
+                for label, (extra, kept, flags) in VARIANTS.items():
+                    out.append({"scene": name, "path": path, "point_share": share, "variant": label,
+                                "cases": {k: cases[k] for k in kept}, "extra": extra, "flags": flags})
+    return out
 
 
-def table(rows: list[dict]) -> str:
-    """The rows as Markdown."""
-    lines = ["| scene | cases | variant | run | status | wall [s] | max relative error per case (checker) | "
-             "continuation reached (its seconds) | blocking case: vertices |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        errs = ", ".join(f"{k} {v:.1e}" for k, v in (r.get("checked") or {}).items())
-        block = f"{r['blocking_case']}: {r['blocking_vertices']}" if r.get("blocking_case") else ""
-        reached = "" if r.get("reached") is None else (
-            f"{r['reached']:.0%}" + (" (blocked before any stage" if r.get("blocked_at_start") else " (")
-            + ("" if r.get("continuation_s") is None else f"{', ' if r.get('blocked_at_start') else ''}"
-               f"{r['continuation_s']:.1f} s") + ")")
-        lines.append(f"| {r['scene']} | {r['cases']} | {r['variant']} | {r.get('run', 0) + 1} | {r.get('status')} | "
-                     f"{r['wall_s']} | {errs} | {reached} | {block} |")
-    return "\n".join(lines) + "\n"
+def run(job: dict, out: Path, checker: Path) -> dict:
+    """One solve in its own process and its row."""
+    stem = f"{job['scene']}-{job['point_share']:g}-{job['variant'].replace(' ', '_')}"
+    toml = out / f"{stem}.toml"
+    toml.write_text(toml_text(job["cases"]))
+    net = out / f"{stem}.json"
+    net.unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(job["path"]), "--load-cases", str(toml),
+                        "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q", *job["extra"]],
+                       capture_output=True, text=True)
+    row = {"scene": job["scene"], "cases": "+".join(job["cases"]), "point_share": job["point_share"],
+           "variant": job["variant"], "exit": p.returncode, "wall_s": round(time.perf_counter() - t0, 1)}
+    if not net.is_file():
+        row["status"] = f"no network (exit {p.returncode}: {p.stderr.strip()[-200:]})"
+        return row
+    d = json.loads(net.read_text())
+    errs = checked(net, checker, job["flags"])
+    worst = max(errs, key=lambda k: -np.inf if np.isnan(errs[k]) else errs[k])
+    fin = d.get("parameters", {}).get("ipopt_from_staggered") or {}
+    carry = d.get("parameters", {}).get("any_weights_carry") or {}
+    row.update(status=d.get("status"), errors=" ".join(f"{k}={e:.2e}" for k, e in errs.items()), worst_case=worst,
+               worst_error=errs[worst], ipopt_status=fin.get("ipopt_status"), freedom=fin.get("freedom"),
+               ipopt_error=fin.get("max_relative_error"), ipopt_seconds=fin.get("seconds"),
+               carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
+               message=d.get("message"))
+    return row
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", type=Path, default=Path("../shared/paper-scenes/scenes"))
-    ap.add_argument("--out", type=Path, default=Path("out/load_cases"))
-    ap.add_argument("--repeat", type=int, default=1, help="runs of each job, before and after alternately")
+    ap.add_argument("--out", type=Path, default=Path("out/load_cases"), help="networks, TOML files, runs.json")
+    ap.add_argument("--csv", type=Path, default=None, help="the CSV (default: OUT/load_cases.csv)")
+    ap.add_argument("--only", nargs="+", default=list(SCENES), choices=SCENES, help="these scenes only")
+    ap.add_argument("--shares", nargs="+", type=float, default=list(SHARES), help="point load shares of the self-weight")
+    ap.add_argument("--checker", type=Path, default=DEFAULT_CHECKER)
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
-    rows = runs(a.scenes, a.out, a.repeat)
-    (a.out / "load_cases.json").write_text(json.dumps(rows, indent=1))
-    (a.out / "load_cases.md").write_text(table(rows))
-    print(table(rows))
+    a.csv = a.out / "load_cases.csv" if a.csv is None else a.csv
+    stamp, rows = run_stamp(), []
+    for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares))):
+        rows.append({**run(job, a.out, a.checker), **stamp})
+        print(json.dumps(rows[-1], default=str), flush=True)
+        (a.out / "runs.json").write_text(json.dumps(rows, indent=1, default=str))
+        a.csv.parent.mkdir(parents=True, exist_ok=True)
+        write_csv(a.csv, rows, COLUMNS)  # (after every run: a partial study is kept)
+    print(markdown_table(rows, SHORT))
     return 0
 
 

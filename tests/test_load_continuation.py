@@ -2,18 +2,28 @@
 (selfsupport/methods/staggered/cases.py) and its report when it is blocked."""
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from formulations import Problem
+from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
+from selfsupport.core.mesh import PolyMesh
+from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.shapes import barrel_vault, make_shape
+from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
+from selfsupport.methods.memory import GIB, estimate_solve_bytes
+from selfsupport.methods.solve import solve
 from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
 from selfsupport.methods.staggered.run import _Run
+from studies import load_cases as study
 from tests.conftest import independent_check
 
 SW = SelfWeight(density=2000.0, thickness=0.1)
@@ -88,18 +98,66 @@ def test_a_point_load_on_a_quad_grid_is_blocked_at_the_loaded_vertex_before_any_
     assert f"vertices [{v}," in rec["message"] and "stages were skipped" in rec["message"]
 
 
-def test_a_blocked_continuation_is_reported_on_a_result_that_does_not_converge(monkeypatch):
-    """The iteration over both cases converges on the quad grid after the blocked continuation;
-    held to two iterations, it does not, and the result's message carries the continuation's
-    report."""
-    problem, v = _quad_grid_point_case()
+def _two_iterations(monkeypatch) -> None:
+    """Hold the staggered iteration over every case to two iterations (not the envelope's)."""
     iterate = StaggeredLinearization._iterate
     monkeypatch.setattr(StaggeredLinearization, "_iterate", lambda self, problem, opt, *a: iterate(
-        self, problem, replace(opt, max_iter=2) if len(problem.loads) > 1 else opt, *a))  # (not the envelope's)
-    res = StaggeredLinearization().solve(problem)
-    assert res.status != "converged"
+        self, problem, replace(opt, max_iter=2) if len(problem.loads) > 1 else opt, *a))
+
+
+def test_a_blocked_continuation_is_reported_on_a_result_that_does_not_converge(monkeypatch):
+    """The iteration over both cases converges on the quad grid after the blocked continuation;
+    held to two iterations, without IPOPT's finish, it does not, and the result's message carries
+    the continuation's report."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    assert res.status != "converged" and "ipopt_from_staggered" not in res.parameters
     rec = res.parameters["load_continuation"]
     assert rec["blocking"]["case"] == "empty" and rec["message"] in res.message
+
+
+def test_ipopt_finishes_a_stalled_iteration_over_every_case(monkeypatch):
+    """The same stalled iteration handed to IPOPT over both cases, warm from its network and
+    each case's weights: the method's answer is IPOPT's, every case in equilibrium by the
+    independent checker to 1e-8, with the staggered numbers it started from on record."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    alone = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    res = StaggeredLinearization().solve(problem)
+    assert alone.status == "iteration_limit"
+    fin = res.parameters["ipopt_from_staggered"]
+    assert res.status == fin["status"] == "converged" and fin["ipopt_status"] == "Solve_Succeeded"
+    assert res.parameters["staggered"]["max_relative_error"] == pytest.approx(alone.max_relative_error, rel=1e-6)
+    assert fin["start_distance_mean"] == pytest.approx(alone.distance_mean, rel=1e-6)
+    assert "IPOPT over every case jointly, started from its network, converged" in res.message
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-8)
+        assert report.ok, (name, report.stdout)
+
+
+def test_ipopt_finish_runs_within_the_solves_deadline(monkeypatch):
+    """The finish gets the solve's own deadline (IPOPT's max_wall_time and its polish stop
+    there), not a fresh time limit; and where IPOPT does not converge either, the result is the
+    staggered one with IPOPT's status and the joint count beside its numbers."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    seen = {}
+    solve = cases.Simultaneous.solve
+
+    def held(self, problem, options=None, *, deadline=None, **kw):
+        seen["deadline"], seen["time_limit"] = deadline, options["time_limit"]
+        return solve(self, problem, {**options, "max_iter": 1}, deadline=deadline, **kw)
+
+    monkeypatch.setattr(cases.Simultaneous, "solve", held)
+    t0 = time.perf_counter()
+    res = StaggeredLinearization().solve(problem, time_limit=30.0)
+    assert t0 + 30.0 - 1.0 <= seen["deadline"] <= t0 + 30.0 + 1.0
+    assert seen["time_limit"] <= seen["deadline"] - t0
+    fin = res.parameters["ipopt_from_staggered"]
+    assert res.status != "converged" and fin["status"] != "converged" and fin["ipopt_status"] is not None
+    assert f"ended {fin['status']} (IPOPT: {fin['ipopt_status']})" in res.message
+    assert f"{fin['unknowns']} unknowns for {fin['equations']} equations" in res.message
 
 
 def test_a_stage_starts_only_when_the_last_stages_time_fits_in_the_share(monkeypatch):
@@ -128,3 +186,178 @@ def test_a_stage_starts_only_when_the_last_stages_time_fits_in_the_share(monkeyp
         assert left >= last["t_stage"]
     assert rec["stopped"] == "time" and rec["blocking"]["case"] in ("empty", "apex")
     assert "share of the time" in rec["message"]
+
+
+def test_the_joint_count_of_a_supported_quad_grid():
+    """A quad grid of nx × ny cells supported all round: (nx−1)(ny−1) free vertices and
+    2·nx·ny − nx − ny edges that are not between two supports, so C cases leave
+    3·n_free + C·m − 3·C·n_free = (3 − C)·n_free + C·(nx + ny − 2) unknowns beyond the equations:
+    with three cases only the boundary's 3·(nx + ny − 2)."""
+    nx, ny = 6, 8
+    scene = barrel_vault(nx=nx, ny=ny, quads=True)
+    n_free = (nx - 1) * (ny - 1)
+    for C in (1, 2, 3):
+        loads = {f"c{k}": SelfWeight(density=2000.0 * (k + 1), thickness=0.1) for k in range(C)}
+        count = cases.joint_freedom(Problem.build(scene, loads))
+        assert count["free_vertices"] == n_free and count["edges"] == 2 * nx * ny - nx - ny
+        assert count["freedom"] == count["unknowns"] - count["equations"] == (3 - C) * n_free + C * (nx + ny - 2)
+
+
+def test_the_refinement_refuses_several_load_cases(tmp_path):
+    """The refinement's SQP step carries one weight vector: asked for with two cases, the solve
+    refuses in one line that names the way out (IPOPT), in the API and on the command line
+    (exit 2, nothing written)."""
+    scene = make_shape("dome", n_vertices=60)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    loads = {"empty": SW, "apex": SW + _point_case(scene, apex, 0.05)}
+    with pytest.raises(InputError, match="handles one load case .* --method ipopt"):
+        StaggeredLinearization(refine=3).solve(scene, loads)
+    toml = tmp_path / "cases.toml"
+    toml.write_text('[cases.empty]\n\n[cases.hoist]\npoint_loads = { "0" = 3000.0 }\n')
+    out = tmp_path / "net.json"
+    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", "shape:dome:60", "--load-cases", str(toml),
+                        "--method", "staggered", "--option", "refine=3", "--out", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and len(lines) == 1 and "handles one load case" in lines[0], p.stderr
+    assert "Traceback" not in p.stderr and not out.exists()
+
+
+def test_the_load_cases_study_states_the_issues_cases(tmp_path):
+    """The study's TOML, read back by the CLI's reader, gives the issue's cases: the self-weight
+    alone, the self-weight plus 80 kg/m² (a factor on the self-weight at every vertex, so
+    proportional to the first), and the self-weight plus the point load at its one vertex."""
+    scene = make_shape("dome", n_vertices=60)
+    v, weight = 7, 1000.0
+    cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(0.05 * weight, 2)}}}
+    toml = tmp_path / "cases.toml"
+    toml.write_text(study.toml_text(cases))
+    L = load_spec(load_cases=toml).cases(scene.mesh.n_vertices)
+    nodal = {k: c.nodal(scene.mesh, scene.mesh.vertices) for k, c in L.items()}
+    assert list(nodal) == ["empty", "snow", "point"]
+    ratio = nodal["snow"] / nodal["empty"]
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)  # (proportional: a factor on the self-weight)
+    diff = nodal["point"] - nodal["empty"]
+    assert diff[v] == pytest.approx(-50.0) and np.count_nonzero(diff) == 1
+
+
+def _pyramid_cases(height: float) -> SolveResult:
+    """One free apex over a unit square of four supports at ``height`` above them; case "a"
+    loads it with 1 N, case "b" with 3 N (weights of no account here)."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, height]], float)
+    mesh = PolyMesh.from_faces(V, [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    supports = np.array([True, True, True, True, False])
+    nets = [Network(mesh=mesh, weights=np.ones(mesh.n_edges), loads=np.array([0, 0, 0, 0, -f]), supports=supports)
+            for f in (1.0, 3.0)]
+    return SolveResult.build(nets[0], cases=(("a", nets[0]), ("b", nets[1])), status="stalled", method="test",
+                             backend="test", iterations=0, wall_time=0.0)
+
+
+def test_any_weights_carry_a_load_difference_at_a_raised_apex_but_not_at_a_flat_one():
+    """The apex's four edges carry any vertical load once it is raised: the difference of 2 N is
+    carried to round-off. At the supports' height its edges are horizontal, no weights carry a
+    vertical load, and the relative residual is the whole difference over case b's load, 2/3;
+    the note then says the geometry blocks."""
+    raised = cases.any_weights_carry(_pyramid_cases(0.5))
+    assert raised["b"]["from"] == "a" and raised["b"]["max_relative_residual"] < 1e-12
+    assert "bounds, or the iteration's reach, block it" in cases.carry_note(raised)
+    flat = cases.any_weights_carry(_pyramid_cases(0.0))
+    assert flat["b"]["max_relative_residual"] == pytest.approx(2.0 / 3.0, rel=1e-12) and flat["b"]["vertices"] == [4]
+    assert "the geometry blocks" in cases.carry_note(flat) and "vertices [4]" in cases.carry_note(flat)
+
+
+def test_a_stalled_result_over_several_cases_says_whether_any_weights_carry_them(monkeypatch):
+    """The quad grid's two-iteration result, without the IPOPT finish: its message carries the
+    measurement of :func:`any_weights_carry` at its network, the same as recomputed from it."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    carry = res.parameters["any_weights_carry"]
+    again = cases.any_weights_carry(res)
+    assert carry["point"]["max_relative_residual"] == pytest.approx(again["point"]["max_relative_residual"], abs=1e-12)
+    assert cases.carry_note(carry) in res.message
+
+
+def test_a_finish_ipopt_cannot_state_leaves_the_staggered_result(monkeypatch):
+    """IPOPT refusing the problem (an input error of its own) does not lose the staggered
+    result: it is returned with IPOPT's reason in its message and record."""
+    problem, v = _quad_grid_point_case()
+    _two_iterations(monkeypatch)
+
+    def refuse(self, *a, **kw):
+        raise InputError("no IPOPT here")
+
+    monkeypatch.setattr(cases.Simultaneous, "solve", refuse)
+    res = StaggeredLinearization().solve(problem)
+    assert res.status == "iteration_limit" and res.method == "staggered"
+    assert res.parameters["ipopt_from_staggered"] == {"status": "not run", "reason": "no IPOPT here"}
+    assert "IPOPT over every case jointly was not run: no IPOPT here" in res.message
+
+
+def test_the_ipopt_finish_is_left_out_where_its_memory_estimate_exceeds_the_limit(tmp_path):
+    """Two cases on a 100-vertex dome under --max-memory 0.17 GiB: the staggered solve's estimate
+    fits (about 0.16 GiB), IPOPT's (about 0.2 GiB) does not, so the solve runs without the
+    finish; with room for both, the finish stays on."""
+    scene = make_shape("dome", n_vertices=100)
+    n = scene.mesh.n_vertices
+    assert estimate_solve_bytes(n, "staggered", 2) < 0.17 * GIB < estimate_solve_bytes(n, "ipopt", 2)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    path = tmp_path / "cases.toml"
+    path.write_text(study.toml_text({"empty": {}, "hoist": {"point_loads": {apex: 500.0}}}))
+    tight = solve(scene, method="staggered", load_cases=path, max_memory=0.17, max_iter=1)
+    roomy = solve(scene, method="staggered", load_cases=path, max_memory=4.0, max_iter=1)
+    assert tight.parameters["ipopt_finish"] is False and roomy.parameters["ipopt_finish"] is True
+
+
+def test_a_case_proportional_to_another_is_carried_by_its_scaled_weights():
+    """Empty, snow (80 kg/m² on the self-weight of 2000 kg/m³ × 0.1 m: the empty loads × 1.4 at
+    any geometry) and a point case on a dome: the snow case is solved as the empty one's weights
+    times 1.4, so the joint problem is the two other cases'; every case passes the independent
+    checker, the snow network's weights are the empty one's × 1.4 and its loads the empty one's ×
+    1.4 at the common geometry."""
+    scene = make_shape("dome", n_vertices=100)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    problem = Problem.build(scene, {"empty": SW, "snow": SW + SelfWeight(density=80.0, thickness=1.0),
+                                    "point": SW + _point_case(scene, apex, 0.05)})
+    assert cases.proportional_members(problem) == {1: (0, pytest.approx(1.4, rel=1e-12))}
+    res = StaggeredLinearization().solve(problem)
+    assert res.status == "converged" and [n for n, _ in res.case_networks] == ["empty", "snow", "point"]
+    nets = dict(res.case_networks)
+    np.testing.assert_allclose(nets["snow"].weights, 1.4 * nets["empty"].weights, rtol=1e-12)
+    np.testing.assert_allclose(nets["snow"].loads, 1.4 * nets["empty"].loads, rtol=1e-12)
+    assert res.parameters["proportional_cases"]["snow"]["of"] == "empty"
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-9)
+        assert report.ok, (name, report.stdout)
+
+
+def test_no_case_is_scaled_where_the_bounds_would_not_hold_it():
+    """With an upper bound, or a lower bound that allows tension, scaled weights may leave the
+    bounds: no case is taken for a member then; nor a lighter case (its scaled weights would go
+    below ε)."""
+    scene = make_shape("dome", n_vertices=60)
+    loads = {"empty": SW, "snow": SW + SelfWeight(density=80.0, thickness=1.0), "point": SW + _point_case(scene, 5, 0.05)}
+    assert cases.proportional_members(Problem.build(scene, loads))
+    assert not cases.proportional_members(Problem.build(scene, loads, w_max=1e6))
+    assert not cases.proportional_members(Problem.build(scene, loads, eps=-1.0))
+    lighter = {"snow": SW + SelfWeight(density=80.0, thickness=1.0), "empty": SW, "point": SW + _point_case(scene, 5, 0.05)}
+    assert not cases.proportional_members(Problem.build(scene, lighter))
+
+
+@pytest.mark.slow
+def test_three_cases_on_a_free_edged_vault_converge_with_the_snow_case_scaled():
+    """Empty, snow and 5% of the self-weight at the highest free vertex on a 100-vertex pillar
+    vault (quads, free edges between the pillars): solved with the snow case as its own, the
+    staggered method stalled (6.6e-3 after 60 s); carried by the empty case's weights × 1.4 the
+    joint problem is the two other cases', which converges, every case by the independent
+    checker."""
+    scene = make_shape("pillar_vault", n_vertices=100)
+    V, free = scene.mesh.vertices, np.flatnonzero(~scene.supports)
+    top = int(free[np.argmax(V[free, 2])])
+    problem = Problem.build(scene, {"empty": SW, "snow": SW + SelfWeight(density=80.0, thickness=1.0),
+                                    "point": SW + _point_case(scene, top, 0.05)})
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem, {"time_limit": 60})
+    assert res.status == "converged" and "snow" in res.parameters["proportional_cases"]
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-8)
+        assert report.ok, (name, report.stdout)

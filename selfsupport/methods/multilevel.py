@@ -611,7 +611,7 @@ class Multilevel:
             carried["probe"] = {"status": probe.status, "seconds": probe.wall_time}
             if probe.status in ("converged", "interrupted"):  # (Ctrl-C ends the level too)
                 probed = probe
-            else:
+            elif len(prob.loads) == 1:  # (the refinement carries one load case)
                 extra["refine"] = max(int(opts.get("refine", 0)), RECLAIM_STEPS)
                 carried["refine"] = extra["refine"]
         return _LevelStart(warm=warm, extra=extra, carried=carried, probed=probed, announced=True, pro=pro)

@@ -74,7 +74,7 @@ from selfsupport.methods.base import (
     short_of_tol,
     term_values,
 )
-from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.deadline import ipopt_stop_callback, out_of_time
 from selfsupport.methods.polish import HULL_ACTIVE_REL, JOINT_POLISH_TOL, case_load_jacobians, polish_joint
 from selfsupport.methods.polish import max_rel_error as _max_rel_error
 from selfsupport.methods.polish import polish as _polish
@@ -693,14 +693,21 @@ class Simultaneous:
         """One IPOPT run with the loads ``(n_cases, n)`` fixed. Returns ``x``, ``warm`` (multipliers
         for the next round), ``raw`` (IPOPT's status), ``status``, ``iterations``, ``objective``,
         ``seconds``."""
+        deadline = time.perf_counter() + remaining
         opts = dict(self.options)
         if warm is not None:
             opts.update(self.warm_defaults)
             opts["mu_init"] = min(opts.get("mu_init", 1.0), 0.01 * tol)
         opts.update({"tol": tol, "max_iter": int(max_iter), "max_wall_time": float(max(remaining, 1e-3)),
                      "print_level": 5 if verbose else 0})
+        # IPOPT's max_wall_time counts from its own start, after the solver is built (tens of
+        # seconds for several cases on a thousand vertices): the callback holds the deadline itself
+        size = {k: int(nlp[k].numel()) if k in nlp else 0 for k in ("x", "g", "p")}
+        stop = ipopt_stop_callback(size["x"], size["g"], size["p"])
+        stop.deadline = deadline
         solver = ca.nlpsol("simultaneous", "ipopt", nlp,
-                           {"ipopt": opts, "print_time": bool(verbose), "error_on_fail": False})
+                           {"ipopt": opts, "print_time": bool(verbose), "error_on_fail": False,
+                            "iteration_callback": stop})
         args = problem.solver_args(x, loads_scaled)
         if warm is not None:
             args.update(warm)
@@ -709,8 +716,9 @@ class Simultaneous:
         seconds = time.perf_counter() - t0
         st = solver.stats()
         ret = str(st.get("return_status", "unknown"))
+        status = "time_limit" if ret == "User_Requested_Stop" and out_of_time(deadline) else IPOPT_STATUS.get(ret, "failed")
         return {"x": np.asarray(sol["x"]).ravel(), "warm": {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]},
-                "raw": ret, "status": IPOPT_STATUS.get(ret, "failed"),
+                "raw": ret, "status": status,
                 "iterations": 0 if ret in _NO_ITERATIONS else int(st.get("iter_count", 0) or 0),
                 "objective": float(sol["f"]), "seconds": seconds}
 

@@ -11,7 +11,7 @@ from typing import Any, Callable, Mapping
 
 from formulations import Problem
 from selfsupport.core.defaults import DEFAULT_DENSITY, DEFAULT_THICKNESS
-from selfsupport.core.errors import InputError
+from selfsupport.core.errors import InputError, TooLarge
 from selfsupport.core.loads import G
 from selfsupport.core.options import check_options
 from selfsupport.core.result import Network, SolveResult
@@ -134,6 +134,13 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, method: str = AUTO, backe
             raise InputError(f"method options {sorted(options)} apply to the {' and '.join(takes)} methods "
                              f"only, not {method!r}")
         check_options(caps.options_class(), options)  # before the work, with the allowed interval
+    if len(prob.loads) > 1 and caps.options_type is not None and "ipopt_finish" not in (options or {}):
+        # the staggered method may hand several cases to IPOPT (methods/staggered/cases.py): only
+        # where IPOPT's estimate fits the same memory
+        try:
+            check_memory(scene.mesh.n_vertices, "ipopt", max_memory, n_cases=len(prob.loads))
+        except TooLarge:
+            options = {**dict(options or {}), "ipopt_finish": False}
     solver = make_method(method, backend, **settings)
     # one deadline for the whole solve, handed to the method's every inner loop; it keeps back the
     # time that building and writing the result will take, so that the whole run ends near its limit

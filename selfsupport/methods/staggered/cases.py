@@ -29,6 +29,20 @@ necessary, not sufficient: weights that a finite step pushes onto their bounds c
 a stage. So each stage is started only when the last one's duration fits in the continuation's
 share of the time (:data:`SHARE`), and the rest is the iteration's.
 
+A case whose loads are another's times a factor ``k ≥ 1`` (snow on the self-weight) is left out
+of all this and added at the end with that case's weights times ``k``
+(:func:`proportional_members`, :func:`with_members`): it adds no condition on the geometry, but
+left in, it adds equations the iteration must fit (on a quad mesh, three such cases make the
+count square).
+
+When neither the continuation nor the iteration over every case converges, the simultaneous
+method (IPOPT over the positions and every case's weights at once) starts from the iteration's
+network and each case's weights, in the time left (:func:`ipopt_finish`): its answer is the
+method's when it converges, else its status stands beside the staggered numbers in the report
+("Infeasible_Problem_Detected" or a failed restoration: IPOPT's evidence of a local
+infeasibility; "Feasible_Point_Found": the joint problem has as many equations as unknowns, see
+:func:`joint_freedom`).
+
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
@@ -45,11 +59,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
-from formulations.equilibrium import load_vector, residual, weight_matrix
+from formulations.equilibrium import Topology, load_vector, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
-from selfsupport.methods.deadline import out_of_time
+from selfsupport.methods.base import PROPORTIONAL_RTOL, cases_in_equilibrium
+from selfsupport.methods.deadline import out_of_time, remaining
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
+from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
 from selfsupport.methods.staggered.options import StaggeredOptions
 from selfsupport.methods.staggered.run import _Run
@@ -122,18 +138,40 @@ def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]
     ``|L_c|``): its max, the largest load difference, and the vertices where it is largest."""
     top = run.top
     A = weight_matrix(top, X).tocsc()[:, _moved(run, ws)]
-    out = {}
     Lm = L.mean(axis=0)
-    for c, name in enumerate(run.loads.names):
-        s = np.repeat(1.0 / np.abs(L[c, run.free]), 3)
-        J = (sp.diags(s) @ A).tocsr()
-        b = s * load_vector(top, L[c] - Lm)
-        r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
-        order = np.argsort(r)[::-1][:REPORTED]
-        out[name] = {"max_relative_residual": float(r.max(initial=0.0)),
-                     "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
-                     "vertices": [int(v) for v in run.free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
-    return out
+    return {name: _carried(top, A, L[c] - Lm, L[c], run.free_idx) for c, name in enumerate(run.loads.names)}
+
+
+def _carried(top: Topology, A: sp.spmatrix, diff: np.ndarray, scale: np.ndarray, free_idx: np.ndarray) -> dict[str, Any]:
+    """How far a change of the weights of ``A``'s columns (the minimum-norm least-squares one)
+    carries the nodal load difference ``diff``: its relative residual per free vertex (over
+    ``|scale|``), its max, the largest relative load difference, and the vertices where it is largest."""
+    s = np.repeat(1.0 / np.abs(scale[top.free]), 3)
+    J = (sp.diags(s) @ A).tocsr()
+    b = s * load_vector(top, diff)
+    r = np.linalg.norm((J @ min_norm_step(J, [J.shape[0]], b) - b).reshape(-1, 3), axis=1)
+    order = np.argsort(r)[::-1][:REPORTED]
+    return {"max_relative_residual": float(r.max(initial=0.0)),
+            "load_difference": float(np.abs(b).reshape(-1, 3).max(initial=0.0)),
+            "vertices": [int(v) for v in free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
+
+
+def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
+    """At the geometry of ``result`` (several cases): per case after the first, whether *any*
+    change of the weights — either sign, no bound — carries the case's load difference from the
+    first case there (:func:`_carried` over every active edge). The cases share the geometry, so
+    ``A(X) (w_c − w_1) = L_c − L_1`` holds exactly in any network that carries both: a residual
+    well above round-off says this geometry cannot carry them with any weights (the geometry
+    blocks, not the bounds); near round-off, weights of some sign exist here, and the bounds or
+    the iteration's reach are what is missing."""
+    (first_name, first), *rest = result.case_networks
+    net = first
+    active = ~(net.supports[net.edges[:, 0]] & net.supports[net.edges[:, 1]])
+    top = Topology.build(net.mesh.n_vertices, net.edges[active], net.supports)
+    A = weight_matrix(top, net.vertices).tocsc()
+    free_idx = np.flatnonzero(top.free)
+    return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx)}
+            for name, other in rest}
 
 
 def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | None = None) -> dict[str, Any]:
@@ -319,3 +357,125 @@ def _conclude(run: _Run, X: np.ndarray, ws: list[np.ndarray], single: SolveResul
                  f"{len(rec['stages'])} stage(s)")
     res = conclude(run, s, net, cases)
     return dataclasses.replace(res, parameters={**res.parameters, "load_continuation": rec})
+
+
+def joint_freedom(problem: Problem) -> dict[str, int]:
+    """The count of the joint problem over the cases: unknowns (three coordinates per free
+    vertex, one weight per active edge and case) less equations (three per free vertex and
+    case). At zero or below the equations fix the network without any room for the objective
+    (and the weights' bounds, inequalities, are not even counted): a network exists only where the
+    loads happen to fit. A quad mesh has about two edges per vertex, so three cases leave it about
+    nothing; a triangle mesh about three, room for any number of cases."""
+    scene = problem.scene
+    n_free, m, C = int(np.sum(~scene.supports)), int(np.count_nonzero(scene.active_edges)), len(problem.loads)
+    return {"free_vertices": n_free, "edges": m, "cases": C, "unknowns": 3 * n_free + C * m,
+            "equations": 3 * C * n_free, "freedom": 3 * n_free + C * m - 3 * C * n_free}
+
+
+def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,
+                 progress: Callable[[dict], None] | None) -> tuple[SolveResult, dict[str, Any]]:
+    """IPOPT over every case jointly (the simultaneous method), started from the staggered
+    network ``stalled`` (its positions and each case's weights), until ``deadline`` (each IPOPT
+    run's ``max_wall_time``, the polish's deadline). Returns its result and a record: its status
+    and IPOPT's last one, every case's max relative error, the mean distance to the reference
+    against the start's, the seconds, and :func:`joint_freedom`."""
+    t0 = time.perf_counter()
+    res = Simultaneous().solve(problem, {"warm_start": stalled, "time_limit": remaining(deadline)},
+                               progress=progress, deadline=deadline)
+    raw = [h["solver_status"] for h in res.history if h.get("stage") == Simultaneous.backend]
+    rec = {"status": res.status, "ipopt_status": raw[-1] if raw else None, "rounds": len(raw),
+           "max_relative_error": res.max_relative_error,
+           "case_errors": {name: net.max_relative_error() for name, net in res.case_networks},
+           "distance_mean": res.distance_mean, "start_distance_mean": stalled.distance_mean,
+           "seconds": time.perf_counter() - t0, **joint_freedom(problem)}
+    return res, rec
+
+
+def finish_note(stalled: SolveResult, rec: dict[str, Any]) -> str:
+    """One sentence: IPOPT's finish from the staggered network, beside the staggered numbers."""
+    errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["case_errors"].items())
+    count = (f"; the joint problem has {rec['unknowns']} unknowns for {rec['equations']} equations "
+             f"({rec['free_vertices']} free vertices, {rec['edges']} edges, {rec['cases']} cases)")
+    return (f"IPOPT over every case jointly, started from this network (max relative error "
+            f"{stalled.max_relative_error:.2e}), ended {rec['status']} (IPOPT: {rec['ipopt_status']}) in "
+            f"{rec['seconds']:.1f} s at max relative error per case {errs}" + count)
+
+
+def carry_note(carry: dict[str, dict[str, Any]]) -> str:
+    """:func:`any_weights_carry` in one sentence: the case whose difference is carried worst, and
+    whether the geometry (residual above :data:`BLOCKED_RESIDUAL`) or the bounds block."""
+    name = max(carry, key=lambda k: carry[k]["max_relative_residual"])
+    c = carry[name]
+    if c["max_relative_residual"] > BLOCKED_RESIDUAL:
+        return (f"at this network no change of the weights, of either sign and unbounded, carries case {name!r}'s "
+                f"load difference from case {c['from']!r} (relative residual {c['max_relative_residual']:.2e}, at "
+                f"vertices {c['vertices']}): the geometry blocks, not the weights' bounds")
+    return (f"at this network weights of either sign carry every case's load difference from case {c['from']!r} "
+            f"(relative residual at most {c['max_relative_residual']:.1e}): the weights' bounds, or the "
+            "iteration's reach, block it")
+
+
+def proportional_members(problem: Problem) -> dict[int, tuple[int, float]]:
+    """The cases another (earlier) case carries with its weights times a factor: ``{c: (r, k)}``
+    where case ``c``'s loads at the reference are ``k ≥ 1`` times case ``r``'s (within
+    :data:`~selfsupport.methods.base.PROPORTIONAL_RTOL`; snow on the self-weight, a heavier
+    material). Weights ``k w_r`` balance ``k L_r`` at the same geometry exactly, so such a case
+    adds equations and unknowns to the joint problem but no condition: left in, it makes the
+    count square on a quad mesh (:func:`joint_freedom`), and the iteration must fit it as if it
+    could pull the geometry elsewhere. Only where the bounds hold the scaled weights too: a
+    positive lower bound (``k w_r ≥ w_r ≥ ε``) and no upper one; ``k ≥ 1`` for the same reason."""
+    b = problem.bounds
+    lower_ok = b.lower is None or bool(np.all(np.asarray(b.lower, float)[~np.isnan(np.asarray(b.lower, float))] > 0))
+    upper_ok = b.upper is None or bool(np.all(~np.isfinite(np.asarray(b.upper, float))))
+    if not (lower_ok and upper_ok):
+        return {}
+    scene = problem.scene
+    L = problem.loads.nodal(scene.mesh, scene.mesh.vertices)[:, ~scene.supports]
+    out: dict[int, tuple[int, float]] = {}
+    for c in range(1, len(L)):
+        for r in range(c):
+            if r in out:
+                continue
+            k = float(L[c] @ L[r]) / max(float(L[r] @ L[r]), 1e-300)
+            if k >= 1.0 and np.abs(L[c] - k * L[r]).max() <= PROPORTIONAL_RTOL * np.abs(L[c]).max():
+                out[c] = (r, k)
+                break
+    return out
+
+
+def without_members(problem: Problem, members: dict[int, tuple[int, float]]) -> Problem:
+    """``problem`` with the cases of :func:`proportional_members` left out (the first case stays:
+    it is never a member, and it sets the default bounds and the scaling)."""
+    kept = tuple(case for c, case in enumerate(problem.loads.cases) if c not in members)
+    return replace(problem, loads=LoadCases(kept))
+
+
+def with_members(problem: Problem, result: SolveResult, members: dict[int, tuple[int, float]],
+                 tol: float) -> SolveResult:
+    """The result of the problem without its members (:func:`without_members`) as a result of
+    ``problem``: each member's network at the same geometry, its loads there and its case's
+    weights times the factor of its loads over that case's there. Every case's evidence is its
+    own network's; a result that was "converged" and has a member outside ``tol`` is "stalled"."""
+    kept = [c for c in range(len(problem.loads)) if c not in members]
+    solved = dict(zip(kept, (net for _, net in result.case_networks)))
+    nets = []
+    free = ~problem.scene.supports
+    for c, (name, model) in enumerate(problem.loads.cases):
+        if c in solved:
+            nets.append((name, solved[c]))
+            continue
+        rep = solved[members[c][0]]
+        L = model.nodal(rep.mesh, rep.vertices)
+        k = float(L[free] @ rep.loads[free]) / float(rep.loads[free] @ rep.loads[free])
+        nets.append((name, dataclasses.replace(rep, weights=k * rep.weights, loads=L)))
+    names = problem.loads.names
+    note = "; ".join(f"case {names[c]!r} is case {names[r]!r} times {k:.6g} (its weights scaled)"
+                     for c, (r, k) in members.items())
+    status, message = result.status, f"{result.message}; {note}" if result.message else note
+    if status == "converged" and not cases_in_equilibrium(nets, tol):
+        status, message = "stalled", message + "; a scaled case is not in equilibrium at the result's geometry"
+    return dataclasses.replace(result, cases=tuple(nets), status=status, message=message,
+                               max_relative_error=max(n.max_relative_error() for _, n in nets),
+                               min_weight=min(n.min_weight() for _, n in nets),
+                               parameters={**result.parameters, "problem": problem.describe(), "proportional_cases": {
+                                   names[c]: {"of": names[r], "factor": k} for c, (r, k) in members.items()}})

@@ -7,13 +7,23 @@ from dataclasses import replace
 from typing import Any, Callable, Mapping
 
 from formulations import LoadCases, Planar, Problem
+from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.staggered.cases import continuation
+from selfsupport.methods.staggered.cases import (
+    any_weights_carry,
+    carry_note,
+    continuation,
+    finish_note,
+    ipopt_finish,
+    proportional_members,
+    with_members,
+    without_members,
+)
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
 from selfsupport.methods.staggered.schedule import coupled_fits
@@ -83,7 +93,15 @@ class StaggeredLinearization:
         loads, options = loads_or_options(options, loads)
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective)
         opt = _options(self.options, {**dict(options or {}), **overrides})
+        if opt.refine > 0 and len(problem.loads) > 1:  # (the refinement's SQP step carries one weight vector)
+            raise InputError(f"the refinement (refine={opt.refine}) handles one load case and this problem has "
+                             f"{len(problem.loads)}; drop refine, or solve with --method ipopt, which lowers the "
+                             "objective over every case jointly")
         if opt.continuation and opt.coupled is None and len(problem.loads) > 1 and not cases_proportional(problem):
+            members = proportional_members(problem)
+            if members:  # (a case another carries with scaled weights: solved without it, then added)
+                res = self._cases(without_members(problem, members), opt, progress, warm_start, deadline)
+                return with_members(problem, res, members, opt.tol)
             return self._cases(problem, opt, progress, warm_start, deadline)
         return self._iterate(problem, opt, progress, warm_start, deadline)
 
@@ -104,9 +122,32 @@ class StaggeredLinearization:
                                        parameters={**other.parameters, "load_continuation": rec})
         if other is None:  # (no time left: the envelope's network is no answer)
             other = _Run(self, problem, replace(opt, coupled=False, time_limit=0.0), progress, None, None).solve()
+        note, params = None, {**other.parameters, "load_continuation": rec}
+        fin = None
+        if opt.ipopt_finish and not out_of_time(deadline):
+            try:
+                fin, params["ipopt_from_staggered"] = ipopt_finish(problem, other, deadline, progress)
+            except SelfSupportError as e:  # (a problem IPOPT cannot state: the staggered result stands)
+                params["ipopt_from_staggered"] = {"status": "not run", "reason": str(e)}
+                note = f"IPOPT over every case jointly was not run: {e}"
+            if fin is not None and fin.status == "converged":
+                note = (f"the staggered method over every case ended {other.status} at max relative error "
+                        f"{other.max_relative_error:.2e}; IPOPT over every case jointly, started from its network, converged")
+                return dataclasses.replace(fin, wall_time=time.perf_counter() - t0, iterations=other.iterations + fin.iterations,
+                                           message=f"{fin.message}; {note}",
+                                           parameters={**fin.parameters, "load_continuation": rec,
+                                                       "ipopt_from_staggered": params["ipopt_from_staggered"],
+                                                       "staggered": {"status": other.status,
+                                                                     "max_relative_error": other.max_relative_error}})
+            if fin is not None:
+                note = finish_note(other, params["ipopt_from_staggered"])
+        carry = None
+        if len(other.case_networks) > 1 and other.status != "converged":
+            params["any_weights_carry"] = any_weights_carry(other)
+            carry = carry_note(params["any_weights_carry"])
         return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
-                                   message="; ".join(m for m in (other.message, rec.get("message")) if m),
-                                   parameters={**other.parameters, "load_continuation": rec})
+                                   message="; ".join(m for m in (other.message, rec.get("message"), carry, note) if m),
+                                   parameters=params)
 
     def _iterate(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
                  warm_start: Any, deadline: float | None) -> SolveResult:

@@ -50,6 +50,8 @@ class StaggeredOptions:
     # opt-in. None (default): off, except where it is tried first (method._couples_first)
     continuation: bool = True  # load cases that are not proportional: first the continuation from the cases'
     # envelope (cases.py), then, when it is blocked, the iteration over every case at once
+    ipopt_finish: bool = True  # ... and when that does not converge either, IPOPT over every case jointly,
+    # warm-started from its network, in the time left (cases.ipopt_finish)
     coupled_damping: float = _setting(1e-4, "[0, inf)")  # coupled step: how strongly weights near ε are held
     finish_try: float = _setting(0.1, "[0, inf)")  # fit error below which the polish is tried after every step
     warm_accept: float = _setting(0.5, "[0, inf)")  # a warm start whose first fit error is above finish_try but
