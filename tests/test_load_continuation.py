@@ -19,6 +19,7 @@ from selfsupport.core.shapes import barrel_vault, make_shape
 from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
 from selfsupport.methods.memory import GIB, estimate_solve_bytes
+from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.solve import solve
 from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
@@ -143,13 +144,13 @@ def test_ipopt_finish_runs_within_the_solves_deadline(monkeypatch):
     problem, v = _quad_grid_point_case()
     _two_iterations(monkeypatch)
     seen = {}
-    solve = cases.Simultaneous.solve
+    solve = Simultaneous.solve
 
     def held(self, problem, options=None, *, deadline=None, **kw):
         seen["deadline"], seen["time_limit"] = deadline, options["time_limit"]
         return solve(self, problem, {**options, "max_iter": 1}, deadline=deadline, **kw)
 
-    monkeypatch.setattr(cases.Simultaneous, "solve", held)
+    monkeypatch.setattr(Simultaneous, "solve", held)
     t0 = time.perf_counter()
     res = StaggeredLinearization().solve(problem, time_limit=30.0)
     assert t0 + 30.0 - 1.0 <= seen["deadline"] <= t0 + 30.0 + 1.0
@@ -287,7 +288,7 @@ def test_a_finish_ipopt_cannot_state_leaves_the_staggered_result(monkeypatch):
     def refuse(self, *a, **kw):
         raise InputError("no IPOPT here")
 
-    monkeypatch.setattr(cases.Simultaneous, "solve", refuse)
+    monkeypatch.setattr(Simultaneous, "solve", refuse)
     res = StaggeredLinearization().solve(problem)
     assert res.status == "iteration_limit" and res.method == "staggered"
     assert res.parameters["ipopt_from_staggered"] == {"status": "not run", "reason": "no IPOPT here"}

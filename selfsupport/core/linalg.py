@@ -285,7 +285,8 @@ class GramPattern:
         A = self._sparse_rows(A)
         if self.products is not None:  # (each slot's products summed in scipy's order)
             first, second, slot = self.products
-            data = np.bincount(slot, weights=A.data[first] * A.data[second], minlength=self.indices.size)
+            data = np.bincount(slot, weights=A.data[first] * A.data[second],
+                               minlength=self.indices.size).astype(np.float64, copy=False)  # (int64 when empty)
             data[self.diag] += shift
             return sp.csc_matrix((data, self.indices, self.indptr), shape=(n, n))
         Q = (A.T @ A).tocsc()

@@ -62,10 +62,10 @@ from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import Topology, load_vector, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
+from selfsupport.methods import find_method, method_class
 from selfsupport.methods.base import PROPORTIONAL_RTOL, cases_in_equilibrium
 from selfsupport.methods.deadline import out_of_time, remaining
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
-from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
 from selfsupport.methods.staggered.options import StaggeredOptions
 from selfsupport.methods.staggered.run import _Run
@@ -380,9 +380,11 @@ def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,
     and IPOPT's last one, every case's max relative error, the mean distance to the reference
     against the start's, the seconds, and :func:`joint_freedom`."""
     t0 = time.perf_counter()
-    res = Simultaneous().solve(problem, {"warm_start": stalled, "time_limit": remaining(deadline)},
+    # the registry's simultaneous method, imported only now (CasADi is not for every solve)
+    simultaneous = method_class(find_method(simultaneous=True, load_cases=True, warm_start=True))
+    res = simultaneous().solve(problem, {"warm_start": stalled, "time_limit": remaining(deadline)},
                                progress=progress, deadline=deadline)
-    raw = [h["solver_status"] for h in res.history if h.get("stage") == Simultaneous.backend]
+    raw = [h["solver_status"] for h in res.history if h.get("stage") == simultaneous.backend]
     rec = {"status": res.status, "ipopt_status": raw[-1] if raw else None, "rounds": len(raw),
            "max_relative_error": res.max_relative_error,
            "case_errors": {name: net.max_relative_error() for name, net in res.case_networks},
