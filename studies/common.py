@@ -231,15 +231,22 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
+#: Paths (from the repository's root) that ``make bench`` itself writes.
+BENCH_OUTPUTS = ("benchmarks/results", "docs/benchmarks.md")
+
+
 def git_commit(repo: str | Path = REPO) -> str:
     """The short commit of ``repo``'s checkout, ``+dirty`` when it has uncommitted changes
-    (``unknown`` outside git)."""
+    (``unknown`` outside git). The benchmark outputs (:data:`BENCH_OUTPUTS`) do not count: ``make
+    bench`` writes them study by study, and the next study measures the same code."""
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True,
                               timeout=30, check=True).stdout.strip()
     try:
         commit = git("rev-parse", "--short", "HEAD")
-        return commit + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                      *(f":(exclude){p}" for p in BENCH_OUTPUTS))
+        return commit + ("+dirty" if changed else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 

@@ -322,3 +322,26 @@ def test_the_site_builds_strict_with_the_generated_pages(tmp_path):
     assert "Table 1: the paper" in html and "load at start" in html
     paper = (tmp_path / "site" / "guide" / "paper" / "index.html").read_text(encoding="utf-8")
     assert "lilium (Fig. 5b)" in paper
+
+
+def test_the_bench_outputs_do_not_make_the_stamp_dirty(tmp_path):
+    """``make bench`` writes each study's CSVs into the checkout before the next study runs: those
+    outputs must not stamp the next study "+dirty", any other change must."""
+    def git(*args: str) -> None:
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    (tmp_path / "benchmarks" / "results").mkdir(parents=True)
+    (tmp_path / "docs").mkdir()
+    files = {"benchmarks/results/table1.csv": "a\n", "docs/benchmarks.md": "# page\n", "code.py": "x = 1\n"}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    git("init", "-q")
+    git("add", "-A")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "start")
+    clean = common.git_commit(tmp_path)
+    assert clean != "unknown" and not clean.endswith("+dirty")
+    (tmp_path / "benchmarks/results/table1.csv").write_text("b\n")
+    (tmp_path / "docs/benchmarks.md").write_text("# new page\n")
+    assert common.git_commit(tmp_path) == clean
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert common.git_commit(tmp_path) == clean + "+dirty"
