@@ -28,6 +28,16 @@ maximising λ drove vertices to slide as far as allowed, round after round.) Wit
 ``slide_supports`` the supports move on their normals too: the thrust may meet the ground
 anywhere across the springing's thickness.
 
+Sliding (``limit_load(slide=True)``, opt-in): after that program, rounds in which each vertex
+also moves in the tangent plane at its anchor, ``v_i = p_i + s_i n_i + T_i u_i``, the anchor the
+closest point of the last certificate's vertex on the reference. The hull rows are
+``|s_i| + σ_i |u_i| <= h`` with ``|u_i|_∞ <= r_i``: the reference is faceted, so it leaves the
+tangent plane linearly (slope σ_i of its triangles about the anchor), which bounds the true
+distance (:func:`_slide_frames`); a curvature allowance ``κ |u|² / 2`` does not (a vertex
+sliding across a faceted apex left the hull by 9% of t/2). Each round is certified as the
+program is (the certificate never depends on the bound) and warm-started from the last λ and
+weights; the answer is the best certified round.
+
 Loads: held at the reference geometry, ``L_ref`` = the self-weight (and the scene's extras) of
 the reference — the weight of the masonry where the masonry is, which does not move when the
 thrust surface does. Re-estimating them from the network (an outer fixed point, as the
