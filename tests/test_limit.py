@@ -427,9 +427,9 @@ def test_sliding_rounds_hold_the_time_limit():
     scene = cap()
     start = limit_load(scene, thickness=0.3, density=2000.0, at=[0]).certificate
     t0 = time.perf_counter()
-    r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=1.5, start=start)
+    r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=1.0, start=start)
     elapsed = time.perf_counter() - t0
-    assert elapsed < 1.5 + 1.0, elapsed
+    assert elapsed < 1.0 + 1.0, elapsed
     assert len(r.slide) >= 2 and r.slide[-1]["ipopt_status"] != "Solve_Succeeded"
     assert r.certified and r.value == max(x["lambda_kg"] for x in r.slide if x["lambda_kg"] is not None)
     assert r.slide[-1]["lambda_kg"] is None or r.slide[-1]["round"] == 0

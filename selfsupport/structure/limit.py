@@ -31,12 +31,16 @@ anywhere across the springing's thickness.
 Sliding (``limit_load(slide=True)``, opt-in): after that program, rounds in which each vertex
 also moves in the tangent plane at its anchor, ``v_i = p_i + s_i n_i + T_i u_i``, the anchor the
 closest point of the last certificate's vertex on the reference. The hull rows are
-``|s_i| + σ_i |u_i| <= h`` with ``|u_i|_∞ <= r_i``: the reference is faceted, so it leaves the
-tangent plane linearly (slope σ_i of its triangles about the anchor), which bounds the true
-distance (:func:`_slide_frames`); a curvature allowance ``κ |u|² / 2`` does not (a vertex
-sliding across a faceted apex left the hull by 9% of t/2). Each round is certified as the
-program is (the certificate never depends on the bound) and warm-started from the last λ and
-weights; the answer is the best certified round.
+``|s_i| + σ_i (a_i1 + a_i2) <= h``, ``|u_ik| <= a_ik <= r_i`` (linear; ``|u| <= a_1 + a_2``): the
+reference is faceted, so it leaves the tangent plane linearly (slope σ_i of its triangles about
+the anchor), which bounds the true distance (:func:`_slide_frames`); a curvature allowance
+``κ |u|² / 2`` does not (a vertex sliding across a faceted apex left the hull by 9% of t/2), and
+the smooth ``σ sqrt(|u|² + δ²)`` stalled IPOPT (3000 iterations on dome2). A round's loads are
+the masonry's weight shared among the anchors (the self-weight of the mesh at the anchors,
+scaled to the reference's total), so a vertex that slid carries the masonry around where it
+now is, not the patch it left. Each round is certified as the program is (the certificate never
+depends on the bound) and warm-started from the last λ and weights; the answer is the best
+certified round.
 
 Loads: held at the reference geometry, ``L_ref`` = the self-weight (and the scene's extras) of
 the reference — the weight of the masonry where the masonry is, which does not move when the
@@ -100,8 +104,6 @@ REFIT_TOL = 1e-11
 #: Sliding (``limit_load(slide=True)``): each vertex's tangential trust region per round, a
 #: fraction of the shortest reference edge at its nearest reference vertex (|u|_∞ ≤ r).
 SLIDE_RADIUS = 0.2
-#: Sliding: |u| in the hull's rows is smoothed as sqrt(|u|² + (this × r)²) (an upper bound: sound).
-SLIDE_SMOOTH = 1e-3
 #: Sliding: at most this many sliding rounds after the normal-line program, ...
 SLIDE_ROUNDS = 4
 #: ... stopping when a round raises the certified λ by less than this fraction.
@@ -201,6 +203,9 @@ class _Program:
             self.tangent, self.slope, self.radius = _slide_frames(ref, self.mesh0, self.anchor, self.normal)
         # the masonry's weight where the masonry is: the loads of the reference geometry, held
         self.base = sc.loads_at(problem.loads, self.mesh0, sc.pos(self.mesh0.vertices))[0]
+        if self.slide:  # sliding: the masonry's weight shared by the anchors' tributaries, its total held
+            moved = sc.loads_at(problem.loads, self.mesh0, hull.points)[0]
+            self.base = moved * (self.base.sum() / moved.sum())
         # λ in units of the vault's own (free) weight, so that λ̂ is of order one (an acceleration: in g)
         self.horizontal = horizontal is not None
         self.lam_unit = 1.0 if self.horizontal else float(np.abs(sc.load_back(self.base[self.free])).sum() / G)
@@ -259,10 +264,11 @@ class _Program:
             f = f - lam
         elif self.mode in ("min_thrust", "max_thrust"):
             f = f + (1.0 if self.mode == "min_thrust" else -1.0) * self.thrust_expr(X, w, sup)
-        if self.slide:  # the hull of the faceted reference: |s| + σ |u| <= h (|u| smoothed; rows after equilibrium)
-            bend = ca.DM(self.slope) * ca.sqrt(u[0] ** 2 + u[1] ** 2 + ca.DM(SLIDE_SMOOTH * self.radius) ** 2)
-            xs = ca.vertcat(xs, u[0], u[1])
-            g = ca.vertcat(g, s + bend, bend - s)
+        if self.slide:  # the faceted reference's hull, linear: |s| + σ (a1 + a2) <= h, |u_k| <= a_k (|u| <= a1 + a2)
+            a1, a2 = ca.MX.sym("a1", nm), ca.MX.sym("a2", nm)
+            bend = ca.DM(self.slope) * (a1 + a2)
+            xs = ca.vertcat(xs, u[0], u[1], a1, a2)
+            g = ca.vertcat(g, s + bend, bend - s, u[0] - a1, -u[0] - a1, u[1] - a2, -u[1] - a2)
         self.nlp = {"x": xs, "p": p, "f": f, "g": g}
 
     def thrust_expr(self, X, w, sup):
@@ -305,10 +311,10 @@ class _Program:
         else:
             lbx, ubx = np.r_[np.full(nm, -h), b["lbx"][n3:], lam[0]], np.r_[np.full(nm, h), b["ubx"][n3:], lam[1]]
             lbg, ubg = np.zeros(n3), np.zeros(n3)
-        if self.slide:  # the trust region |u|_∞ <= r and the curved hull's rows
+        if self.slide:  # the trust region |u|_∞ <= r and the faceted hull's rows
             r = np.r_[self.radius, self.radius]
-            lbx, ubx = np.r_[lbx, -r], np.r_[ubx, r]
-            lbg, ubg = np.r_[lbg, np.full(2 * nm, -np.inf)], np.r_[ubg, np.full(2 * nm, h)]
+            lbx, ubx = np.r_[lbx, -r, np.zeros(2 * nm)], np.r_[ubx, r, r]
+            lbg, ubg = np.r_[lbg, np.full(6 * nm, -np.inf)], np.r_[ubg, np.full(2 * nm, h), np.zeros(4 * nm)]
         return {"lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
 
     def parameters(self, lam: float) -> np.ndarray:
@@ -323,7 +329,7 @@ class _Program:
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float | None]:
         nm, m = len(self.order), self.form.topology.m
         s = x[:nm]
-        u = np.c_[x[-2 * nm:-nm], x[-nm:]] if self.slide else None
+        u = np.c_[x[-4 * nm:-3 * nm], x[-3 * nm:-2 * nm]] if self.slide else None
         Vs = self.form.vertices.copy()
         Vs[self.order] = self.positions(s, u=u).reshape(-1, 3)
         h = float(x[nm + m + 1]) if self.mode == "min_thickness" else None
@@ -335,7 +341,7 @@ class _Program:
         x = np.r_[s, w, lam]
         if self.slide:
             u = np.clip(self.tangential(Vs), -self.radius[:, None], self.radius[:, None])
-            return np.r_[x, u[:, 0], u[:, 1]]
+            return np.r_[x, u[:, 0], u[:, 1], np.abs(u[:, 0]), np.abs(u[:, 1])]
         return np.r_[x, h] if self.mode == "min_thickness" else x
 
 
