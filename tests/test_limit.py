@@ -442,3 +442,20 @@ def test_stability_cli_slide_needs_max_load(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "--slide applies to --max-load only" in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+@requires_checker
+def test_stability_cli_max_load_slide(tmp_path, capsys):
+    from selfsupport.cli import main
+
+    rc = main(["stability", "shape:dome:61", "--thickness", "0.3", "--density", "2000", "--load-at", "0",
+               "--max-load", "--slide", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0 and "sliding rounds" in out
+    kg = float(re.search(r"^max load: (\S+) kg$", out, re.M).group(1))
+    prog = json.loads((tmp_path / "max-load-program.json").read_text())
+    rounds = prog["slide_rounds"]
+    assert [r["round"] for r in rounds][:2] == [0, 1]
+    assert kg == pytest.approx(max(r["lambda_kg"] for r in rounds if r["lambda_kg"] is not None), rel=1e-5)
+    assert independent_check(tmp_path / "max-load.json").ok
