@@ -429,6 +429,7 @@ class _Run:
     settled: bool
     rounds: list
     lam_x: np.ndarray | None = None  # IPOPT's bound multipliers of the last round's point
+    lam_g: np.ndarray | None = None  # and its rows' multipliers
 
 
 def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fixed: bool, h_over: float | None,
@@ -438,7 +439,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
     Vs0 = Vs
     half = prog.h * (1 - HULL_MARGIN)
     h = h_over
-    warm, raw, rounds, settled, lam_x = None, "not run", [], False, None
+    warm, raw, rounds, settled, lam_x, lam_g = None, "not run", [], False, None, None
     for rnd in range(1, MAX_ROUNDS + 1):
         remaining = deadline - time.perf_counter()
         if remaining <= 0:
@@ -455,6 +456,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
             s, Vs, w, lam, h = prog.unpack(out["x"])
             Vs0 = Vs
             lam_x = np.asarray(out["warm"]["lam_x0"]).ravel()
+            lam_g = np.asarray(out["warm"]["lam_g0"]).ravel()
             rec.update({"acceleration_g" if prog.horizontal else "lambda_kg": lam * prog.lam_unit,
                         **({"thickness": 2 * h * prog.sc.length} if h else {})})
         rounds.append(rec)
@@ -464,7 +466,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
             settled = out["status"] == "converged" and bool(ok)
             break
         warm = out["warm"]
-    return _Run(prog, Vs, w, lam, h, raw, settled, rounds, lam_x)
+    return _Run(prog, Vs, w, lam, h, raw, settled, rounds, lam_x, lam_g)
 
 
 def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -519,17 +521,23 @@ def _active(run: _Run, rel: float = 1e-4) -> dict[str, list]:
     """The bounds active at the run's point, with IPOPT's multipliers in the units of the answer
     per unit of the bound: λ [kg or g] per metre of the hull's half thickness (``side`` +1 the
     extrados, −1 the intrados) and per N/m of a weight bound; each list largest multiplier first.
-    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8)."""
+    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8).
+    Sliding, the hull's are the rows ``±s + σ (|u_1| + |u_2|) <= h``."""
     prog = run.prog
     if run.lam_x is None:
         return {}
     nm, m = len(prog.order), prog.form.topology.m
     s, w, mult = prog.offsets(run.Vs), run.w, run.lam_x
     half = prog.h * (1 - HULL_MARGIN)
-    on = np.flatnonzero(np.abs(np.abs(s) - half) <= rel * half)
     per_m = prog.lam_unit / prog.sc.length
-    hull = sorted(((int(prog.order[i]), int(np.sign(s[i])), float(abs(mult[i]) * per_m)) for i in on),
-                  key=lambda r: -r[2])
+    if prog.slide:
+        bend = prog.slope * np.abs(prog.tangential(run.Vs)).sum(axis=1)
+        n3 = 3 * prog.nf
+        rows = [(i, side, run.lam_g[n3 + (0 if side > 0 else nm) + i]) for side in (1, -1)
+                for i in np.flatnonzero(np.abs(side * s + bend - half) <= rel * half)]
+    else:
+        rows = [(i, int(np.sign(s[i])), mult[i]) for i in np.flatnonzero(np.abs(np.abs(s) - half) <= rel * half)]
+    hull = sorted(((int(prog.order[i]), side, float(abs(m_) * per_m)) for i, side, m_ in rows), key=lambda r: -r[2])
     edges = np.flatnonzero(prog.problem.scene.active_edges)  # the program's weights, in mesh edge numbers
     per_w = prog.lam_unit * float(prog.sc.weight(np.ones(1))[0])
     lo, up = np.broadcast_to(prog.form.lower, (m,)), np.broadcast_to(prog.form.upper, (m,))
