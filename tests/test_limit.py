@@ -420,19 +420,21 @@ def test_sliding_max_load_certificate_is_inside_the_hull_and_carries_more():
 
 
 def test_sliding_rounds_hold_the_time_limit():
-    """A sliding round cut by the time limit gives no certificate; the answer is the best certified
-    round before it, and the whole analysis ends near the limit."""
+    """The time limit holds across the sliding rounds (the analysis ends near it, well before the
+    rounds would end unlimited: round 1 alone takes longer); a round cut by it certifies nothing
+    and the answer is the best certified round."""
     import time
 
     scene = cap()
     start = limit_load(scene, thickness=0.3, density=2000.0, at=[0]).certificate
     t0 = time.perf_counter()
-    r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=1.0, start=start)
+    r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=0.6, start=start)
     elapsed = time.perf_counter() - t0
-    assert elapsed < 1.0 + 1.0, elapsed
-    assert len(r.slide) >= 2 and r.slide[-1]["ipopt_status"] != "Solve_Succeeded"
-    assert r.certified and r.value == max(x["lambda_kg"] for x in r.slide if x["lambda_kg"] is not None)
-    assert r.slide[-1]["lambda_kg"] is None or r.slide[-1]["round"] == 0
+    assert elapsed < 0.6 + 1.0, elapsed
+    cut = [x for x in r.slide if x["ipopt_status"] == "Maximum_WallTime_Exceeded"]
+    assert cut and all(x["lambda_kg"] is None for x in cut)
+    done = [x["lambda_kg"] for x in r.slide if x["lambda_kg"] is not None]
+    assert r.value == (max(done) if done else None)
 
 
 def test_stability_cli_slide_needs_max_load(tmp_path, capsys):
