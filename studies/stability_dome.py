@@ -204,8 +204,8 @@ def perturbed(net: Any, scene: Any, amplitude: float, seed: int) -> Any:
 def starts_rows(scene: Any, at: list[int], thickness: float, published: dict[float, np.ndarray], *,
                 time_limit: float) -> list[dict[str, Any]]:
     """The max-load program at ``thickness`` from many starts (the staggered network, the published
-    networks with fitted weights, perturbed starts, ε ≈ 0, the supports sliding, the load over the
-    apex's one-ring): per start the certified load, the program's optimum and its active bounds
+    networks with fitted weights, perturbed starts, ε ≈ 0, the supports sliding, every vertex
+    sliding along the reference, the load over the apex's one-ring): per start the certified load, the program's optimum and its active bounds
     with IPOPT's multipliers (:attr:`LimitResult.active <selfsupport.structure.limit.LimitResult>`)."""
     from selfsupport.methods.hull_search import solve_in_hull
     from selfsupport.structure.limit import limit_load
@@ -220,6 +220,7 @@ def starts_rows(scene: Any, at: list[int], thickness: float, published: dict[flo
                {"start": perturbed(stag, scene, 0.5 * thickness, k)}) for k in (1, 2)]
     cases += [(f"staggered network, ε = {EPS_ZERO:g} N/m", {"start": stag, "eps": EPS_ZERO}),
               ("staggered network, supports sliding across the springing", {"start": stag, "slide_supports": True}),
+              ("staggered network, vertices sliding along the reference", {"start": stag, "slide": True}),
               (f"staggered network, load spread over the apex's one-ring {ring}", {"start": stag, "at": ring})]
     rows = []
     for name, kw in cases:
@@ -229,6 +230,9 @@ def starts_rows(scene: Any, at: list[int], thickness: float, published: dict[flo
         act = r.active or {}
         hull = act.get("hull", [])
         low = act.get("weight_lower", [])
+        if r.slide:  # (each sliding round's certified load, after the normal-line program's)
+            name += " (rounds: " + ", ".join("-" if x["lambda_kg"] is None else f"{x['lambda_kg']:.0f}"
+                                              for x in r.slide) + " kg)"
         row = {"start": name, "thickness_m": thickness, "load_at": " ".join(map(str, kw["at"])), "verdict": r.verdict,
                "max_load_kg": r.value, "optimum_kg": r.optimum, "ipopt_status": r.ipopt_status,
                "hull_active": f"{sum(1 for h in hull if h[1] > 0)} / {sum(1 for h in hull if h[1] < 0)}",

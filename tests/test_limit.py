@@ -358,3 +358,106 @@ def test_stability_cli_max_horizontal_and_thrust_lines(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "direction 'north'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+
+
+# ------------------------------------------------------------------ sliding along the reference
+def small_cap():
+    """A shallow spherical cap (rise 3 m over a 5 m radius), 61 vertices, supported on its rim."""
+    return make_shape("dome", rings=4, radius=5.0, height=3.0)
+
+
+def test_sliding_hull_bound_holds_by_brute_force_distance():
+    """|s| + σ |u| bounds the distance of a + s n + T u to the faceted reference (brute force) for
+    anchors at its vertices and inside its faces, u in the trust region (none on the boundary)."""
+    from types import SimpleNamespace
+
+    from selfsupport.core.evidence import closest_points
+    from selfsupport.core.geometry import vertex_normals
+    from selfsupport.structure.limit import _slide_frames
+
+    mesh = small_cap().mesh
+    ref = SimpleNamespace(points=mesh.vertices, normals=vertex_normals(mesh))
+    rng = np.random.default_rng(0)
+    jitter = mesh.vertices + rng.normal(scale=0.2, size=mesh.vertices.shape)
+    C, _, N = closest_points(jitter, mesh)
+    anchors, normals = np.r_[mesh.vertices, C], np.r_[ref.normals, N]
+    T, slope, r = _slide_frames(ref, mesh, anchors, normals)
+    assert np.allclose(np.einsum("kcj,kj->kc", T, normals), 0) and np.allclose(np.linalg.norm(T, axis=2), 1)
+    inner = ~mesh.boundary_vertex_mask
+    assert (r[:len(inner)][~inner] == 0).all() and (r[:len(inner)][inner] > 0).all()
+    assert (slope[r > 0] > 0).all()
+    worst = 0.0
+    for _ in range(20):
+        u = rng.uniform(-1, 1, (len(anchors), 2)) * r[:, None]
+        s = rng.uniform(-0.15, 0.15, len(anchors))
+        X = anchors + s[:, None] * normals + np.einsum("kc,kcj->kj", u, T)
+        d = distance_to_mesh(X, mesh)
+        bound = np.abs(s) + slope * np.linalg.norm(u, axis=1)
+        assert (d <= bound + 1e-12).all(), float((d - bound).max())
+        worst = max(worst, float((d - np.abs(s)).max()))
+    assert worst > 1e-3  # (the bound is not idle: sliding does leave the slab's normal distance)
+
+
+@requires_checker
+def test_sliding_max_load_certificate_is_inside_the_hull_and_carries_more():
+    """Sliding round 1, anchored at the normal-line certificate's closest points, certifies a larger
+    apex load than the normal-line program on the cap; its network is in equilibrium, compressive and
+    inside t/2 by brute-force distances and the shared checker."""
+    scene = small_cap()
+    t = 0.3
+    fixed = limit_load(scene, thickness=t, density=2000.0, at=[0])
+    r = limit_load(scene, thickness=t, density=2000.0, at=[0], slide=True, slide_rounds=1)
+    assert r.certified and [x["round"] for x in r.slide] == [0, 1]
+    assert r.slide[0]["lambda_kg"] == pytest.approx(fixed.value, rel=1e-6)
+    assert r.slide[1]["verdict"] == "certified" and r.value == r.slide[1]["lambda_kg"]
+    assert r.value >= fixed.value * (1 + 0.01)
+    assert_certificate(r.certificate, scene.mesh, t)
+    assert independent_check(r.certificate).ok
+    own = api.problem(scene, density=2000.0, thickness=t).loads.nodal(scene.mesh, scene.mesh.vertices)[0]
+    assert r.certificate.network.loads.sum() - own.sum() == pytest.approx(-r.value * G, rel=1e-12)
+    # the vertices slid: their anchors moved along the surface further than the normal lines allow
+    assert r.slide[1]["anchor_moved_m"] > 2 * r.slide[0]["anchor_moved_m"]
+
+
+def test_sliding_rounds_hold_the_time_limit():
+    """The time limit holds across the sliding rounds (the analysis ends near it, well before the
+    rounds would end unlimited: round 1 alone takes longer); a round cut by it certifies nothing
+    and the answer is the best certified round."""
+    import time
+
+    scene = cap()
+    start = limit_load(scene, thickness=0.3, density=2000.0, at=[0]).certificate
+    t0 = time.perf_counter()
+    r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=0.6, start=start)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 0.6 + 1.0, elapsed
+    cut = [x for x in r.slide if x["ipopt_status"] == "Maximum_WallTime_Exceeded"]
+    assert cut and all(x["lambda_kg"] is None for x in cut)
+    done = [x["lambda_kg"] for x in r.slide if x["lambda_kg"] is not None]
+    assert r.value == (max(done) if done else None)
+
+
+def test_stability_cli_slide_needs_max_load(tmp_path, capsys):
+    from selfsupport.cli import main
+
+    rc = main(["stability", "shape:dome:61", "--thickness", "0.3", "--slide", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--slide applies to --max-load only" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+@requires_checker
+def test_stability_cli_max_load_slide(tmp_path, capsys):
+    from selfsupport.cli import main
+
+    rc = main(["stability", "shape:dome:61", "--thickness", "0.3", "--density", "2000", "--load-at", "0",
+               "--max-load", "--slide", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0 and "sliding rounds" in out
+    kg = float(re.search(r"^max load: (\S+) kg$", out, re.M).group(1))
+    prog = json.loads((tmp_path / "max-load-program.json").read_text())
+    rounds = prog["slide_rounds"]
+    assert [r["round"] for r in rounds][:2] == [0, 1]
+    assert kg == pytest.approx(max(r["lambda_kg"] for r in rounds if r["lambda_kg"] is not None), rel=1e-5)
+    assert independent_check(tmp_path / "max-load.json").ok

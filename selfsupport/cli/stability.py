@@ -4,14 +4,15 @@
 
     selfsupport stability SCENE --thickness T [--load-at V[,V...]] [--loads 0,5000,10000,20000]
                           [--density RHO] [--method staggered|ipopt] --out DIR
-                          [--max-load | --max-horizontal DIRECTION | --thrust] [--time-limit S]
+                          [--max-load [--slide] | --max-horizontal DIRECTION | --thrust] [--time-limit S]
     selfsupport destroy SCENE --remove V [--remove V ...] --thickness T [--density RHO] --out DIR
 
 ``stability`` writes ``DIR/load-<kg>kg.json`` per added load (the network: certified, or the
 closest one found) and ``DIR/stability.json`` (the table); with ``--max-load`` it solves the limit program
 (:func:`selfsupport.structure.stability.max_load`, :mod:`selfsupport.structure.limit`), writes ``DIR/max-load.json``
 (the certifying network) and ``DIR/max-load-program.json`` (the program's rounds, optimum and
-binding vertices) and prints one line ``max load: N kg``. ``--max-horizontal DIRECTION``
+binding vertices; with ``--slide``, the vertices also slide along the reference and the file lists
+each round's certified load) and prints one line ``max load: N kg``. ``--max-horizontal DIRECTION``
 (:func:`selfsupport.structure.limit.max_horizontal`) writes ``DIR/max-horizontal.json`` and
 ``DIR/max-horizontal-program.json`` and prints ``max horizontal acceleration: X g``; ``--thrust``
 (:func:`selfsupport.structure.limit.thrust_range`) writes ``DIR/thrust-min.json``, ``DIR/thrust-max.json`` and
@@ -105,6 +106,9 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
     limit.add_argument("--thrust", action="store_true",
                        help="instead, the least and greatest thrust (sum of the supports' horizontal reactions) of "
                             "networks inside the hull under self-weight")
+    p.add_argument("--slide", action="store_true",
+                   help="--max-load: the vertices also slide along the reference surface (rounds re-anchored at "
+                        "the last certificate; the best certified round is the answer)")
     p.add_argument("--time-limit", type=positive_float, default=600.0, metavar="S",
                    help="--max-load, --max-horizontal, --thrust: wall-clock limit of the whole analysis [s] "
                         "(default 600)")
@@ -116,6 +120,8 @@ def _stability_args(p: argparse.ArgumentParser) -> None:
 
 def _run_stability(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    if args.slide and not args.max_load:
+        raise InputError("--slide applies to --max-load only; add --max-load or drop --slide")
     loads = parse_loads(args.loads)
     at = parse_vertices(args.load_at) if args.load_at else None
     if args.max_horizontal is not None:
@@ -136,10 +142,12 @@ def _run_stability(args: argparse.Namespace) -> int:
     if args.thrust:
         return _thrust(scene, args, out, info)
     if args.max_load:
-        m = max_load(scene, thickness=args.thickness, density=args.density, at=at, time_limit=args.time_limit)
+        m = max_load(scene, thickness=args.thickness, density=args.density, at=at, time_limit=args.time_limit,
+                     slide=args.slide)
         r = m.limit
         atomic_write_text(out / "max-load-program.json", json.dumps(
-            {"scene": info, **_program_record(r), "max_load_kg": r.value, "optimum_kg": r.optimum}, indent=1,
+            {"scene": info, **_program_record(r), "max_load_kg": r.value, "optimum_kg": r.optimum,
+             **({"slide_rounds": list(r.slide)} if args.slide else {})}, indent=1,
             default=float) + "\n")
         if not r.certified:
             print(f"selfsupport: no max load: {r.message}", file=sys.stderr)
@@ -149,7 +157,10 @@ def _run_stability(args: argparse.Namespace) -> int:
         print_table(f"selfsupport stability --max-load -> {out}", [
             ("verdict", r.message),
             ("binding", ", ".join(f"{v} ({d:+.4f} t/2)" for v, d in r.binding[:8]) +
-             (f", ... ({len(r.binding)} in all)" if len(r.binding) > 8 else ""))])
+             (f", ... ({len(r.binding)} in all)" if len(r.binding) > 8 else "")),
+            *([("sliding rounds", ", ".join(f"{x['round']}: " + ("-" if x["lambda_kg"] is None else
+                                                                 f"{x['lambda_kg']:.6g} kg") for x in r.slide))]
+              if args.slide else [])])
         print(f"max load: {m.kg:g} kg")
         return EXIT_CODES["ok"]
     steps = stability_series(scene, thickness=args.thickness, loads_kg=loads, density=args.density, at=at,

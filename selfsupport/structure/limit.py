@@ -28,6 +28,20 @@ maximising λ drove vertices to slide as far as allowed, round after round.) Wit
 ``slide_supports`` the supports move on their normals too: the thrust may meet the ground
 anywhere across the springing's thickness.
 
+Sliding (``limit_load(slide=True)``, opt-in): after that program, rounds in which each vertex
+also moves in the tangent plane at its anchor, ``v_i = p_i + s_i n_i + T_i u_i``, the anchor the
+closest point of the last certificate's vertex on the reference. The hull rows are
+``|s_i| + σ_i (a_i1 + a_i2) <= h``, ``|u_ik| <= a_ik <= r_i`` (linear; ``|u| <= a_1 + a_2``): the
+reference is faceted, so it leaves the tangent plane linearly (slope σ_i of its triangles about
+the anchor), which bounds the true distance (:func:`_slide_frames`); a curvature allowance
+``κ |u|² / 2`` does not (a vertex sliding across a faceted apex left the hull by 9% of t/2), and
+the smooth ``σ sqrt(|u|² + δ²)`` stalled IPOPT (3000 iterations on dome2). A round's loads are
+the masonry's weight shared among the anchors (the self-weight of the mesh at the anchors,
+scaled to the reference's total), so a vertex that slid carries the masonry around where it
+now is, not the patch it left. Each round is certified as the program is (the certificate never
+depends on the bound) and warm-started from the last λ and weights; the answer is the best
+certified round.
+
 Loads: held at the reference geometry, ``L_ref`` = the self-weight (and the scene's extras) of
 the reference — the weight of the masonry where the masonry is, which does not move when the
 thrust surface does. Re-estimating them from the network (an outer fixed point, as the
@@ -55,12 +69,13 @@ from typing import Any, Callable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from formulations import Problem
 from formulations.equilibrium import to_dm
 from formulations.problem import Hull
 from selfsupport.core.errors import InputError
-from selfsupport.core.evidence import load_vectors
+from selfsupport.core.evidence import closest_points, load_vectors
 from selfsupport.core.loads import G, PointLoad, plan_direction, spread_mass
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
@@ -86,6 +101,13 @@ BACK_OFF = (1e-3, 1e-2, 5e-2)
 #: The relative error to which the weights of a network under horizontal loads are refit at its
 #: positions (the joint polish balances vertical loads only); well below :data:`CERTIFY_TOL`.
 REFIT_TOL = 1e-11
+#: Sliding (``limit_load(slide=True)``): each vertex's tangential trust region per round, a
+#: fraction of the shortest reference edge at its nearest reference vertex (|u|_∞ ≤ r).
+SLIDE_RADIUS = 0.2
+#: Sliding: at most this many sliding rounds after the normal-line program, ...
+SLIDE_ROUNDS = 4
+#: ... stopping when a round raises the certified λ by less than this fraction.
+SLIDE_GAIN = 0.005
 #: IPOPT statuses that mean "no point found": the program is locally infeasible.
 LOCALLY_INFEASIBLE = frozenset({"Infeasible_Problem_Detected"})
 
@@ -127,6 +149,11 @@ class LimitResult:
         The bounds active at the program's optimum (max load, max horizontal) with IPOPT's
         multipliers (:func:`_active`): ``hull`` ``(vertex, side, multiplier)`` and
         ``weight_lower`` / ``weight_upper`` ``(edge, multiplier)``, largest multiplier first.
+    slide
+        With sliding (:func:`limit_load` ``slide=True``): one record per round (round 0 the
+        normal-line program, then the sliding rounds): its certified λ [kg] (``None``: none), the
+        program's optimum, seconds, the binding vertices and how far the anchors have moved
+        along the reference [m].
     """
 
     kind: str
@@ -141,6 +168,7 @@ class LimitResult:
     binding: tuple[tuple[int, float], ...] = ()
     thickness: float | None = None
     active: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    slide: tuple[dict, ...] = ()
 
 
 # ------------------------------------------------------------------------------ the program
@@ -152,11 +180,15 @@ class _Program:
     or maximise the thrust: the sum of the supports' horizontal reaction magnitudes."""
 
     def __init__(self, problem: Problem, start: np.ndarray, pattern: np.ndarray, mode: str,
-                 slide_supports: bool = False, horizontal: np.ndarray | None = None) -> None:
+                 slide_supports: bool = False, horizontal: np.ndarray | None = None,
+                 anchor_at: np.ndarray | None = None) -> None:
 
         self.problem, self.mode, self.slide_supports = problem, mode, slide_supports
         form, sc = Simultaneous.formulation(problem, start)
         hull = form.hull  # the slabs at the reference vertices: their anchors and normals are the lines
+        self.slide = anchor_at is not None
+        if self.slide:  # sliding: anchored at the closest points of ``anchor_at`` [m] on the reference
+            ref, hull = hull, hull.at(sc.pos(anchor_at))
         # (λ or t is the objective of the other two; feasibility keeps the distance to the reference)
         form = dataclasses.replace(form, hull=None, objective=form.objective if mode == "feasibility" else None)
         self.form, self.sc, self.hull = form, sc, hull
@@ -167,8 +199,13 @@ class _Program:
         self.move = self.free | slide_supports
         self.order = np.r_[np.flatnonzero(self.free), np.flatnonzero(~self.free)][:int(self.move.sum())]
         self.anchor, self.normal = hull.points[self.order], hull.normals[self.order]
+        if self.slide:
+            self.tangent, self.slope, self.radius = _slide_frames(ref, self.mesh0, self.anchor, self.normal)
         # the masonry's weight where the masonry is: the loads of the reference geometry, held
         self.base = sc.loads_at(problem.loads, self.mesh0, sc.pos(self.mesh0.vertices))[0]
+        if self.slide:  # sliding: the masonry's weight shared by the anchors' tributaries, its total held
+            moved = sc.loads_at(problem.loads, self.mesh0, hull.points)[0]
+            self.base = moved * (self.base.sum() / moved.sum())
         # λ in units of the vault's own (free) weight, so that λ̂ is of order one (an acceleration: in g)
         self.horizontal = horizontal is not None
         self.lam_unit = 1.0 if self.horizontal else float(np.abs(sc.load_back(self.base[self.free])).sum() / G)
@@ -180,13 +217,25 @@ class _Program:
         self.h = hull.half_thickness
         self._build()
 
-    def positions(self, s, part: slice = slice(None)):
+    def positions(self, s, part: slice = slice(None), u=None):
         """Positions (flattened, ``3 k + c``) of the moving vertices ``order[part]`` at offsets
-        ``s`` along their normals (CasADi or numpy)."""
+        ``s`` along their normals (CasADi or numpy); sliding, plus ``T u`` in the tangent planes
+        (``u`` ``(k, 2)`` in numpy, or the pair of CasADi columns ``(u1, u2)``)."""
         a, n = self.anchor[part], self.normal[part]
         if isinstance(s, np.ndarray):
-            return (a + s[:, None] * n).ravel()
-        return ca.vec(ca.DM(a.T) + ca.DM(n.T) * ca.repmat(s.T, 3, 1))
+            X = a + s[:, None] * n
+            if u is not None:
+                X = X + np.einsum("kc,kcj->kj", u, self.tangent[part])
+            return X.ravel()
+        X = ca.DM(a.T) + ca.DM(n.T) * ca.repmat(s.T, 3, 1)
+        if u is not None:
+            T = self.tangent[part]
+            X = X + ca.DM(T[:, 0].T) * ca.repmat(u[0].T, 3, 1) + ca.DM(T[:, 1].T) * ca.repmat(u[1].T, 3, 1)
+        return ca.vec(X)
+
+    def tangential(self, Vs: np.ndarray) -> np.ndarray:
+        """Sliding: the tangential coordinates ``(nm, 2)`` of scaled positions about the anchors."""
+        return np.einsum("kcj,kj->kc", self.tangent, Vs[self.order] - self.anchor)
 
     def _build(self) -> None:
         form = self.form
@@ -195,10 +244,12 @@ class _Program:
         nf, ns3, m = self.nf, self.ns3, form.topology.m
         nm = len(self.order)
         s, w, lam = ca.MX.sym("s", nm), ca.MX.sym("w", m), ca.MX.sym("lam")
+        u = (ca.MX.sym("u1", nm), ca.MX.sym("u2", nm)) if self.slide else None
         p = ca.MX.sym("p", ns3 + 6 * nf)  # V_sup, L_sw (free), row scale, P (free), H (free, x y z)
         loads = p[ns3:ns3 + nf] + lam * p[ns3 + 2 * nf:ns3 + 3 * nf]
-        sup = self.positions(s[nf:], slice(nf, None)) if self.slide_supports else p[:ns3]
-        X = self.positions(s[:nf], slice(0, nf))
+        us, uf = (None, None) if u is None else ((u[0][nf:], u[1][nf:]), (u[0][:nf], u[1][:nf]))
+        sup = self.positions(s[nf:], slice(nf, None), us) if self.slide_supports else p[:ns3]
+        X = self.positions(s[:nf], slice(0, nf), uf)
         scale = p[ns3 + nf:ns3 + 2 * nf]
         g, f = rows(ca.vertcat(X, w), ca.vertcat(sup, loads, scale))
         if self.horizontal:  # the rows are relative residuals: the horizontal load scaled as the vertical one
@@ -213,6 +264,11 @@ class _Program:
             f = f - lam
         elif self.mode in ("min_thrust", "max_thrust"):
             f = f + (1.0 if self.mode == "min_thrust" else -1.0) * self.thrust_expr(X, w, sup)
+        if self.slide:  # the faceted reference's hull, linear: |s| + σ (a1 + a2) <= h, |u_k| <= a_k (|u| <= a1 + a2)
+            a1, a2 = ca.MX.sym("a1", nm), ca.MX.sym("a2", nm)
+            bend = ca.DM(self.slope) * (a1 + a2)
+            xs = ca.vertcat(xs, u[0], u[1], a1, a2)
+            g = ca.vertcat(g, s + bend, bend - s, u[0] - a1, -u[0] - a1, u[1] - a2, -u[1] - a2)
         self.nlp = {"x": xs, "p": p, "f": f, "g": g}
 
     def thrust_expr(self, X, w, sup):
@@ -255,6 +311,10 @@ class _Program:
         else:
             lbx, ubx = np.r_[np.full(nm, -h), b["lbx"][n3:], lam[0]], np.r_[np.full(nm, h), b["ubx"][n3:], lam[1]]
             lbg, ubg = np.zeros(n3), np.zeros(n3)
+        if self.slide:  # the trust region |u|_∞ <= r and the faceted hull's rows
+            r = np.r_[self.radius, self.radius]
+            lbx, ubx = np.r_[lbx, -r, np.zeros(2 * nm)], np.r_[ubx, r, r]
+            lbg, ubg = np.r_[lbg, np.full(6 * nm, -np.inf)], np.r_[ubg, np.full(2 * nm, h), np.zeros(4 * nm)]
         return {"lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
 
     def parameters(self, lam: float) -> np.ndarray:
@@ -269,14 +329,71 @@ class _Program:
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float | None]:
         nm, m = len(self.order), self.form.topology.m
         s = x[:nm]
+        u = np.c_[x[-4 * nm:-3 * nm], x[-3 * nm:-2 * nm]] if self.slide else None
         Vs = self.form.vertices.copy()
-        Vs[self.order] = self.positions(s).reshape(-1, 3)
+        Vs[self.order] = self.positions(s, u=u).reshape(-1, 3)
         h = float(x[nm + m + 1]) if self.mode == "min_thickness" else None
         return s, Vs, x[nm:nm + m], float(x[nm + m]), h
 
-    def pack(self, s: np.ndarray, w: np.ndarray, lam: float, h: float | None) -> np.ndarray:
+    def pack(self, s: np.ndarray, w: np.ndarray, lam: float, h: float | None, Vs: np.ndarray | None = None
+             ) -> np.ndarray:
+        """The unknowns' vector; sliding, the tangential offsets are those of ``Vs`` in the trust region."""
         x = np.r_[s, w, lam]
+        if self.slide:
+            u = np.clip(self.tangential(Vs), -self.radius[:, None], self.radius[:, None])
+            return np.r_[x, u[:, 0], u[:, 1], np.abs(u[:, 0]), np.abs(u[:, 1])]
         return np.r_[x, h] if self.mode == "min_thickness" else x
+
+
+def _slide_frames(ref: Any, mesh: Any, anchor: np.ndarray, normal: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sliding, per anchor ``a`` (on the reference, unit normal ``n``): an orthonormal tangent frame
+    ``(k, 2, 3)`` ⊥ n, the slope σ and the trust radius r (scaled units, as ``ref``: the reference's
+    hull term).
+
+    The reference is faceted (the hull's distance is to its triangles), so within its reach it
+    departs from the tangent plane at ``a`` linearly, not by curvature × slide² (a vertex sliding
+    across the apex of a faceted dome left the hull by 9% of t/2 under a curvature bound): the
+    triangles there are a graph over the plane, through ``a``, with heights ``|z(u)| <= σ |u|``,
+    σ the largest tan(angle between n and a triangle's normal). So
+    ``dist(a + s n + T u) <= |s − z(u)| <= |s| + σ |u|``. The reach: the triangles at the closed
+    one-ring of ``a``'s nearest reference vertex; r = :data:`SLIDE_RADIUS` × that vertex's
+    shortest edge, and at most half the anchor's distance to the reference's boundary over √2
+    (beyond the boundary the reference is no graph). An anchor whose triangles tilt by 60° or
+    more does not slide (r = 0)."""
+    P = ref.points
+    E, F = np.asarray(mesh.edges), np.asarray(mesh.triangle_corners)
+    n_v = len(P)
+    ell = np.linalg.norm(P[E[:, 1]] - P[E[:, 0]], axis=1)
+    lv = np.full(n_v, np.inf)
+    for c in range(2):
+        np.minimum.at(lv, E[:, c], ell)
+    nt = np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
+    nt /= np.maximum(np.linalg.norm(nt, axis=1, keepdims=True), 1e-300)
+    inc = sp.csr_matrix((np.ones(F.size), (F.ravel(), np.repeat(np.arange(len(F)), 3))), shape=(n_v, len(F)))
+    adj = sp.csr_matrix((np.ones(2 * len(E)), (E.ravel(), E[:, ::-1].ravel())), shape=(n_v, n_v))
+    reach = ((adj + sp.identity(n_v, format="csr")) @ inc).tocsr()
+    near = cKDTree(P).query(anchor)[1]
+    slope, radius = np.zeros(len(anchor)), SLIDE_RADIUS * lv[near]
+    B = E[np.asarray(mesh.boundary_edge_mask)]
+    if len(B):  # the distance of each anchor to the boundary's segments
+        A0, D = P[B[:, 0]], P[B[:, 1]] - P[B[:, 0]]
+        rel = anchor[:, None, :] - A0[None]
+        f = np.clip(np.einsum("kbj,bj->kb", rel, D) / np.maximum(np.einsum("bj,bj->b", D, D), 1e-300), 0.0, 1.0)
+        gap = np.linalg.norm(rel - f[..., None] * D[None], axis=2).min(axis=1)
+        radius = np.minimum(radius, 0.5 * gap / np.sqrt(2.0))
+    for i, v in enumerate(near):
+        c = np.abs(nt[reach.indices[reach.indptr[v]:reach.indptr[v + 1]]] @ normal[i])
+        cmin = float(c.min(initial=1.0))
+        if cmin <= 0.5:
+            radius[i] = 0.0
+        else:
+            slope[i] = np.sqrt(max(1.0 - cmin ** 2, 0.0)) / cmin
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(normal, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(normal, t1)
+    return np.stack([t1, t2], axis=1), slope, radius
 
 
 def _ipopt(prog: _Program, x0: np.ndarray, p: np.ndarray, bounds: dict, warm: dict | None, *, tol: float,
@@ -312,21 +429,23 @@ class _Run:
     settled: bool
     rounds: list
     lam_x: np.ndarray | None = None  # IPOPT's bound multipliers of the last round's point
+    lam_g: np.ndarray | None = None  # and its rows' multipliers
 
 
 def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fixed: bool, h_over: float | None,
             deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None) -> _Run:
     """The program solved; a run IPOPT ends "acceptable" is re-solved warm from its point."""
     s = np.clip(prog.offsets(Vs), -prog.h, prog.h)
+    Vs0 = Vs
     half = prog.h * (1 - HULL_MARGIN)
     h = h_over
-    warm, raw, rounds, settled, lam_x = None, "not run", [], False, None
+    warm, raw, rounds, settled, lam_x, lam_g = None, "not run", [], False, None, None
     for rnd in range(1, MAX_ROUNDS + 1):
         remaining = deadline - time.perf_counter()
         if remaining <= 0:
             raw = "time limit"
             break
-        out = _ipopt(prog, prog.pack(s, w, lam, h), prog.parameters(lam),
+        out = _ipopt(prog, prog.pack(s, w, lam, h, Vs0), prog.parameters(lam),
                      prog.bounds((lam, lam) if lam_fixed else (0.0, np.inf), half), warm, tol=tol,
                      max_iter=max_iter, remaining=remaining)
         raw = out["raw"]
@@ -335,7 +454,9 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
         ok = np.all(np.isfinite(out["x"]))
         if ok and out["status"] in ("converged", "stalled"):
             s, Vs, w, lam, h = prog.unpack(out["x"])
+            Vs0 = Vs
             lam_x = np.asarray(out["warm"]["lam_x0"]).ravel()
+            lam_g = np.asarray(out["warm"]["lam_g0"]).ravel()
             rec.update({"acceleration_g" if prog.horizontal else "lambda_kg": lam * prog.lam_unit,
                         **({"thickness": 2 * h * prog.sc.length} if h else {})})
         rounds.append(rec)
@@ -345,7 +466,7 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
             settled = out["status"] == "converged" and bool(ok)
             break
         warm = out["warm"]
-    return _Run(prog, Vs, w, lam, h, raw, settled, rounds, lam_x)
+    return _Run(prog, Vs, w, lam, h, raw, settled, rounds, lam_x, lam_g)
 
 
 def _polish(run: _Run, lam: float, deadline: float) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -400,17 +521,23 @@ def _active(run: _Run, rel: float = 1e-4) -> dict[str, list]:
     """The bounds active at the run's point, with IPOPT's multipliers in the units of the answer
     per unit of the bound: λ [kg or g] per metre of the hull's half thickness (``side`` +1 the
     extrados, −1 the intrados) and per N/m of a weight bound; each list largest multiplier first.
-    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8)."""
+    A bound counts as active within ``rel`` of its value (IPOPT relaxes its bounds by 1e-8).
+    Sliding, the hull's are the rows ``±s + σ (|u_1| + |u_2|) <= h``."""
     prog = run.prog
     if run.lam_x is None:
         return {}
     nm, m = len(prog.order), prog.form.topology.m
     s, w, mult = prog.offsets(run.Vs), run.w, run.lam_x
     half = prog.h * (1 - HULL_MARGIN)
-    on = np.flatnonzero(np.abs(np.abs(s) - half) <= rel * half)
     per_m = prog.lam_unit / prog.sc.length
-    hull = sorted(((int(prog.order[i]), int(np.sign(s[i])), float(abs(mult[i]) * per_m)) for i in on),
-                  key=lambda r: -r[2])
+    if prog.slide:
+        bend = prog.slope * np.abs(prog.tangential(run.Vs)).sum(axis=1)
+        n3 = 3 * prog.nf
+        rows = [(i, side, run.lam_g[n3 + (0 if side > 0 else nm) + i]) for side in (1, -1)
+                for i in np.flatnonzero(np.abs(side * s + bend - half) <= rel * half)]
+    else:
+        rows = [(i, int(np.sign(s[i])), mult[i]) for i in np.flatnonzero(np.abs(np.abs(s) - half) <= rel * half)]
+    hull = sorted(((int(prog.order[i]), side, float(abs(m_) * per_m)) for i, side, m_ in rows), key=lambda r: -r[2])
     edges = np.flatnonzero(prog.problem.scene.active_edges)  # the program's weights, in mesh edge numbers
     per_w = prog.lam_unit * float(prog.sc.weight(np.ones(1))[0])
     lo, up = np.broadcast_to(prog.form.lower, (m,)), np.broadcast_to(prog.form.upper, (m,))
@@ -469,11 +596,13 @@ def _start(problem: Problem, start: Network | SolveResult | None, kg: float, add
 
 def _program_run(problem: Problem, mode: str, V: np.ndarray, W: np.ndarray | None, added: np.ndarray, *, kg: float,
                  deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None,
-                 slide_supports: bool = False, horizontal: np.ndarray | None = None) -> _Run:
+                 slide_supports: bool = False, horizontal: np.ndarray | None = None,
+                 anchor_at: np.ndarray | None = None) -> _Run:
     """Build the program at positions ``V`` [m] with weights ``W`` [N/m per mesh edge] (``None``:
     a cold start) and run its rounds from λ = ``kg`` (with ``horizontal``, λ is the horizontal
-    acceleration in g in that plan direction)."""
-    prog = _Program(problem, V, added, mode, slide_supports, horizontal)
+    acceleration in g in that plan direction; with ``anchor_at`` [m], the vertices slide about
+    their closest points on the reference)."""
+    prog = _Program(problem, V, added, mode, slide_supports, horizontal, anchor_at)
     sc, act = prog.sc, problem.scene.active_edges
     w = (np.clip(sc.weight(W[act]), prog.form.lower, prog.form.upper) if W is not None else
          np.full(prog.form.topology.m, 0.01 * prog.form.weight_scale))
@@ -538,8 +667,9 @@ def _certified(kind: str, scene: Scene, value: float, optimum: float | None, res
 
 def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: Sequence[int] | None = None,
                w_max: Any = None, eps: Any = None, start: Network | SolveResult | None = None, start_kg: float = 0.0,
-               slide_supports: bool = False, options: Mapping[str, Any] | None = None, time_limit: float = 600.0,
-               tol: float = 1e-9, max_iter: int = 3000,
+               slide_supports: bool = False, slide: bool = False, slide_rounds: int = SLIDE_ROUNDS,
+               options: Mapping[str, Any] | None = None,
+               time_limit: float = 600.0, tol: float = 1e-9, max_iter: int = 3000,
                progress: Callable[[dict], None] | None = None) -> LimitResult:
     """The largest added mass [kg] at ``at`` (spread evenly; default the scene's handled vertices)
     for which a compressive network lies inside the hull "reference ± t/2", by one NLP.
@@ -564,6 +694,15 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     slide_supports
         The supports move on their normals within the hull too (the thrust meets the ground
         anywhere across the springing); default: held where the design has them.
+    slide
+        The vertices also slide along the reference (:func:`_slide_rounds`): after the
+        normal-line program, rounds in which each vertex moves by ``s n + T u`` about its
+        anchor (the closest point of the last certificate's vertex on the reference), within
+        ``|u|_∞ <= r`` and ``|s| + σ |u| <= (1 − HULL_MARGIN) t/2`` (σ the slope of the
+        reference's triangles about the anchor, :func:`_slide_frames`); the answer is the
+        best certified round (``slide`` the rounds' records). Default off.
+    slide_rounds
+        With ``slide``: at most this many sliding rounds (default :data:`SLIDE_ROUNDS`).
     options
         Options of the staggered start.
     time_limit
@@ -588,6 +727,10 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     V, W, how = _start(problem, start, float(start_kg), added, options, slide_supports)
     tried = (f"maximised the added mass at {list(at_)} over networks inside t = {thickness:g} m from {how} at "
              f"{start_kg:g} kg")
+    if slide:
+        return _slide_rounds(scene, thickness, problem, added, V, W, how, tried, start=float(start_kg),
+                             at_=at_, t_start=t_start, deadline=deadline, tol=tol, max_iter=max_iter,
+                             progress=progress, slide_supports=slide_supports, rounds=slide_rounds)
     return _maximise("max_load", scene, thickness, problem, added, V, W, how, tried, start=float(start_kg),
                      unit="kg", where=f" at {list(at_)}", extra={"at": list(at_)}, t_start=t_start,
                      deadline=deadline, tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
@@ -597,13 +740,13 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
               W: np.ndarray | None, how: str, tried: str, *, start: float, unit: str, where: str,
               extra: Mapping[str, Any], t_start: float, deadline: float, tol: float, max_iter: int,
               progress: Callable[[dict], None] | None, slide_supports: bool,
-              horizontal: np.ndarray | None = None) -> LimitResult:
+              horizontal: np.ndarray | None = None, anchor_at: np.ndarray | None = None) -> LimitResult:
     """λ maximised (``kind`` ``"max_load"``: λ kg added at ``added``; ``"max_horizontal"``: λ g
     along ``horizontal``), then certified: the optimum's network, else the feasibility program's
     at λ backed off by :data:`BACK_OFF`. ``unit`` and ``where`` (after the certified value) are
     the messages' words for λ."""
     run = _program_run(problem, kind, V, W, added, kg=start, deadline=deadline, tol=tol, max_iter=max_iter,
-                       progress=progress, slide_supports=slide_supports, horizontal=horizontal)
+                       progress=progress, slide_supports=slide_supports, horizontal=horizontal, anchor_at=anchor_at)
     if not run.settled:
         return _unsettled(kind, scene, thickness, run, how, added, tried, t_start=t_start, deadline=deadline)
     optimum = run.lam * run.prog.lam_unit
@@ -614,7 +757,7 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
         Vb, Wb = _si(run)
         frun = _program_run(problem, "feasibility", Vb, Wb, added, kg=optimum * (1 - back), deadline=deadline,
                             tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports,
-                            horizontal=horizontal)
+                            horizontal=horizontal, anchor_at=anchor_at)
         rounds += [{**r, "back_off": back} for r in frun.rounds]
         if not frun.settled:
             continue
@@ -637,6 +780,54 @@ def _maximise(kind: str, scene: Scene, thickness: float, problem: Problem, added
                f"{', '.join(f'{b:g}' for b in BACK_OFF)}")
     return LimitResult(kind, None, optimum, False, dataclasses.replace(res, message=message), "not certified",
                        best.raw, message, tuple(rounds), _binding(scene, hull), thickness, active)
+
+
+def _slide_rounds(scene: Scene, thickness: float, problem: Problem, added: np.ndarray, V: np.ndarray,
+                  W: np.ndarray | None, how: str, tried: str, *, start: float, at_: tuple, t_start: float,
+                  deadline: float, tol: float, max_iter: int, progress: Callable[[dict], None] | None,
+                  slide_supports: bool, rounds: int = SLIDE_ROUNDS) -> LimitResult:
+    """The max-load program with sliding vertices: round 0 the normal-line program, then rounds
+    anchored at the closest points of the best certificate's vertices on the reference, each
+    warm from its λ and weights and certified as round 0 (the independent distance, the polish,
+    the back-offs). Stops after ``rounds``, when a round gains less than
+    :data:`SLIDE_GAIN` or gives no certificate, or at the deadline. The best certified round
+    is the answer."""
+    kw = dict(unit="kg", where=f" at {list(at_)}", extra={"at": list(at_)}, t_start=t_start, deadline=deadline,
+              tol=tol, max_iter=max_iter, progress=progress, slide_supports=slide_supports)
+    ref = scene.mesh.vertices
+    records: list[dict] = []
+
+    def record(k: int, r: LimitResult, seconds: float) -> None:
+        moved = None
+        if r.certified:
+            C = closest_points(r.certificate.network.vertices, scene.mesh)[0]
+            moved = float(np.linalg.norm(C - ref, axis=1)[~scene.supports].max())
+        records.append({"round": k, "lambda_kg": r.value, "optimum_kg": r.optimum, "verdict": r.verdict,
+                        "ipopt_status": r.ipopt_status, "seconds": seconds,
+                        "binding": [v for v, _ in r.binding] if r.certified else [], "anchor_moved_m": moved})
+
+    t0 = time.perf_counter()
+    best = _maximise("max_load", scene, thickness, problem, added, V, W, how, tried, start=start, **kw)
+    record(0, best, time.perf_counter() - t0)
+    for k in range(1, int(rounds) + 1):
+        if not best.certified or time.perf_counter() >= deadline:
+            break
+        net = best.certificate.network
+        t0 = time.perf_counter()
+        r = _maximise("max_load", scene, thickness, problem, added, net.vertices, net.weights, how,
+                      f"{tried}, vertices sliding about the round-{k - 1} certificate", start=best.value,
+                      anchor_at=net.vertices, **kw)
+        record(k, r, time.perf_counter() - t0)
+        gain = (r.value - best.value) / max(best.value, 1e-300) if r.certified else -np.inf
+        if gain > 0:
+            best = r
+        if gain < SLIDE_GAIN:
+            break
+    values = ", ".join("-" if rec["lambda_kg"] is None else f"{rec['lambda_kg']:.6g}" for rec in records)
+    message = f"{best.message}; sliding rounds' certified kg: {values}"
+    return dataclasses.replace(best, message=message, slide=tuple(records),
+                               certificate=None if best.certificate is None else
+                               dataclasses.replace(best.certificate, message=message))
 
 
 def max_horizontal(scene: Scene, *, thickness: float, direction: str | float = "x", density: float = 2000.0,

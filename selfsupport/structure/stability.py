@@ -112,14 +112,15 @@ def max_load(scene: Scene, *, thickness: float, density: float = 2500.0, at: Seq
              start_kg: float = 1000.0, rel_tol: float = 0.05, abs_tol: float = 1.0, cap_kg: float = 1e8,
              method: Any = None, options: Mapping[str, Any] | None = None,
              progress: Callable[[Any], None] | None = None, search: str = "nlp",
-             time_limit: float = 600.0) -> MaxLoad:
+             time_limit: float = 600.0, slide: bool = False) -> MaxLoad:
     """The largest added mass (kg, spread over ``at``) that still admits a certified network.
 
     ``search="nlp"`` (default): one limit program (:func:`selfsupport.structure.limit.limit_load`: maximise
     λ over networks inside the hull, IPOPT, warm-started from the staggered network), the answer
     certified by its network; ``progress`` gets each IPOPT round's record, ``time_limit`` [s]
     bounds the whole analysis; ``start_kg``, ``rel_tol``, ``abs_tol``, ``cap_kg`` and ``method``
-    are the bisection's. ``options`` go to the staggered start.
+    are the bisection's. ``options`` go to the staggered start; ``slide`` lets the vertices
+    slide along the reference too (:func:`~selfsupport.structure.limit.limit_load`).
 
     ``search="bisection"``: brackets by doubling from ``start_kg`` (up to ``cap_kg``), then
     bisects until the bracket ``[lo, hi]`` satisfies ``hi - lo <= max(rel_tol * hi, abs_tol)``,
@@ -131,7 +132,7 @@ def max_load(scene: Scene, *, thickness: float, density: float = 2500.0, at: Seq
     if search == "nlp":
 
         r = limit_load(scene, thickness=thickness, density=density, at=at, options=options, time_limit=time_limit,
-                       progress=progress)
+                       progress=progress, slide=slide)
         return MaxLoad(r.value, r.optimum, 0.0, r.certificate, (), r, r.message)
     if search != "bisection":
         raise InputError(f"unknown max-load search {search!r}; choose 'nlp' or 'bisection'")
