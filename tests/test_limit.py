@@ -431,8 +431,12 @@ def test_sliding_rounds_hold_the_time_limit():
     r = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, time_limit=0.6, start=start)
     elapsed = time.perf_counter() - t0
     assert elapsed < 0.6 + 1.0, elapsed
+    # the limit stopped the rounds: a round cut inside IPOPT certifies nothing, or (on a busy
+    # machine, round 0 taking the time) the later rounds never started
     cut = [x for x in r.slide if x["ipopt_status"] == "Maximum_WallTime_Exceeded"]
-    assert cut and all(x["lambda_kg"] is None for x in cut)
+    assert all(x["lambda_kg"] is None for x in cut)
+    full = limit_load(scene, thickness=0.3, density=2000.0, at=[0], slide=True, start=start)
+    assert cut or len(r.slide) < len(full.slide), (r.slide, full.slide)
     done = [x["lambda_kg"] for x in r.slide if x["lambda_kg"] is not None]
     assert r.value == (max(done) if done else None)
 
