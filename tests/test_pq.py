@@ -451,3 +451,27 @@ def test_solve_planar_flag_finishes_where_the_penalty_stalls_and_leaves_fully_su
     assert face_nonplanarity(got)[f] == pytest.approx(q[f], rel=1e-6)  # its corners stay where they were
     planarity = res["parameters"]["planarity"]
     assert planarity["met"] and planarity["exempt_faces"] >= 1 and planarity["max_nonplanarity_exempt"] >= q[f]
+
+
+def test_a_planar_run_that_stops_short_names_the_quads_farthest_from_planar():
+    """A planar homotopy stopped by its deadline before its first stage: its report and message
+    name the quads past the tolerance, farthest first — the same quads, in the same order, as
+    the diagonal distances measured here (quads with three supported corners left out)."""
+    import time
+
+    from selfsupport.methods.planar_homotopy import planar_homotopy
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    eq = api.solve(scene)
+    res = planar_homotopy(api.problem(scene, constraints=[Planar(tol=1e-3)]), eq, deadline=time.perf_counter())
+    assert res.status == "time_limit"
+    mesh, sup = res.network.mesh, np.asarray(scene.supports, bool)
+    gap = {f: diagonal_gaps(PolyMesh.from_faces(mesh.vertices, [mesh.faces[f]]))[0] for f in range(mesh.n_faces)
+           if len(mesh.faces[f]) == 4 and sup[list(mesh.faces[f])].sum() < 3}
+    past = sorted((f for f in gap if gap[f] > 1e-3), key=lambda f: -gap[f])
+    assert len(past) >= 2
+    worst = res.parameters["planarity"]["worst_faces"]
+    assert [f for f, _ in worst] == past[:len(worst)] and len(worst) == min(len(past), 5)
+    np.testing.assert_allclose([q for _, q in worst], [gap[f] for f in past[:len(worst)]], rtol=1e-9)
+    assert f"faces farthest from planar: {past[0]} ({gap[past[0]]:.1e})" in res.message
