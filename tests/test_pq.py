@@ -475,3 +475,30 @@ def test_a_planar_run_that_stops_short_names_the_quads_farthest_from_planar():
     assert [f for f, _ in worst] == past[:len(worst)] and len(worst) == min(len(past), 5)
     np.testing.assert_allclose([q for _, q in worst], [gap[f] for f in past[:len(worst)]], rtol=1e-9)
     assert f"faces farthest from planar: {past[0]} ({gap[past[0]]:.1e})" in res.message
+
+
+def test_solve_planar_leaves_the_finish_half_the_time_limit(monkeypatch):
+    """With a time limit, the first solve (planar faces as a penalty) gets half of it, and when it
+    runs out of that share the finish still runs in the rest: on the remeshed barrel vault the
+    homotopy then returns a planar network in equilibrium, and every solve kept within the limit."""
+    import dataclasses
+
+    import selfsupport.remesh.planar as planar_mod
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    calls, real = [], planar_mod.solve
+
+    def solve(*a, **kw):
+        calls.append(kw.get("time_limit"))
+        res = real(*a, **kw)
+        # (the first solve as if its share had run out before it converged)
+        return dataclasses.replace(res, status="time_limit") if len(calls) == 1 else res
+
+    monkeypatch.setattr(planar_mod, "solve", solve)
+    res = planar_mod.solve_planar(scene, tol=1e-3, time_limit=60.0)
+    assert calls[0] <= planar_mod.FIRST_SHARE * 60.0 and all(t <= 60.0 for t in calls)
+    finish = res.parameters["planar_finish"]
+    assert finish["first"]["status"] == "time_limit" and finish["returned"] == "homotopy"
+    assert res.status == "converged" and res.max_relative_error <= 1e-8
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
