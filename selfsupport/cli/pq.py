@@ -73,7 +73,7 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                         "when the method does not converge (selfsupport.remesh.planar)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                    help="wall-clock limit of the solve [s] (default: the method's); with the finish, the method "
-                        "gets half of it and the finish the rest")
+                        "gets a quarter of it and the finish the rest")
     add_load_arguments(p)
 
 
