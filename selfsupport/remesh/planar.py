@@ -121,7 +121,7 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
 
     first = solve(scene, method=method, constraints=planar, **left(FIRST_SHARE if finish else 1.0), **start,
                   **solve_kw)
-    if (first.status == "converged" or not finish or out_of_time()
+    if (first.status in ("converged", "interrupted") or not finish or out_of_time()
             or capabilities(first.method if method == AUTO else method).planar_rows):
         # (a method with planarity rows as equations: the finish would solve the same rows again)
         return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
