@@ -502,22 +502,3 @@ def test_solve_planar_leaves_the_finish_most_of_the_time_limit(monkeypatch):
     assert finish["first"]["status"] == "time_limit" and finish["returned"] == "homotopy"
     assert res.status == "converged" and res.max_relative_error <= 1e-8
     assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
-
-
-def test_the_homotopys_secant_predictor_saves_newton_steps(monkeypatch):
-    """Each stage starting from the secant of the last two accepted stages (``PREDICT_MAX``)
-    against starting from the last one (``PREDICT_MAX = 0``): both make the remeshed barrel
-    vault planar in equilibrium, the predicted starts with fewer Gauss–Newton steps in all."""
-    import selfsupport.methods.planar_homotopy as ph
-
-    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
-    scene = remesh(net, field="principal", spacing=0.07, relative=True, method="streamlines").scene
-    eq = api.solve(scene)
-    runs = {}
-    for predict in (0.0, ph.PREDICT_MAX):
-        monkeypatch.setattr(ph, "PREDICT_MAX", predict)
-        r = ph.planar_homotopy(api.problem(scene, constraints=[Planar(tol=1e-3)]), eq)
-        assert r.status == "converged" and r.max_relative_error <= 1e-8
-        assert diagonal_gaps(r.network.mesh, scene.supports).max() <= 1e-3
-        runs[predict] = r.iterations
-    assert runs[ph.PREDICT_MAX] < runs[0.0]

@@ -9,10 +9,8 @@ joint minimum-norm Gauss–Newton polish (:func:`~selfsupport.methods.polish.pol
 positions and free weights together, loads of the moving geometry). A face inside the band is
 free; a face at or past it is held on it (an active set, re-read at every step). A stage that
 does not reach equilibrium is retried with a smaller cut (``shrink ← √shrink``); one that does
-lets the next cut grow (``shrink ← shrink^1.5``). Each stage's polish starts from the secant
-of the last two accepted stages, extrapolated to the new band (:data:`PREDICT_MAX`): on cas's
-design mesh 30 stages and 45 s of CPU where starting from the last stage took 62 stages and
-74 s. The band ends at :data:`BAND_END` × the required tolerance.
+lets the next cut grow (``shrink ← shrink^1.5``). The band ends at :data:`BAND_END` × the
+required tolerance.
 
 Why a homotopy: the planarity rows as equations all at once are far from the start (lilium's
 remesh: rows up to 0.27), and a full Gauss–Newton step there leaves equilibrium by 3e2 and
@@ -74,9 +72,6 @@ BAND_END = 0.7
 FIRST_SHRINK = 0.9
 #: A stage whose cut would have to be finer than this gives up ("stalled").
 MAX_SHRINK = 0.9999
-#: A stage starts from the last two accepted stages' secant, extrapolated at most this many
-#: times their band step (the polish then corrects from nearer the next stage's solution).
-PREDICT_MAX = 2.0
 #: Max relative equilibrium error every stage reaches before the band is cut again.
 STAGE_TOL = 1e-9
 #: Gauss–Newton steps a stage may take.
@@ -113,7 +108,6 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
     failed one retries a finer cut. A stage within the tolerance ``tol`` ends it already when
     ``planar_enough(X, W)``. Returns (X, W, band reached, polish steps, history, status)."""
     shrink, steps, history = FIRST_SHRINK, 0, []
-    prev = None  # (X, W, band) of the accepted stage before the last one
     status = "stalled"
     first = True
     while True:
@@ -125,11 +119,7 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
             break
         trial = band if first else max(band * shrink, target)  # (the first stage: equilibrium at the start's band)
         form = form_at(X, trial)
-        X0, W0 = X, W
-        if prev is not None:  # (secant predictor along the last two accepted stages)
-            t = min((band - trial) / (prev[2] - band), PREDICT_MAX)
-            X0, W0 = X + t * (X - prev[0]), np.clip(W + t * (W - prev[1]), form.lower, form.upper)
-        Xn, Wn, k, err, ok = polish_joint(form, X0, W0, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
+        Xn, Wn, k, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
                                           load_jacobian=load_jacobian, deadline=deadline)
         steps += k
         rec = {"iteration": len(history), "band": trial, "steps": k, "max_rel_error": err, "accepted": bool(ok)}
@@ -137,7 +127,6 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
         if progress is not None:
             progress(rec)
         if ok:
-            prev = None if first else (X, W, band)
             X, W, band = Xn, Wn, trial
             shrink = shrink if first else shrink ** 1.5
             if band <= target or (band <= tol and planar_enough(X, W)):
