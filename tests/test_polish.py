@@ -129,3 +129,27 @@ def test_the_joint_polish_holds_the_hull_for_vertices_it_would_carry_out():
     assert k == 1 and err1 < max_rel_error(sp_.top, sp_.X, W0, loads_at(sp_.X))  # a step was taken
     assert np.abs(hull.signed_distance(Vh)).max() <= hull.half_thickness * (1 + 1e-9)
     assert np.abs(hull.signed_distance(V1)).max() <= hull.half_thickness * (1 + 1e-9)
+
+
+def test_the_joint_polish_does_not_stop_while_each_step_still_gains_a_tenth():
+    """Without the load Jacobian (loads lag one step) the polish converges linearly, an order of
+    magnitude per step on a dome from uniform weights. Such a run passes 1e3 × tol while still
+    gaining that order per step: it must go on to tol, not take the first iterate near it for a
+    round-off floor (which stops only a step that gains less than a tenth)."""
+    from formulations import Problem, ThrustNetworkProblem, WeightBounds
+    from selfsupport.methods.polish import polish_joint
+
+    scene = make_shape("dome", n_vertices=100)
+    prob = Problem.build(scene, SelfWeight())
+    sp_ = prob.scaled()
+    W0 = np.full((1, sp_.top.m), float(np.median(sp_.L[0][scene.free])) * -3.0)
+
+    def loads_at(X):
+        return sp_.scaling.load(prob.loads.nodal(scene.mesh, sp_.scaling.pos_back(X)))
+
+    form = ThrustNetworkProblem(sp_.top, sp_.X, sp_.L, WeightBounds(sp_.lower, sp_.upper))
+    errs = [polish_joint(form, sp_.X, W0, loads_at=loads_at, tol=1e-9, max_iter=k)[3] for k in range(4, 8)]
+    assert all(b < 0.2 * a for a, b in zip(errs, errs[1:]))  # linear, more than a tenth per step
+    assert errs[1] < 1e3 * 1e-9 < errs[0]  # within 1e3 x tol only after the fifth step
+    _, _, k, err, ok = polish_joint(form, sp_.X, W0, loads_at=loads_at, tol=1e-9, max_iter=30)
+    assert ok and err <= 1e-9 and k > 5

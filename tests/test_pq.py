@@ -409,3 +409,96 @@ def test_an_unfinished_pq_run_says_why_on_stderr(tmp_path, dome, capsys):
     err = [line for line in capsys.readouterr().err.splitlines() if "warning" not in line]
     assert code == cli.EXIT_CODES["limit"] and len(err) == 1
     assert "the quads are not all planar" in err[0] and "> tol 0.001)" in err[0] and "time limit" in err[0]
+
+
+@requires_checker
+def test_solve_planar_flag_finishes_where_the_penalty_stalls_and_leaves_fully_supported_quads_alone(tmp_path):
+    """``selfsupport solve --planar`` on a remeshed barrel vault where the staggered method with
+    the planarity penalty stalls, with one quad's four corners made supports (its plane is no
+    longer free: it stays skew). The command finishes from the network in equilibrium without
+    planar faces (the planar homotopy): exit 0, in equilibrium by the independent checker,
+    every quad with fewer than three supported corners planar to 1e-3 by the diagonals measured
+    here, and the fully supported quad left as it was and counted as exempt."""
+    import dataclasses
+    import json
+
+    from selfsupport.core.evidence import face_nonplanarity
+    from selfsupport.io.sss import write_scene_sss
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    mesh, sup = scene.mesh, np.asarray(scene.supports, bool).copy()
+    q = face_nonplanarity(mesh)
+    two = [f for f in range(mesh.n_faces) if len(mesh.faces[f]) == 4 and sup[list(mesh.faces[f])].sum() == 2]
+    f = max(two, key=lambda g: q[g])  # a skew quad at the supports: all four corners supported
+    sup[list(mesh.faces[f])] = True
+    assert q[f] > 1e-3
+    src = tmp_path / "vault.sss"
+    write_scene_sss(src, dataclasses.replace(scene, supports=sup))
+    out = tmp_path / "n.json"
+    ok = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(src), "--planar", "--out", str(out)],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    assert "planar finish" in ok.stdout and "returned: the homotopy run" in ok.stdout
+    assert independent_check(out).ok
+    res = json.loads(out.read_text())
+    V, faces = np.asarray(res["vertices"], float), res["faces"]
+    got = PolyMesh.from_faces(V, faces)
+    supports = np.zeros(len(V), bool)
+    supports[np.asarray(res["supports"])] = True
+    assert supports[list(mesh.faces[f])].all()
+    assert diagonal_gaps(got, supports).max() <= 1e-3
+    assert face_nonplanarity(got)[f] == pytest.approx(q[f], rel=1e-6)  # its corners stay where they were
+    planarity = res["parameters"]["planarity"]
+    assert planarity["met"] and planarity["exempt_faces"] >= 1 and planarity["max_nonplanarity_exempt"] >= q[f]
+
+
+def test_a_planar_run_that_stops_short_names_the_quads_farthest_from_planar():
+    """A planar homotopy stopped by its deadline before its first stage: its report and message
+    name the quads past the tolerance, farthest first — the same quads, in the same order, as
+    the diagonal distances measured here (quads with three supported corners left out)."""
+    import time
+
+    from selfsupport.methods.planar_homotopy import planar_homotopy
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    eq = api.solve(scene)
+    res = planar_homotopy(api.problem(scene, constraints=[Planar(tol=1e-3)]), eq, deadline=time.perf_counter())
+    assert res.status == "time_limit"
+    mesh, sup = res.network.mesh, np.asarray(scene.supports, bool)
+    gap = {f: diagonal_gaps(PolyMesh.from_faces(mesh.vertices, [mesh.faces[f]]))[0] for f in range(mesh.n_faces)
+           if len(mesh.faces[f]) == 4 and sup[list(mesh.faces[f])].sum() < 3}
+    past = sorted((f for f in gap if gap[f] > 1e-3), key=lambda f: -gap[f])
+    assert len(past) >= 2
+    worst = res.parameters["planarity"]["worst_faces"]
+    assert [f for f, _ in worst] == past[:len(worst)] and len(worst) == min(len(past), 5)
+    np.testing.assert_allclose([q for _, q in worst], [gap[f] for f in past[:len(worst)]], rtol=1e-9)
+    assert f"faces farthest from planar: {past[0]} ({gap[past[0]]:.1e})" in res.message
+
+
+def test_solve_planar_leaves_the_finish_most_of_the_time_limit(monkeypatch):
+    """With a time limit, the first solve (planar faces as a penalty) gets FIRST_SHARE of it, and when it
+    runs out of that share the finish still runs in the rest: on the remeshed barrel vault the
+    homotopy then returns a planar network in equilibrium, and every solve kept within the limit."""
+    import dataclasses
+
+    import selfsupport.remesh.planar as planar_mod
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    calls, real = [], planar_mod.solve
+
+    def solve(*a, **kw):
+        calls.append(kw.get("time_limit"))
+        res = real(*a, **kw)
+        # (the first solve as if its share had run out before it converged)
+        return dataclasses.replace(res, status="time_limit") if len(calls) == 1 else res
+
+    monkeypatch.setattr(planar_mod, "solve", solve)
+    res = planar_mod.solve_planar(scene, tol=1e-3, time_limit=60.0)
+    assert calls[0] <= planar_mod.FIRST_SHARE * 60.0 and all(t <= 60.0 for t in calls)
+    finish = res.parameters["planar_finish"]
+    assert finish["first"]["status"] == "time_limit" and finish["returned"] == "homotopy"
+    assert res.status == "converged" and res.max_relative_error <= 1e-8
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3

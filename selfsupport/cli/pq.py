@@ -72,7 +72,8 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                    help="no finish (planar homotopy, IPOPT) from the network in equilibrium without planar faces "
                         "when the method does not converge (selfsupport.remesh.planar)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
-                   help="wall-clock limit of the solve [s] (default: the method's)")
+                   help="wall-clock limit of the solve [s] (default: the method's); with the finish, the method "
+                        "gets a quarter of it and the finish the rest")
     add_load_arguments(p)
 
 

@@ -125,6 +125,23 @@ def hull_report(problem: Problem, network: Network, thickness: float | None = No
     return None if t is None else hull_excess(problem.scene, network, t, tol=tol)
 
 
+#: How many of the quads farthest from planar a planarity report names.
+WORST_FACES = 5
+
+
+def nonplanar_faces_note(report: dict[str, Any]) -> str:
+    """One clause naming the quads of a :func:`planarity_report` past its tolerance (farthest
+    first) and the exempt ones, for a message; empty when none is past it."""
+    worst = report.get("worst_faces") or []
+    if not worst:
+        return ""
+    names = ", ".join(f"{f} ({q:.1e})" for f, q in worst)
+    exempt = report.get("exempt_faces", 0)
+    held = (f"; {exempt} faces with three or more supported corners are exempt (their plane is the supports')"
+            if exempt else "")
+    return f"faces farthest from planar: {names}{held}"
+
+
 def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | None:
     """For a problem with the :class:`~formulations.problem.Planar` constraint: the largest and
     mean quad non-planarity (:func:`~selfsupport.core.evidence.face_nonplanarity`, distance of the
@@ -133,7 +150,8 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
     whether it is met; ``None`` without the constraint. Faces with three or more supported
     corners are not counted (their plane is the supports'; see
     :func:`~formulations.terms.planarity.coplanarity_rows`): ``exempt_faces`` says how many there
-    are and ``max_nonplanarity_exempt`` how far from planar they are."""
+    are and ``max_nonplanarity_exempt`` how far from planar they are. ``worst_faces``: the
+    counted quads past the tolerance, farthest first (at most :data:`WORST_FACES`)."""
 
 
     planar = problem.constraint(Planar)
@@ -154,7 +172,9 @@ def planarity_report(problem: Problem, network: Network) -> dict[str, Any] | Non
         e1, e2, e3 = (V[Q[big, k]] - V[Q[big, 0]] for k in (1, 2, 3))
         poly = float((np.abs(np.einsum("ij,ij->i", e1, np.cross(e2, e3))) * inv_ell2[big] ** 1.5).max())
     qmax = float(q.max()) if q.size else 0.0
-    return {"tol": planar.tol, "max_nonplanarity": qmax, "mean_nonplanarity": float(q.mean()) if q.size else 0.0,
+    past = np.flatnonzero(np.isfinite(q_all) & ~held & (q_all > planar.tol))
+    worst = past[np.argsort(-q_all[past])][:WORST_FACES]
+    return {"worst_faces": [[int(f), float(q_all[f])] for f in worst], "tol": planar.tol, "max_nonplanarity": qmax, "mean_nonplanarity": float(q.mean()) if q.size else 0.0,
             "max_polygon_row": poly, "met": bool(qmax <= planar.tol and poly <= 2 * planar.tol),
             "exempt_faces": int(exempt.size), "max_nonplanarity_exempt": float(exempt.max(initial=0.0))}
 

@@ -54,7 +54,7 @@ from formulations.terms.planarity import coplanarity_rows
 from selfsupport.core.errors import InputError
 from selfsupport.core.geometry import diagonal_distance, mean_edge_length
 from selfsupport.core.result import SolveResult
-from selfsupport.methods.base import case_networks, planarity_report, term_values
+from selfsupport.methods.base import case_networks, nonplanar_faces_note, planarity_report, term_values
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.polish import case_load_jacobians, polish_joint
 from selfsupport.methods.staggered import DEFAULT_OBJECTIVE
@@ -209,7 +209,9 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     message = "" if status == "converged" else (
         f"the planar homotopy stopped ({status}) with every face within {band:.2e} of planar, above the "
         f"{target:.2e} it aims at (max non-planarity {report['max_nonplanarity']:.2e}, max relative error "
-        f"{net.max_relative_error():.2e}); try another --spacing or remesher")
+        f"{net.max_relative_error():.2e}{'; ' + note if (note := nonplanar_faces_note(report)) else ''}); "
+        "try a quad mesh along the relative principal directions (selfsupport pq), or there another "
+        "--spacing or remesher")
     return SolveResult.build(
         net, cases=cases, status=status, method="planar-homotopy", backend="joint-polish", iterations=steps,
         wall_time=time.perf_counter() - t0, history=tuple(history), message=message,

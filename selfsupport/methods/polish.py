@@ -556,9 +556,10 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             best = (err, V.copy(), W.copy())
         if err <= tol:
             return V, W, k, err, True
-        since = since + 1 if err > 0.9 * best_before else 0
+        stuck = err > 0.9 * best_before  # (less than a tenth off the best before this step)
+        since = since + 1 if stuck else 0
         best_before = min(best_before, err)
-        if (k == max_iter or (k >= 5 and err > 0.9 * best[0] and best[0] < 1e3 * tol) or since >= 4
+        if (k == max_iter or (k >= 5 and stuck and best[0] < 1e3 * tol) or since >= 4
                 or out_of_time(deadline, t_step)):
             break  # round-off floor reached, or no progress for 4 steps (far from a solution: the
             # caller iterates on and polishes from closer): keep the best iterate

@@ -37,12 +37,21 @@ from typing import Any
 
 from formulations import Planar
 from selfsupport.io.problem import problem as stated_problem
-from selfsupport.io.scenes import as_scene
+from selfsupport.io.scenes import as_scene, design_of
 from selfsupport.methods import capabilities, find_method
+from selfsupport.methods.choice import AUTO
 from selfsupport.methods.planar_homotopy import planar_homotopy
 from selfsupport.methods.solve import solve
 
-__all__ = ["solve_planar", "finish_summary", "finish_method"]
+__all__ = ["solve_planar", "finish_summary", "finish_method", "FIRST_SHARE"]
+
+#: With the finish on and a time limit, the first solve's share of the limit; the rest is left to
+#: the finish. The staggered method with the planarity penalty can crawl to any limit without
+#: converging (cas's design: 150 s, ended at max relative error 0.27, faces planar to 2.5e-3;
+#: cas's seamless remesh: 300 s, 0.28), where the homotopy from the network in equilibrium made
+#: them planar to 1e-3 in equilibrium in 110 s and 270 s on the loaded 2-core machine; the
+#: first solves that converged (the dome's and the vault's remeshes) took 1-7 s.
+FIRST_SHARE = 0.25
 
 
 def finish_method() -> str:
@@ -59,7 +68,7 @@ def _better(a: Any, b: Any) -> bool:
 
 
 def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", finish: bool = True,
-                 time_limit: float | None = None, **solve_kw: Any) -> Any:
+                 time_limit: float | None = None, equilibrium_tol: float | None = None, **solve_kw: Any) -> Any:
     """Solve ``scene`` with planar faces (:class:`formulations.Planar`) by ``method``; when that does
     not converge and ``finish``, by :func:`finish_method` warm-started from the network in
     equilibrium without the planarity rows (module docstring).
@@ -71,12 +80,15 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     tol
         Largest quad non-planarity accepted (distance of the diagonals / mean edge length).
     method
-        The first solve's method (a name of :data:`selfsupport.methods.METHODS`).
+        The first solve's method (a name of :data:`selfsupport.methods.METHODS`, or ``"auto"``).
     finish
         Run the finish when the first solve does not converge.
     time_limit
-        Wall-clock limit of the whole call [s]; the finish gets what is left (``None``: each solve
-        its method's own default).
+        Wall-clock limit of the whole call [s]; with ``finish``, the first solve gets
+        :data:`FIRST_SHARE` of it and the finish what is left (``None``: each solve its method's
+        own default).
+    equilibrium_tol
+        The solves' required max relative error (their ``tol``; ``None``: each method's default).
     **solve_kw
         Passed to every :func:`selfsupport.methods.solve.solve` (loads, bounds, objective, ...).
 
@@ -90,19 +102,31 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
 
 
     t0 = time.perf_counter()
+    if equilibrium_tol is not None:
+        solve_kw["tol"] = equilibrium_tol
     planar = list(solve_kw.pop("constraints", ()) or ()) + [Planar(tol=tol)]
     # the scene once, with the caller's supports and up-axis: every run below solves this one
-    scene = as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None))
+    # (a network file: its stored design, and the first solve starts from its stored network)
+    scene, stored = design_of(as_scene(scene, supports=solve_kw.pop("supports", None), up=solve_kw.pop("up", None)))
+    start = solve_kw.pop("warm_start", None)
+    start = {"warm_start": stored if start is None else start} if start is not None or stored is not None else {}
 
-    def left() -> dict[str, float]:
-        return {} if time_limit is None else {"time_limit": max(time_limit - (time.perf_counter() - t0), 1e-3)}
+    def left(share: float = 1.0) -> dict[str, float]:
+        if time_limit is None:
+            return {}
+        return {"time_limit": max(share * time_limit - (time.perf_counter() - t0), 1e-3)}
 
-    first = solve(scene, method=method, constraints=planar, **left(), **solve_kw)
-    if (first.status == "converged" or not finish or first.status == "time_limit"
-            or capabilities(method).planar_rows):  # (the finish would solve the same rows again)
+    def out_of_time() -> bool:
+        return time_limit is not None and time.perf_counter() - t0 >= time_limit
+
+    first = solve(scene, method=method, constraints=planar, **left(FIRST_SHARE if finish else 1.0), **start,
+                  **solve_kw)
+    if (first.status in ("converged", "interrupted") or not finish or out_of_time()
+            or capabilities(first.method if method == AUTO else method).planar_rows):
+        # (a method with planarity rows as equations: the finish would solve the same rows again)
         return dataclasses.replace(first, parameters={**first.parameters, "planar_finish": None})
     free = [c for c in planar if not isinstance(c, Planar)]
-    eq = solve(scene, method="staggered", constraints=free, **left(), **solve_kw)
+    eq = solve(scene, method="staggered", constraints=free, **left(), **start, **solve_kw)
     if eq.status != "converged":
         note = f"no finish: the mesh has no network in equilibrium without planar faces either ({eq.status})"
         return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
@@ -113,9 +137,10 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     if len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None:
         runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
                                                  else t0 + time_limit)))
-    if runs[-1][1].status != "converged" and not (time_limit is not None and time.perf_counter() - t0 >= time_limit):
-        runs.append(("finish", solve(scene, method=finish_method(), constraints=planar, warm_start=eq, **left(),
-                                         **solve_kw)))
+    if runs[-1][1].status != "converged" and not out_of_time():
+        fm = finish_method()  # (the first method's options are not its own unless it takes options)
+        kw = {k: v for k, v in solve_kw.items() if k != "options" or capabilities(fm).options_type is not None}
+        runs.append(("finish", solve(scene, method=fm, constraints=planar, warm_start=eq, **left(), **kw)))
     name, chosen = runs[0]
     for n_, r in runs[1:]:
         if _better(r, chosen):

@@ -16,6 +16,7 @@ from selfsupport.methods.base import (
     cases_max_error,
     hull_report,
     load_cases_note,
+    nonplanar_faces_note,
     planarity_report,
     short_of_tol,
     term_values,
@@ -212,6 +213,7 @@ def _parameters(run: _Run, s: IterState, net: Network, *, floor: float | None, l
         if s.status == "converged" and not planarity["met"]:
             s.status, s.message = "stalled", (
                 f"in equilibrium, but faces are not planar: max non-planarity {planarity['max_nonplanarity']:.2e} "
-                f"> {planarity['tol']:g} (diagonal distance over mean edge length); try a larger planarity "
+                f"> {planarity['tol']:g} (diagonal distance over mean edge length; "
+                f"{nonplanar_faces_note(planarity)}); try a larger planarity "
                 "penalty, or a quad mesh along the relative principal directions (selfsupport pq)")
     return params
