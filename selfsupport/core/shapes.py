@@ -209,6 +209,17 @@ def disk(n_rings: int = 18, radius: float = 1.0, z: float = 0.0) -> Scene:
                   params={"n_rings": n, "radius": radius, "z": z})
 
 
+def _cap(radius: float, height: float) -> tuple[float, float, float, float]:
+    """A spherical cap's checked plan radius and height, its sphere radius R and its opening angle."""
+    radius = _positive("radius", radius)
+    height = _positive("height", height)
+    if height > radius:
+        raise InputError(f"dome height {height} exceeds the plan radius {radius}: the cap would overhang; "
+                         "use height <= radius")
+    R = (radius ** 2 + height ** 2) / (2.0 * height)
+    return radius, height, R, math.atan2(radius, R - height)
+
+
 def dome(rings: int = 18, radius: float = 5.0, height: float = 2.5) -> Scene:
     """Spherical-cap dome over a disk of plan radius ``radius``, apex at ``height``.
 
@@ -219,13 +230,7 @@ def dome(rings: int = 18, radius: float = 5.0, height: float = 2.5) -> Scene:
     Supports: the outer ring. ``meta['area']`` is the exact cap area ``2 π R height``.
     """
     n = _count("rings", rings, 1)
-    radius = _positive("radius", radius)
-    height = _positive("height", height)
-    if height > radius:
-        raise InputError(f"dome height {height} exceeds the plan radius {radius}: the cap would overhang; "
-                         "use height <= radius")
-    R = (radius ** 2 + height ** 2) / (2.0 * height)
-    psi_max = math.atan2(radius, R - height)
+    radius, height, R, psi_max = _cap(radius, height)
     rho, theta, tris = _ring_disk(n)
     psi = psi_max * rho
     r = R * np.sin(psi)
@@ -244,13 +249,8 @@ def meridian_dome(parallels: int = 16, meridians: int = 32, radius: float = 5.0,
     """
     n = _count("parallels", parallels, 1)
     m = _count("meridians", meridians, 3)
-    radius = _positive("radius", radius)
-    height = _positive("height", height)
-    if height > radius:
-        raise InputError(f"dome height {height} exceeds the plan radius {radius}: the cap would overhang; "
-                         "use height <= radius")
-    R = (radius ** 2 + height ** 2) / (2.0 * height)
-    psi = math.atan2(radius, R - height) * np.repeat(np.arange(1, n + 1) / n, m)
+    radius, height, R, psi_max = _cap(radius, height)
+    psi = psi_max * np.repeat(np.arange(1, n + 1) / n, m)
     theta = np.tile(2.0 * np.pi * np.arange(m) / m, n)
     r = R * np.sin(psi)
     v = np.vstack([[0.0, 0.0, height],
