@@ -16,7 +16,7 @@ machine distort single runs: medians are reported, with the load average):
 * ``json``: :func:`selfsupport.io.network_json.dumps_network` alone on the written file's
   network (the number formatting, kept out of the test suite because it is a timing).
 
-The bound of the issue is 10% + 1 s over the limit: 12 s for ``--time-limit 10``.
+The bound it checks is 10% + 1 s over the limit: 12 s for ``--time-limit 10``.
 """
 from __future__ import annotations
 

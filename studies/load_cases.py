@@ -6,8 +6,8 @@ not, what blocks it.
     python -m studies.load_cases --scenes ../shared/paper-scenes/scenes --out out/load_cases \\
         --csv benchmarks/results/load_cases.csv   # (or: make bench, which copies OUT/load_cases.csv there)
 
-Cases (written as TOML files under ``--out``): on vault-pillar, lilium and cas the three of the
-load-cases issue — empty; snow 80 kg/m² on all faces; a point load of a share of the self-weight
+Cases (written as TOML files under ``--out``): on vault-pillar, lilium and cas the three a designer
+asks for — empty; snow 80 kg/m² on all faces; a point load of a share of the self-weight
 at the highest free vertex — with the share 1%, 2% and 5% (the largest share that converges is
 the first measurement of how far the design is from standing). At 5% also:
 

@@ -6,7 +6,7 @@
 
 Each interior-point iteration of a Step-2 fit (:func:`selfsupport.methods.weightfit._box_qp_ipm`)
 solves one system ``(AᵀA + prox·I + D) x = r``, m × m with m the number of edges; the backend
-factors it with CHOLMOD, the symbolic analysis made once per solve. The issue asks whether an
+factors it with CHOLMOD, the symbolic analysis made once per solve. The question is whether an
 iterative solver — algebraic multigrid (pyamg) or an incomplete factorization as CG's
 preconditioner — would make a fit cheaper. This study takes the systems of real fits and
 answers per system:

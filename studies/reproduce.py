@@ -470,7 +470,7 @@ def _fig9_limit(data: Mapping[str, Any], t: float) -> tuple[float | None, list[s
         if _num(r.get("thickness_m")) == t and r.get("max_load_kg") not in (None, ""):
             kg = _num(r["max_load_kg"])
             if len(str(r.get("load_at", "")).split()) > 1:
-                continue  # the one-ring sensitivity row is not the issue's configuration
+                continue  # the one-ring sensitivity row is not Fig. 9's configuration (the apex vertex)
             best, best_row = (kg, r) if best is None or kg > best else (best, best_row)
     if best is not None:
         where = f" (from the {best_row['start']})" if best_row.get("start") else ""
@@ -515,7 +515,7 @@ def judge_fig9(ctx: Context) -> Judgement:
 
 def judge_heyman(ctx: Context) -> Judgement:
     """Heyman's hemisphere: the finest meridian × parallel mesh's certified t/R within 15% of 0.042
-    (the issue's analytic check); the ring triangulation's beside it."""
+    (the analytic check); the ring triangulation's beside it."""
     data = json.loads((ctx.out("heyman") / "heyman.json").read_text(encoding="utf-8"))
     heyman, rows = float(data["heyman"]), data["rows"]
 
@@ -646,7 +646,7 @@ ITEMS: tuple[Item, ...] = (
          f"the same dome with t = {FIG10[0]:g} m under added loads of "
          f"{' / '.join(f'{k:,.0f}' for k in FIG10[1])} kg: as the load grows the thrust network leaves the hull",
          ("dome_fig10",), judge_fig10),
-    Item("Heyman", "the thinnest hemispherical dome (an analytic check the issue adds; not in the paper)",
+    Item("Heyman", "the thinnest hemispherical dome (an analytic check; not in the paper)",
          "Heyman (1977): a hemispherical dome stands under its own weight down to t/R = 0.042", ("heyman",),
          judge_heyman),
     Item("Fig. 11", "swiss cheese (cyl2)",

@@ -324,4 +324,4 @@ def test_paper_fig9_the_largest_load_from_many_starts_and_sliding():
     assert all(r["verdict"] == "certified" and abs(r["max_load_kg"] / quoted - 1) <= share for r in normal), \
         [(r["start"], r["max_load_kg"]) for r in normal]
     assert_shown(m[3], sliding[0]["max_load_kg"], "Fig. 9: the certified load with the vertices sliding")
-    assert max(r["max_load_kg"] for r in normal + sliding) < 11000  # the apex vertex alone, as in the issue
+    assert max(r["max_load_kg"] for r in normal + sliding) < 11000  # the apex vertex alone, Fig. 9's configuration

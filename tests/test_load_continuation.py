@@ -225,7 +225,7 @@ def test_the_refinement_refuses_several_load_cases(tmp_path):
 
 
 def test_the_load_cases_study_states_the_issues_cases(tmp_path):
-    """The study's TOML, read back by the CLI's reader, gives the issue's cases: the self-weight
+    """The study's TOML, read back by the CLI's reader, gives the study's cases: the self-weight
     alone, the self-weight plus 80 kg/m² (a factor on the self-weight at every vertex, so
     proportional to the first), and the self-weight plus the point load at its one vertex."""
     scene = make_shape("dome", n_vertices=60)

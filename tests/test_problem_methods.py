@@ -65,7 +65,7 @@ def _w_max(scene: Scene) -> np.ndarray:
     return np.where(np.arange(scene.mesh.n_edges) % 2 == 0, W_MAX_LOW, W_MAX_HIGH)
 
 
-#: name -> problem factory (the matrix the issue asks every method to run).
+#: name -> problem factory (the matrix every method runs).
 FACTORIES: dict[str, Callable[[], Problem]] = {
     "vault": lambda: Problem.build(make_shape("cross_vault", n_vertices=81), LOADS),
     "dome_point_load": lambda: Problem.build(_dome(), LOADS + _apex_load(_dome())),

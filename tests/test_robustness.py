@@ -365,8 +365,8 @@ def test_corpus_real_process_every_case(bad: Bad, cli_runs_all):
     _check_cli_run(bad, cli_runs_all[bad.id])
 
 
-def test_corpus_covers_every_item_of_the_issue():
-    """The issue's list, item by item, against the corpus and the repairs (by id substring)."""
+def test_corpus_covers_every_kind_of_bad_input():
+    """The kinds of bad input, item by item, against the corpus and the repairs (by id substring)."""
     items = ["empty", "truncated", "unknown", "out of range", "NaN", "inf", "non-manifold edge",
              "unreferenced", "component without supports", "no supports", "every vertex a support",
              "not a height field", "wrong", "JSON: "]
@@ -570,7 +570,7 @@ def test_tiny_w_max_returns_the_best_network_so_far(tiny_wmax):
     assert res.max_relative_error <= last["max_rel_error"] * (1 + 1e-6)
     # the geometry is finite and its distance is reported; it is NOT close to the design: with
     # w_max at 1% of what the span needs, the iteration deepens the vault (less thrust) by up to
-    # ~2 diagonals before it stalls — a known weakness reported in the issue's closing note
+    # ~2 diagonals before it stalls — a known weakness
     assert np.isfinite(res.distance_max) and np.all(np.isfinite(res.network.vertices))
     assert "not in equilibrium" in res.message or res.max_relative_error <= 1e-8
 

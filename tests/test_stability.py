@@ -71,7 +71,7 @@ def test_independent_distance_is_right_on_a_triangle():
 # ------------------------------------------------------------------ the hull
 @requires_checker
 def test_pillar_vault_solve_with_hull_stays_within_half_thickness(tmp_path, capsys):
-    """The issue's acceptance line: ``solve shape:pillar_vault --hull --thickness 0.5``."""
+    """``solve shape:pillar_vault --hull --thickness 0.5``: every free vertex within t/2 of the reference."""
     from selfsupport.cli import main
     from selfsupport.io import read_network
 
