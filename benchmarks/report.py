@@ -173,7 +173,8 @@ SECTIONS: tuple[Section, ...] = (
     Section("stability_dome_starts.csv", "The dome's largest load from many starts (Fig. 9)",
             "The limit program at t = 0.1 m from many starts: the staggered network, the published networks "
             "(weights fitted), the reference surface, perturbed starts, a lower weight bound near zero, the supports "
-            "sliding across the springing and the load spread over the apex's one-ring; per start the certified "
+            "sliding across the springing, the vertices sliding along the reference (re-anchored rounds, each certified) and the load "
+            "spread over the apex's one-ring; per start the certified "
             "load, the program's optimum and the bounds active there (hull faces on the extrados / intrados, "
             "weights at ε) with IPOPT's multipliers.",
             "python -m studies.stability_dome --scenes $SCENES --out OUT",
