@@ -36,15 +36,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
 from selfsupport.core.errors import InputError
+from selfsupport.core.lazy import lazy_module
+
+ca = lazy_module("casadi")  # (imported when first used: a plain staggered solve never is)
 
 #: Symbol types a formulation can be built with (MX: fast to build for large graphs; SX:
 #: scalar graphs, handy for small Jacobian checks).
-SYMBOLS = {"MX": ca.MX, "SX": ca.SX}
+SYMBOLS = ("MX", "SX")
 
 #: Names of the constraint groups, one per coordinate; group ``c`` holds rows ``c::3``.
 GROUP_NAMES = ("equilibrium_x", "equilibrium_y", "equilibrium_z")
@@ -53,11 +55,10 @@ GROUP_NAMES = ("equilibrium_x", "equilibrium_y", "equilibrium_z")
 def symbol_type(symbol: str | type) -> type:
     """``"MX"``/``"SX"`` (or the class itself) -> the CasADi symbol class."""
     if isinstance(symbol, str):
-        try:
-            return SYMBOLS[symbol.upper()]
-        except KeyError:
-            raise InputError(f"unknown CasADi symbol type {symbol!r}; use one of {sorted(SYMBOLS)}") from None
-    if symbol in SYMBOLS.values():
+        if symbol.upper() not in SYMBOLS:
+            raise InputError(f"unknown CasADi symbol type {symbol!r}; use one of {sorted(SYMBOLS)}")
+        return getattr(ca, symbol.upper())
+    if symbol in (ca.MX, ca.SX):
         return symbol
     raise InputError(f"unknown CasADi symbol type {symbol!r}; use one of {sorted(SYMBOLS)}")
 

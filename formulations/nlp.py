@@ -39,13 +39,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-import casadi as ca
 import numpy as np
 
 from formulations.equilibrium import GROUP_NAMES, Equilibrium, Topology, WeightBounds, symbol_type
 from formulations.terms import Term
 from formulations.terms.hull import HullPenalty
 from selfsupport.core.errors import InputError
+from selfsupport.core.lazy import lazy_module
+
+ca = lazy_module("casadi")  # (imported when first used: a plain staggered solve never is)
 
 #: Floor of the default row scale, relative to the mean |load| (guards free vertices without load).
 ROW_SCALE_FLOOR = 1e-3

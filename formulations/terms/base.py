@@ -26,13 +26,15 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
 from formulations.equilibrium import to_dm
 from selfsupport.core.errors import InputError
+from selfsupport.core.lazy import lazy_module
 from selfsupport.core.mesh import PolyMesh
+
+ca = lazy_module("casadi")  # (imported when first used: a plain staggered solve never is)
 
 
 def vertex_indices(mask: np.ndarray | None, n: int) -> np.ndarray:

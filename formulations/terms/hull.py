@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
@@ -15,6 +14,9 @@ from formulations.terms.base import OnPoints, Term, TermContext, normal_rows, po
 from selfsupport.core.errors import InputError
 from selfsupport.core.evidence import closest_points
 from selfsupport.core.geometry import vertex_normals
+from selfsupport.core.lazy import lazy_module
+
+ca = lazy_module("casadi")  # (imported when first used: a plain staggered solve never is)
 
 
 @dataclass(frozen=True, eq=False)
