@@ -269,3 +269,16 @@ def test_term_input_errors():
         NormalDrift(points=np.zeros((4, 3)), normals=np.zeros((3, 3)))
     with pytest.raises(InputError, match="different vertex counts"):
         PointDistance(np.zeros((4, 3))) + PointDistance(np.zeros((5, 3)))
+
+
+def test_symbol_types_resolve_to_casadi_classes_and_unknown_ones_are_refused():
+    """CasADi is imported on first use (formulations name it lazily): the names and the classes
+    still resolve to CasADi's own symbol classes, and any other name says which ones exist."""
+    import casadi
+
+    assert assembly.symbol_type("mx") is casadi.MX and assembly.symbol_type("SX") is casadi.SX
+    assert assembly.symbol_type(casadi.SX) is casadi.SX
+    with pytest.raises(InputError, match=r"use one of \['MX', 'SX'\]"):
+        assembly.symbol_type("DM")
+    with pytest.raises(InputError, match="unknown CasADi symbol type"):
+        assembly.symbol_type(float)
