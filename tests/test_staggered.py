@@ -365,6 +365,40 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     assert _solve_blocks(H, blocks, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
 
 
+def test_step3_cg_starts_where_it_is_told():
+    """Step 3 starts its conjugate gradients at the current positions (its solution is them plus
+    one step): a start that solves the system takes no iteration, and a start a short step away
+    takes fewer than the preconditioner's own start, to the same solution (the tolerance is
+    relative to the right-hand side, not to the start)."""
+    import scipy.sparse as sp
+
+    from formulations.equilibrium import Topology, block_diagonal, position_blocks
+    from selfsupport.core.geometry import vertex_normals
+    from selfsupport.methods.staggered import _solve_blocks
+
+    scene = make_shape("pillar_vault", n_vertices=400)
+    m = scene.mesh
+    top = Topology.build(m.n_vertices, m.edges[scene.active_edges], scene.supports)
+    rng = np.random.default_rng(2)
+    Kff, _ = position_blocks(top, rng.uniform(0.5, 2.0, top.m))
+    H = (Kff.T @ Kff).tocsr()
+    n = vertex_normals(m)[top.free]
+    blocks = 1e1 * np.eye(3)[None] + 1.9e2 * n[:, :, None] * n[:, None, :]  # anchor-dominated, as early on
+    M = (sp.kron(H, sp.identity(3)) + block_diagonal(blocks)).tocsr()
+    solution = m.vertices[top.free]
+    rhs = (M @ solution.ravel()).reshape(-1, 3)
+    ws: dict = {}
+    x = _solve_blocks(H, blocks, rhs, ws, x0=solution)
+    assert ws["cg_iterations"] == 0 and np.array_equal(x, solution)
+    near = solution + 1e-3 * rng.standard_normal(solution.shape)  # one short step away
+    ws_near, ws_own = {}, {}
+    x_near = _solve_blocks(H, blocks, rhs, ws_near, x0=near)
+    x_own = _solve_blocks(H, blocks, rhs, ws_own)
+    for x in (x_near, x_own):
+        np.testing.assert_allclose(x, solution, rtol=0, atol=1e-8 * np.abs(solution).max())
+    assert 0 < ws_near["cg_iterations"] < ws_own["cg_iterations"]
+
+
 def test_a_screened_out_finish_try_would_have_failed():
     """The finish screen (one stress-Laplacian solve with the iterate's loads) only skips tries
     the polish would have rejected: without it the same tries are polished and fail, the
