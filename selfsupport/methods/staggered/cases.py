@@ -106,7 +106,7 @@ REPORTED = 5
 #: further from equilibrium counts none (no note, not a wrong one).
 SELF_STRESS_RTOL = 1e-12
 #: Most active edges for which :func:`top_view_self_stresses` is measured (a dense SVD: 0.01 s at
-#: 168 edges, ~1 s at 1,500).
+#: 168 edges, 0.2 s at 1,500).
 SELF_STRESS_MAX_EDGES = 1500
 
 
