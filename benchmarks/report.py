@@ -211,19 +211,23 @@ SECTIONS: tuple[Section, ...] = (
     Section("load_cases.csv", "Several load cases on the paper's scenes",
             "One geometry for three cases (empty; snow 80 kg/m²; a point load of a share of the self-weight "
             "at the highest free vertex), each solve limited to 120 s: the default (the staggered method, then "
-            "IPOPT over every case from its network when it does not converge), the staggered method alone, "
-            "the two cases without snow, and no bound on the weights (tension allowed). *worst case*: the case "
-            "with the largest max relative error by the independent checker; *unknowns − equations*: the "
-            "joint problem's count (three coordinates per free vertex and a weight per edge and case, less "
-            "three equations per free vertex and case); *any weights carry the difference*: at the result's "
-            "geometry, the relative residual of the best change of the weights (either sign, unbounded) "
-            "carrying the cases' load differences (well above round-off: the geometry blocks, not the bounds).",
+            "IPOPT over every case from its network when it does not converge), no bound on the weights "
+            "(tension allowed), and the same design with its quads split into triangles. *worst case*: the "
+            "case with the largest max relative error by the independent checker; *plan: edges − horizontal "
+            "equations*: at a generic plan the count of its horizontal self-stresses (weights of either sign "
+            "balancing every free vertex in plan); *self-stresses of the envelope's plan*: measured at the "
+            "cases' envelope solved alone, where the continuation was blocked (one: over that plan no heights "
+            "and no weights of either sign carry cases that are not proportional); *any weights carry the "
+            "difference*: at the result's geometry, the relative residual of the best change of the weights "
+            "(either sign, unbounded) carrying the cases' load differences (well above round-off: the "
+            "geometry blocks, not the bounds).",
             "python -m studies.load_cases --scenes $SCENES --out OUT --csv benchmarks/results/load_cases.csv",
             (Column("scene", "scene"), Column("cases", "cases"), Column("point_share", "point share", "{:.0%}"),
              Column("variant", "variant"), Column("status", "status"), Column("wall_s", "wall [s]", "{:.0f}"),
              Column("worst_case", "worst case"), Column("worst_error", "its error (checker)", "{:.1e}"),
              Column("ipopt_status", "IPOPT from the staggered network"),
-             Column("freedom", "unknowns − equations", "{:.0f}"),
+             Column("plan_count", "plan: edges − horizontal equations", "{:.0f}"),
+             Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:.0f}"),
              Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"))),
     Section("theory_whys.csv", "Why not: the theory pages' measurements",
             "What the theory pages' *why not* paragraphs quote, on generated shapes: the weight fit's Gram "

@@ -8,26 +8,27 @@ not, what blocks it.
 
 Cases (written as TOML files under ``--out``): on vault-pillar, lilium and cas the three a designer
 asks for — empty; snow 80 kg/m² on all faces; a point load of a share of the self-weight
-at the highest free vertex — with the share 1%, 2% and 5% (the largest share that converges is
-the first measurement of how far the design is from standing). At 5% also:
+at the highest free vertex — with the share 1% and 5% (where the plan blocks, it blocks at any
+share: see below). At 5% also:
 
-* ``staggered only``: ``--option ipopt_finish=false`` (the staggered method alone, without the
-  IPOPT finish over every case that the default hands a non-converged result to);
-* ``two cases``: empty and point only (snow is the self-weight times a factor, proportional to
-  the empty case: it changes the count of equations but, where the empty case stands, not
-  whether the cases can);
 * ``tension allowed``: ``--eps -1e12`` (no bound on the weights; checked with
   ``--allow-tension``): where this converges and the default does not, the compression bound
-  blocks; where this fails too, the geometry (one network for every case's equations) does.
+  blocks; where this fails too, the geometry (one network for every case's equations) does;
+* ``triangulated``: the same design, supports and cases with every quad split along a diagonal
+  (:func:`selfsupport.core.evidence.triangulate`; written as an OBJ and a supports file under
+  ``--out``): more edges than horizontal equations, so the plan has self-stresses to spare.
 
 Each solve is ``selfsupport solve --time-limit 120`` in its own process. Per run: status, wall
 time, every case's max relative error by the shared independent checker (its worst case
 reported), the IPOPT finish's status and the joint count (unknowns less equations:
-:func:`selfsupport.methods.staggered.cases.joint_freedom`), and, where the result did not
-converge, how far any weights (either sign, unbounded) carry the cases' load differences at its
-geometry (:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off,
-the geometry blocks). Writes the CSV (``--csv``) and the
-runs' JSON beside the networks.
+:func:`selfsupport.methods.staggered.cases.joint_freedom`), the plan's count (edges less
+horizontal equations, ``m − 2 n_free``) and, where the continuation was blocked, the horizontal
+self-stresses of the envelope's plan (:func:`selfsupport.methods.staggered.cases.top_view_self_stresses`:
+one means no heights and no weights of either sign carry cases that are not proportional over
+it), and, where the result did not converge, how far any weights (either sign, unbounded) carry
+the cases' load differences at its geometry
+(:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off, the
+geometry blocks). Writes the CSV (``--csv``) and the runs' JSON beside the networks.
 """
 from __future__ import annotations
 
@@ -43,13 +44,12 @@ import numpy as np
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, markdown_table, run_stamp, write_csv
 
 TIME_LIMIT = 120.0
-SHARES = (0.01, 0.02, 0.05)
+SHARES = (0.01, 0.05)
 SCENES = ("vault-pillar", "lilium", "cas")
 #: variants at the largest share: label -> (extra ``selfsupport solve`` arguments, cases kept, checker flags)
 VARIANTS: dict[str, tuple[list[str], tuple[str, ...], list[str]]] = {
-    "staggered only": (["--option", "ipopt_finish=false"], ("empty", "snow", "point"), []),
-    "two cases": ([], ("empty", "point"), []),
     "tension allowed": (["--eps", "-1e12"], ("empty", "snow", "point"), ["--allow-tension"]),
+    "triangulated": ([], ("empty", "snow", "point"), []),
 }
 
 COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_share", "point share", "{:.0%}"),
@@ -57,12 +57,14 @@ COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_sha
            Column("worst_case", "worst case"), Column("worst_error", "its error (checker)", "{:.1e}"),
            Column("ipopt_status", "IPOPT from the staggered network"),
            Column("freedom", "unknowns − equations", "{:d}"),
+           Column("plan_count", "plan: edges − horizontal equations", "{:d}"),
+           Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:d}"),
            Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
            Column("errors", "error per case (checker)")) + STAMP_COLUMNS
 #: The benchmark page's columns (benchmarks/report.py): the table kept short.
 SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "variant", "status", "wall_s",
-                                               "worst_case", "worst_error", "ipopt_status", "freedom",
-                                               "carry_residual"))
+                                               "worst_case", "worst_error", "ipopt_status", "plan_count",
+                                               "plan_self_stresses", "carry_residual"))
 
 
 def highest_free_and_weight(path: Path) -> tuple[int, float]:
@@ -103,21 +105,53 @@ def checked(path: Path, checker: Path, flags: list[str]) -> dict[str, float]:
     return out
 
 
-def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...]) -> list[dict]:
-    """The study's solves: per scene the three cases at every share, and the variants at the largest."""
-    out = []
+def triangulated(path: Path, out: Path) -> Path:
+    """The scene at ``path`` with every face split into triangles from its first corner
+    (:func:`selfsupport.core.evidence.triangulate`), written as ``out/NAME-triangulated.obj`` (z
+    up) with its supports beside it (``.supports``); returns the OBJ's path."""
+    from selfsupport import api
+    from selfsupport.core.evidence import triangulate
+    from selfsupport.core.mesh import PolyMesh
+    from selfsupport.io import write_mesh
+
+    scene = api.as_scene(str(path))
+    obj = out / f"{path.stem}-triangulated.obj"
+    write_mesh(obj, PolyMesh.from_faces(scene.mesh.vertices, triangulate(scene.mesh)), up="z")
+    obj.with_suffix(".supports").write_text("\n".join(str(int(i)) for i in np.flatnonzero(scene.supports)) + "\n")
+    return obj
+
+
+def plan_count(path: Path, *, up: str | None = None, supports: Path | None = None) -> int:
+    """Edges that carry a weight less twice the free vertices (the plan's horizontal equations)."""
+    from selfsupport import api
+
+    scene = api.as_scene(str(path), up=up, supports=None if supports is None else str(supports))
+    return int(np.count_nonzero(scene.active_edges)) - 2 * int(np.count_nonzero(~scene.supports))
+
+
+def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...], out: Path) -> list[dict]:
+    """The study's solves: per scene the three cases at every share, and the variants at the
+    largest (the triangulated scene written under ``out``)."""
+    result = []
     for name in names:
         path = scenes / f"{name}.sss"
         v, weight = highest_free_and_weight(path)
         for share in shares:
             cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
-            out.append({"scene": name, "path": path, "point_share": share, "variant": "default", "cases": cases,
-                        "extra": [], "flags": []})
-            if share == max(shares):
-                for label, (extra, kept, flags) in VARIANTS.items():
-                    out.append({"scene": name, "path": path, "point_share": share, "variant": label,
-                                "cases": {k: cases[k] for k in kept}, "extra": extra, "flags": flags})
-    return out
+            base = {"scene": name, "path": path, "scene_args": [], "point_share": share, "cases": cases,
+                    "plan_count": plan_count(path)}
+            result.append({**base, "variant": "default", "extra": [], "flags": []})
+            if share != max(shares):
+                continue
+            for label, (extra, kept, flags) in VARIANTS.items():
+                job = {**base, "variant": label, "cases": {k: cases[k] for k in kept}, "extra": extra, "flags": flags}
+                if label == "triangulated":
+                    obj = triangulated(path, out)
+                    sup = obj.with_suffix(".supports")
+                    job.update(path=obj, scene_args=["--supports", str(sup), "--up", "z"],
+                               plan_count=plan_count(obj, up="z", supports=sup))
+                result.append(job)
+    return result
 
 
 def run(job: dict, out: Path, checker: Path) -> dict:
@@ -128,22 +162,26 @@ def run(job: dict, out: Path, checker: Path) -> dict:
     net = out / f"{stem}.json"
     net.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(job["path"]), "--load-cases", str(toml),
-                        "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q", *job["extra"]],
-                       capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(job["path"]), *job["scene_args"],
+                        "--load-cases", str(toml), "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q",
+                        *job["extra"]], capture_output=True, text=True)
     row = {"scene": job["scene"], "cases": "+".join(job["cases"]), "point_share": job["point_share"],
-           "variant": job["variant"], "exit": p.returncode, "wall_s": round(time.perf_counter() - t0, 1)}
+           "variant": job["variant"], "exit": p.returncode, "wall_s": round(time.perf_counter() - t0, 1),
+           "plan_count": job["plan_count"]}
     if not net.is_file():
         row["status"] = f"no network (exit {p.returncode}: {p.stderr.strip()[-200:]})"
         return row
     d = json.loads(net.read_text())
     errs = checked(net, checker, job["flags"])
     worst = max(errs, key=lambda k: -np.inf if np.isnan(errs[k]) else errs[k])
-    fin = d.get("parameters", {}).get("ipopt_from_staggered") or {}
-    carry = d.get("parameters", {}).get("any_weights_carry") or {}
+    params = d.get("parameters", {})
+    fin = params.get("ipopt_from_staggered") or {}
+    carry = params.get("any_weights_carry") or {}
+    plan = (params.get("load_continuation") or {}).get("top_view") or {}
     row.update(status=d.get("status"), errors=" ".join(f"{k}={e:.2e}" for k, e in errs.items()), worst_case=worst,
                worst_error=errs[worst], ipopt_status=fin.get("ipopt_status"), freedom=fin.get("freedom"),
                ipopt_error=fin.get("max_relative_error"), ipopt_seconds=fin.get("seconds"),
+               plan_self_stresses=plan.get("self_stresses"),
                carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
                message=d.get("message"))
     return row
@@ -161,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     a.csv = a.out / "load_cases.csv" if a.csv is None else a.csv
     stamp, rows = run_stamp(), []
-    for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares))):
+    for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares)), a.out):
         rows.append({**run(job, a.out, a.checker), **stamp})
         print(json.dumps(rows[-1], default=str), flush=True)
         (a.out / "runs.json").write_text(json.dumps(rows, indent=1, default=str))

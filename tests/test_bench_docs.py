@@ -325,3 +325,27 @@ def test_paper_fig9_the_largest_load_from_many_starts_and_sliding():
         [(r["start"], r["max_load_kg"]) for r in normal]
     assert_shown(m[3], sliding[0]["max_load_kg"], "Fig. 9: the certified load with the vertices sliding")
     assert max(r["max_load_kg"] for r in normal + sliding) < 11000  # the apex vertex alone, Fig. 9's configuration
+
+
+# ---------------------------------------------------------------------- docs/guide/problem.md
+PROBLEM = "docs/guide/problem.md"
+
+
+def test_problem_vault_pillar_cases_are_blocked_by_its_plan_and_stand_triangulated():
+    m = sentence(PROBLEM, r"vault-pillar is such a mesh \((\d+) edges for (\d+) free vertices, (\d+) self-stress at the "
+                          r"envelope's plan\): with the three cases it stalls with a point load of (\d+)% and of (\d+)% of "
+                          r"the self-weight, with tension allowed too, and IPOPT from its network does not converge "
+                          r"either; the same design with its quads split into triangles \((\d+) edges to spare\) stands "
+                          r"under all three at (\d+)%, every case to (\S+) by the independent checker")
+    table = [r for r in rows("load_cases.csv") if r["scene"] == "vault-pillar"]
+    quads = [r for r in table if r["variant"] != "triangulated"]
+    default = {round(100 * r["point_share"]): r for r in quads if r["variant"] == "default"}
+    assert {r["plan_count"] for r in quads} == {int(m[1]) - 2 * int(m[2])}
+    assert {r["plan_self_stresses"] for r in quads} == {int(m[3])}
+    assert set(default) == {int(m[4]), int(m[5])}
+    assert all(r["status"] != "converged" and r["ipopt_status"] != "Solve_Succeeded" for r in quads)
+    assert any(r["variant"] == "tension allowed" for r in quads)
+    (tri,) = [r for r in table if r["variant"] == "triangulated"]
+    assert tri["plan_count"] == int(m[6]) and round(100 * tri["point_share"]) == int(m[7])
+    assert tri["status"] == "converged" and tri["cases"] == "empty+snow+point"
+    assert_shown(m[8], tri["worst_error"], "vault-pillar triangulated: the worst case's error")

@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from formulations import Problem
+from formulations.equilibrium import Topology, weight_matrix
 from selfsupport.core.errors import InputError
 from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import barrel_vault, make_shape
 from selfsupport.io.problem import load_spec
 from selfsupport.methods.deadline import remaining
@@ -359,6 +361,89 @@ def test_three_cases_on_a_free_edged_vault_converge_with_the_snow_case_scaled():
                                     "point": SW + _point_case(scene, top, 0.05)})
     res = StaggeredLinearization(ipopt_finish=False).solve(problem, {"time_limit": 60})
     assert res.status == "converged" and "snow" in res.parameters["proportional_cases"]
+    for name, net in res.case_networks:
+        report = independent_check(net, tol=1e-8)
+        assert report.ok, (name, report.stdout)
+
+
+def _free_edged_quad_vault(n: int = 10, span: float = 3.0):
+    """An n × n quad vault on three vertices at each corner and a 2 × 2 pillar in the middle (the
+    paper's vault-pillar layout): at n = 10, 168 edges for 84 free vertices, as many edges as
+    horizontal equations. Self-weight, and self-weight with 5% of it at the highest free vertex."""
+    t = np.linspace(-0.5, 0.5, n) * span
+    x, y = np.meshgrid(t, t)
+    V = np.column_stack([x.ravel(), y.ravel(), 1.0 - 0.15 * (x ** 2 + y ** 2).ravel()])
+    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i]
+             for j in range(n - 1) for i in range(n - 1)]
+    sup = np.zeros(n * n, bool)
+    for i, j in ((0, 0), (0, n - 1), (n - 1, 0), (n - 1, n - 1)):
+        di, dj = (1 if i == 0 else -1), (1 if j == 0 else -1)
+        sup[[j * n + i, j * n + i + di, (j + dj) * n + i]] = True
+    c = n // 2
+    sup[[(c - 1) * n + c - 1, (c - 1) * n + c, c * n + c - 1, c * n + c]] = True
+    scene = Scene(PolyMesh.from_faces(V, quads), sup, name="free-edged quad vault")
+    free = np.flatnonzero(~sup)
+    v = int(free[np.argmax(V[free, 2])])
+    return scene, Problem.build(scene, {"empty": SW, "point": SW + _point_case(scene, v, 0.05)})
+
+
+def _plan_matrix(scene, X: np.ndarray) -> np.ndarray:
+    """The x and y rows of the equilibrium matrix at ``X`` (dense)."""
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    A = weight_matrix(top, X).toarray()
+    return A[np.arange(A.shape[0]) % 3 != 2]
+
+
+def test_a_regular_grid_plan_has_one_self_stress_per_grid_line():
+    """A quad barrel vault's plan is a tensor grid supported all round: in plan a vertex with two
+    straight grid lines through it balances only equal weights on each line, so the horizontal
+    self-stresses are one constant weight per inner grid line, (nx − 1) + (ny − 1) of them, and
+    that is also edges less horizontal equations (the plan matrix has full row rank)."""
+    nx, ny = 5, 7
+    scene = barrel_vault(nx=nx, ny=ny, quads=True)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    tv = cases.top_view_self_stresses(top, scene.mesh.vertices)
+    assert tv["self_stresses"] == (nx - 1) + (ny - 1) == tv["edges"] - tv["horizontal_equations"]
+    assert tv["next_singular"] > 1e-3
+
+
+def test_a_free_edged_quad_plan_carries_only_proportional_cases_over_its_one_self_stress():
+    """The free-edged quad vault has as many edges as horizontal equations. Its cases' envelope
+    solved alone has a plan with exactly one self-stress (its own weights): over that plan no
+    heights carry two cases that are not proportional, and the blocked continuation says so.
+    Self-weight alone there is carried (its loads are the envelope's up to the point load's
+    share), so the statement is about the cases' difference, not about the plan standing."""
+    scene, problem = _free_edged_quad_vault()
+    res, rec = continuation(StaggeredLinearization(), problem, StaggeredOptions(), None, None,
+                            time.perf_counter() + 60)
+    tv = rec["top_view"]
+    assert res is None and rec["blocked_at_start"]
+    assert tv["edges"] == tv["horizontal_equations"] == 168 and tv["self_stresses"] == 1
+    assert tv["next_singular"] > 1e4 * cases.SELF_STRESS_RTOL
+    assert "horizontal self-stresses" in rec["message"] and "are one-dimensional (168 edges for 168" in rec["message"]
+    # the plan of a network in equilibrium for one case: its own weights span the self-stresses
+    one = StaggeredLinearization().solve(scene, SW)
+    H = _plan_matrix(scene, one.network.vertices)
+    _, s, Vt = np.linalg.svd(H)
+    w = one.network.weights[scene.active_edges]
+    assert s[-1] <= cases.SELF_STRESS_RTOL * s[0] < s[-2]
+    assert abs(Vt[-1] @ w) / np.linalg.norm(w) == pytest.approx(1.0, abs=1e-9)
+
+
+@pytest.mark.slow
+def test_two_cases_on_a_free_edged_quad_plan_stand_on_a_plan_with_two_self_stresses():
+    """What the note asks for, on a solve that finds it: the iteration over both cases converges
+    on the free-edged quad vault (every case by the independent checker), and its plan has two
+    self-stresses, spanned by the two cases' weights (which are not proportional)."""
+    scene, problem = _free_edged_quad_vault()
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem, {"time_limit": 60})
+    assert res.status == "converged"
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    assert cases.top_view_self_stresses(top, res.network.vertices)["self_stresses"] == 2
+    H = _plan_matrix(scene, res.network.vertices)
+    W = np.array([net.weights[scene.active_edges] for _, net in res.case_networks])
+    assert np.abs(H @ W.T).max() <= 1e-12 * np.abs(H).max() * np.abs(W).max()
+    assert np.linalg.svd(W / np.linalg.norm(W, axis=1, keepdims=True), compute_uv=False)[1] > 1e-3
     for name, net in res.case_networks:
         report = independent_check(net, tol=1e-8)
         assert report.ok, (name, report.stdout)

@@ -34,16 +34,29 @@ def remaining(deadline: float | None, default: float = float("inf")) -> float:
 
 def ipopt_stop_callback(nx: int, ng: int, n_p: int):
     """A CasADi ``iteration_callback`` for IPOPT that requests a stop once its ``deadline``
-    attribute (``time.perf_counter()``; ``None``: none) has passed — for a solver built once
-    and called many times, whose ``max_wall_time`` is fixed when it is built. IPOPT then
-    returns ``User_Requested_Stop`` with its current iterate."""
+    attribute (``time.perf_counter()``; ``None``: none) has passed, or would pass before another
+    iteration as long as the last one ends (:func:`out_of_time`; one iteration of IPOPT over three
+    load cases on cas took over 10 s) — for a solver built once and called many times, whose
+    ``max_wall_time`` is fixed when it is built. Setting ``deadline`` starts a new count of the
+    iterations' durations. IPOPT then returns ``User_Requested_Stop`` with its current iterate,
+    and ``stopped`` is true (it tells a stop for the deadline from other stops)."""
     import casadi as ca
 
     class _Stop(ca.Callback):
         def __init__(self) -> None:
             ca.Callback.__init__(self)
-            self.deadline: float | None = None
+            self._deadline: float | None = None
+            self._last: float | None = None  # (the time of the last iteration's call)
+            self.stopped = False
             self.construct("deadline_stop", {})
+
+        @property
+        def deadline(self) -> float | None:
+            return self._deadline
+
+        @deadline.setter
+        def deadline(self, value: float | None) -> None:
+            self._deadline, self._last, self.stopped = value, None, False
 
         def get_n_in(self) -> int:
             return ca.nlpsol_n_out()
@@ -62,7 +75,11 @@ def ipopt_stop_callback(nx: int, ng: int, n_p: int):
             return ca.Sparsity.dense(size) if size is not None else ca.Sparsity(0, 0)
 
         def eval(self, arg):  # nonzero: IPOPT stops
-            return [1 if out_of_time(self.deadline) else 0]
+            now = time.perf_counter()
+            step = 0.0 if self._last is None else now - self._last  # (the first call follows the set-up)
+            self._last = now
+            self.stopped = out_of_time(self._deadline, step)
+            return [1 if self.stopped else 0]
 
     return _Stop()
 

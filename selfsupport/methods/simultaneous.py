@@ -716,7 +716,8 @@ class Simultaneous:
         seconds = time.perf_counter() - t0
         st = solver.stats()
         ret = str(st.get("return_status", "unknown"))
-        status = "time_limit" if ret == "User_Requested_Stop" and out_of_time(deadline) else IPOPT_STATUS.get(ret, "failed")
+        timed_out = stop.stopped or out_of_time(deadline)  # (the callback stops before an iteration that would overrun)
+        status = "time_limit" if ret == "User_Requested_Stop" and timed_out else IPOPT_STATUS.get(ret, "failed")
         return {"x": np.asarray(sol["x"]).ravel(), "warm": {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]},
                 "raw": ret, "status": status,
                 "iterations": 0 if ret in _NO_ITERATIONS else int(st.get("iter_count", 0) or 0),

@@ -43,6 +43,16 @@ method's when it converges, else its status stands beside the staggered numbers 
 infeasibility; "Feasible_Point_Found": the joint problem has as many equations as unknowns, see
 :func:`joint_freedom`).
 
+Why a plan can block every case at once, whatever their size: every case's weights balance
+every free vertex in plan, ``H(x, y) w_c = 0``, so they lie in the plan's horizontal
+self-stresses. A mesh with as many edges as horizontal equations (``m = 2 n_free``: a quad mesh
+with free edges, such as the paper's vault-pillar) has none at a generic plan; a solve for one
+load finds a plan with exactly one, and over such a plan every case's weights are multiples of
+one vector and only proportional loads stand (:func:`top_view_self_stresses`, measured at the
+envelope's network and reported with a block). Several cases need a plan with more, which a
+step from the envelope's network does not reach; where the iteration finds none either, more
+edges (quads split into triangles) or supports on the free edges give the plan room.
+
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
@@ -90,6 +100,14 @@ SHARE = 0.25
 BLOCKED_RESIDUAL = 100 * STAGE_TOL / MIN_STEP
 #: Vertices and bound edges named in the report of a blocked continuation.
 REPORTED = 5
+#: A singular value of the horizontal equilibrium matrix at most this times its largest counts
+#: as zero in :func:`top_view_self_stresses`: a network polished to round-off leaves ~2e-17
+#: (vault-pillar, a 10 × 10 quad vault); the next ones there are 3.8e-5 and 1.4e-9. A network
+#: further from equilibrium counts none (no note, not a wrong one).
+SELF_STRESS_RTOL = 1e-12
+#: Most active edges for which :func:`top_view_self_stresses` is measured (a dense SVD: 0.01 s at
+#: 168 edges, 0.2 s at 1,500).
+SELF_STRESS_MAX_EDGES = 1500
 
 
 @dataclass(frozen=True)
@@ -239,7 +257,23 @@ def _message(rec: dict[str, Any]) -> str:
                 f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, {carried}")
     return (f"{lead}; case {b['case']!r} fits at best to max relative error {b['max_relative_error']:.2e} "
             f"within the bounds, at vertices {b['vertices']} ({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}); "
-            f"the edges its fit holds at a bound with the largest multipliers: {edges}")
+            f"the edges its fit holds at a bound with the largest multipliers: {edges}"
+            + _top_view_note(rec.get("top_view") or {}))
+
+
+def _top_view_note(tv: dict[str, Any]) -> str:
+    """:func:`top_view_self_stresses` at the envelope's network in a clause, where it proves the
+    block (one self-stress); empty otherwise."""
+    if tv.get("self_stresses") != 1:
+        return ""
+    nxt = "" if tv["next_singular"] is None else f"; the next singular value is {tv['next_singular']:.1e} of the largest"
+    return (f"; over the top view of the envelope's network the horizontal self-stresses (weights of either sign "
+            f"balancing every free vertex in plan) are one-dimensional ({tv['edges']} edges for "
+            f"{tv['horizontal_equations']} horizontal equations{nxt}): every case's weights there are multiples of "
+            f"one vector, so no heights and no weights of either sign carry cases whose loads are not "
+            f"proportional, however small their difference; every case needs a top view with two self-stresses "
+            f"(a different plan): more edges than horizontal equations (quads split into triangles) or supports "
+            f"on the free boundary give the plan that room")
 
 
 def _start(run: _Run, envelope: Network, deadline: float) -> dict[str, Any] | None:
@@ -298,6 +332,8 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
             net, _, _ = base_run.refine(single.network, single.case_networks, single.max_relative_error,
                                         rec.setdefault("base_refinement", []), steps)
             start = _start(run, net, whole)
+    if start is not None:  # (what the envelope's plan allows: the report of a block)
+        rec["top_view"] = top_view_self_stresses(run.top, start["X"])
     if start is None or start["difference_residual"] > BLOCKED_RESIDUAL:
         rec.update(blocked_at_start=start is not None, time=time.perf_counter() - t0)
         if start is not None:
@@ -370,6 +406,33 @@ def joint_freedom(problem: Problem) -> dict[str, int]:
     n_free, m, C = int(np.sum(~scene.supports)), int(np.count_nonzero(scene.active_edges)), len(problem.loads)
     return {"free_vertices": n_free, "edges": m, "cases": C, "unknowns": 3 * n_free + C * m,
             "equations": 3 * C * n_free, "freedom": 3 * n_free + C * m - 3 * C * n_free}
+
+
+def top_view_self_stresses(top: Topology, X: np.ndarray) -> dict[str, Any]:
+    """The horizontal self-stresses of the top view of ``X``: weights of either sign that
+    balance every free vertex in plan, ``H(x, y) w = 0`` (the x and y rows of (2)). Every case's
+    weights over this top view are among them, and the heights enter only the vertical rows:
+    where they form a one-dimensional space every case's weights are multiples of one vector
+    ``u``, the vertical rows read ``D(u) z = L_c / λ_c`` with the same heights ``z``, and so no
+    heights and no weights of either sign carry cases whose loads are not proportional.
+
+    Returns the count of edges ``m``, of horizontal equations ``2 n_free`` (a mesh with
+    ``m ≤ 2 n_free``, such as a quad mesh with free edges, has no self-stress at a generic top
+    view: a solve finds a special one with one), and, for at most
+    :data:`SELF_STRESS_MAX_EDGES` edges, ``self_stresses``: the dimension of the space (singular
+    values of ``H`` at most :data:`SELF_STRESS_RTOL` times the largest, and the ``m − 2 n_free``
+    beyond its rows) with ``next_singular``, the smallest singular value above that over the
+    largest (how far the top view is from one more); ``None`` above the limit."""
+    H = weight_matrix(top, X).tocsr()[np.flatnonzero(np.arange(3 * top.n_free) % 3 != 2)]
+    out: dict[str, Any] = {"edges": top.m, "horizontal_equations": 2 * top.n_free,
+                           "self_stresses": None, "next_singular": None}
+    if top.m > SELF_STRESS_MAX_EDGES or top.m == 0:
+        return out
+    s = np.linalg.svd(H.toarray(), compute_uv=False)
+    s = np.r_[s, np.zeros(max(top.m - s.size, 0))] / max(float(s[0]), np.finfo(float).tiny)
+    zero = s <= SELF_STRESS_RTOL
+    out.update(self_stresses=int(zero.sum()), next_singular=float(s[~zero].min()) if (~zero).any() else None)
+    return out
 
 
 def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,
