@@ -564,7 +564,7 @@ PQ_EQ_TOL = 1e-8
 PQ_ALIGNED = "remesh principal (seamless)"
 
 
-def _pq_planar(r: Mapping[str, Any]) -> bool:
+def pq_planar(r: Mapping[str, Any]) -> bool:
     """Whether a pq row is a planar-quad network in equilibrium."""
     return (r.get("status") == "converged" and _num(r.get("nonplanar_max")) <= PQ_TOL
             and _num(r.get("max_rel_error")) <= PQ_EQ_TOL)
@@ -599,7 +599,7 @@ def judge_pq(ctx: Context) -> Judgement:
         if ctx.quick and a.get("status") == "time_limit":
             cut.append(scene)
             continue
-        if not _pq_planar(a):
+        if not pq_planar(a):
             why.append(f"{scene}: the aligned remesh did not become a planar-quad network in equilibrium "
                        f"({a.get('status')}, non-planarity {_num(a.get('nonplanar_max')):.1e}, error "
                        f"{_num(a.get('max_rel_error')):.1e})")
@@ -607,7 +607,7 @@ def judge_pq(ctx: Context) -> Judgement:
             why.append(f"{scene}: no grid remesh to compare with")
         for g in grids:
             da, dg = _num(a.get("dist_mean")), _num(g.get("dist_mean"))
-            if _pq_planar(g) and not da < dg:
+            if pq_planar(g) and not da < dg:
                 why.append(f"{scene}: the aligned remesh ends farther from the reference than the "
                            f"{g['mesh'].removeprefix('remesh ')} ({da:.3e} vs {dg:.3e} of the diagonal)")
     ours = "; ".join(parts) + f" (planar: at most {PQ_TOL:g}; in equilibrium: error at most {PQ_EQ_TOL:g})"
