@@ -472,7 +472,7 @@ def frame_parametrization(xy: np.ndarray, tris: np.ndarray, directions: np.ndarr
         # scales the unrounded solution by s and its quad count by s²
         ratio = density_ratio(G, area, x[:2 * W].reshape(W, 2)[wedge], J)
         if np.isfinite(ratio) and ratio > 0:
-            scale = 1.0 / np.sqrt(ratio)
+            scale = float(1.0 / np.sqrt(ratio))
             g = g - g_fit + scale * g_fit
             x = solve()
     # what must be an integer: the seam translations, and one value of each aligned boundary run
