@@ -12,7 +12,8 @@ solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
 the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
-(/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
+(/ bbox diagonal) before the planar solve (the remesh, its heights from the network in
+equilibrium) and after, time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
 (its distance to the reference and its non-planarity). With ``--checker``, the shared independent
 checker's max relative error of every written network. Writes ``pq.csv``, ``pq.md`` and the networks.
 """
@@ -44,6 +45,7 @@ COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "fa
            Column("checker", "checker max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
+           Column("dist_start", "dist. to reference before (mean)", "{:.3e}"),
            Column("dist_mean", "dist. to reference (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}")]
 #: the CSV's columns: the table's, then the run's stamp (:func:`studies.common.run_stamp`)
 CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
@@ -102,6 +104,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                        solved_by=finish_summary(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
+                       dist_start=distance_stats(todo.mesh.vertices, scene.mesh)[0],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],
                        time_s=time.perf_counter() - t0)
             rows.append(row)

@@ -134,8 +134,9 @@ def coplanarity_rows(mesh: PolyMesh, fixed: np.ndarray | None = None) -> tuple[n
         faces = faces[n_fixed[faces] < 3]
     ell = _face_lengths(mesh, faces) if faces.size else np.zeros(0)
     rows, owner, scale = [], [], []
+    all_faces = mesh.faces  # (once: the property builds every face's list)
     for f, lf in zip(faces.tolist(), ell.tolist()):
-        c = list(mesh.faces[f])
+        c = list(all_faces[f])
         if len(c) == 4:
             trip, rest = c[:3], c[3:]
         else:

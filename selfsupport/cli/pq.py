@@ -23,6 +23,7 @@ network in equilibrium without planar faces (:func:`selfsupport.remesh.planar.so
 from __future__ import annotations
 
 import argparse
+import time
 
 from selfsupport.cli.common import (
     EXIT_CODES,
@@ -72,18 +73,20 @@ def add_pq_arguments(p: argparse.ArgumentParser) -> None:
                    help="no finish (planar homotopy, IPOPT) from the network in equilibrium without planar faces "
                         "when the method does not converge (selfsupport.remesh.planar)")
     p.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
-                   help="wall-clock limit of the solve [s] (default: the method's); with the finish, the method "
-                        "gets a quarter of it and the finish the rest")
+                   help="wall-clock limit of the command [s], the reading and the remesh included (default: the "
+                        "method's); with the finish, the method gets a quarter of what is left and the finish the rest")
     add_load_arguments(p)
 
 
 def run_pq(args: argparse.Namespace) -> int:
     """Remesh, solve with planar faces, write (see the module docstring)."""
+    t0 = time.perf_counter()  # (--time-limit counts the reading and the remesh too)
     check_network_out(args.out, args.format, [("network", args.network)])
     net = read_network(args.network)
     q = remesh(net, spacing=args.spacing, field=args.field, angle=args.angle, method=args.remesher,
                smoothing=args.smoothing)
-    result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=args.time_limit,
+    left = None if args.time_limit is None else max(args.time_limit - (time.perf_counter() - t0), 1e-3)
+    result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=left,
                           density=args.density, thickness=args.thickness)
     planarity = result.parameters.get("planarity") or {}
     write_network_out(args.out, result, args.format, remesh={"field": q.field, "method": q.method, "spacing": q.spacing,

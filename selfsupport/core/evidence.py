@@ -440,5 +440,6 @@ def face_nonplanarity(mesh: PolyMesh) -> np.ndarray:
     out = np.full(mesh.n_faces, np.nan)
     quads = np.flatnonzero(mesh.face_sizes == 4)
     if quads.size:
-        out[quads] = np.abs(diagonal_distance(mesh.vertices, np.array([mesh.faces[f] for f in quads]))[0])
+        faces = mesh.faces  # (once: the property builds every face's list)
+        out[quads] = np.abs(diagonal_distance(mesh.vertices, np.array([faces[f] for f in quads]))[0])
     return out

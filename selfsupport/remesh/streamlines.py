@@ -547,7 +547,7 @@ def _seamless_lines(st: _Setting) -> tuple[list[list[np.ndarray]], dict]:
     F = smooth_frames(xy, tris, F0, length=st.smoothing * diag, confidence=conf) if st.smooth else F0
     index = cross_indices(xy, tris, F)
     p = frame_parametrization(xy, tris, None, st.spacing, frames=F, integer_singularities=True, batch=8,
-                              align_weight=ALIGN_WEIGHT)
+                              align_weight=ALIGN_WEIGHT, keep_density=True)
     # values an integer to the solve's round-off (the gauge's faint pull, the KKT regularisation)
     # are that integer: a boundary held on an iso-line is then skipped as one, not traced beside itself
     near = np.abs(p.uv - np.round(p.uv)) < SNAP
@@ -574,7 +574,8 @@ def _isoline_lines(st: _Setting, p) -> tuple[list[list[np.ndarray]], dict]:
             ext = 0.05 * st.spacing
             lines[k].append(np.vstack([line[0] + ext * a / max(np.linalg.norm(a), 1e-300), line,
                                        line[-1] + ext * b / max(np.linalg.norm(b), 1e-300)]))
-    return lines, {"singularities": int(len(p.singular)), "residual": p.residual, "rounded": p.rounded}
+    return lines, {"singularities": int(len(p.singular)), "residual": p.residual, "rounded": p.rounded,
+                   "density_scale": p.scale}
 
 
 #: Line builders by name (``remesh(method=...)``).
