@@ -365,40 +365,6 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     assert _solve_blocks(H, blocks, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
 
 
-def test_step3_cg_starts_where_it_is_told():
-    """Step 3 starts its conjugate gradients at the current positions (its solution is them plus
-    one step): a start that solves the system takes no iteration, and a start a short step away
-    takes fewer than the preconditioner's own start, to the same solution (the tolerance is
-    relative to the right-hand side, not to the start)."""
-    import scipy.sparse as sp
-
-    from formulations.equilibrium import Topology, block_diagonal, position_blocks
-    from selfsupport.core.geometry import vertex_normals
-    from selfsupport.methods.staggered import _solve_blocks
-
-    scene = make_shape("pillar_vault", n_vertices=400)
-    m = scene.mesh
-    top = Topology.build(m.n_vertices, m.edges[scene.active_edges], scene.supports)
-    rng = np.random.default_rng(2)
-    Kff, _ = position_blocks(top, rng.uniform(0.5, 2.0, top.m))
-    H = (Kff.T @ Kff).tocsr()
-    n = vertex_normals(m)[top.free]
-    blocks = 1e1 * np.eye(3)[None] + 1.9e2 * n[:, :, None] * n[:, None, :]  # anchor-dominated, as early on
-    M = (sp.kron(H, sp.identity(3)) + block_diagonal(blocks)).tocsr()
-    solution = m.vertices[top.free]
-    rhs = (M @ solution.ravel()).reshape(-1, 3)
-    ws: dict = {}
-    x = _solve_blocks(H, blocks, rhs, ws, x0=solution)
-    assert ws["cg_iterations"] == 0 and np.array_equal(x, solution)
-    near = solution + 1e-3 * rng.standard_normal(solution.shape)  # one short step away
-    ws_near, ws_own = {}, {}
-    x_near = _solve_blocks(H, blocks, rhs, ws_near, x0=near)
-    x_own = _solve_blocks(H, blocks, rhs, ws_own)
-    for x in (x_near, x_own):
-        np.testing.assert_allclose(x, solution, rtol=0, atol=1e-8 * np.abs(solution).max())
-    assert 0 < ws_near["cg_iterations"] < ws_own["cg_iterations"]
-
-
 def test_a_screened_out_finish_try_would_have_failed():
     """The finish screen (one stress-Laplacian solve with the iterate's loads) only skips tries
     the polish would have rejected: without it the same tries are polished and fail, the
@@ -678,22 +644,3 @@ def test_load_cases_that_are_not_proportional_take_the_coupled_step_from_the_sta
     _check_cases(scene, default)
     heavier = StaggeredLinearization().solve(scene, {"a": SelfWeight(), "b": SelfWeight(density=3000)})
     assert heavier.parameters["coupled"] is False
-
-
-@pytest.mark.slow  # (two 1,500-vertex solves: ~4 s)
-def test_where_step3_cg_starts_does_not_decide_the_network(monkeypatch):
-    """Step 3's CG tolerance is tight enough that its start (the current positions, or the
-    preconditioner's solution) does not decide where a solve ends, even on a path that
-    amplifies round-off: a 1,500-vertex concave disk, whose two runs ended 2.8% apart in mean
-    distance at the former tolerance (1e-10), end within 1% of each other."""
-    from selfsupport import api
-    from selfsupport.methods.staggered import step3
-
-    scene = make_shape("concave_disk", n_vertices=1500)
-    here = api.solve(scene, method="staggered")
-    solve_blocks = step3._solve_blocks
-    monkeypatch.setattr(step3, "_solve_blocks", lambda *a, **k: solve_blocks(*a, **{**k, "x0": None}))
-    own = api.solve(scene, method="staggered")
-    assert here.status == own.status == "converged"
-    assert max(here.max_relative_error, own.max_relative_error) <= 1e-9
-    assert abs(here.distance_mean / own.distance_mean - 1.0) <= 0.01

@@ -217,7 +217,7 @@ def _position_step(top: Topology, X: np.ndarray, *, weights: list[np.ndarray], l
     Xn = X.copy()
     coupled = coupling is not None and coupling.moves
     if Gg is None and not coupled:
-        sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline, x0=X[free])
+        sol = _solve_blocks(H, blocks, rhs, wsp, deadline=deadline)
         if sol is not None:
             Xn[free] = sol
             return Xn
@@ -233,20 +233,13 @@ def _position_step(top: Topology, X: np.ndarray, *, weights: list[np.ndarray], l
     return Xn
 
 
-def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, *, rtol: float = 3e-11,
-                  maxiter: int = 200, deadline: float | None = None, x0: np.ndarray | None = None) -> np.ndarray | None:
+def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dict, *, rtol: float = 1e-10,
+                  maxiter: int = 200, deadline: float | None = None) -> np.ndarray | None:
     """``(H ⊗ I₃ + ⊕ B_i) x = rhs`` for ``(k, 3)`` arrays by preconditioned CG (scipy), the
     preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
     ``⊕ B_i − λ_min ⊗ I`` is PSD, so the preconditioned system's eigenvalues are ≥ 1); None if CG
     does not converge. Raises :class:`~selfsupport.methods.deadline.DeadlineReached` when the
-    next CG iteration would end past ``deadline`` (a partial step is no step).
-
-    ``x0``: where CG starts, ``(k, 3)`` (default: the preconditioner's solution). Step 3 passes
-    the current positions: its solution is them plus one step, and while the pull to the
-    reference holds the step is short, so CG needs fewer iterations to a tolerance relative to
-    ``rhs`` (not to the start). ``rtol``: tight enough that the network a solve ends with does
-    not depend on where CG starts — on a path that amplifies round-off (a 1,500- or 2,500-vertex
-    ``concave_disk``) the two starts ended 3–4% apart in mean distance at 1e-10, within 0.5% at 3e-11."""
+    next CG iteration would end past ``deadline`` (a partial step is no step)."""
     k = H.shape[0]
     lam = np.linalg.eigvalsh(blocks)[:, 0]
     pre = ws["pre"] = spd_factor((H + sp.diags(lam)).tocsc(), reuse=ws.get("pre"))
@@ -267,8 +260,7 @@ def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dic
         if out_of_time(deadline, last[1]):
             raise DeadlineReached
 
-    start = pre.solve(rhs).ravel() if x0 is None else np.array(x0, dtype=float).ravel()
-    x, info = cg(op, rhs.ravel(), x0=start, rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
+    x, info = cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=rtol, atol=0.0, maxiter=maxiter, M=prec,
                  callback=callback)
     ok = info == 0 and np.all(np.isfinite(x))
     ws["cg_iterations"] = count[0] if ok else 0  # 0: the caller falls back to the direct solve
