@@ -447,3 +447,57 @@ def test_two_cases_on_a_free_edged_quad_plan_stand_on_a_plan_with_two_self_stres
     for name, net in res.case_networks:
         report = independent_check(net, tol=1e-8)
         assert report.ok, (name, report.stdout)
+
+
+def test_the_one_self_stress_of_a_quad_plan_reaches_the_loaded_vertex_but_carries_no_point_load_there():
+    """At the single-case network of the free-edged quad vault the plan's self-stresses are its
+    own weights' multiples: they reach the loaded vertex (ring 0 reach = its largest weight over
+    the largest anywhere, not zero), and their vertical loads are the self-weight's multiples,
+    so the least-squares point load they carry is the projection on the self-weight ``b``
+    (relative rows): residual at the vertex ``1 − b_v² / |b|²`` of the difference there, and
+    ``|b_i| |b_v| / |b|²`` elsewhere."""
+    from studies import plan_self_stresses as ps
+
+    scene, problem = _free_edged_quad_vault()
+    net = StaggeredLinearization().solve(scene, SW).network
+    top = ps.network_topology(net)
+    N = ps.self_stress_basis(top, net.vertices)
+    w = net.weights[scene.active_edges]
+    assert N.shape[1] == 1 and abs(N[:, 0] @ w) / np.linalg.norm(w) == pytest.approx(1.0, abs=1e-9)
+    free = np.flatnonzero(~scene.supports)
+    v = int(free[np.argmax(net.vertices[free, 2])])
+    rings = ps.edge_rings(top, v)
+    assert np.count_nonzero(rings == 0) == np.count_nonzero((top.edges == v).any(axis=1))
+    assert ps.reach_by_ring(N, rings, 0)[0] == pytest.approx(w[rings == 0].max() / w.max(), rel=1e-6)
+    P = -0.05 * float(-net.loads[free].sum())
+    fit = ps.fixed_plan_fit(top, net.vertices, N, v, P, net.loads)
+    point = net.loads[free].copy()
+    fv = int(top.free_index[v])
+    point[fv] += P
+    b = net.loads[free] / np.abs(point)
+    assert fit["at_vertex"] == pytest.approx(1.0 - b[fv] ** 2 / (b @ b), rel=1e-6)
+    assert fit["elsewhere"] == pytest.approx(np.abs(np.delete(b, fv)).max() * abs(b[fv]) / (b @ b), rel=1e-6)
+    assert fit["at_vertex"] > 0.9
+
+
+def test_a_triangulated_plan_carries_a_point_load_over_its_self_stresses_and_a_quad_grid_does_not():
+    """A barrel vault supported all round, at the networks of its self-weight alone: split into
+    triangles, its plan has more self-stresses (77) than free vertices (48), and their vertical
+    loads carry the point load at the crown alone (residual at round-off); as a quad grid its
+    self-stresses are one per grid line (14), each loading its whole line, and they leave
+    nearly all of the point load there."""
+    from studies import plan_self_stresses as ps
+
+    fits = {}
+    for quads in (True, False):
+        scene = barrel_vault(nx=7, ny=9, quads=quads)
+        net = StaggeredLinearization().solve(scene, SW).network
+        top = ps.network_topology(net)
+        N = ps.self_stress_basis(top, net.vertices)
+        assert N.shape[1] == top.m - 2 * top.n_free  # (the plan matrix has full row rank)
+        free = np.flatnonzero(~scene.supports)
+        v = int(free[np.argmax(net.vertices[free, 2])])
+        fits[quads] = ps.fixed_plan_fit(top, net.vertices, N, v, -0.05 * float(-net.loads[free].sum()), net.loads)
+        assert N.shape[1] > top.n_free if not quads else N.shape[1] == 6 + 8
+    assert fits[False]["at_vertex"] < 1e-12 and fits[False]["elsewhere"] < 1e-12
+    assert fits[True]["at_vertex"] > 0.9

@@ -408,6 +408,12 @@ def joint_freedom(problem: Problem) -> dict[str, int]:
             "equations": 3 * C * n_free, "freedom": 3 * n_free + C * m - 3 * C * n_free}
 
 
+def plan_matrix(top: Topology, X: np.ndarray) -> sp.csr_matrix:
+    """The horizontal rows of the equilibrium matrix at ``X`` (the x and y rows of (2), ``2 n_free × m``):
+    its null space is the top view's horizontal self-stresses."""
+    return weight_matrix(top, X).tocsr()[np.flatnonzero(np.arange(3 * top.n_free) % 3 != 2)]
+
+
 def top_view_self_stresses(top: Topology, X: np.ndarray) -> dict[str, Any]:
     """The horizontal self-stresses of the top view of ``X``: weights of either sign that
     balance every free vertex in plan, ``H(x, y) w = 0`` (the x and y rows of (2)). Every case's
@@ -423,7 +429,7 @@ def top_view_self_stresses(top: Topology, X: np.ndarray) -> dict[str, Any]:
     values of ``H`` at most :data:`SELF_STRESS_RTOL` times the largest, and the ``m − 2 n_free``
     beyond its rows) with ``next_singular``, the smallest singular value above that over the
     largest (how far the top view is from one more); ``None`` above the limit."""
-    H = weight_matrix(top, X).tocsr()[np.flatnonzero(np.arange(3 * top.n_free) % 3 != 2)]
+    H = plan_matrix(top, X)
     out: dict[str, Any] = {"edges": top.m, "horizontal_equations": 2 * top.n_free,
                            "self_stresses": None, "next_singular": None}
     if top.m > SELF_STRESS_MAX_EDGES or top.m == 0:
