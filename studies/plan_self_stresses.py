@@ -20,14 +20,9 @@ by a self-stress ``δw`` of the plan, and their load difference must be its vert
   for the vertical difference ``P`` at the vertex, relative to the point case's load per vertex.
   A residual near the difference itself says no weights over this plan carry the point load.
 
-Measured on the paper's cas (quads; the single-case network of ``selfsupport solve cas.sss``;
-vertex 54, the highest free one, valence 6, eight rings from the nearest support; a point load
-of 5% of the self-weight): 2800 active edges for 2716 horizontal equations, 84 self-stresses,
-the network's weights among them (7e-13 off the space). They reach the loaded vertex: the
-largest ``|δw|`` on its edges is 0.10 of the largest anywhere, 0.26 within one ring, 0.70
-within five (0.09 and 0.25 with the network's own weights projected out), so the block is not
-local. Their fit leaves 0.99997 of the point load at the vertex (8.9e-4 elsewhere): the 84
-vertical loads they can make do not hold a load at one of 1358 free vertices.
+A residual near the whole difference at the loaded vertex, while the self-stresses reach it
+(the ring table), says the plan blocks the case as a whole, not locally: too few self-stresses,
+not too few near the load.
 """
 from __future__ import annotations
 
