@@ -525,3 +525,44 @@ def test_solve_planar_leaves_the_finish_most_of_the_time_limit(monkeypatch):
     assert finish["first"]["status"] == "time_limit" and finish["returned"] == "homotopy"
     assert res.status == "converged" and res.max_relative_error <= 1e-8
     assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
+
+
+def _stages_with_polish(monkeypatch, accept, *, start=0.2, target=7e-4):
+    """The homotopy's stage loop with a stand-in polish that accepts a cut of the band from ``cur``
+    to ``trial`` when ``accept(cur, trial)``; returns (band reached, stages, status)."""
+    import selfsupport.methods.planar_homotopy as ph
+
+    cur = [start]
+
+    def polish(band, X, W, **kw):
+        ok = accept(cur[0], band)
+        cur[0] = band if ok else cur[0]
+        return X, W, 1, 0.0 if ok else 1.0, ok
+
+    monkeypatch.setattr(ph, "polish_joint", polish)
+    _, _, band, _, history, status = ph._stages(
+        lambda X, b: b, np.zeros(1), np.zeros(1), loads_at=None, load_jacobian=None, band=start, target=target,
+        tol=1e-3, planar_enough=lambda X, W: False, deadline=None, progress=None)
+    return band, len(history), status
+
+
+def test_a_planar_homotopy_crawling_along_a_fold_stops_early(monkeypatch):
+    """A band that can only approach a fold at 2e-3 (each cut may close 2% of its gap to it) never
+    reaches the target 7e-4: the homotopy stops ("stalled") as soon as its pace shows it, long
+    before MAX_STAGES, instead of crawling through all of them."""
+    from selfsupport.methods.planar_homotopy import MAX_STAGES, PACE_WINDOW
+
+    band, stages, status = _stages_with_polish(monkeypatch, lambda cur, t: t >= 2e-3 + 0.98 * (cur - 2e-3))
+    assert status == "stalled" and band > 2e-3
+    assert PACE_WINDOW < stages <= MAX_STAGES // 2
+
+
+@pytest.mark.parametrize("cut", [0.9, 0.95])
+def test_a_planar_homotopy_on_pace_is_not_stopped(monkeypatch, cut):
+    """A band that may fall by a fixed ratio per stage reaches the target within MAX_STAGES
+    (0.95: in over half of them) and is not stopped on the way by the pace rule."""
+    from selfsupport.methods.planar_homotopy import PACE_WINDOW
+
+    band, stages, status = _stages_with_polish(monkeypatch, lambda cur, t: t >= cut * cur)
+    assert status == "converged" and band == pytest.approx(7e-4)
+    assert stages > PACE_WINDOW
