@@ -463,6 +463,15 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
         JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
         J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
         groups = [r.shape[0] for r in Xrows]
+        if len(groups) > C and groups[C]:  # planarity rows scaled to the equilibrium rows' size:
+            # the same solution, and min_norm_step's μ stays round-off for them too
+            p0 = sum(groups[:C])
+            sq = np.asarray(J.multiply(J).sum(axis=1)).ravel()
+            c = np.sqrt(sq[:p0].max(initial=0.0) / max(sq[p0:p0 + groups[C]].max(initial=0.0), 1e-300))
+            if c > 1.0:
+                D = np.ones(J.shape[0])
+                D[p0:p0 + groups[C]] = c
+                J, b = sp.diags(D) @ J, D * b
         if sides is None:
             d = min_norm_step(J, groups, b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
         else:  # (the planarity rows: the group after the cases')
