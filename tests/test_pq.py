@@ -605,3 +605,47 @@ def test_a_homotopy_stage_keeps_faces_within_the_band_not_on_it():
     assert r.max() <= band * (1 + 1e-9)
     past, on_band = int((r0 > band).sum()), int((r > (1 - 1e-3) * band).sum())
     assert past >= 5 and on_band < past
+
+
+def test_the_joint_polish_does_not_depend_on_the_unit_of_the_planarity_rows():
+    """The band rows of a homotopy stage written in another unit (× 1e-5: the same faces, the same
+    zero set) give the joint polish the same solution in as many steps: the rows are scaled to
+    the equilibrium rows' size before the minimum-norm step, so its round-off regularization
+    does not damp them (it did: small planarity rows converged linearly or not at all)."""
+    from formulations import ThrustNetworkProblem, WeightBounds
+    from formulations.terms.planarity import coplanarity_rows
+    from selfsupport.core.geometry import diagonal_distance, mean_edge_length
+    from selfsupport.methods.planar_homotopy import _Band
+    from selfsupport.methods.polish import case_load_jacobians, polish_joint
+    from selfsupport.methods.warm import as_warm_start, transfer
+
+    class Scaled(_Band):  # (the same rows × 1e-5)
+        def linearize(self, V):
+            r, J = super().linearize(V)
+            return 1e-5 * r, 1e-5 * J
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    problem = api.problem(scene, constraints=[Planar(tol=1e-3)])
+    sp_, mesh = problem.scaled(), scene.mesh
+    sc = sp_.scaling
+    V, w, _ = transfer(as_warm_start(api.solve(scene)), scene)
+    X = sc.pos(V)
+    W = np.clip(sc.weight(w[scene.active_edges]), sp_.lower, sp_.upper)[None]
+    rows = coplanarity_rows(mesh, ~np.asarray(scene.free, bool))[0]
+    band = 0.5 * np.abs(diagonal_distance(X, rows)[0]).max()
+    jac = case_load_jacobians(problem.loads.models, mesh, sc, sp_.top.free)
+
+    def loads_at(Y):
+        return sc.loads_at(problem.loads, mesh, Y)
+
+    out = []
+    for kind in (_Band, Scaled):
+        form = ThrustNetworkProblem(sp_.top, X, loads_at(X), WeightBounds(sp_.lower, sp_.upper),
+                                    weight_scale=1.0 / mean_edge_length(X, sp_.top.edges) ** 2,
+                                    planar=kind(rows, band, mesh.n_vertices))
+        out.append(polish_joint(form, X, W, loads_at=loads_at, tol=1e-12, max_iter=30, load_jacobian=jac))
+    (X1, _, k1, _, ok1), (X2, _, k2, _, ok2) = out
+    assert ok1 and ok2 and abs(k1 - k2) <= 1
+    assert np.abs(diagonal_distance(X2, rows)[0]).max() <= band * (1 + 1e-9)
+    np.testing.assert_allclose(X2, X1, atol=1e-8 * np.abs(X1).max())
