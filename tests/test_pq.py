@@ -568,45 +568,6 @@ def test_a_planar_homotopy_on_pace_is_not_stopped(monkeypatch, cut):
     assert stages > PACE_WINDOW
 
 
-def test_a_homotopy_stage_keeps_faces_within_the_band_not_on_it():
-    """A stage of the planar homotopy asks every quad to be within the band (``|r| ≤ b``), not on
-    it: cutting the band of a remeshed barrel vault's network in equilibrium to half its largest
-    non-planarity, the joint polish ends in equilibrium with every quad within the band and the
-    seven quads that were past it moved inside, not left on its edge (as equations held them)."""
-    from formulations import ThrustNetworkProblem, WeightBounds
-    from formulations.terms.planarity import coplanarity_rows
-    from selfsupport.core.geometry import diagonal_distance, mean_edge_length
-    from selfsupport.methods.planar_homotopy import _Band
-    from selfsupport.methods.polish import case_load_jacobians, polish_joint
-    from selfsupport.methods.warm import as_warm_start, transfer
-
-    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
-    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
-    problem = api.problem(scene, constraints=[Planar(tol=1e-3)])
-    sp_, mesh = problem.scaled(), scene.mesh
-    sc = sp_.scaling
-    V, w, _ = transfer(as_warm_start(api.solve(scene)), scene)
-    X = sc.pos(V)
-    W = np.clip(sc.weight(w[scene.active_edges]), sp_.lower, sp_.upper)[None]
-    rows = coplanarity_rows(mesh, ~np.asarray(scene.free, bool))[0]
-    r0 = np.abs(diagonal_distance(X, rows)[0])
-    band = 0.5 * r0.max()
-
-    def loads_at(Y):
-        return sc.loads_at(problem.loads, mesh, Y)
-
-    form = ThrustNetworkProblem(sp_.top, X, loads_at(X), WeightBounds(sp_.lower, sp_.upper),
-                                weight_scale=1.0 / mean_edge_length(X, sp_.top.edges) ** 2,
-                                planar=_Band(rows, band, mesh.n_vertices))
-    Xn, _, _, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=1e-9, max_iter=30,
-                                     load_jacobian=case_load_jacobians(problem.loads.models, mesh, sc, sp_.top.free))
-    r = np.abs(diagonal_distance(Xn, rows)[0])
-    assert ok and err <= 1e-9
-    assert r.max() <= band * (1 + 1e-9)
-    past, on_band = int((r0 > band).sum()), int((r > (1 - 1e-3) * band).sum())
-    assert past >= 5 and on_band < past
-
-
 def test_the_joint_polish_does_not_depend_on_the_unit_of_the_planarity_rows():
     """The band rows of a homotopy stage written in another unit (× 1e-5: the same faces, the same
     zero set) give the joint polish the same solution in as many steps: the rows are scaled to

@@ -7,8 +7,7 @@ stay within (distance of the diagonals over the mean side length,
 :func:`selfsupport.core.geometry.diagonal_distance`) and restores equilibrium with it by the
 joint minimum-norm Gauss–Newton polish (:func:`~selfsupport.methods.polish.polish_joint`:
 positions and free weights together, loads of the moving geometry). A face inside the band is
-free; a face at or past it is held within it (one-sided rows: an active set, re-read at
-every step, whose rows the polish's step drops where they would hold a face back from inside). A stage that
+free; a face at or past it is held on it (an active set, re-read at every step). A stage that
 does not reach equilibrium is retried with a smaller cut (``shrink ← √shrink``); one that does
 lets the next cut grow (``shrink ← shrink^1.5``). The band ends at :data:`BAND_END` × the
 required tolerance.
@@ -82,9 +81,9 @@ STAGE_STEPS = 15
 MAX_STAGES = 400
 #: Stages over which the band's pace is measured: once this many have run, a homotopy whose band,
 #: falling at :data:`PACE_MARGIN` × its pace over them, would not reach the target within the
-#: stages left stops ("stalled") — it is crawling along a fold (with the band's rows held as
-#: equations, the paper's vault remeshed along its principal directions took 400 stages, 375 s,
-#: from 2.2e-3 to 1.9e-3 with 7e-4 wanted; the rule stopped it after 100).
+#: stages left stops ("stalled") — it is crawling along a fold (the paper's vault remeshed along
+#: its principal directions, with the polish's planarity rows damped by its round-off
+#: regularization: 400 stages, 375 s, from 2.2e-3 to 1.9e-3 with 7e-4 wanted; stopped after 100).
 PACE_WINDOW = 30
 #: How many times its recent pace a crawling homotopy is granted before it stops.
 PACE_MARGIN = 2.0
@@ -92,32 +91,19 @@ PACE_MARGIN = 2.0
 
 @dataclass(frozen=True, eq=False)
 class _Band:
-    """The planarity rows of one stage, in the shape :func:`polish_joint` reads (``linearize``,
-    ``sides``): one row per face whose non-planarity is at or near ``band``, asking it to stay
-    within the band (one-sided: ``|r| ≤ band``, its residual the excess), the rest left free.
-    One-sided, the polish's step lets a face the band held back move further inside; held on
-    the band as equations, every face ended at the band (63 of the vault remesh's 66 quads), and
-    the homotopy met a fold at 2e-3."""
+    """The planarity rows of one stage, in the shape :func:`polish_joint` reads (``linearize``):
+    each face whose non-planarity is at or past ``band`` held on it, the rest left free."""
 
     rows: np.ndarray  # (r, 4) corners, coplanarity_rows' order
     band: float
     n_vertices: int
 
-    def _held(self, r: np.ndarray) -> np.ndarray:
-        return np.flatnonzero(np.abs(r) > (1 - 1e-3) * self.band)
-
     def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         r, J = diagonal_distance(V, self.rows, jacobian=True)
-        held = self._held(r)
+        held = np.flatnonzero(np.abs(r) > (1 - 1e-3) * self.band)
         if held.size == 0:  # (one empty row: the polish's system keeps its shape)
             return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
-        return np.sign(r[held]) * np.maximum(np.abs(r[held]) - self.band, 0.0), J[held]
-
-    def sides(self, V: np.ndarray) -> np.ndarray:
-        """The sign of each row of ``linearize(V)``: the row asks ``sign · (r + J d) ≤ 0``."""
-        r = diagonal_distance(V, self.rows)[0]
-        held = self._held(r)
-        return np.sign(r[held]) if held.size else np.zeros(1)
+        return r[held] - np.sign(r[held]) * self.band, J[held]
 
 
 def _crawling(bands: list[float], target: float) -> bool:

@@ -338,8 +338,7 @@ MIN_NORM_RTOL = 1e-14
 
 
 def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct: bool = True,
-                  deadline: float | None = None, multipliers: bool = False
-                  ) -> np.ndarray | tuple[np.ndarray, np.ndarray] | None:
+                  deadline: float | None = None) -> np.ndarray | None:
     """The minimum-norm ``d`` with ``J d = b``: ``d = Jᵀ (J Jᵀ + μ I)⁻¹ b`` (``μ`` round-off level,
     only where ``J`` is rank deficient).
 
@@ -355,12 +354,10 @@ def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct:
         Factor ``J Jᵀ`` (else conjugate gradients, see below).
     deadline
         ``time.perf_counter()`` value; past it the conjugate gradients stop.
-    multipliers
-        Also return ``y`` (``d = Jᵀ y``: the rows' Lagrange multipliers).
 
     Returns
     -------
-    d (with ``multipliers``: ``(d, y)``), or ``None`` when ``deadline`` passed before it was found.
+    d, or ``None`` when ``deadline`` passed before it was found.
 
     ``direct``: ``J Jᵀ`` is factored (one step of iterative refinement). Otherwise it is never formed: conjugate gradients apply it as ``J (Jᵀ y)``,
     preconditioned by the factors of its diagonal blocks (each group's rows with themselves, the
@@ -375,7 +372,7 @@ def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct:
         fac = spd_factor(M + mu * sp.identity(M.shape[0], format="csc"))
         y = fac.solve(b)
         y = y + fac.solve(b - J @ (J.T @ y))  # one step of iterative refinement
-        return (J.T @ y, y) if multipliers else J.T @ y
+        return J.T @ y
 
     bounds = np.r_[0, np.cumsum(groups)]
     factors = []
@@ -400,7 +397,7 @@ def min_norm_step(J: sp.csr_matrix, groups: list[int], b: np.ndarray, *, direct:
                   callback=stop_at_deadline)
     except DeadlineReached:
         return None
-    return (J.T @ y, y) if multipliers else J.T @ y
+    return J.T @ y
 
 
 def _joint_rows(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.ndarray, *, S: np.ndarray,
@@ -420,7 +417,7 @@ def _joint_rows(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.
         rhs.append(-(sr * residual(top, V, W[c], L[c]).ravel()))
     b_eq = np.concatenate(rhs)
     if planar_rows is not None:  # equality rows: every face held planar
-        rp, Jp = planar_rows[:2]
+        rp, Jp = planar_rows
         free_cols = (3 * np.flatnonzero(top.free)[:, None] + np.arange(3)).ravel()
         JX.append(Jp.tocsc()[:, free_cols].tocsr()[:, xcols])
         b_eq = np.concatenate([b_eq, -rp])
@@ -429,13 +426,10 @@ def _joint_rows(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.
 
 def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: list, b_eq: np.ndarray, *,
                S: np.ndarray, inner: np.ndarray, xcols: np.ndarray, hull_rows_all: sp.spmatrix | None,
-               deadline: float | None, sides: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+               deadline: float | None) -> tuple[np.ndarray, np.ndarray] | None:
     """One minimum-norm step of the joint polish on the positions and the ``inner`` weights
     (updated in place): weights a step would push past a bound, and vertices it would carry out
     of the hull, are held (the vertices on the face they would cross) and the step redone.
-    One-sided planarity rows (``sides``: per row ``s``, the row asks ``s (r + J d) ≤ 0``) are
-    an active set too: a row whose multiplier would pull it away from its bound is dropped, a
-    dropped row the step would carry past it taken back, and the step redone.
     Returns (the flattened free-position step, the weights after it), or None past the deadline."""
     top, C, hull = form.topology, form.n_cases, form.hull
     free, nf = top.free, top.n_free
@@ -447,7 +441,6 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
         sd = hull.signed_distance(V)
         on = np.abs(sd) >= hull.half_thickness * (1 - HULL_ACTIVE_REL)
         goal = np.clip(sd, -hull.half_thickness, hull.half_thickness)
-    kept = None if sides is None else np.ones(len(sides), bool)
     for _ in range(20):  # weights a step would push past a bound, and vertices it would carry
         # out of the hull, are held (the vertices on the face they would cross), the step redone
         Hr, b = None, b_eq
@@ -472,15 +465,7 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
                 D = np.ones(J.shape[0])
                 D[p0:p0 + groups[C]] = c
                 J, b = sp.diags(D) @ J, D * b
-        if sides is None:
-            d = min_norm_step(J, groups, b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
-        else:  # (the planarity rows: the group after the cases')
-            p0 = sum(groups[:C])
-            pl = slice(p0, p0 + len(sides))
-            rows = np.r_[np.arange(p0), p0 + np.flatnonzero(kept), np.arange(pl.stop, J.shape[0])]
-            dy = min_norm_step(J[rows], groups[:C] + [int(kept.sum())] + groups[C + 1:], b[rows],
-                               direct=C <= DIRECT_CASES_MAX, deadline=deadline, multipliers=True)
-            d = None if dy is None else dy[0]
+        d = min_norm_step(J, groups, b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
         if d is None:  # the deadline passed inside the step: the best iterate so far
             break
         off, crossing = len(xcols), False
@@ -502,14 +487,6 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
                 on |= cross
                 goal[cross] = np.sign(sd_t[cross]) * hull.half_thickness
                 crossing = True
-        if sides is not None:
-            y = np.zeros(len(sides))
-            y[kept] = dy[1][p0:p0 + int(kept.sum())]
-            past = ~kept & (sides * (J[pl] @ d) > sides * b[pl] + 1e-12 * (1 + np.abs(b[pl])))
-            pulls = kept & (sides != 0) & (sides * y > 0)  # (s y > 0: the row holds it back from inside)
-            if past.any() or pulls.any():
-                kept = (kept | past) if past.any() else (kept & ~pulls)  # (taking back first)
-                crossing = True
         if not crossing:
             break
     if d is None:
@@ -520,15 +497,13 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
 def _joint_error(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.ndarray
                  ) -> tuple[float, tuple | None]:
     """The joint polish's error: the max relative error of every case, and of the planarity rows
-    (``form.planar``), which count like relative residuals; with those rows ``(r, J)``, and
-    ``(r, J, sides)`` when ``form.planar`` has ``sides(V)``, the signs of its one-sided rows
-    (:func:`_held_step`; None without planarity)."""
+    (``form.planar``), which count like relative residuals; with those rows ``(r, J)`` (None
+    without planarity)."""
     err = max_rel_error(form.topology, V, W, L)
     if not form.n_planar:
         return err, None
     rp, Jp = form.planar.linearize(V)
-    sides = getattr(form.planar, "sides", None)  # (one-sided rows: their signs)
-    return max(err, float(np.abs(rp).max())), (rp, Jp) if sides is None else (rp, Jp, sides(V))
+    return max(err, float(np.abs(rp).max())), (rp, Jp)
 
 
 def _inner_weights(form: ThrustNetworkProblem, W: np.ndarray) -> np.ndarray:
@@ -604,8 +579,7 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
             break
         JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols, planar_rows=planar_rows)
         step = _held_step(form, V, W, JX, b_eq, S=S, inner=_inner_weights(form, W), xcols=xcols,
-                          hull_rows_all=hull_rows_all, deadline=deadline,
-                          sides=planar_rows[2] if planar_rows is not None and len(planar_rows) > 2 else None)
+                          hull_rows_all=hull_rows_all, deadline=deadline)
         if step is None:
             break
         dX, Wn = step
