@@ -460,7 +460,8 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
             # the same solution, and min_norm_step's μ stays round-off for them too
             p0 = sum(groups[:C])
             sq = np.asarray(J.multiply(J).sum(axis=1)).ravel()
-            c = np.sqrt(sq[:p0].max(initial=0.0) / max(sq[p0:p0 + groups[C]].max(initial=0.0), 1e-300))
+            top_p = sq[p0:p0 + groups[C]].max(initial=0.0)  # (0: no row held, one empty row)
+            c = np.sqrt(sq[:p0].max(initial=0.0) / top_p) if top_p > 0 else 1.0
             if c > 1.0:
                 D = np.ones(J.shape[0])
                 D[p0:p0 + groups[C]] = c
