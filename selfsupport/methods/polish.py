@@ -456,7 +456,7 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
         JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
         J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
         groups = [r.shape[0] for r in Xrows]
-        if len(groups) > C and groups[C]:  # planarity rows scaled to the equilibrium rows' size:
+        if len(JX) > C and groups[C]:  # planarity rows (JX's after the cases') scaled to the equilibrium rows' size:
             # the same solution, and min_norm_step's μ stays round-off for them too
             p0 = sum(groups[:C])
             sq = np.asarray(J.multiply(J).sum(axis=1)).ravel()
