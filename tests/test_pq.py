@@ -525,3 +525,88 @@ def test_solve_planar_leaves_the_finish_most_of_the_time_limit(monkeypatch):
     assert finish["first"]["status"] == "time_limit" and finish["returned"] == "homotopy"
     assert res.status == "converged" and res.max_relative_error <= 1e-8
     assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
+
+
+def _stages_with_polish(monkeypatch, accept, *, start=0.2, target=7e-4):
+    """The homotopy's stage loop with a stand-in polish that accepts a cut of the band from ``cur``
+    to ``trial`` when ``accept(cur, trial)``; returns (band reached, stages, status)."""
+    import selfsupport.methods.planar_homotopy as ph
+
+    cur = [start]
+
+    def polish(band, X, W, **kw):
+        ok = accept(cur[0], band)
+        cur[0] = band if ok else cur[0]
+        return X, W, 1, 0.0 if ok else 1.0, ok
+
+    monkeypatch.setattr(ph, "polish_joint", polish)
+    _, _, band, _, history, status = ph._stages(
+        lambda X, b: b, np.zeros(1), np.zeros(1), loads_at=None, load_jacobian=None, band=start, target=target,
+        tol=1e-3, planar_enough=lambda X, W: False, deadline=None, progress=None)
+    return band, len(history), status
+
+
+def test_a_planar_homotopy_crawling_along_a_fold_stops_early(monkeypatch):
+    """A band that can only approach a fold at 2e-3 (each cut may close 2% of its gap to it) never
+    reaches the target 7e-4: the homotopy stops ("stalled") as soon as its pace shows it, long
+    before MAX_STAGES, instead of crawling through all of them."""
+    from selfsupport.methods.planar_homotopy import MAX_STAGES, PACE_WINDOW
+
+    band, stages, status = _stages_with_polish(monkeypatch, lambda cur, t: t >= 2e-3 + 0.98 * (cur - 2e-3))
+    assert status == "stalled" and band > 2e-3
+    assert PACE_WINDOW < stages <= MAX_STAGES // 2
+
+
+@pytest.mark.parametrize("cut", [0.9, 0.95])
+def test_a_planar_homotopy_on_pace_is_not_stopped(monkeypatch, cut):
+    """A band that may fall by a fixed ratio per stage reaches the target within MAX_STAGES
+    (0.95: in over half of them) and is not stopped on the way by the pace rule."""
+    from selfsupport.methods.planar_homotopy import PACE_WINDOW
+
+    band, stages, status = _stages_with_polish(monkeypatch, lambda cur, t: t >= cut * cur)
+    assert status == "converged" and band == pytest.approx(7e-4)
+    assert stages > PACE_WINDOW
+
+
+def test_the_joint_polish_does_not_depend_on_the_unit_of_the_planarity_rows():
+    """The band rows of a homotopy stage written in another unit (× 1e-5: the same faces, the same
+    zero set) give the joint polish the same solution in as many steps: the rows are scaled to
+    the equilibrium rows' size before the minimum-norm step, so its round-off regularization
+    does not damp them (it did: small planarity rows converged linearly or not at all)."""
+    from formulations import ThrustNetworkProblem, WeightBounds
+    from formulations.terms.planarity import coplanarity_rows
+    from selfsupport.core.geometry import diagonal_distance, mean_edge_length
+    from selfsupport.methods.planar_homotopy import _Band
+    from selfsupport.methods.polish import case_load_jacobians, polish_joint
+    from selfsupport.methods.warm import as_warm_start, transfer
+
+    class Scaled(_Band):  # (the same rows × 1e-5)
+        def linearize(self, V):
+            r, J = super().linearize(V)
+            return 1e-5 * r, 1e-5 * J
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    problem = api.problem(scene, constraints=[Planar(tol=1e-3)])
+    sp_, mesh = problem.scaled(), scene.mesh
+    sc = sp_.scaling
+    V, w, _ = transfer(as_warm_start(api.solve(scene)), scene)
+    X = sc.pos(V)
+    W = np.clip(sc.weight(w[scene.active_edges]), sp_.lower, sp_.upper)[None]
+    rows = coplanarity_rows(mesh, ~np.asarray(scene.free, bool))[0]
+    band = 0.5 * np.abs(diagonal_distance(X, rows)[0]).max()
+    jac = case_load_jacobians(problem.loads.models, mesh, sc, sp_.top.free)
+
+    def loads_at(Y):
+        return sc.loads_at(problem.loads, mesh, Y)
+
+    out = []
+    for kind in (_Band, Scaled):
+        form = ThrustNetworkProblem(sp_.top, X, loads_at(X), WeightBounds(sp_.lower, sp_.upper),
+                                    weight_scale=1.0 / mean_edge_length(X, sp_.top.edges) ** 2,
+                                    planar=kind(rows, band, mesh.n_vertices))
+        out.append(polish_joint(form, X, W, loads_at=loads_at, tol=1e-12, max_iter=30, load_jacobian=jac))
+    (X1, _, k1, _, ok1), (X2, _, k2, _, ok2) = out
+    assert ok1 and ok2 and abs(k1 - k2) <= 1
+    assert np.abs(diagonal_distance(X2, rows)[0]).max() <= band * (1 + 1e-9)
+    np.testing.assert_allclose(X2, X1, atol=1e-8 * np.abs(X1).max())

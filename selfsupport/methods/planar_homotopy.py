@@ -79,6 +79,14 @@ STAGE_STEPS = 15
 #: Most stages ("iteration_limit" after them): a converging homotopy needs tens to a few hundred;
 #: beyond, it is crawling along a fold, cutting the band by ~1e-4 per stage.
 MAX_STAGES = 400
+#: Stages over which the band's pace is measured: once this many have run, a homotopy whose band,
+#: falling at :data:`PACE_MARGIN` × its pace over them, would not reach the target within the
+#: stages left stops ("stalled") — it is crawling along a fold (the paper's vault remeshed along
+#: its principal directions, with the polish's planarity rows damped by its round-off
+#: regularization: 400 stages, 375 s, from 2.2e-3 to 1.9e-3 with 7e-4 wanted; stopped after 100).
+PACE_WINDOW = 30
+#: How many times its recent pace a crawling homotopy is granted before it stops.
+PACE_MARGIN = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,6 +106,16 @@ class _Band:
         return r[held] - np.sign(r[held]) * self.band, J[held]
 
 
+def _crawling(bands: list[float], target: float) -> bool:
+    """Whether the band, at :data:`PACE_MARGIN` × its pace (in log) over the last
+    :data:`PACE_WINDOW` stages (``bands``: the band after each stage), would stay above
+    ``target`` after the stages left of :data:`MAX_STAGES`."""
+    if len(bands) <= PACE_WINDOW:
+        return False
+    pace = np.log(bands[-PACE_WINDOW - 1] / bands[-1]) / PACE_WINDOW
+    return bool(PACE_MARGIN * pace * (MAX_STAGES - len(bands)) < np.log(bands[-1] / target))
+
+
 def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
             loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, band: float, target: float,
             tol: float, planar_enough: Callable[[np.ndarray, np.ndarray], bool],
@@ -105,8 +123,9 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
     """The homotopy's stages from the band ``band`` down to ``target``: each a joint polish with
     the faces held within the next band (``form_at(X, band)``); an accepted stage cuts faster, a
     failed one retries a finer cut. A stage within the tolerance ``tol`` ends it already when
-    ``planar_enough(X, W)``. Returns (X, W, band reached, polish steps, history, status)."""
-    shrink, steps, history = FIRST_SHRINK, 0, []
+    ``planar_enough(X, W)``; a homotopy too slow to reach ``target`` within :data:`MAX_STAGES`
+    (:func:`_crawling`) stops. Returns (X, W, band reached, polish steps, history, status)."""
+    shrink, steps, history, bands = FIRST_SHRINK, 0, [], []
     status = "stalled"
     first = True
     while True:
@@ -137,6 +156,9 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
             shrink = shrink ** 0.5
             if shrink > MAX_SHRINK:
                 break
+        bands.append(band)
+        if _crawling(bands, target):
+            break
         first = False
     return X, W, band, steps, history, status
 
@@ -162,7 +184,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     SolveResult
         ``converged`` when the band reached :data:`BAND_END` × the tolerance with every stage in
         equilibrium, or the tolerance with the network planar to it in SI units (the planarity report and the max relative error are recomputed from the
-        network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first;
+        network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first, or the
+        band's pace could not reach the target within :data:`MAX_STAGES` (:data:`PACE_WINDOW`);
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
     """
 

@@ -455,7 +455,18 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
         extra = sum(r.shape[0] for r in Xrows[C:])
         JW = sp.block_diag([sp.diags(np.repeat(S[c], 3)) @ Aw[:, wcols[c]] * s_w for c in range(C)], format="csr")
         J = sp.hstack([sp.vstack(Xrows), sp.vstack([JW, sp.csr_matrix((extra, JW.shape[1]))])], format="csr")
-        d = min_norm_step(J, [r.shape[0] for r in Xrows], b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
+        groups = [r.shape[0] for r in Xrows]
+        if len(JX) > C and groups[C]:  # planarity rows (JX's after the cases') scaled to the equilibrium rows' size:
+            # the same solution, and min_norm_step's μ stays round-off for them too
+            p0 = sum(groups[:C])
+            sq = np.asarray(J.multiply(J).sum(axis=1)).ravel()
+            top_p = sq[p0:p0 + groups[C]].max(initial=0.0)  # (0: no row held, one empty row)
+            c = np.sqrt(sq[:p0].max(initial=0.0) / top_p) if top_p > 0 else 1.0
+            if c > 1.0:
+                D = np.ones(J.shape[0])
+                D[p0:p0 + groups[C]] = c
+                J, b = sp.diags(D) @ J, D * b
+        d = min_norm_step(J, groups, b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
         if d is None:  # the deadline passed inside the step: the best iterate so far
             break
         off, crossing = len(xcols), False
