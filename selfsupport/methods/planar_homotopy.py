@@ -81,9 +81,8 @@ STAGE_STEPS = 15
 MAX_STAGES = 400
 #: Stages over which the band's pace is measured: once this many have run, a homotopy whose band,
 #: falling at :data:`PACE_MARGIN` × its pace over them, would not reach the target within the
-#: stages left stops ("stalled") — it is crawling along a fold (the paper's vault remeshed along
-#: its principal directions, with the polish's planarity rows damped by its round-off
-#: regularization: 400 stages, 375 s, from 2.2e-3 to 1.9e-3 with 7e-4 wanted; stopped after 100).
+#: stages left stops ("stalled"): it is crawling along a fold, and the stages left would only
+#: spend the time limit.
 PACE_WINDOW = 30
 #: How many times its recent pace a crawling homotopy is granted before it stops.
 PACE_MARGIN = 2.0
