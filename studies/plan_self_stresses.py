@@ -42,8 +42,7 @@ from selfsupport.methods.staggered.cases import SELF_STRESS_RTOL, plan_matrix
 
 def network_topology(net: Network) -> Topology:
     """The topology of a network's active edges (those with a free end)."""
-    active = ~(net.supports[net.edges[:, 0]] & net.supports[net.edges[:, 1]])
-    return Topology.build(net.mesh.n_vertices, net.edges[active], net.supports)
+    return Topology.build(net.mesh.n_vertices, net.edges[net.active_edges], net.supports)
 
 
 def self_stress_basis(top: Topology, X: np.ndarray) -> np.ndarray:
@@ -108,7 +107,7 @@ def measure(net: Network, vertex: int, load: float, rings: int) -> dict[str, Any
     top = network_topology(net)
     X = net.vertices
     N = self_stress_basis(top, X)
-    w = net.weights[~(net.supports[net.edges[:, 0]] & net.supports[net.edges[:, 1]])]
+    w = net.weights[net.active_edges]
     ring = edge_rings(top, vertex)
     return {"edges": top.m, "horizontal_equations": 2 * top.n_free, "self_stresses": int(N.shape[1]),
             "weights_off_the_space": float(np.linalg.norm(w - N @ (N.T @ w)) / np.linalg.norm(w)),

@@ -184,8 +184,7 @@ def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
     the iteration's reach are what is missing."""
     (first_name, first), *rest = result.case_networks
     net = first
-    active = ~(net.supports[net.edges[:, 0]] & net.supports[net.edges[:, 1]])
-    top = Topology.build(net.mesh.n_vertices, net.edges[active], net.supports)
+    top = Topology.build(net.mesh.n_vertices, net.edges[net.active_edges], net.supports)
     A = weight_matrix(top, net.vertices).tocsc()
     free_idx = np.flatnonzero(top.free)
     return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx)}
