@@ -376,11 +376,15 @@ def _slide_frames(ref: Any, mesh: Any, anchor: np.ndarray, normal: np.ndarray
     near = cKDTree(P).query(anchor)[1]
     slope, radius = np.zeros(len(anchor)), SLIDE_RADIUS * lv[near]
     B = E[np.asarray(mesh.boundary_edge_mask)]
-    if len(B):  # the distance of each anchor to the boundary's segments
+    if len(B):  # the distance of each anchor to the boundary's segments (in blocks: anchors × segments)
         A0, D = P[B[:, 0]], P[B[:, 1]] - P[B[:, 0]]
-        rel = anchor[:, None, :] - A0[None]
-        f = np.clip(np.einsum("kbj,bj->kb", rel, D) / np.maximum(np.einsum("bj,bj->b", D, D), 1e-300), 0.0, 1.0)
-        gap = np.linalg.norm(rel - f[..., None] * D[None], axis=2).min(axis=1)
+        DD = np.maximum(np.einsum("bj,bj->b", D, D), 1e-300)
+        gap = np.empty(len(anchor))
+        step = max(1, 2 ** 20 // len(B))
+        for k in range(0, len(anchor), step):
+            rel = anchor[k:k + step, None, :] - A0[None]
+            f = np.clip(np.einsum("kbj,bj->kb", rel, D) / DD, 0.0, 1.0)
+            gap[k:k + step] = np.linalg.norm(rel - f[..., None] * D[None], axis=2).min(axis=1)
         radius = np.minimum(radius, 0.5 * gap / np.sqrt(2.0))
     for i, v in enumerate(near):
         c = np.abs(nt[reach.indices[reach.indptr[v]:reach.indptr[v + 1]]] @ normal[i])
