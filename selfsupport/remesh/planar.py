@@ -46,11 +46,9 @@ from selfsupport.methods.solve import solve
 __all__ = ["solve_planar", "finish_summary", "finish_method", "FIRST_SHARE"]
 
 #: With the finish on and a time limit, the first solve's share of the limit; the rest is left to
-#: the finish. The staggered method with the planarity penalty can crawl to any limit without
-#: converging (cas's design: 150 s, ended at max relative error 0.27, faces planar to 2.5e-3;
-#: cas's seamless remesh: 300 s, 0.28), where the homotopy from the network in equilibrium made
-#: them planar to 1e-3 in equilibrium in 110 s and 270 s on the loaded 2-core machine; the
-#: first solves that converged (the dome's and the vault's remeshes) took 1-7 s.
+#: the finish. The staggered method with the planarity penalty either converges early or crawls
+#: to any limit without converging, while the homotopy from the network in equilibrium is what
+#: makes stubborn meshes planar: the finish, not the first solve, needs the time.
 FIRST_SHARE = 0.25
 
 
