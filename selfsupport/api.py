@@ -30,11 +30,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from formulations import Problem
+from formulations import Planar, Problem
 from selfsupport.core.defaults import DEFAULT_CHECK_TOL, DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
-from selfsupport.core.result import Network
+from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io import read_mesh, read_network
 from selfsupport.io.loadcases import LoadSpec
@@ -44,7 +44,8 @@ from selfsupport.io.scenes import as_scene, design_of
 from selfsupport.methods import METHODS, MethodSpec, make_method, method_class
 from selfsupport.methods.choice import AUTO
 from selfsupport.methods.fixed_fit import fit_weights
-from selfsupport.methods.solve import solve
+from selfsupport.methods.solve import solve as solve_scene
+from selfsupport.remesh.planar import solve_planar
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
            "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
@@ -55,6 +56,49 @@ __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solv
 #: family's analysis.
 _LAZY = ("selfsupport.methods.sensitivity", "selfsupport.analysis.koebe")
 
+
+
+def solve(scene_or_path: Scene | str | os.PathLike, *, constraints: Any = (), planar_finish: bool = True,
+          time_limit: float | None = None, started: float | None = None, **kw: Any) -> SolveResult:
+    """Find the thrust network nearest to a reference surface: :func:`selfsupport.methods.solve.solve`
+    (every keyword is its own), and with planar faces the planar finish.
+
+    Planar faces (a :class:`formulations.Planar` among ``constraints``) are held as a penalty by the
+    staggered and multilevel methods, which may stall before the faces are planar; where they do
+    not converge, :func:`selfsupport.remesh.planar.solve_planar` finishes from the network in
+    equilibrium without planar faces (the planar homotopy, then IPOPT), as ``selfsupport solve
+    --planar`` does. ``parameters["planar_finish"]`` says how it ended (``None``: the first method
+    alone).
+
+    Parameters
+    ----------
+    scene_or_path, constraints, time_limit, started, **kw
+        As :func:`selfsupport.methods.solve.solve`; ``time_limit`` holds for the finish too.
+    planar_finish
+        Run the planar finish where the first solve with planar faces does not converge
+        (``False``: that solve alone).
+
+    Returns
+    -------
+    SolveResult
+
+    Examples
+    --------
+    >>> from formulations import Planar
+    >>> from selfsupport.core.shapes import make_shape
+    >>> res = solve(make_shape("barrel_vault", nx=6, ny=8), constraints=[Planar(tol=1e-3)])
+    >>> res.status, res.parameters["planarity"]["met"]
+    ('converged', True)
+    """
+    planar = [c for c in constraints or () if isinstance(c, Planar)]
+    if not planar:
+        return solve_scene(scene_or_path, constraints=constraints, time_limit=time_limit, started=started, **kw)
+    t0 = time.perf_counter() if started is None else float(started)
+    limit = None if time_limit is None else max(float(time_limit) - (time.perf_counter() - t0), 1e-3)
+    others = [c for c in constraints if not isinstance(c, Planar)]
+    return solve_planar(scene_or_path, tol=min(c.tol for c in planar), method=kw.pop("method", AUTO),
+                        finish=planar_finish, time_limit=limit, equilibrium_tol=kw.pop("tol", None),
+                        constraints=others, **kw)
 
 # ------------------------------------------------------------------------------- scenes
 @dataclass(frozen=True, eq=False)

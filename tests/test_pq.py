@@ -500,6 +500,40 @@ def test_a_planar_run_that_stops_short_names_the_quads_farthest_from_planar():
     assert f"faces farthest from planar: {past[0]} ({gap[past[0]]:.1e})" in res.message
 
 
+@requires_checker
+def test_api_solve_with_planar_faces_finishes_where_the_penalty_stalls():
+    """``api.solve`` with a :class:`Planar` constraint does what ``selfsupport solve --planar``
+    does: on the remeshed barrel vault, where the staggered method with the planarity penalty
+    stalls (``planar_finish=False``), it finishes from the network in equilibrium without planar
+    faces and returns a planar network that the independent checker finds in equilibrium."""
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    alone = api.solve(scene, constraints=[Planar(tol=1e-3)], planar_finish=False)
+    assert alone.status != "converged"
+    res = api.solve(scene, constraints=[Planar(tol=1e-3)], time_limit=120.0)
+    assert res.status == "converged" and res.max_relative_error <= 1e-8, res.message
+    assert res.parameters["planar_finish"]["first"]["status"] == alone.status
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
+    assert independent_check(res).ok
+
+
+def test_a_method_with_planarity_rows_gets_the_whole_time_limit(monkeypatch):
+    """A method that holds planar faces as equations (IPOPT) has no finish after it: its solve
+    is handed the whole time limit, not the first solve's share."""
+    import selfsupport.remesh.planar as planar_mod
+
+    calls, real = [], planar_mod.solve
+
+    def solve(*a, **kw):
+        calls.append(kw.get("time_limit"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planar_mod, "solve", solve)
+    res = planar_mod.solve_planar(make_shape("barrel_vault", nx=6, ny=8), tol=1e-3, method="ipopt", time_limit=60.0)
+    assert res.status == "converged" and res.parameters["planar_finish"] is None
+    assert len(calls) == 1 and calls[0] > 59.0
+
+
 def test_solve_planar_leaves_the_finish_most_of_the_time_limit(monkeypatch):
     """With a time limit, the first solve (planar faces as a penalty) gets FIRST_SHARE of it, and when it
     runs out of that share the finish still runs in the rest: on the remeshed barrel vault the

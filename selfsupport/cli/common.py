@@ -543,19 +543,7 @@ def _run_solve(args: argparse.Namespace) -> int:
               eps=args.eps, bounds=args.bounds, max_stress=None if args.max_stress is None else args.max_stress * MPA,
               tol=args.tol, max_iter=args.max_iter, progress=progress, options=options, max_memory=args.max_memory,
               **problem_kwargs(args))
-    from selfsupport.methods import capabilities
-
-    if args.planar is not None and (method == "auto" or not capabilities(method).planar_rows):
-        # planar faces by a method that holds them as a penalty: where it does not converge, the
-        # planar finish from the network in equilibrium without them (selfsupport.remesh.planar)
-        from formulations import Planar
-        from selfsupport.remesh.planar import solve_planar
-
-        kw["constraints"] = [c for c in kw["constraints"] if not isinstance(c, Planar)]
-        limit = None if args.time_limit is None else max(args.time_limit - (time.perf_counter() - started), 1e-3)
-        result = solve_planar(scene, tol=args.planar, time_limit=limit, equilibrium_tol=kw.pop("tol"), **kw)
-    else:
-        result = api.solve(scene, time_limit=args.time_limit, started=started, **kw)
+    result = api.solve(scene, time_limit=args.time_limit, started=started, **kw)
     # a network file is solved for its stored reference (api.design_of): distances, the hull
     # warning and the summary's scale refer to that design, not to the stored network
     scene, _ = api.design_of(scene)

@@ -83,8 +83,8 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         Run the finish when the first solve does not converge.
     time_limit
         Wall-clock limit of the whole call [s]; with ``finish``, the first solve gets
-        :data:`FIRST_SHARE` of it and the finish what is left (``None``: each solve its method's
-        own default).
+        :data:`FIRST_SHARE` of it and the finish what is left, unless ``method`` holds planar faces
+        as equations (then there is no finish) (``None``: each solve its method's own default).
     equilibrium_tol
         The solves' required max relative error (their ``tol``; ``None``: each method's default).
     **solve_kw
@@ -117,8 +117,10 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     def out_of_time() -> bool:
         return time_limit is not None and time.perf_counter() - t0 >= time_limit
 
-    first = solve(scene, method=method, constraints=planar, **left(FIRST_SHARE if finish else 1.0), **start,
-                  **solve_kw)
+    # (a method with planarity rows as equations has no finish: its solve gets the whole limit)
+    rows = method != AUTO and capabilities(method).planar_rows
+    first = solve(scene, method=method, constraints=planar, **left(FIRST_SHARE if finish and not rows else 1.0),
+                  **start, **solve_kw)
     if (first.status in ("converged", "interrupted") or not finish or out_of_time()
             or capabilities(first.method if method == AUTO else method).planar_rows):
         # (a method with planarity rows as equations: the finish would solve the same rows again)
