@@ -1,7 +1,7 @@
 """Run the studies behind the numbers the documentation quotes (``make bench``).
 
     python -m benchmarks.run --scenes ../shared/paper-scenes/scenes --original ../build/original
-        --checker ../shared/tools/check_network.py [--scaling-sizes 1000,4000] [--peers-repeat 1]
+        --checker ../shared/tools/check_network.py [--scaling-sizes 1000,4000] [--peers-repeat 3]
         [--only table1,pq]
 
 ``make bench`` passes the Makefile's ``SCENES``, ``ORIGINAL`` and ``CHECKER``, and
@@ -178,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checker", type=Path, required=True, help="the independent check_network.py")
     p.add_argument("--scaling-sizes", default="1000,4000",
                    help="the scaling study's vertex counts (the big ones: 1000,4000,16000,64000)")
-    p.add_argument("--peers-repeat", type=int, default=1, help="rounds of the original tool against ours")
+    p.add_argument("--peers-repeat", type=int, default=3, help="rounds of the original tool against ours (medians)")
     p.add_argument("--only", default=None, help=f"comma-separated studies (default all: {', '.join(_BY_NAME)})")
     return p
 
