@@ -130,6 +130,28 @@ def test_hemisphere_min_thickness_matches_heyman_within_15_percent():
     assert force[hoop & low].max() <= 1e-3 * force[~hoop & low].mean()
 
 
+def test_a_program_run_cut_at_its_iteration_limit_is_retried_with_the_probing_oracle(monkeypatch):
+    """A cold IPOPT run of the limit program that ends at its iteration limit (here cut after 20
+    iterations, as a crawl with μ at its floor ends after thousands) is run again from the same
+    point with :data:`RETRY_OPTIONS`: the minimum thickness of the 8×16 hemisphere is then
+    certified and the same as an uncut run's, and the round records the retry."""
+    import selfsupport.structure.limit as limit
+
+    scene = meridian_dome(8, 16, radius=5.0, height=5.0)
+    uncut = hemisphere_min_thickness(scene)
+    calls, real = [], limit._ipopt
+
+    def ipopt(*a, **kw):
+        calls.append(dict(kw.get("extra") or {}))
+        return real(*a, **{**kw, "max_iter": 20} if len(calls) == 1 else kw)
+
+    monkeypatch.setattr(limit, "_ipopt", ipopt)
+    r = hemisphere_min_thickness(scene)
+    assert calls[0] == {} and calls[1] == limit.RETRY_OPTIONS
+    assert r.certified and r.value == pytest.approx(uncut.value, rel=1e-6)
+    assert r.rounds[0]["retried"] == limit.RETRY_OPTIONS and r.rounds[0]["solver_status"] == "Solve_Succeeded"
+
+
 @pytest.mark.slow
 def test_hemisphere_min_thickness_converges_with_refinement():
     """Refined from 8×16 to 16×64 (8 times the vertices) the certified t/R moves by less than 2%

@@ -96,6 +96,10 @@ CERTIFY_TOL = 1e-8
 HULL_MARGIN = 1e-4
 #: At most this many IPOPT runs of one program (a run that ends "acceptable" is re-solved warm).
 MAX_ROUNDS = 5
+#: IPOPT options of a second try when a run ends at its iteration limit: the adaptive barrier's
+#: default oracle can drive μ to its floor while the iterate is still far from feasible and then
+#: crawl; the probing oracle steers μ from the affine step instead.
+RETRY_OPTIONS = {"mu_oracle": "probing"}
 #: Relative back-offs of λ (or of 1/t) tried, in turn, when the optimum's network is not a certificate.
 BACK_OFF = (1e-3, 1e-2, 5e-2)
 #: The relative error to which the weights of a network under horizontal loads are refit at its
@@ -401,13 +405,14 @@ def _slide_frames(ref: Any, mesh: Any, anchor: np.ndarray, normal: np.ndarray
 
 
 def _ipopt(prog: _Program, x0: np.ndarray, p: np.ndarray, bounds: dict, warm: dict | None, *, tol: float,
-           max_iter: int, remaining: float) -> dict:
-    """One IPOPT run with the simultaneous method's settings."""
+           max_iter: int, remaining: float, extra: Mapping[str, Any] | None = None) -> dict:
+    """One IPOPT run with the simultaneous method's settings (and ``extra`` options)."""
 
     opts = dict(Simultaneous.defaults)
     if warm is not None:
         opts.update(Simultaneous.warm_defaults)
         opts["mu_init"] = min(opts.get("mu_init", 1.0), 0.01 * tol)
+    opts.update(extra or {})
     opts.update({"tol": tol, "max_iter": int(max_iter), "max_wall_time": float(max(remaining, 1e-3)),
                  "print_level": 0})
     solver = ca.nlpsol("limit", "ipopt", prog.nlp, {"ipopt": opts, "print_time": False, "error_on_fail": False})
@@ -449,12 +454,19 @@ def _rounds(prog: _Program, Vs: np.ndarray, w: np.ndarray, *, lam: float, lam_fi
         if remaining <= 0:
             raw = "time limit"
             break
-        out = _ipopt(prog, prog.pack(s, w, lam, h, Vs0), prog.parameters(lam),
-                     prog.bounds((lam, lam) if lam_fixed else (0.0, np.inf), half), warm, tol=tol,
-                     max_iter=max_iter, remaining=remaining)
+        args = (prog, prog.pack(s, w, lam, h, Vs0), prog.parameters(lam),
+                prog.bounds((lam, lam) if lam_fixed else (0.0, np.inf), half), warm)
+        out = _ipopt(*args, tol=tol, max_iter=max_iter, remaining=remaining)
+        retried = out["raw"] == "Maximum_Iterations_Exceeded" and deadline > time.perf_counter()
+        if retried:  # (from the same point, with the other barrier oracle)
+            first = out
+            out = _ipopt(*args, tol=tol, max_iter=max_iter, remaining=deadline - time.perf_counter(),
+                         extra=RETRY_OPTIONS)
+            out = {**out, "iterations": first["iterations"] + out["iterations"],
+                   "seconds": first["seconds"] + out["seconds"]}
         raw = out["raw"]
         rec = {"round": rnd, "stage": "ipopt", "solver_status": raw, "iterations": out["iterations"],
-               "seconds": out["seconds"]}
+               "seconds": out["seconds"], **({"retried": RETRY_OPTIONS} if retried else {})}
         ok = np.all(np.isfinite(out["x"]))
         if ok and out["status"] in ("converged", "stalled"):
             s, Vs, w, lam, h = prog.unpack(out["x"])
