@@ -56,7 +56,16 @@ edges (quads split into triangles) or supports on the free edges give the plan r
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
-it (:func:`blocking`).
+it (:func:`blocking`; a weight counts as on its bound as the polish counts it). A linear program
+then decides, for the case that fits worst, what the fit only suggests (:func:`least_tension`):
+whether any weights within the bounds carry it exactly at that geometry, and if not, the least
+tension they need. The first-order test above cannot see this: it asks whether the weights off
+their bounds carry the differences with changes of *either sign*, and passes where those changes
+would take many weights through their bound at any step the stages can take (triangulated cas
+with 5% of its self-weight at its highest vertex: at the envelope's network the empty case,
+blended by ``t``, is carried within the bounds up to ``t`` = 1/512 and not from 1/64 on), so its
+stages' polish, whose steps hold every weight that would cross, finds no descent. Where the
+program finds tension, the geometry must move, whatever is done with the weights.
 """
 from __future__ import annotations
 
