@@ -421,6 +421,9 @@ def test_a_free_edged_quad_plan_carries_only_proportional_cases_over_its_one_sel
     assert tv["edges"] == tv["horizontal_equations"] == 168 and tv["self_stresses"] == 1
     assert tv["next_singular"] > 1e4 * cases.SELF_STRESS_RTOL
     assert "horizontal self-stresses" in rec["message"] and "are one-dimensional (168 edges for 168" in rec["message"]
+    # the linear program at that geometry agrees: no weights of either sign carry the blocked case
+    assert rec["blocking"]["tension"]["status"] == "no weights"
+    assert f"no weights of either sign carry case {rec['blocking']['case']!r}" in rec["message"]
     # the plan of a network in equilibrium for one case: its own weights span the self-stresses
     one = StaggeredLinearization().solve(scene, SW)
     H = _plan_matrix(scene, one.network.vertices)
