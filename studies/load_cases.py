@@ -28,7 +28,11 @@ one means no heights and no weights of either sign carry cases that are not prop
 it), and, where the result did not converge, how far any weights (either sign, unbounded) carry
 the cases' load differences at its geometry
 (:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off, the
-geometry blocks). Writes the CSV (``--csv``) and the runs' JSON beside the networks.
+geometry blocks), and, where the continuation was blocked, the compression test of its report at
+its last network (:func:`selfsupport.methods.staggered.cases.least_tension`, a linear program:
+"carried", "tension" with the least total force short of the lower bound over the blocked case's
+total load, or "no weights" of either sign). Writes the CSV (``--csv``) and the runs' JSON beside
+the networks.
 """
 from __future__ import annotations
 
@@ -60,6 +64,9 @@ COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_sha
            Column("plan_count", "plan: edges − horizontal equations", "{:d}"),
            Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:d}"),
            Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
+           Column("blocked_case", "the continuation's blocked case"),
+           Column("compression_lp", "within the bounds at its last network (LP)"),
+           Column("tension_share", "least tension there / the case's load", "{:.2g}"),
            Column("errors", "error per case (checker)")) + STAMP_COLUMNS
 #: The benchmark page's columns (benchmarks/report.py): the table kept short.
 SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "variant", "status", "wall_s",
@@ -178,11 +185,14 @@ def run(job: dict, out: Path, checker: Path) -> dict:
     fin = params.get("ipopt_from_staggered") or {}
     carry = params.get("any_weights_carry") or {}
     plan = (params.get("load_continuation") or {}).get("top_view") or {}
+    block = (params.get("load_continuation") or {}).get("blocking") or {}
+    lp = block.get("tension") or {}
     row.update(status=d.get("status"), errors=" ".join(f"{k}={e:.2e}" for k, e in errs.items()), worst_case=worst,
                worst_error=errs[worst], ipopt_status=fin.get("ipopt_status"), freedom=fin.get("freedom"),
                ipopt_error=fin.get("max_relative_error"), ipopt_seconds=fin.get("seconds"),
                plan_self_stresses=plan.get("self_stresses"),
                carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
+               blocked_case=block.get("case"), compression_lp=lp.get("status"), tension_share=lp.get("tension_share"),
                message=d.get("message"))
     return row
 

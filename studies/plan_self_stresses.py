@@ -20,9 +20,15 @@ by a self-stress ``δw`` of the plan, and their load difference must be its vert
   for the vertical difference ``P`` at the vertex, relative to the point case's load per vertex.
   A residual near the difference itself says no weights over this plan carry the point load.
 
+* the compression test at this geometry (:func:`~selfsupport.methods.staggered.cases.least_tension`,
+  a linear program): whether weights within the network's bounds (its ``eps``, ``w_max``) carry
+  the point case exactly here, and if not the least total force by which they fall short of the
+  lower bound (tension) over the case's total load, and on how many edges.
+
 A residual near the whole difference at the loaded vertex, while the self-stresses reach it
 (the ring table), says the plan blocks the case as a whole, not locally: too few self-stresses,
-not too few near the load.
+not too few near the load. A fit at round-off with tension in the compression test says the
+plan has room but this geometry carries the point case only with tension: the geometry must move.
 """
 from __future__ import annotations
 
@@ -37,7 +43,7 @@ import scipy.linalg
 
 from formulations.equilibrium import Topology, weight_matrix
 from selfsupport.core.result import Network
-from selfsupport.methods.staggered.cases import SELF_STRESS_RTOL, plan_matrix
+from selfsupport.methods.staggered.cases import SELF_STRESS_RTOL, least_tension, plan_matrix
 
 
 def network_topology(net: Network) -> Topology:
@@ -102,8 +108,10 @@ def fixed_plan_fit(top: Topology, X: np.ndarray, N: np.ndarray, vertex: int, loa
     return {"at_vertex": float(r[fi] / abs(diff[fi])), "elsewhere": float(np.delete(r, fi).max(initial=0.0) / abs(diff[fi]))}
 
 
-def measure(net: Network, vertex: int, load: float, rings: int) -> dict[str, Any]:
-    """Every measurement of the module docstring at the network ``net``."""
+def measure(net: Network, vertex: int, load: float, rings: int, lower: float = 0.0,
+            upper: float = np.inf) -> dict[str, Any]:
+    """Every measurement of the module docstring at the network ``net`` (``lower``, ``upper``: its
+    weight bounds [N/m], for the compression test)."""
     top = network_topology(net)
     X = net.vertices
     N = self_stress_basis(top, X)
@@ -113,7 +121,15 @@ def measure(net: Network, vertex: int, load: float, rings: int) -> dict[str, Any
             "weights_off_the_space": float(np.linalg.norm(w - N @ (N.T @ w)) / np.linalg.norm(w)),
             "vertex_edges": int(np.count_nonzero(ring == 0)),
             "reach": reach_by_ring(N, ring, rings), "reach_without_weights": reach_by_ring(N, ring, rings, w),
-            "fixed_plan_fit": fixed_plan_fit(top, X, N, vertex, load, net.loads)}
+            "fixed_plan_fit": fixed_plan_fit(top, X, N, vertex, load, net.loads),
+            "compression": least_tension(top, X, _with_point(net.loads, vertex, load), lower, upper)}
+
+
+def _with_point(loads: np.ndarray, vertex: int, load: float) -> np.ndarray:
+    """The nodal loads with ``load`` [N, down negative] added at ``vertex``."""
+    out = np.asarray(loads, float).copy()
+    out[vertex] += load
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,7 +141,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--point-load", type=float, required=True, help="its point load [N, downwards]")
     ap.add_argument("--rings", type=int, default=8)
     a = ap.parse_args(argv)
-    print(json.dumps(measure(read_network(a.network), a.vertex, -abs(a.point_load), a.rings), indent=1))
+    params = json.loads(a.network.read_text()).get("parameters", {}) if a.network.suffix == ".json" else {}
+    bounds = {"lower": params.get("eps") if params.get("eps") is not None else 0.0,
+              "upper": params.get("w_max") if params.get("w_max") is not None else np.inf}
+    net = read_network(a.network)
+    bounds = {k: np.asarray(v, float)[net.active_edges] if np.ndim(v) else v for k, v in bounds.items()}
+    print(json.dumps(measure(net, a.vertex, -abs(a.point_load), a.rings, **bounds), indent=1))
     return 0
 
 

@@ -394,3 +394,16 @@ def test_problem_vault_pillar_cases_are_blocked_by_its_plan_and_stand_triangulat
     assert tri["plan_count"] == int(m[6]) and round(100 * tri["point_share"]) == int(m[7])
     assert tri["status"] == "converged" and tri["cases"] == "empty+snow+point"
     assert_shown(m[8], tri["worst_error"], "vault-pillar triangulated: the worst case's error")
+
+
+def test_problem_triangulated_cas_is_blocked_by_its_geometry_not_its_plan():
+    m = sentence(PROBLEM, r"Triangulated, cas does not stand under the three cases at (\d+)%: it stalls at (\S+) \(its "
+                          r"worst case by the independent checker; (\d+) edges to spare\), and at the envelope's network, "
+                          r"shaped for the point load, no weights within the bounds carry case '(\w+)': the least that "
+                          r"do fall short of the lower bound by a total force of (\S+) times its load \(a linear program\)")
+    (tri,) = [r for r in rows("load_cases.csv") if r["scene"] == "cas" and r["variant"] == "triangulated"]
+    assert round(100 * tri["point_share"]) == int(m[1]) and tri["cases"] == "empty+snow+point"
+    assert tri["status"] != "converged"
+    assert_shown(m[2], tri["worst_error"], "cas triangulated: the worst case's error")
+    assert tri["plan_count"] == int(m[3]) and tri["blocked_case"] == m[4] and tri["compression_lp"] == "tension"
+    assert_shown(m[5], tri["tension_share"], "cas triangulated: the least tension at the envelope's network")

@@ -421,6 +421,9 @@ def test_a_free_edged_quad_plan_carries_only_proportional_cases_over_its_one_sel
     assert tv["edges"] == tv["horizontal_equations"] == 168 and tv["self_stresses"] == 1
     assert tv["next_singular"] > 1e4 * cases.SELF_STRESS_RTOL
     assert "horizontal self-stresses" in rec["message"] and "are one-dimensional (168 edges for 168" in rec["message"]
+    # the linear program at that geometry agrees: no weights of either sign carry the blocked case
+    assert rec["blocking"]["tension"]["status"] == "no weights"
+    assert f"no weights of either sign carry case {rec['blocking']['case']!r}" in rec["message"]
     # the plan of a network in equilibrium for one case: its own weights span the self-stresses
     one = StaggeredLinearization().solve(scene, SW)
     H = _plan_matrix(scene, one.network.vertices)
@@ -488,16 +491,93 @@ def test_a_triangulated_plan_carries_a_point_load_over_its_self_stresses_and_a_q
     nearly all of the point load there."""
     from studies import plan_self_stresses as ps
 
-    fits = {}
+    fits, compression = {}, {}
     for quads in (True, False):
         scene = barrel_vault(nx=7, ny=9, quads=quads)
-        net = StaggeredLinearization().solve(scene, SW).network
+        res = StaggeredLinearization().solve(scene, SW)
+        net = res.network
         top = ps.network_topology(net)
         N = ps.self_stress_basis(top, net.vertices)
         assert N.shape[1] == top.m - 2 * top.n_free  # (the plan matrix has full row rank)
         free = np.flatnonzero(~scene.supports)
         v = int(free[np.argmax(net.vertices[free, 2])])
-        fits[quads] = ps.fixed_plan_fit(top, net.vertices, N, v, -0.05 * float(-net.loads[free].sum()), net.loads)
+        P = -0.05 * float(-net.loads[free].sum())
+        fits[quads] = ps.fixed_plan_fit(top, net.vertices, N, v, P, net.loads)
         assert N.shape[1] > top.n_free if not quads else N.shape[1] == 6 + 8
+        compression[quads] = ps.measure(net, v, P, 1, lower=res.parameters["eps"])["compression"]["status"]
     assert fits[False]["at_vertex"] < 1e-12 and fits[False]["elsewhere"] < 1e-12
     assert fits[True]["at_vertex"] > 0.9
+    # the linear program agrees: over the triangulated plan compression carries the point case at
+    # the self-weight's geometry; over the quad plan no weights of either sign do
+    assert compression == {False: "carried", True: "no weights"}
+
+
+def _pyramid_topology(height: float) -> tuple[Topology, np.ndarray]:
+    """One free apex over a unit square of four supports at ``height`` above them (positions)."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, height]], float)
+    mesh = PolyMesh.from_faces(V, [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    supports = np.array([True, True, True, True, False])
+    active = ~(supports[mesh.edges[:, 0]] & supports[mesh.edges[:, 1]])
+    return Topology.build(5, mesh.edges[active], supports), V
+
+
+@pytest.mark.parametrize("load, lower, share", [
+    (-1.0, 0.0, None),  # a downward load on a raised apex: compression carries it
+    (1.0, 0.0, 1.0),  # upward: the four spokes' weights sum to −1/h, all tension: ℓ/h in total
+    (1.0, 0.1, 1.0 + 4 * 0.1 * 0.5),  # ... and each spoke short of ε = 0.1 besides: ℓ (1/h + 4ε)
+    (-1.0, 1.0, 4 * 1.0 * 0.5 - 1.0),  # downward, but ε = 1 asks Σw ≥ 4 where 1/h = 2 balances: ℓ (4ε − 1/h)
+])
+def test_least_tension_at_a_fixed_apex_is_the_analytic_shortfall(load, lower, share):
+    """The apex at h = 1/2 over the unit square: vertical equilibrium −h Σ w = L fixes the
+    spokes' sum, horizontal equilibrium pairs opposite spokes, so the least total force by which
+    the spokes (length ℓ = √(1/2 + h²)) fall short of a lower bound ε is ℓ · max(0, 4ε + L/h)
+    (L up positive), over the total load |L| = 1; zero shortfall is "carried"."""
+    top, V = _pyramid_topology(0.5)
+    out = cases.least_tension(top, V, np.array([0, 0, 0, 0, load]), lower, np.inf)
+    ell = np.sqrt(0.5 + 0.25)
+    if share is None:
+        assert out["status"] == "carried"
+    else:
+        assert out["status"] == "tension" and out["tension_share"] == pytest.approx(ell * share / 0.5, rel=1e-9)
+        assert all(4 in e for e in out["tension_edges"])
+
+
+def test_least_tension_on_a_flat_apex_finds_no_weights_of_either_sign():
+    """At the supports' height the spokes are horizontal: no weights carry a vertical load."""
+    top, V = _pyramid_topology(0.0)
+    assert cases.least_tension(top, V, np.array([0, 0, 0, 0, -1.0]), 0.0, np.inf)["status"] == "no weights"
+
+
+def test_a_blocked_continuation_reports_the_tension_its_geometry_needs(monkeypatch):
+    """Half the self-weight at a dome's apex, the continuation's stages held where they start
+    (a stand-in for a polish that makes no progress): at the envelope's network, shaped for the
+    point load, the empty case's fit within the bounds is far from equilibrium with weights the
+    polish holds on the lower bound (the report counts them as the polish does and names those
+    the fit pushes against it), and the linear program finds no weights within the bounds that
+    carry it there: the report says how much tension they would need. At the empty case's own
+    network the same program finds it carried."""
+    scene = make_shape("dome", n_vertices=100)
+    apex = int(np.argmax(scene.mesh.vertices[:, 2]))
+    problem = Problem.build(scene, {"empty": SW, "apex": SW + _point_case(scene, apex, 0.5)})
+    polish = _Run.polish
+
+    def stuck(self, X, ws, *, fallbacks=True, stop=False, blend=None):
+        if blend is None:
+            return polish(self, X, ws, fallbacks=fallbacks, stop=stop)
+        return X.copy(), ws, self.blended(blend)[0](X), 0
+
+    monkeypatch.setattr(_Run, "polish", stuck)
+    res, rec = continuation(StaggeredLinearization(), problem, StaggeredOptions(), None, None,
+                            time.perf_counter() + 60)
+    b = rec["blocking"]
+    assert res is None and rec["reached"] == 0.0 and b["case"] == "empty" and b["max_relative_error"] > 0.5
+    assert b["pushing"] >= len(b["bound_edges"]) > 0 and b["at_bound"] >= b["pushing"]
+    assert set(b["bound"]) == {"lower"}
+    t = b["tension"]
+    assert t["status"] == "tension" and t["tension_share"] > 1.0 and t["edges"] >= 1
+    assert f"{b['at_bound']} of its weights on a bound" in rec["message"]
+    assert f"by a total force of {t['tension_share']:.2g} times the case's total load" in rec["message"]
+    one = StaggeredLinearization().solve(scene, SW)
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    own = cases.least_tension(top, one.network.vertices, one.network.loads, one.parameters["eps"], np.inf)
+    assert own["status"] == "carried"

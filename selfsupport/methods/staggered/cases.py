@@ -56,7 +56,16 @@ edges (quads split into triangles) or supports on the free edges give the plan r
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
-it (:func:`blocking`).
+it (:func:`blocking`; a weight counts as on its bound as the polish counts it). A linear program
+then decides, for the case that fits worst, what the fit only suggests (:func:`least_tension`):
+whether any weights within the bounds carry it exactly at that geometry, and if not, the least
+tension they need. The first-order test above cannot see this: it asks whether the weights off
+their bounds carry the differences with changes of *either sign*, and passes where those changes
+would take many weights through their bound at any step the stages can take (triangulated cas
+with 5% of its self-weight at its highest vertex: at the envelope's network the empty case,
+blended by ``t``, is carried within the bounds up to ``t`` = 1/512 and not from 1/64 on), so its
+stages' polish, whose steps hold every weight that would cross, finds no descent. Where the
+program finds tension, the geometry must move, whatever is done with the weights.
 """
 from __future__ import annotations
 
@@ -105,6 +114,12 @@ REPORTED = 5
 #: (vault-pillar, a 10 × 10 quad vault); the next ones there are 3.8e-5 and 1.4e-9. A network
 #: further from equilibrium counts none (no note, not a wrong one).
 SELF_STRESS_RTOL = 1e-12
+#: A total tension of at most this share of the case's total load counts as none in
+#: :func:`least_tension` (HiGHS's feasibility tolerance on the relative rows is 1e-7).
+TENSION_RTOL = 1e-6
+#: Most seconds :func:`least_tension` gives one case's LP (HiGHS on 4,240 edges, triangulated
+#: cas: 3–6 s); never past the caller's deadline.
+TENSION_LP_SECONDS = 60.0
 #: Most active edges for which :func:`top_view_self_stresses` is measured (a dense SVD: 0.01 s at
 #: 168 edges, 0.2 s at 1,500).
 SELF_STRESS_MAX_EDGES = 1500
@@ -136,14 +151,21 @@ def _base_problem(problem: Problem, run: _Run) -> Problem:
                                  sc.weight_back(np.broadcast_to(run.upper, (run.top.m,)).astype(float))))
 
 
-def _moved(run: _Run, ws: list[np.ndarray]) -> np.ndarray:
-    """The weights the joint polish moves from any of ``ws``: those off their bounds (as
-    :func:`~selfsupport.methods.polish.polish_joint` counts them)."""
+def _at_bounds(run: _Run, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the weights ``w`` on their lower and on their upper bound, as
+    :func:`~selfsupport.methods.polish.polish_joint` counts them (within
+    :data:`~selfsupport.methods.polish.BOUND_ACTIVE_REL` of the bound: the polish holds them)."""
     lo = np.broadcast_to(run.lower, (run.top.m,))
     up = np.broadcast_to(run.upper, (run.top.m,))
     below_up = up - BOUND_ACTIVE_REL * np.abs(np.nan_to_num(up, posinf=0.0))  # (∞ stays ∞)
     above_lo = lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)
-    return np.any([(w > above_lo) & (w < below_up) for w in ws], axis=0)
+    return w <= above_lo, w >= below_up
+
+
+def _moved(run: _Run, ws: list[np.ndarray]) -> np.ndarray:
+    """The weights the joint polish moves from any of ``ws``: those off their bounds (as
+    :func:`~selfsupport.methods.polish.polish_joint` counts them)."""
+    return np.any([~np.logical_or(*_at_bounds(run, w)) for w in ws], axis=0)
 
 
 def difference_fit(run: _Run, X: np.ndarray, L: np.ndarray, ws: list[np.ndarray]) -> dict[str, dict[str, Any]]:
@@ -191,13 +213,81 @@ def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
             for name, other in rest}
 
 
+def least_tension(top: Topology, X: np.ndarray, L: np.ndarray, lower: Any, upper: Any, *,
+                  deadline: float | None = None) -> dict[str, Any]:
+    """At the fixed positions ``X``: do weights within the bounds carry the loads ``L`` exactly,
+    and if not, how much must the lower bound give way (tension, where it is the small default ε)?
+
+    One linear program (HiGHS): minimise ``Σ_e q_e |e|`` over the weights ``w`` and ``q ≥ 0`` subject
+    to ``A(X) w = b`` (every free vertex's rows over ``|L_i|``), ``w + q ≥ lower`` and ``w ≤ upper``:
+    ``q_e |e|`` is the force by which edge ``e`` falls short of its lower bound. An optimum of zero
+    certifies that this geometry carries the loads within the bounds; a positive one, that no
+    weights within the bounds carry them here, whatever an iteration does with the weights alone
+    (the geometry must move); an infeasible program, that no weights of either sign do.
+
+    Parameters
+    ----------
+    top, X, L
+        The topology, the positions ``(n, 3)`` and the nodal loads ``(n,)`` (any consistent units).
+    lower, upper
+        The weight bounds (scalars or one per edge; ``±inf`` for none).
+    deadline
+        ``time.perf_counter()`` value: HiGHS stops there (and at :data:`TENSION_LP_SECONDS`).
+
+    Returns
+    -------
+    ``status``: "carried", "tension", "no weights" (no weights of either sign carry ``L`` at ``X``)
+    or "not measured" (out of time, or HiGHS failed: ``reason``); with "tension": ``tension_share``,
+    the least total force short of the lower bound over the total load ``|Σ L|``; ``largest_share``,
+    its largest edge's; ``edges``, how many edges fall short; ``tension_edges``, the
+    :data:`REPORTED` edges (vertex pairs) with the largest; always ``seconds``.
+    """
+    # (scipy.optimize: 0.1 s to import, only for a report of a block)
+    from scipy.optimize import linprog
+
+    t0 = time.perf_counter()
+    m, free = top.m, top.free
+    budget = min(TENSION_LP_SECONDS, remaining(deadline))
+    if budget <= 0.0 or m == 0:
+        return {"status": "not measured", "reason": "no time left", "seconds": 0.0}
+    lo = np.broadcast_to(np.asarray(lower, float), (m,))
+    up = np.broadcast_to(np.asarray(upper, float), (m,))
+    s = np.repeat(1.0 / np.abs(L[free]), 3)
+    As = (sp.diags(s) @ weight_matrix(top, X)).tocsr()
+    lens = np.linalg.norm(X[top.edges[:, 1]] - X[top.edges[:, 0]], axis=1)
+    held = np.flatnonzero(np.isfinite(lo))  # (an edge without a lower bound needs no q)
+    Iq = sp.csr_matrix((np.ones(held.size), (np.arange(held.size), held)), shape=(held.size, m))
+    res = linprog(np.r_[np.zeros(m), lens[held]],
+                  A_ub=sp.hstack([-Iq, -sp.identity(held.size)]).tocsr(), b_ub=-lo[held],
+                  A_eq=sp.hstack([As, sp.csr_matrix((As.shape[0], held.size))]).tocsr(),
+                  b_eq=s * load_vector(top, L),
+                  bounds=[(None, u if np.isfinite(u) else None) for u in up] + [(0.0, None)] * held.size,
+                  method="highs", options={"time_limit": budget})
+    out: dict[str, Any] = {"seconds": time.perf_counter() - t0}
+    if res.status == 2:
+        return {**out, "status": "no weights"}
+    if res.status != 0:
+        return {**out, "status": "not measured", "reason": res.message}
+    total = float(np.abs(L[free].sum()))
+    force = np.zeros(m)
+    force[held] = res.x[m:] * lens[held] / total
+    if force.sum() <= TENSION_RTOL:
+        return {**out, "status": "carried"}
+    order = np.argsort(force)[::-1][:REPORTED]
+    order = order[force[order] > 0]
+    return {**out, "status": "tension", "tension_share": float(force.sum()), "largest_share": float(force.max()),
+            "edges": int(np.count_nonzero(force > TENSION_RTOL * force.max())),
+            "tension_edges": [[int(i), int(j)] for i, j in top.edges[order]]}
+
+
 def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | None = None) -> dict[str, Any]:
     """What blocks the cases at positions ``X`` (scaled): each case's own weight fit within the
     bounds, from ``ws`` (``fit``: that fit, when it is at hand): per case its max relative
-    residual, the worst case, its vertices of largest residual, and the edges its fit holds at a
-    bound with the largest multipliers (the fit's gradient on a weight at its bound: how much the
-    residual would fall per unit the bound gave way); and :func:`difference_fit` (from ``ws`` and
-    the fit's weights)."""
+    residual, the worst case, its vertices of largest residual, how many of its weights lie on a
+    bound (as the polish counts them: :func:`_at_bounds`) and how many of those the fit pushes
+    against it (``pushing``), and the edges with the largest multipliers (the fit's gradient on a
+    weight at its bound: how much the residual would fall per unit the bound gave way); and
+    :func:`difference_fit` (from ``ws`` and the fit's weights)."""
     fit = run.fit(X, ws) if fit is None else fit
     top = run.top
     out: dict[str, Any] = {"fit_errors": {}, "case": None}
@@ -218,16 +308,15 @@ def blocking(run: _Run, X: np.ndarray, ws: list[np.ndarray], fit: FitState | Non
     A = weight_matrix(top, X)
     g = (A.T @ (s * (s * (A @ fit.w[worst] - load_vector(top, fit.L[worst])))))  # ∇ ½‖S(Aw − b)‖²
     w = fit.w[worst]
-    lo = np.broadcast_to(run.lower, w.shape)
-    up = np.broadcast_to(run.upper, w.shape)
-    tol = 1e-9 * np.maximum(np.abs(lo), np.finfo(float).tiny)
-    mult = np.where(w <= lo + tol, np.maximum(g, 0.0), 0.0) + np.where(w >= up - tol, np.maximum(-g, 0.0), 0.0)
+    at_lo, at_up = _at_bounds(run, w)  # (the polish's measure: the fit's weights lie within its tolerance of a bound)
+    mult = np.where(at_lo, np.maximum(g, 0.0), 0.0) + np.where(at_up, np.maximum(-g, 0.0), 0.0)
     edges = np.argsort(mult)[::-1][:REPORTED]
     edges = edges[mult[edges] > 0]
     out.update(case=run.loads.names[worst], max_relative_error=worst_err,
                vertices=[int(v) for v in run.free_idx[order]], vertex_errors=[float(x) for x in r[order]],
+               at_bound=int(np.count_nonzero(at_lo | at_up)), pushing=int(np.count_nonzero(mult > 0)),
                bound_edges=[[int(i), int(j)] for i, j in top.edges[edges]],
-               bound=["lower" if w[e] <= lo[e] + tol[e] else "upper" for e in edges])
+               bound=["lower" if at_lo[e] else "upper" for e in edges])
     return out
 
 
@@ -254,10 +343,37 @@ def _message(rec: dict[str, Any]) -> str:
     else:
         lead = (f"the continuation from the cases' envelope carries {rec['reached']:.0%} of the cases' "
                 f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, {carried}")
-    return (f"{lead}; case {b['case']!r} fits at best to max relative error {b['max_relative_error']:.2e} "
-            f"within the bounds, at vertices {b['vertices']} ({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}); "
-            f"the edges its fit holds at a bound with the largest multipliers: {edges}"
-            + _top_view_note(rec.get("top_view") or {}))
+    held = (f"{b['at_bound']} of its weights on a bound, {b['pushing']} of them pushed against it; those with the "
+            f"largest multipliers: {edges}") if "at_bound" in b else f"the edges its fit holds at a bound with the largest multipliers: {edges}"
+    return (f"{lead}; case {b['case']!r}'s weight fit within the bounds at that geometry (least squares of the "
+            f"relative residuals) leaves max relative error {b['max_relative_error']:.2e}, at vertices {b['vertices']} "
+            f"({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}), with {held}"
+            + _tension_note(b) + _top_view_note(rec.get("top_view") or {}))
+
+
+def _tension_note(b: dict[str, Any]) -> str:
+    """:func:`least_tension` of the report's case (``b["tension"]``, where measured) in a clause."""
+    t = b.get("tension")
+    if not t or t["status"] == "not measured":
+        return ""
+    if t["status"] == "carried":
+        return (f"; yet weights within the bounds carry case {b['case']!r} exactly at that geometry (a linear "
+                f"program): the fit's residual is the iteration's, not the geometry's")
+    if t["status"] == "no weights":
+        return f"; no weights of either sign carry case {b['case']!r} at that geometry (a linear program)"
+    return (f"; no weights within the bounds carry case {b['case']!r} at that geometry: the least that carry it "
+            f"exactly fall short of the lower bound (tension, for the default ε) by a total force of "
+            f"{t['tension_share']:.2g} times the case's total load over {t['edges']} edges (the largest "
+            f"{t['largest_share']:.2g} times it; most at edges {', '.join(f'{i}-{j}' for i, j in t['tension_edges'])}; "
+            f"a linear program), so the geometry must move")
+
+
+def _with_tension(run: _Run, X: np.ndarray, b: dict[str, Any], deadline: float) -> dict[str, Any]:
+    """``b`` (:func:`blocking` at ``X``) with :func:`least_tension` of its case at ``X`` (by ``deadline``)."""
+    if b.get("case") is None:
+        return b
+    L = run.loads_at(X)[run.loads.names.index(b["case"])]
+    return {**b, "tension": least_tension(run.top, X, L, run.lower, run.upper, deadline=deadline)}
 
 
 def _top_view_note(tv: dict[str, Any]) -> str:
@@ -336,7 +452,8 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
     if start is None or start["difference_residual"] > BLOCKED_RESIDUAL:
         rec.update(blocked_at_start=start is not None, time=time.perf_counter() - t0)
         if start is not None:
-            rec.update(difference_residual=start["difference_residual"], blocking=start["blocking"])
+            rec.update(difference_residual=start["difference_residual"],
+                       blocking=_with_tension(run, start["X"], start["blocking"], whole))
             rec["message"] = _message(rec)
         else:
             rec["message"] = "the continuation did not start: no case has a weight fit at the envelope's network"
@@ -369,7 +486,7 @@ def continuation(method: StaggeredLinearization, problem: Problem, opt: Staggere
     rec["reached"] = t_ok
     if t_ok < 1.0:
         run.deadline = whole
-        rec["blocking"] = blocking(run, X_ok, list(W_ok))
+        rec["blocking"] = _with_tension(run, X_ok, blocking(run, X_ok, list(W_ok)), whole)
         rec["message"] = _message(rec)
         rec["time"] = time.perf_counter() - t0
         return None, rec
