@@ -184,7 +184,8 @@ def test_edit_undo_save_over_the_websocket(served):
         assert f0["seq"] == 0 and f0["status"] == "converged"
         v = int(np.setdiff1d(np.arange(f0["n_vertices"]), f0["supports"])[5])
         ws.send_json({"type": "edit", "edit": {"op": "pin", "select": {"vertices": [v]}}})
-        st, f1 = _until_all(ws, lambda m: m["type"] == "state", lambda m: m["type"] == "frame" and m["seq"] == 1)
+        # (the state the connection opened with may come after the first frame: wait for the edit's own)
+        st, f1 = _until_all(ws, lambda m: m["type"] == "state" and m["seq"] == 1, lambda m: m["type"] == "frame" and m["seq"] == 1)
         assert st["seq"] == 1 and st["n_edits"] == 1 and st["can_undo"]
         assert v in f1["supports"] and v not in f0["supports"]
         ws.send_json({"type": "edit", "edit": {"op": "nonsense"}})
@@ -194,7 +195,7 @@ def test_edit_undo_save_over_the_websocket(served):
         saved = _until(ws, lambda m: m["type"] in ("saved", "error"))
         assert saved["type"] == "saved", saved
         ws.send_json({"type": "undo"})
-        st, f2 = _until_all(ws, lambda m: m["type"] == "state", lambda m: m["type"] == "frame" and m["seq"] == 2)
+        st, f2 = _until_all(ws, lambda m: m["type"] == "state" and m["seq"] == 2, lambda m: m["type"] == "frame" and m["seq"] == 2)
         assert st["seq"] == 2 and st["n_edits"] == 0 and st["can_redo"]
         assert v not in f2["supports"]
     rep = independent_check(root / "net.json")
