@@ -1,7 +1,8 @@
 """Fig. 12 as a study: planar faces on a mesh along the relative principal directions vs a grid.
 
     python -m studies.pq --scenes ../shared/paper-scenes --out OUT [--only dome,vault,lilium,cas]
-        [--spacing 1.0] [--time-limit 300] [--remesher seamless,streamlines[,param]] [--checker PATH]
+        [--spacing 1.0] [--time-limit 300] [--remesher seamless,streamlines[,param]]
+        [--densities mean[,published]] [--checker PATH]
 
 For each scene (``dome``: a generated 400-vertex dome; others: ``SCENES/scenes/NAME.sss``) the
 scene's own mesh solved with planar faces (when it has quads), the default staggered solve, then :func:`selfsupport.remesh.streamlines.remesh` along the relative principal
@@ -14,8 +15,11 @@ max relative error (recomputed from the saved network), max / mean quad non-plan
 of the diagonals / mean edge length) before and after, mean distance to the scene's reference
 (/ bbox diagonal) before the planar solve (the remesh, its heights from the network in
 equilibrium) and after, time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
-(its distance to the reference and its non-planarity). With ``--checker``, the shared independent
-checker's max relative error of every written network. Writes ``pq.csv``, ``pq.md`` and the networks.
+(its distance to the reference and its non-planarity). ``--densities published`` adds, for every
+scene with such a published mesh, both fields again by the first remesher with the spacing the
+published mesh's mean top-view edge length (rows tagged ``published spacing``): the comparison at
+the paper's own density. With ``--checker``, the shared independent checker's max relative error of every written
+network. Writes ``pq.csv``, ``pq.md`` and the networks.
 """
 from __future__ import annotations
 
@@ -36,6 +40,9 @@ from .common import (
     write_csv,
     write_markdown,
 )
+
+#: The tag of the rows at the published mesh's spacing (``--densities published``).
+PUBLISHED_SPACING = "published spacing"
 
 COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
            Column("quads", "quads", "{:.1%}"),
@@ -59,9 +66,15 @@ def _nonplanarity(mesh) -> tuple[float, float]:
     return (float(q.max()), float(q.mean())) if q.size else (float("nan"), float("nan"))
 
 
+def _mean_top_edge(mesh) -> float:
+    """Mean top-view edge length of a mesh."""
+    e = mesh.edges
+    return float(np.linalg.norm(mesh.vertices[e[:, 1], :2] - mesh.vertices[e[:, 0], :2], axis=1).mean())
+
+
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
         finish: bool = True, remeshers: Sequence[str] = ("seamless",),
-        checker: Path | None = None) -> list[dict[str, Any]]:
+        checker: Path | None = None, densities: Sequence[str] = ("mean",)) -> list[dict[str, Any]]:
     from selfsupport import api
     from selfsupport.core.errors import SelfSupportError
     from selfsupport.core.evidence import distance_stats
@@ -76,12 +89,20 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
     for name in only:
         scene = make_shape("dome", n_vertices=400) if name == "dome" else read_study_scene(scenes / "scenes", name)
         net = api.solve(scene, time_limit=time_limit).network
-        e = net.mesh.edges
-        h = spacing * float(np.linalg.norm(net.vertices[e[:, 1], :2] - net.vertices[e[:, 0], :2], axis=1).mean())
-        todo_meshes = [("as is", "")] if (scene.mesh.face_sizes == 4).any() else []
-        todo_meshes += [(field, how) for how in remeshers for field in ("principal", "grid")]
-        for field, how in todo_meshes:
-            tag = "" if how in ("", "streamlines") else f" ({how})"  # (the rows the docs quote keep their names)
+        pub = scenes / "published" / f"{name}-pq-n.obj"
+        pub_mesh = read_mesh(pub, up="-y") if pub.is_file() else None
+        spacings = {"mean": spacing * _mean_top_edge(net.mesh)}
+        if "published" in densities and pub_mesh is not None:
+            spacings[PUBLISHED_SPACING] = _mean_top_edge(pub_mesh)
+        todo_meshes = [("as is", "", "mean")] if (scene.mesh.face_sizes == 4).any() else []
+        todo_meshes += [(field, how, d) for d in spacings for how in (remeshers if d == "mean" else remeshers[:1])
+                        for field in ("principal", "grid")]
+        for field, how, density in todo_meshes:
+            h = spacings[density]
+            # (the rows the docs quote keep their names: no tag for streamlines at the mean spacing)
+            tags = [t for t in (how if how not in ("", "streamlines") else "",
+                                density if density != "mean" else "") if t]
+            tag = f" ({', '.join(tags)})" if tags else ""
             row: dict[str, Any] = {"scene": name, "mesh": "scene as is" if field == "as is" else f"remesh {field}{tag}",
                                    **stamp}
             t0 = time.perf_counter()
@@ -94,7 +115,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                 row.update(status=f"failed: {exc}")
                 rows.append(row)
                 continue
-            path = out / f"{name}__{field.replace(' ', '-')}{'-' + how if tag else ''}.json"
+            path = out / (f"{name}__{field.replace(' ', '-')}{'-' + how if how not in ('', 'streamlines') else ''}"
+                          f"{'-published' if density != 'mean' else ''}.json")
             write_network(path, res, study={"scene": name, "field": field, "spacing": h})
             sizes = np.unique(todo.mesh.face_sizes, return_counts=True)
             val = np.bincount(todo.mesh.edges.ravel(), minlength=todo.mesh.n_vertices)
@@ -109,9 +131,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                        time_s=time.perf_counter() - t0)
             rows.append(row)
             print(" | ".join(str(row.get(c.key)) for c in COLUMNS), flush=True)
-        pub = scenes / "published" / f"{name}-pq-n.obj"
-        if pub.is_file():
-            m = read_mesh(pub, up="-y")
+        if pub_mesh is not None:
+            m = pub_mesh
             mx, mn = _nonplanarity(m)
             rows.append({"scene": name, "mesh": "published pq-n", "faces": " ".join(
                 f"{k}:{v}" for k, v in zip(*np.unique(m.face_sizes, return_counts=True))),
@@ -138,9 +159,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--remesher", default="seamless,streamlines",
                    help="remeshers to compare (comma-separated: seamless, streamlines, param; "
                         "selfsupport.remesh.streamlines)")
+    p.add_argument("--densities", default="mean",
+                   help="spacings (comma-separated): mean, --spacing × the network's mean top-view edge; published, "
+                        "the published NAME-pq-n.obj's mean top-view edge (scenes with one)")
     p.add_argument("--checker", type=Path, default=None, help="the shared independent checker (check_network.py)")
     a = p.parse_args(argv)
-    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","), a.checker)
+    dens = a.densities.split(",")
+    if not set(dens) <= {"mean", "published"}:
+        p.error(f"--densities: choose from mean, published (got {a.densities})")
+    run(a.scenes, a.out, a.only.split(","), a.spacing, a.time_limit, a.finish, a.remesher.split(","), a.checker,
+        dens)
     return 0
 
 

@@ -480,3 +480,37 @@ def test_newton_systems_docstring_examples():
 
     result = doctest.testmod(newton_systems, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 3 and result.failed == 0
+
+
+def test_pq_study_remeshes_again_at_the_published_meshs_spacing(tmp_path):
+    """``--densities published``: where ``published/NAME-pq-n.obj`` exists, both remeshes again
+    with the spacing its mean top-view edge (a uniform grid of known cell size here), tagged
+    ``published spacing``: the grid remesh there has about as many cells as the published grid
+    (area / h²), and the rows at the network's mean edge keep their names."""
+    from selfsupport.core.mesh import PolyMesh
+    from selfsupport.io.sss import write_scene_sss
+    from studies import pq
+
+    scene = make_shape("barrel_vault", nx=6, ny=8)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "published").mkdir()
+    write_scene_sss(tmp_path / "scenes" / "bv.sss", scene)
+    # the "published" mesh: a 12 x 20 grid of square cells (0.5 m) over the vault's 6 x 10 m plan
+    cell = 0.5
+    x, y = np.arange(-3.0, 3.0 + 1e-9, cell), np.arange(-5.0, 5.0 + 1e-9, cell)
+    X, Y = np.meshgrid(x, y)
+    nx, ny = len(x) - 1, len(y) - 1
+    quads = [[j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i]
+             for j in range(ny) for i in range(nx)]
+    write_mesh(tmp_path / "published" / "bv-pq-n.obj",
+               PolyMesh.from_faces(np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)], quads), up="-y")
+    rows = pq.run(tmp_path, tmp_path / "out", ["bv"], 1.0, 60.0, remeshers=("seamless",),
+                  densities=("mean", "published"))
+    by = {r["mesh"]: r for r in rows}
+    tag = pq.PUBLISHED_SPACING
+    assert {"scene as is", "remesh principal (seamless)", "remesh grid (seamless)", f"remesh principal (seamless, {tag})",
+            f"remesh grid (seamless, {tag})", "published pq-n"} <= set(by)
+    faces = lambda r: sum(int(c.split(":")[1]) for c in r["faces"].split())  # noqa: E731
+    assert faces(by[f"remesh grid (seamless, {tag})"]) == pytest.approx(nx * ny, rel=0.25)
+    assert faces(by["remesh grid (seamless)"]) == pytest.approx(scene.mesh.n_faces, rel=0.25)
+    assert (tmp_path / "out" / "bv__grid-seamless-published.json").is_file()
