@@ -12,9 +12,10 @@ solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
 :func:`selfsupport.remesh.planar.solve_planar` (the staggered method, and where it does not converge
 the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
-of the diagonals / mean edge length) before and after, mean distance to the scene's reference
-(/ bbox diagonal) before the planar solve (the remesh, its heights from the network in
-equilibrium) and after, time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
+of the diagonals / mean edge length) before (also the mean over the quads off the boundary) and
+after, mean distance to the scene's reference (/ bbox diagonal) before the planar solve (the
+remesh, its heights from the network in equilibrium) and after, the largest distance a vertex
+moved in the planar solve (/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
 (its distance to the reference and its non-planarity). ``--densities published`` adds, for every
 scene with such a published mesh, both fields again by the first remesher with the spacing the
 published mesh's mean top-view edge length (rows tagged ``published spacing``): the comparison at
@@ -51,9 +52,12 @@ COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "fa
            Column("max_rel_error", "max rel. error", "{:.1e}"),
            Column("checker", "checker max rel. error", "{:.1e}"),
            Column("start_nonplanar", "non-planarity before (max / mean)"),
+           Column("start_nonplanar_interior", "non-planarity before, quads off the boundary (mean)", "{:.1e}"),
            Column("nonplanar_max", "non-planarity after (max)", "{:.1e}"),
            Column("dist_start", "dist. to reference before (mean)", "{:.3e}"),
-           Column("dist_mean", "dist. to reference (mean)", "{:.3e}"), Column("time_s", "time [s]", "{:.1f}")]
+           Column("dist_mean", "dist. to reference (mean)", "{:.3e}"),
+           Column("moved_max", "largest vertex move in the planar solve", "{:.2e}"),
+           Column("time_s", "time [s]", "{:.1f}")]
 #: the CSV's columns: the table's, then the run's stamp (:func:`studies.common.run_stamp`)
 CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
 
@@ -64,6 +68,17 @@ def _nonplanarity(mesh) -> tuple[float, float]:
     q = face_nonplanarity(mesh)
     q = q[np.isfinite(q)]
     return (float(q.max()), float(q.mean())) if q.size else (float("nan"), float("nan"))
+
+
+def _interior_nonplanarity(mesh) -> float:
+    """Mean non-planarity of the quads with no vertex on the boundary (where the field, not the
+    boundary's shape or its supports, sets the quads)."""
+    from selfsupport.core.evidence import face_nonplanarity
+
+    q = face_nonplanarity(mesh)
+    bnd = mesh.boundary_vertex_mask
+    off = np.array([not bnd[list(f)].any() for f in mesh.faces]) & np.isfinite(q)
+    return float(q[off].mean()) if off.any() else float("nan")
 
 
 def _mean_top_edge(mesh) -> float:
@@ -110,6 +125,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                 q = None if field == "as is" else remesh(net, spacing=h, field=field, method=how)
                 todo = scene if q is None else q.scene
                 mx, mn = _nonplanarity(todo.mesh)
+                inner = _interior_nonplanarity(todo.mesh)
                 res = solve_planar(todo, tol=1e-3, finish=finish, time_limit=time_limit)
             except SelfSupportError as exc:
                 row.update(status=f"failed: {exc}")
@@ -125,6 +141,9 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                        irregular=int(((val != 4) & ~todo.mesh.boundary_vertex_mask).sum()),
                        solved_by=finish_summary(res),
                        max_rel_error=json_max_relative_error(path), start_nonplanar=f"{mx:.1e} / {mn:.1e}",
+                       start_nonplanar_interior=inner,
+                       moved_max=float(np.linalg.norm(res.network.vertices - todo.mesh.vertices, axis=1).max()
+                                       / np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))),
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_start=distance_stats(todo.mesh.vertices, scene.mesh)[0],
                        dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],
@@ -137,7 +156,8 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
             rows.append({"scene": name, "mesh": "published pq-n", "faces": " ".join(
                 f"{k}:{v}" for k, v in zip(*np.unique(m.face_sizes, return_counts=True))),
                 "quads": float((m.face_sizes == 4).mean()),
-                "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "dist_mean": distance_stats(m.vertices, scene.mesh)[0],
+                "start_nonplanar": f"{mx:.1e} / {mn:.1e}", "start_nonplanar_interior": _interior_nonplanarity(m),
+                "dist_mean": distance_stats(m.vertices, scene.mesh)[0],
                 **stamp})
     write_csv(out / "pq.csv", rows, CSV_COLUMNS)
     write_markdown(out / "pq.md", "Planar faces: aligned remesh vs grid (paper Fig. 12)",
