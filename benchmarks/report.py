@@ -139,8 +139,9 @@ SECTIONS: tuple[Section, ...] = (
             "integer-grid remesh, the default, and by streamlines), then solved with planar faces required "
             "(tolerance 1e-3, 300 s per solve); the published `*-pq-n.obj` measured the same way. The checker: "
             "the independent check_network.py's max relative error of the written network. Dist. before: the "
-            "remesh, its heights from the network in equilibrium, before the planar solve.",
-            "python -m studies.pq --scenes $SCENES/.. --out OUT",
+            "remesh, its heights from the network in equilibrium, before the planar solve. Rows tagged `published "
+            "spacing`: the seamless remeshes again at the published mesh's mean top-view edge (where there is one).",
+            "python -m studies.pq --scenes $SCENES/.. --out OUT --densities mean,published",
             (Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "faces"),
              Column("quads", "quads", "{:.1%}"),
              Column("status", "status"), Column("solved_by", "solved by"),

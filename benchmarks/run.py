@@ -113,7 +113,8 @@ STUDIES: tuple[Study, ...] = (
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out)], _no_scenes),
     # pq takes the paper-scenes folder itself (scenes/ and published/ in it)
     Study("pq", "studies.pq", (("pq.csv", "pq.csv"),),
-          lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), *_checker(s)], _no_scenes),
+          lambda s, out: ["--scenes", str(s.scenes.parent), "--out", str(out), "--densities", "mean,published",
+                          *_checker(s)], _no_scenes),
     # the paper's Figs. 9-10, 8 and 15: docs/guide/paper.md's comparisons
     Study("stability_dome", "studies.stability_dome",
           (("stability_dome.csv", "stability_dome.csv"), ("stability_dome_max_load.csv", "stability_dome_max_load.csv"),

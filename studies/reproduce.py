@@ -52,6 +52,7 @@ from studies.common import (
     read_csv_rows,
     run_stamp,
 )
+from studies.pq import PUBLISHED_SPACING
 
 REPRODUCED = "reproduced"
 #: the three kinds of verdict (a verdict is one of them, the last two followed by ": why")
@@ -144,7 +145,7 @@ STUDY_RUNS: dict[str, StudyRun] = {s.name: s for s in (
              quick="the 8×16 meridian mesh and the 8-ring triangulation (full: also 16×64 and 4×8)"),
     StudyRun("pq", "studies.pq",
              lambda root, out, quick, chk: ["--scenes", str(root), "--out", str(out), "--only", ",".join(PQ_SCENES),
-                                            "--remesher", "seamless",
+                                            "--remesher", "seamless", "--densities", "mean,published",
                                             "--time-limit", f"{PQ_TIME_LIMIT_QUICK if quick else PQ_TIME_LIMIT:g}"],
              tuple(f"scenes/{s}.sss" for s in PQ_SCENES),
              quick=f"{PQ_TIME_LIMIT_QUICK:g} s per planar solve (full: {PQ_TIME_LIMIT:g} s)"),
@@ -576,40 +577,50 @@ def _pq_row_text(r: Mapping[str, Any]) -> str:
             f"{_num(r.get('dist_mean')):.3e}")
 
 
+def pq_same_spacing(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    """Whether two pq rows are remeshes at the same spacing (the mean edge, or the published mesh's)."""
+    return (PUBLISHED_SPACING in str(a.get("mesh"))) == (PUBLISHED_SPACING in str(b.get("mesh")))
+
+
 def judge_pq(ctx: Context) -> Judgement:
-    """Per scene of :data:`PQ_SCENES`: the aligned remesh planar to :data:`PQ_TOL` in equilibrium,
-    and closer to the reference (mean distance over the diagonal) than every grid remesh of the
-    scene that became planar too (one that did not counts for the aligned remesh)."""
+    """Per scene of :data:`PQ_SCENES` and per spacing the study used (the network's mean edge, and
+    where there is a published pq mesh its mean edge): the aligned remesh planar to
+    :data:`PQ_TOL` in equilibrium, and closer to the reference (mean distance over the diagonal)
+    than every grid remesh at the same spacing that became planar too (one that did not counts
+    for the aligned remesh)."""
     all_rows = read_csv_rows(ctx.out("pq") / "pq.csv")
     parts, why, cut, pics = [], [], [], []
     for scene in PQ_SCENES:
         rows = [r for r in all_rows if r["scene"] == scene]
-        a = next((r for r in rows if r["mesh"] == PQ_ALIGNED), None)
-        grids = [r for r in rows if str(r["mesh"]).startswith("remesh grid")]
-        if a is None:
+        main = next((r for r in rows if r["mesh"] == PQ_ALIGNED), None)
+        if main is None:
             parts.append(f"{scene}: no aligned remesh")
             why.append(f"{scene}: the study has no {PQ_ALIGNED} row")
             continue
-        parts.append(f"{scene}: aligned " + _pq_row_text(a) + "".join(
-            f"; {g['mesh'].removeprefix('remesh ')} " + _pq_row_text(g) for g in grids))
+        aligned = [main] + [r for r in rows if r["mesh"] == f"{PQ_ALIGNED[:-1]}, {PUBLISHED_SPACING})"]
         net = ctx.out("pq") / f"{scene}__principal-seamless.json"
         if net.is_file():
             pics.append(ctx.render(net, f"fig12-{scene}-pq.png", "network",
                                    f"{scene} along the principal directions"))
-        if ctx.quick and a.get("status") == "time_limit":
-            cut.append(scene)
-            continue
-        if not pq_planar(a):
-            why.append(f"{scene}: the aligned remesh did not become a planar-quad network in equilibrium "
-                       f"({a.get('status')}, non-planarity {_num(a.get('nonplanar_max')):.1e}, error "
-                       f"{_num(a.get('max_rel_error')):.1e})")
-        if not grids:
-            why.append(f"{scene}: no grid remesh to compare with")
-        for g in grids:
-            da, dg = _num(a.get("dist_mean")), _num(g.get("dist_mean"))
-            if pq_planar(g) and not da < dg:
-                why.append(f"{scene}: the aligned remesh ends farther from the reference than the "
-                           f"{g['mesh'].removeprefix('remesh ')} ({da:.3e} vs {dg:.3e} of the diagonal)")
+        for a in aligned:
+            at = f" at the {PUBLISHED_SPACING}" if a is not main else ""
+            grids = [r for r in rows if str(r["mesh"]).startswith("remesh grid") and pq_same_spacing(r, a)]
+            parts.append(f"{scene}{at}: aligned " + _pq_row_text(a) + "".join(
+                f"; {g['mesh'].removeprefix('remesh ')} " + _pq_row_text(g) for g in grids))
+            if ctx.quick and a.get("status") == "time_limit":
+                cut.append(scene + at)
+                continue
+            if not pq_planar(a):
+                why.append(f"{scene}{at}: the aligned remesh did not become a planar-quad network in equilibrium "
+                           f"({a.get('status')}, non-planarity {_num(a.get('nonplanar_max')):.1e}, error "
+                           f"{_num(a.get('max_rel_error')):.1e})")
+            if not grids:
+                why.append(f"{scene}{at}: no grid remesh to compare with")
+            for g in grids:
+                da, dg = _num(a.get("dist_mean")), _num(g.get("dist_mean"))
+                if pq_planar(g) and not da < dg:
+                    why.append(f"{scene}{at}: the aligned remesh ends farther from the reference than the "
+                               f"{g['mesh'].removeprefix('remesh ')} ({da:.3e} vs {dg:.3e} of the diagonal)")
     ours = "; ".join(parts) + f" (planar: at most {PQ_TOL:g}; in equilibrium: error at most {PQ_EQ_TOL:g})"
     if why:
         return ours, differs("; ".join(why)), tuple(pics)

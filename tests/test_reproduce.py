@@ -18,6 +18,7 @@ from selfsupport.figures.render import FigureInput, render
 from selfsupport.io import write_network
 from studies import reproduce as rp
 from studies.common import PAPER_TABLE1, Column, read_csv_rows, write_csv
+from studies.pq import PUBLISHED_SPACING
 from studies.table1 import COLUMNS as TABLE1_COLUMNS
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -323,6 +324,27 @@ def test_the_pq_verdict_reads_every_scene_and_each_grid_remesh(ctx):
     assert row.verdict == rp.differs(f"vault: the study has no {rp.PQ_ALIGNED} row; cas: the aligned remesh did not "
                                      "become a planar-quad network in equilibrium (converged, non-planarity 9.0e-04, "
                                      "error 3.0e-05)")
+
+
+def test_the_pq_verdict_compares_remeshes_at_the_same_spacing(ctx):
+    """The rows at the published mesh's spacing are judged against each other: a grid remesh there
+    closer than the aligned remesh at the (coarser) mean spacing is no difference, one closer than
+    the aligned remesh at its own spacing is, and the verdict names the spacing."""
+    item = [i for i in rp.ITEMS if i.item == "Figs. 12–14"]
+    rows = read_csv_rows(ctx.runs / "pq" / "pq.csv")
+    main = next(r for r in rows if r["scene"] == "vault" and r["mesh"] == rp.PQ_ALIGNED)
+    tag = PUBLISHED_SPACING
+    fine = [{**main, "mesh": f"remesh principal (seamless, {tag})", "dist_mean": "7e-3"},
+            {**main, "mesh": f"remesh grid (seamless, {tag})", "faces": "3:4 4:800", "dist_mean": "8e-3"}]
+    write_csv(ctx.runs / "pq" / "pq.csv", rows + fine, [Column(k, k) for k in rows[0]])
+    row = _row(rp.assemble(ctx, item), "Figs. 12–14")
+    assert row.verdict == rp.REPRODUCED
+    assert f"vault at the {tag}: aligned 4:700 (100% quads)" in row.ours and f"grid (seamless, {tag}) 3:4 4:800" in row.ours
+    fine[0]["dist_mean"] = "9e-3"
+    write_csv(ctx.runs / "pq" / "pq.csv", rows + fine, [Column(k, k) for k in rows[0]])
+    row = _row(rp.assemble(ctx, item), "Figs. 12–14")
+    assert row.verdict == rp.differs(f"vault at the {tag}: the aligned remesh ends farther from the reference than the "
+                                     f"grid (seamless, {tag}) (9.000e-03 vs 8.000e-03 of the diagonal)")
 
 
 def test_reuse_takes_the_studies_of_an_earlier_report_of_the_same_mode_only(ctx, tmp_path):

@@ -8,6 +8,7 @@ made here; the paper's own files are only read by the guarded cross-check of the
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -16,9 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.shapes import make_shape
-from selfsupport.io import write_mesh
-from studies import common, scaling, table1
+from selfsupport.io import read_network, write_mesh
+from selfsupport.io.sss import write_scene_sss
+from studies import common, pq, scaling, table1
 from tests.conftest import CHECKER, SHARED, document_errors
 
 PAPER_README = SHARED / "paper-scenes" / "README.md"
@@ -480,3 +483,52 @@ def test_newton_systems_docstring_examples():
 
     result = doctest.testmod(newton_systems, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 3 and result.failed == 0
+
+
+@pytest.mark.slow
+def test_pq_study_remeshes_again_at_the_published_meshs_spacing(tmp_path):
+    """``--densities published``: where ``published/NAME-pq-n.obj`` exists, both remeshes again
+    with the spacing its mean top-view edge (a uniform grid of known cell size here), tagged
+    ``published spacing``: the grid remesh there has about as many cells as the published grid
+    (area / h²), and the rows at the network's mean edge keep their names."""
+    bv = make_shape("barrel_vault", nx=6, ny=8)
+    V = bv.mesh.vertices.copy()
+    V[:, 2] += 0.02 * np.sin(V[:, 0]) * np.sin(0.5 * V[:, 1])  # (twisted: its quads not planar)
+    scene = dataclasses.replace(bv, mesh=PolyMesh.from_faces(V, [list(f) for f in bv.mesh.faces]))
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "published").mkdir()
+    write_scene_sss(tmp_path / "scenes" / "bv.sss", scene)
+    # the "published" mesh: a 12 x 20 grid of square cells (0.5 m) over the vault's 6 x 10 m plan
+    cell = 0.5
+    x, y = np.arange(-3.0, 3.0 + 1e-9, cell), np.arange(-5.0, 5.0 + 1e-9, cell)
+    X, Y = np.meshgrid(x, y)
+    nx, ny = len(x) - 1, len(y) - 1
+    quads = [[j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i]
+             for j in range(ny) for i in range(nx)]
+    write_mesh(tmp_path / "published" / "bv-pq-n.obj",
+               PolyMesh.from_faces(np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)], quads), up="-y")
+    rows = pq.run(tmp_path, tmp_path / "out", ["bv"], 1.0, 4.0, remeshers=("seamless",),
+                  densities=("mean", "published"))
+    by = {r["mesh"]: r for r in rows}
+    tag = pq.PUBLISHED_SPACING
+    assert {"scene as is", "remesh principal (seamless)", "remesh grid (seamless)", f"remesh principal (seamless, {tag})",
+            f"remesh grid (seamless, {tag})", "published pq-n"} <= set(by)
+    faces = lambda r: sum(int(c.split(":")[1]) for c in r["faces"].split())  # noqa: E731
+    assert faces(by[f"remesh grid (seamless, {tag})"]) == pytest.approx(nx * ny, rel=0.25)
+    assert faces(by["remesh grid (seamless)"]) == pytest.approx(scene.mesh.n_faces, rel=0.25)
+    assert (tmp_path / "out" / "bv__grid-seamless-published.json").is_file()
+    # the scene as is: the largest vertex move of its planar solve, and its interior quads' mean
+    # non-planarity (distance of the diagonals over the mean side), recomputed here
+    V0, V1 = scene.mesh.vertices, read_network(tmp_path / "out" / "bv__as-is.json").vertices
+    diag = np.linalg.norm(np.ptp(V0, axis=0))
+    assert by["scene as is"]["moved_max"] == pytest.approx(np.linalg.norm(V1 - V0, axis=1).max() / diag, rel=1e-9)
+    gaps = []
+    for f in scene.mesh.faces:
+        if scene.mesh.boundary_vertex_mask[list(f)].any():
+            continue
+        a, b, c, d = V0[list(f)]
+        n = np.cross(c - a, d - b)
+        side = np.mean([np.linalg.norm(V0[f[(k + 1) % 4]] - V0[f[k]]) for k in range(4)])
+        gaps.append(abs((b - a) @ n) / np.linalg.norm(n) / side)
+    assert np.mean(gaps) > 1e-3 and by["scene as is"]["start_nonplanar_interior"] == pytest.approx(np.mean(gaps), rel=1e-9)
+    assert by["scene as is"]["moved_max"] > 1e-4  # (made planar: its vertices moved)
