@@ -545,7 +545,19 @@ def test_least_tension_at_a_fixed_apex_is_the_analytic_shortfall(load, lower, sh
 def test_least_tension_on_a_flat_apex_finds_no_weights_of_either_sign():
     """At the supports' height the spokes are horizontal: no weights carry a vertical load."""
     top, V = _pyramid_topology(0.0)
-    assert cases.least_tension(top, V, np.array([0, 0, 0, 0, -1.0]), 0.0, np.inf)["status"] == "no weights"
+    out = cases.least_tension(top, V, np.array([0, 0, 0, 0, -1.0]), 0.0, np.inf)
+    assert out["status"] == "no weights" and not out["bounded_above"]
+
+
+def test_least_tension_names_an_upper_bound_that_leaves_no_weights():
+    """The apex at h = 1/2 under a unit load needs spokes summing to 1/h = 2, opposite ones
+    equal, so two neighbouring spokes sum to 1: with every weight at most 0.4 no weights carry
+    it, and the verdict says an upper bound was in force; at most 0.6 they do (1/2 each)."""
+    top, V = _pyramid_topology(0.5)
+    L = np.array([0, 0, 0, 0, -1.0])
+    out = cases.least_tension(top, V, L, 0.0, 0.4)
+    assert out["status"] == "no weights" and out["bounded_above"]
+    assert cases.least_tension(top, V, L, 0.0, 0.6)["status"] == "carried"
 
 
 def test_a_blocked_continuation_reports_the_tension_its_geometry_needs(monkeypatch):

@@ -223,7 +223,7 @@ def least_tension(top: Topology, X: np.ndarray, L: np.ndarray, lower: Any, upper
     ``q_e |e|`` is the force by which edge ``e`` falls short of its lower bound. An optimum of zero
     certifies that this geometry carries the loads within the bounds; a positive one, that no
     weights within the bounds carry them here, whatever an iteration does with the weights alone
-    (the geometry must move); an infeasible program, that no weights of either sign do.
+    (the geometry must move); an infeasible program, that no weights of either sign (below ``upper``) do.
 
     Parameters
     ----------
@@ -236,7 +236,7 @@ def least_tension(top: Topology, X: np.ndarray, L: np.ndarray, lower: Any, upper
 
     Returns
     -------
-    ``status``: "carried", "tension", "no weights" (no weights of either sign carry ``L`` at ``X``)
+    ``status``: "carried", "tension", "no weights" (no weights of either sign below ``upper`` carry ``L`` at ``X``; ``bounded_above``: whether any ``upper`` is finite)
     or "not measured" (out of time, or HiGHS failed: ``reason``); with "tension": ``tension_share``,
     the least total force short of the lower bound over the total load ``|Σ L|``; ``largest_share``,
     its largest edge's; ``edges``, how many edges fall short; ``tension_edges``, the
@@ -265,7 +265,7 @@ def least_tension(top: Topology, X: np.ndarray, L: np.ndarray, lower: Any, upper
                   method="highs", options={"time_limit": budget})
     out: dict[str, Any] = {"seconds": time.perf_counter() - t0}
     if res.status == 2:
-        return {**out, "status": "no weights"}
+        return {**out, "status": "no weights", "bounded_above": bool(np.isfinite(up).any())}
     if res.status != 0:
         return {**out, "status": "not measured", "reason": res.message}
     total = float(np.abs(L[free].sum()))
@@ -360,7 +360,8 @@ def _tension_note(b: dict[str, Any]) -> str:
         return (f"; yet weights within the bounds carry case {b['case']!r} exactly at that geometry (a linear "
                 f"program): the fit's residual is the iteration's, not the geometry's")
     if t["status"] == "no weights":
-        return f"; no weights of either sign carry case {b['case']!r} at that geometry (a linear program)"
+        below = " below their upper bounds" if t.get("bounded_above") else ""
+        return f"; no weights of either sign{below} carry case {b['case']!r} at that geometry (a linear program)"
     return (f"; no weights within the bounds carry case {b['case']!r} at that geometry: the least that carry it "
             f"exactly fall short of the lower bound (tension, for the default ε) by a total force of "
             f"{t['tension_share']:.2g} times the case's total load over {t['edges']} edges (the largest "
