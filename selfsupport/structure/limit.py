@@ -726,7 +726,8 @@ def limit_load(scene: Scene, *, thickness: float, density: float = 2000.0, at: S
     tol
         IPOPT's tolerance (its rows are relative residuals).
     max_iter
-        IPOPT's iteration limit per round.
+        IPOPT's iteration limit per run: a round is one run, or two where the first ends at this
+        limit (its retry with :data:`RETRY_OPTIONS` from the same point, within the time limit).
     progress
         Called with each round's record.
 

@@ -344,7 +344,7 @@ def _message(rec: dict[str, Any]) -> str:
         lead = (f"the continuation from the cases' envelope carries {rec['reached']:.0%} of the cases' "
                 f"difference from it in equilibrium, no more (a step of {MIN_STEP:g} failed); there, {carried}")
     held = (f"{b['at_bound']} of its weights on a bound, {b['pushing']} of them pushed against it; those with the "
-            f"largest multipliers: {edges}") if "at_bound" in b else f"the edges its fit holds at a bound with the largest multipliers: {edges}"
+            f"largest multipliers: {edges}")
     return (f"{lead}; case {b['case']!r}'s weight fit within the bounds at that geometry (least squares of the "
             f"relative residuals) leaves max relative error {b['max_relative_error']:.2e}, at vertices {b['vertices']} "
             f"({', '.join(f'{e:.1e}' for e in b['vertex_errors'])}), with {held}"
