@@ -409,7 +409,7 @@ LONG_TITLE = ("a_scene_read_from/a/rather/deep/directory/of/the/user/lilium-pill
 @pytest.mark.parametrize("title", ["pillar_vault(n=25) (staggered, converged)", LONG_TITLE])
 @pytest.mark.parametrize("kind", _available_kinds())
 def test_every_text_is_on_the_canvas_and_the_title_covers_nothing(solved, kind, title):
-    """Issue 16: the deviation title ran off both edges of the PNG. Every drawn text lies
+    """A long title must not run off the PNG: every drawn text lies
     inside the canvas, and the title overlaps neither another text nor any axes' drawn extent
     (its labels, ticks and legend included), for a usual and for a very long scene name."""
     inp = FigureInput(solved.network, history=solved.history, title=title, thickness=0.1, dpi=DPI)
@@ -457,8 +457,8 @@ def _tick_texts(axis) -> list[str]:
 
 @needs_airy
 def test_airy_figure_writes_phi_in_one_unit(solved):
-    """Issue 16: airy.png labelled its φ axis N·m with ticks 20000, 40000 next to a colorbar
-    in kN·m. Now the φ axis, the colorbar and the units note name one unit, tick labels are
+    """airy.png must not label its φ axis N·m with ticks 20000, 40000 next to a colorbar
+    in kN·m: the φ axis, the colorbar and the units note name one unit, tick labels are
     plain numbers in it, and a tick reads its location divided by the unit's scale."""
     import re
 

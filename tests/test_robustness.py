@@ -866,7 +866,7 @@ def test_time_and_iteration_limits_are_honoured():
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["tiny w_max", "pillar base free"])
 def test_hard_designs_at_1200_vertices_stop_within_60_s_by_default(case):
-    """Issue 7: by default <= 60 s at ~1,200 vertices, with a non-converged status."""
+    """By default a hard design stops within 60 s at ~1,200 vertices, with a non-converged status."""
     if case == "tiny w_max":
         scene = make_shape("barrel_vault", n_vertices=1200)
         med = float(np.median(api.solve(scene).network.weights))
@@ -908,7 +908,7 @@ class _Interrupting:
 
 
 def test_ctrl_c_never_replaces_out_and_writes_name_interrupted_json(precious, monkeypatch, capsys):
-    """Issue 16 item 3: the solver stops, the network so far is polished and written labelled
+    """Ctrl-C: the solver stops, the network so far is polished and written labelled
     'interrupted' to NAME.interrupted.json; the existing --out file stays byte for byte; exit 130."""
     import selfsupport.core.progress as progress
 
