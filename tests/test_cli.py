@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -461,6 +462,21 @@ def test_top_level_help_imports_neither_numpy_nor_scipy_nor_a_command_module():
     assert {m for m in mods if m.startswith("selfsupport.cli.")} == {"selfsupport.cli.common"}
     for name, entry in cli.command_index().items():  # and yet every command is listed, with its help
         assert f"    {name}" in out and entry.help.split()[0] in out, name
+
+
+_BLAS_TIMEOUT = ("import os, sys\nfrom selfsupport.cli import main\n"
+                 "print(os.environ.get('OPENBLAS_THREAD_TIMEOUT'), 'numpy' in sys.modules)\n")
+
+
+@pytest.mark.parametrize("user, expected", [(None, "4"), ("28", "28")])
+def test_the_command_line_sends_idle_blas_threads_to_sleep_before_numpy_loads(user, expected):
+    """OpenBLAS reads its threads' spin time once, when numpy (scipy, cvxopt) loads it: the command
+    line sets the shortest before any of them loads, and a value the user set stays."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    if user is not None:
+        env["OPENBLAS_THREAD_TIMEOUT"] = user
+    p = subprocess.run([sys.executable, "-c", _BLAS_TIMEOUT], capture_output=True, text=True, timeout=120, env=env)
+    assert p.stdout.split() == [expected, "False"]
 
 
 #: What a plain solve of a small mesh file does not need: other methods' machinery (multilevel,
