@@ -105,3 +105,14 @@ def test_plan_box_diagonal_is_the_same_number_as_with_qhulls_hull(seed, monkeypa
     ours = plan_box_diagonal(V)
     monkeypatch.setattr(geometry, "convex_hull_2d", lambda p: ConvexHull(p).vertices)
     assert ours == plan_box_diagonal(V)  # (bit for bit: the scale of every solve)
+
+
+@pytest.mark.parametrize("r", [0.0, 1e-10, 0.999, 1.0, 1.4])
+def test_near_pairs_on_a_grid_whose_coordinates_tie_along_every_axis(r):
+    """A 6 × 5 × 4 grid of unit spacing (ties along every axis, which a screen along one axis
+    would take for near pairs): none closer than 1, the axis neighbours at 1, the face diagonals
+    at √2 > 1.4."""
+    g = np.stack(np.meshgrid(np.arange(6.0), np.arange(5.0), np.arange(4.0)), -1).reshape(-1, 3) + [1e3, -2e3, 5.0]
+    got = near_pairs(g, r)
+    assert np.array_equal(got, _kd_pairs(g, r))
+    assert len(got) == (0 if r < 1 else 5 * 5 * 4 + 6 * 4 * 4 + 6 * 5 * 3)

@@ -106,20 +106,20 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
         cross = e[:, 0][None] * (y[:, None] - a[:, 1][None]) - e[:, 1][None] * (x[:, None] - a[:, 0][None])
         cand = cand[~(cross > tol).all(axis=1)]
     cand = cand[np.lexsort((p[cand, 1], p[cand, 0]))]
-    q = p[cand]
+    qx, qy = p[cand, 0].tolist(), p[cand, 1].tolist()  # (Python floats: the same doubles, read faster)
 
     def chain(order: range) -> list[int]:
         h: list[int] = []
         for k in order:
             while len(h) >= 2:
-                (ax, ay), (bx, by), (cx, cy) = q[h[-2]], q[h[-1]], q[k]
-                if (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) > 0:
+                a, b = h[-2], h[-1]
+                if (qx[b] - qx[a]) * (qy[k] - qy[a]) - (qy[b] - qy[a]) * (qx[k] - qx[a]) > 0:
                     break
                 h.pop()
             h.append(k)
         return h
 
-    lower, upper = chain(range(len(q))), chain(range(len(q) - 1, -1, -1))
+    lower, upper = chain(range(len(qx))), chain(range(len(qx) - 1, -1, -1))
     corners = lower[:-1] + upper[:-1]
     return cand[corners] if len(corners) >= 3 else np.zeros(0, np.intp)
 
@@ -143,7 +143,14 @@ def near_pairs(points: np.ndarray, r: float) -> np.ndarray:
     empty = np.zeros((0, 2), np.intp)
     if n < 2 or not r >= 0:
         return empty
-    span = np.ptp(P, axis=0) if n else np.zeros(d)
+    # a pair at most r apart is at most r apart along any unit direction: with no two points that
+    # near along a generic one (sorted, neighbours only; a margin for the rounding), there is none
+    u = np.sqrt(np.arange(2.0, d + 2.0))
+    proj = np.sort(P @ (u / np.linalg.norm(u)))
+    margin = 8 * np.finfo(float).eps * float(np.abs(proj).max(initial=0.0))
+    if not (np.diff(proj) <= float(r) + margin).any():
+        return empty
+    span = np.ptp(P, axis=0)
     # cells at least r wide (and wide enough that their indices stay exact in float64)
     width = max(float(r) * (1 + 1e-9), float(span.max()) * 2.0 ** -50)
     if width > 0 and np.isfinite(width):
