@@ -322,7 +322,7 @@ def test_sigint_in_a_real_process(tmp_path):
     out.write_text("precious")
     # Python keeps SIGINT ignored if its parent ignored it (background jobs of a non-interactive
     # shell do): restore the default so the child gets KeyboardInterrupt as a terminal user would.
-    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:16000", "--out", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:64000", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(8.0)  # imports done (even on a loaded machine), solve under way (it takes far longer)
@@ -519,6 +519,26 @@ def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeyp
     assert "selfsupport.cli.hello" not in sys.modules
     assert cli.main(["hello", "--n", "7"]) == 3 and capsys.readouterr().out == "hello 7\n"
     sys.modules.pop("selfsupport.cli.hello")
+
+
+def test_a_command_runs_with_what_was_imported_frozen_out_of_the_garbage_collector(tmp_path, monkeypatch, capsys):
+    """While a command runs, the objects alive before it (the modules it imported: tens of
+    thousands) are frozen, so no full collection walks them again; afterwards they are not."""
+    import gc
+
+    (tmp_path / "frozen.py").write_text(
+        "import gc\n\nfrom selfsupport.cli.common import Command\n\n\ndef add(p):\n    pass\n\n\n"
+        "def run(args):\n    print(gc.get_freeze_count())\n    return 0\n\n\n"
+        "COMMANDS = {\n    'frozen': Command('count the frozen objects', add, run),\n}\n")
+    import selfsupport.cli as package
+
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, "selfsupport.cli.frozen", raising=False)
+    assert gc.get_freeze_count() == 0
+    assert cli.main(["frozen"]) == 0
+    assert int(capsys.readouterr().out) > 10_000  # (numpy's and the project's modules: pytest's too)
+    assert gc.get_freeze_count() == 0
+    sys.modules.pop("selfsupport.cli.frozen")
 
 
 @pytest.mark.parametrize("source, why", [

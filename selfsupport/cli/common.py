@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import ast
 import contextlib
+import gc
 import importlib
 import json
 import math
@@ -933,6 +934,25 @@ def sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextlib.contextmanager
+def _imports_frozen() -> Iterator[None]:
+    """While inside, the objects alive on entry (numpy's, scipy's and the project's modules,
+    ~50,000 once the command is imported) are out of the cyclic garbage collector's sight
+    (:func:`gc.freeze`), and back in it on exit.
+
+    A full collection walks every object it sees: one during a solve of structural's 527
+    vertices took 0.017 CPU s, a tenth of the solve, to find nothing among the modules. Nothing
+    changes when objects were frozen already (a caller's own use of :func:`gc.freeze`)."""
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -953,7 +973,8 @@ def _main(argv: Sequence[str] | None) -> int:
     try:
         name = command_named(argv)
         args = build_parser(load=() if name is None else (name,)).parse_args(argv)
-        return int(args._run(args))
+        with _imports_frozen():
+            return int(args._run(args))
     except _UsageError as e:
         if debug:
             raise
