@@ -522,13 +522,14 @@ def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeyp
 
 
 def test_a_command_runs_with_what_was_imported_frozen_out_of_the_garbage_collector(tmp_path, monkeypatch, capsys):
-    """While a command runs, the objects alive before it (the modules it imported: tens of
-    thousands) are frozen, so no full collection walks them again; afterwards they are not."""
+    """While a command runs, the objects alive once it is imported (the modules: tens of
+    thousands) are frozen, so no full collection walks them again, and the collector is on;
+    afterwards nothing is frozen and the collector is on as before."""
     import gc
 
     (tmp_path / "frozen.py").write_text(
         "import gc\n\nfrom selfsupport.cli.common import Command\n\n\ndef add(p):\n    pass\n\n\n"
-        "def run(args):\n    print(gc.get_freeze_count())\n    return 0\n\n\n"
+        "def run(args):\n    print(gc.get_freeze_count(), gc.isenabled())\n    return 0\n\n\n"
         "COMMANDS = {\n    'frozen': Command('count the frozen objects', add, run),\n}\n")
     import selfsupport.cli as package
 
@@ -536,8 +537,9 @@ def test_a_command_runs_with_what_was_imported_frozen_out_of_the_garbage_collect
     monkeypatch.delitem(sys.modules, "selfsupport.cli.frozen", raising=False)
     assert gc.get_freeze_count() == 0
     assert cli.main(["frozen"]) == 0
-    assert int(capsys.readouterr().out) > 10_000  # (numpy's and the project's modules: pytest's too)
-    assert gc.get_freeze_count() == 0
+    frozen, enabled = capsys.readouterr().out.split()
+    assert int(frozen) > 10_000 and enabled == "True"  # (numpy's and the project's modules: pytest's too)
+    assert gc.get_freeze_count() == 0 and gc.isenabled()
     sys.modules.pop("selfsupport.cli.frozen")
 
 

@@ -935,21 +935,30 @@ def sigterm_interrupts() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _imports_frozen() -> Iterator[None]:
-    """While inside, the objects alive on entry (numpy's, scipy's and the project's modules,
-    ~50,000 once the command is imported) are out of the cyclic garbage collector's sight
-    (:func:`gc.freeze`), and back in it on exit.
+def _collector_around_command() -> Iterator[Callable[[], None]]:
+    """The cyclic garbage collector around a command: off while its modules are imported; once
+    the function this yields is called (they are), the objects alive then (numpy's, scipy's and
+    the project's modules: ~50,000) frozen out of its sight (:func:`gc.freeze`) and the collector
+    back on for the run; on exit, as it was.
 
-    A full collection walks every object it sees: one during a solve of structural's 527
-    vertices took 0.017 CPU s, a tenth of the solve, to find nothing among the modules. Nothing
-    changes when objects were frozen already (a caller's own use of :func:`gc.freeze`)."""
-    if gc.get_freeze_count():
-        yield
+    Imports leave next to no cyclic garbage, yet the collector walked their objects again and
+    again as they came (~0.015 CPU s of a solve's start), and a full collection inside a solve
+    of structural's 527 vertices took 0.017 CPU s, a tenth of the solve, to find nothing among
+    them. Nothing changes when objects were frozen already or the collector was off (a caller's
+    own settings)."""
+    if gc.get_freeze_count() or not gc.isenabled():
+        yield lambda: None
         return
-    gc.freeze()
+
+    def imported() -> None:
+        gc.freeze()
+        gc.enable()
+
+    gc.disable()
     try:
-        yield
+        yield imported
     finally:
+        gc.enable()
         gc.unfreeze()
 
 
@@ -972,8 +981,9 @@ def _main(argv: Sequence[str] | None) -> int:
     debug = "--debug" in argv
     try:
         name = command_named(argv)
-        args = build_parser(load=() if name is None else (name,)).parse_args(argv)
-        with _imports_frozen():
+        with _collector_around_command() as imported:
+            args = build_parser(load=() if name is None else (name,)).parse_args(argv)
+            imported()
             return int(args._run(args))
     except _UsageError as e:
         if debug:
