@@ -483,8 +483,9 @@ def test_the_command_line_sends_idle_blas_threads_to_sleep_before_numpy_loads(us
 #: IPOPT's hull search and sensitivities, CasADi's symbolic expressions), the analysis,
 #: scipy.optimize (a built-in shape's catenary, the polish's last fallback), plots, the browser
 #: tool and the sweeps; nor scipy.spatial with scipy.special (~0.13 s: the input check's coincident
-#: vertices and the smallest box's hull are numpy kernels).
-NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "scipy.spatial", "scipy.special", "selfsupport.methods.multilevel",
+#: vertices and the smallest box's hull are numpy kernels), nor tomllib (load-case files).
+NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "scipy.spatial", "scipy.special", "tomllib",
+                         "selfsupport.methods.multilevel",
                          "selfsupport.methods.prolong", "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
                          "selfsupport.structure", "selfsupport.figures", "matplotlib", "plotly", "starlette", "dask")
 
