@@ -116,3 +116,16 @@ def test_near_pairs_on_a_grid_whose_coordinates_tie_along_every_axis(r):
     got = near_pairs(g, r)
     assert np.array_equal(got, _kd_pairs(g, r))
     assert len(got) == (0 if r < 1 else 5 * 5 * 4 + 6 * 4 * 4 + 6 * 5 * 3)
+
+
+def test_near_pairs_far_from_the_origin_across_the_screening_direction():
+    """Coordinates of 1e9 whose products with the screen's direction cancel (the rounding of the
+    projections far above the radius): the pairs are still all found."""
+    u = np.sqrt([2.0, 3.0, 4.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(u, [1.0, 0.0, 0.0])
+    rng = np.random.default_rng(0)
+    P = 1e9 * w / np.linalg.norm(w) + rng.random((200, 3))
+    Q = np.vstack([P, P[:20] + rng.normal(size=(20, 3)) * 2e-9])
+    got = near_pairs(Q, 1e-8)
+    assert np.array_equal(got, _kd_pairs(Q, 1e-8)) and len(got) == 20

@@ -146,8 +146,9 @@ def near_pairs(points: np.ndarray, r: float) -> np.ndarray:
     # a pair at most r apart is at most r apart along any unit direction: with no two points that
     # near along a generic one (sorted, neighbours only; a margin for the rounding), there is none
     u = np.sqrt(np.arange(2.0, d + 2.0))
-    proj = np.sort(P @ (u / np.linalg.norm(u)))
-    margin = 8 * np.finfo(float).eps * float(np.abs(proj).max(initial=0.0))
+    u /= np.linalg.norm(u)
+    proj = np.sort(P @ u)
+    margin = 8 * d * np.finfo(float).eps * float((np.abs(P) @ u).max(initial=0.0))  # (the products' rounding)
     if not (np.diff(proj) <= float(r) + margin).any():
         return empty
     span = np.ptp(P, axis=0)
