@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -321,7 +322,7 @@ def test_sigint_in_a_real_process(tmp_path):
     out.write_text("precious")
     # Python keeps SIGINT ignored if its parent ignored it (background jobs of a non-interactive
     # shell do): restore the default so the child gets KeyboardInterrupt as a terminal user would.
-    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:16000", "--out", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "selfsupport", "solve", "shape:pillar_vault:64000", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(8.0)  # imports done (even on a loaded machine), solve under way (it takes far longer)
@@ -463,12 +464,29 @@ def test_top_level_help_imports_neither_numpy_nor_scipy_nor_a_command_module():
         assert f"    {name}" in out and entry.help.split()[0] in out, name
 
 
+_BLAS_TIMEOUT = ("import os, sys\nfrom selfsupport.cli import main\n"
+                 "print(os.environ.get('OPENBLAS_THREAD_TIMEOUT'), 'numpy' in sys.modules)\n")
+
+
+@pytest.mark.parametrize("user, expected", [(None, "4"), ("28", "28")])
+def test_the_command_line_sends_idle_blas_threads_to_sleep_before_numpy_loads(user, expected):
+    """OpenBLAS reads its threads' spin time once, when numpy (scipy, cvxopt) loads it: the command
+    line sets the shortest before any of them loads, and a value the user set stays."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    if user is not None:
+        env["OPENBLAS_THREAD_TIMEOUT"] = user
+    p = subprocess.run([sys.executable, "-c", _BLAS_TIMEOUT], capture_output=True, text=True, timeout=120, env=env)
+    assert p.stdout.split() == [expected, "False"]
+
+
 #: What a plain solve of a small mesh file does not need: other methods' machinery (multilevel,
 #: IPOPT's hull search and sensitivities, CasADi's symbolic expressions), the analysis,
 #: scipy.optimize (a built-in shape's catenary, the polish's last fallback), plots, the browser
-#: tool and the sweeps.
-NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "selfsupport.methods.multilevel", "selfsupport.methods.prolong",
-                         "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
+#: tool and the sweeps; nor scipy.spatial with scipy.special (~0.13 s: the input check's coincident
+#: vertices and the smallest box's hull are numpy kernels), nor tomllib (load-case files).
+NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "scipy.spatial", "scipy.special", "tomllib",
+                         "selfsupport.methods.multilevel",
+                         "selfsupport.methods.prolong", "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
                          "selfsupport.structure", "selfsupport.figures", "matplotlib", "plotly", "starlette", "dask")
 
 
@@ -502,6 +520,28 @@ def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeyp
     assert "selfsupport.cli.hello" not in sys.modules
     assert cli.main(["hello", "--n", "7"]) == 3 and capsys.readouterr().out == "hello 7\n"
     sys.modules.pop("selfsupport.cli.hello")
+
+
+def test_a_command_runs_with_what_was_imported_frozen_out_of_the_garbage_collector(tmp_path, monkeypatch, capsys):
+    """While a command runs, the objects alive once it is imported (the modules: tens of
+    thousands) are frozen, so no full collection walks them again, and the collector is on;
+    afterwards nothing is frozen and the collector is on as before."""
+    import gc
+
+    (tmp_path / "frozen.py").write_text(
+        "import gc\n\nfrom selfsupport.cli.common import Command\n\n\ndef add(p):\n    pass\n\n\n"
+        "def run(args):\n    print(gc.get_freeze_count(), gc.isenabled())\n    return 0\n\n\n"
+        "COMMANDS = {\n    'frozen': Command('count the frozen objects', add, run),\n}\n")
+    import selfsupport.cli as package
+
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, "selfsupport.cli.frozen", raising=False)
+    assert gc.get_freeze_count() == 0
+    assert cli.main(["frozen"]) == 0
+    frozen, enabled = capsys.readouterr().out.split()
+    assert int(frozen) > 10_000 and enabled == "True"  # (numpy's and the project's modules: pytest's too)
+    assert gc.get_freeze_count() == 0 and gc.isenabled()
+    sys.modules.pop("selfsupport.cli.frozen")
 
 
 @pytest.mark.parametrize("source, why", [

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from selfsupport.core.geometry import face_areas, vertex_areas
+from selfsupport.core.linalg import spd_factor
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
@@ -363,6 +364,16 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size
     assert _solve_blocks(H, blocks, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
+    # its light operators give scipy's CG on plain LinearOperators bit for bit (Table 1's numbers stand)
+    lam = np.linalg.eigvalsh(blocks)[:, 0]
+    pre = spd_factor((H + sp.diags(lam)).tocsc())
+    k = top.n_free
+    op = sp.linalg.LinearOperator((3 * k, 3 * k), dtype=float,
+                                  matvec=lambda v: (H @ v.reshape(k, 3) + np.einsum("kij,kj->ki", blocks,
+                                                                                    v.reshape(k, 3))).ravel())
+    prec = sp.linalg.LinearOperator((3 * k, 3 * k), dtype=float, matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel())
+    plain, info = sp.linalg.cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=1e-10, atol=0.0, maxiter=200, M=prec)
+    assert info == 0 and np.array_equal(x.ravel(), plain)
 
 
 def test_a_screened_out_finish_try_would_have_failed():

@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import ast
 import contextlib
+import gc
 import importlib
 import json
 import math
@@ -933,6 +934,34 @@ def sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextlib.contextmanager
+def _collector_around_command() -> Iterator[Callable[[], None]]:
+    """The cyclic garbage collector around a command: off while its modules are imported; once
+    the function this yields is called (they are), the objects alive then (numpy's, scipy's and
+    the project's modules: ~50,000) frozen out of its sight (:func:`gc.freeze`) and the collector
+    back on for the run; on exit, as it was.
+
+    Imports leave next to no cyclic garbage, yet the collector walked their objects again and
+    again as they came (~0.015 CPU s of a solve's start), and a full collection inside a solve
+    of structural's 527 vertices took 0.017 CPU s, a tenth of the solve, to find nothing among
+    them. Nothing changes when objects were frozen already or the collector was off (a caller's
+    own settings)."""
+    if gc.get_freeze_count() or not gc.isenabled():
+        yield lambda: None
+        return
+
+    def imported() -> None:
+        gc.freeze()
+        gc.enable()
+
+    gc.disable()
+    try:
+        yield imported
+    finally:
+        gc.enable()
+        gc.unfreeze()
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -952,8 +981,10 @@ def _main(argv: Sequence[str] | None) -> int:
     debug = "--debug" in argv
     try:
         name = command_named(argv)
-        args = build_parser(load=() if name is None else (name,)).parse_args(argv)
-        return int(args._run(args))
+        with _collector_around_command() as imported:
+            args = build_parser(load=() if name is None else (name,)).parse_args(argv)
+            imported()
+            return int(args._run(args))
     except _UsageError as e:
         if debug:
             raise

@@ -8,11 +8,18 @@ a face add up exactly to the face's (fan) area, so the loads sum to the self-wei
 """
 from __future__ import annotations
 
+import itertools
+import math
+
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import ConvexHull, QhullError
 
+from selfsupport.core.lazy import lazy_module
 from selfsupport.core.mesh import PolyMesh
+
+# (scipy.spatial with scipy.special costs ~0.13 s of a process's start; only near_pairs' fallback
+# for more than ~10^6 occupied cells needs its KD-tree)
+_spatial = lazy_module("scipy.spatial")
 
 
 def _scatter_add(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -53,10 +60,10 @@ def plan_box_diagonal(vertices: np.ndarray) -> float:
     """
 
     v = np.asarray(vertices, float)
-    try:
-        hull = v[ConvexHull(v[:, :2]).vertices, :2]
-    except (QhullError, ValueError):  # collinear or too few points in plan
+    corners = convex_hull_2d(v[:, :2])
+    if len(corners) < 3:  # collinear or too few points in plan
         return bbox_diagonal(v)
+    hull = v[corners, :2]
     edges = np.roll(hull, -1, axis=0) - hull
     u = edges / np.linalg.norm(edges, axis=1)[:, None]
     area, diag2 = [], []
@@ -69,6 +76,129 @@ def plan_box_diagonal(vertices: np.ndarray) -> float:
     area, diag2 = np.concatenate(area), np.concatenate(diag2)
     smallest = area <= area.min() * (1 + 1e-9)
     return float(np.sqrt(diag2[smallest].min() + np.ptp(v[:, 2]) ** 2))
+
+
+def convex_hull_2d(points: np.ndarray) -> np.ndarray:
+    """Indices of the corners of the convex hull of 2-D ``points``, counter-clockwise from the
+    lowest-leftmost point; points on an edge of the hull are not corners (the corners Qhull
+    gives). Fewer than three indices when the points span no area (or any is not finite).
+
+    Andrew's monotone chain on the points left after the Akl–Toussaint filter (those not strictly
+    inside the octagon of the extreme points in x, y, x + y and x − y): a mesh's interior
+    vertices drop out in one vectorised test, and no scipy.spatial import is needed.
+
+    >>> convex_hull_2d(np.array([[0.0, 0], [1, 0], [2, 0], [2, 2], [1, 1], [0, 2]])).tolist()
+    [0, 2, 3, 5]
+    """
+    p = np.asarray(points, float).reshape(-1, 2)
+    if len(p) < 3 or not np.isfinite(p).all():
+        return np.zeros(0, np.intp)
+    cand = np.arange(len(p))
+    x, y = p[:, 0], p[:, 1]
+    ext = np.unique([f(s) for s in (x, y, x + y, x - y) for f in (np.argmin, np.argmax)])
+    if len(ext) >= 3:  # (the octagon's corners, counter-clockwise about their mean)
+        c = p[ext].mean(axis=0)
+        octagon = p[ext[np.argsort(np.arctan2(*(p[ext] - c).T[::-1]))]]
+        a, b = octagon, np.roll(octagon, -1, axis=0)
+        e = b - a
+        # strictly inside by more than rounding: (the points near its edges stay candidates)
+        tol = 1e-12 * float(np.abs(p).max() + np.ptp(p, axis=0).max()) ** 2
+        cross = e[:, 0][None] * (y[:, None] - a[:, 1][None]) - e[:, 1][None] * (x[:, None] - a[:, 0][None])
+        cand = cand[~(cross > tol).all(axis=1)]
+    cand = cand[np.lexsort((p[cand, 1], p[cand, 0]))]
+    qx, qy = p[cand, 0].tolist(), p[cand, 1].tolist()  # (Python floats: the same doubles, read faster)
+
+    def chain(order: range) -> list[int]:
+        h: list[int] = []
+        for k in order:
+            while len(h) >= 2:
+                a, b = h[-2], h[-1]
+                if (qx[b] - qx[a]) * (qy[k] - qy[a]) - (qy[b] - qy[a]) * (qx[k] - qx[a]) > 0:
+                    break
+                h.pop()
+            h.append(k)
+        return h
+
+    lower, upper = chain(range(len(qx))), chain(range(len(qx) - 1, -1, -1))
+    corners = lower[:-1] + upper[:-1]
+    return cand[corners] if len(corners) >= 3 else np.zeros(0, np.intp)
+
+
+def near_pairs(points: np.ndarray, r: float) -> np.ndarray:
+    """Every pair ``(i, j)``, ``i < j``, of ``points`` (n, d) at most ``r`` apart (Euclidean), as
+    an (m, 2) array in lexicographic order: the pairs of ``cKDTree.query_pairs(r)``.
+
+    The points are binned on a grid of cells a little wider than ``r`` (two points that near
+    are in the same cell or in neighbouring ones, across any cell border), the cells sorted by
+    one integer key, and the candidates in each cell and its forward neighbours measured. With
+    ``r = 0`` the pairs are the identical points. More occupied cells than one key can number
+    (~10^6 in 3-D) fall back to the KD-tree.
+
+    >>> near_pairs(np.array([[0.0, 0, 0], [0, 0, 1e-9], [1, 1, 1], [2, 2, 2]]), 1e-6).tolist()
+    [[0, 1]]
+    """
+    P = np.asarray(points, float)
+    P = P.reshape(len(P), -1)
+    n, d = P.shape
+    empty = np.zeros((0, 2), np.intp)
+    if n < 2 or not r >= 0:
+        return empty
+    # a pair at most r apart is at most r apart along any unit direction: with no two points that
+    # near along a generic one (sorted, neighbours only; a margin for the rounding), there is none
+    u = np.sqrt(np.arange(2.0, d + 2.0))
+    u /= np.linalg.norm(u)
+    proj = np.sort(P @ u)
+    margin = 8 * d * np.finfo(float).eps * float((np.abs(P) @ u).max(initial=0.0))  # (the products' rounding)
+    if not (np.diff(proj) <= float(r) + margin).any():
+        return empty
+    span = np.ptp(P, axis=0)
+    # cells at least r wide (and wide enough that their indices stay exact in float64)
+    width = max(float(r) * (1 + 1e-9), float(span.max()) * 2.0 ** -50)
+    if width > 0 and np.isfinite(width):
+        C = np.floor((P - P.min(axis=0)) / width).astype(np.int64)
+    else:  # r = 0 and all points equal (or non-finite coordinates: compare them as they are)
+        C = np.zeros((n, d), np.int64)
+    # per axis, renumber the occupied cell indices keeping neighbours neighbours (a gap of two or
+    # more becomes two), shifted by one so that index − 1 stays in range
+    key, extents = np.zeros(n, np.int64), []
+    for j in range(d):
+        u, inv = np.unique(C[:, j], return_inverse=True)
+        compact = np.concatenate([[0], np.cumsum(np.minimum(np.diff(u), 2))]) + 1
+        extents.append(int(compact[-1]) + 2)
+        if math.prod(extents) >= 2 ** 62:
+            pairs = _spatial.cKDTree(P).query_pairs(float(r), output_type="ndarray").astype(np.intp)
+            return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if len(pairs) else empty
+        key = key * extents[-1] + compact[inv.ravel()]
+    order = np.argsort(key, kind="stable")
+    cells, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    cell_of = np.repeat(np.arange(len(cells)), count)  # of each sorted position
+    pos = np.arange(n)
+    # the same cell: each point with those after it
+    i_pos, j_pos = _expand(pos, pos + 1, start[cell_of] + count[cell_of] - pos - 1)
+    I, J = [i_pos], [j_pos]
+    strides = [math.prod(extents[k + 1:]) for k in range(d)]
+    for delta in itertools.product((-1, 0, 1), repeat=d):
+        if not any(delta) or delta[next(k for k in range(d) if delta[k])] < 0:
+            continue  # (each neighbouring pair of cells once: the forward offsets only)
+        want = cells + sum(dk * sk for dk, sk in zip(delta, strides))
+        at = np.minimum(np.searchsorted(cells, want), len(cells) - 1)
+        has = cells[at] == want
+        b = np.where(has, at, 0)[cell_of]  # the neighbour cell of each sorted position
+        i_pos, j_pos = _expand(pos, start[b], np.where(has[cell_of], count[b], 0))
+        I.append(i_pos)
+        J.append(j_pos)
+    i, j = order[np.concatenate(I)], order[np.concatenate(J)]
+    near = ((P[i] - P[j]) ** 2).sum(axis=1) <= float(r) ** 2
+    pairs = np.sort(np.stack([i[near], j[near]], axis=1), axis=1).astype(np.intp)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if len(pairs) else empty
+
+
+def _expand(first: np.ndarray, begin: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``first[k]`` repeated ``m[k]`` times beside ``begin[k], begin[k] + 1, …`` (``m[k]`` of them)."""
+    m = np.asarray(m, np.int64)
+    rep = np.repeat(np.arange(len(m)), m)
+    local = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)
+    return first[rep], begin[rep] + local
 
 
 def face_centroids(mesh: PolyMesh, vertices: np.ndarray | None = None) -> np.ndarray:

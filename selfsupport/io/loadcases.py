@@ -27,7 +27,6 @@ Example
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -36,7 +35,10 @@ import numpy as np
 
 from selfsupport.core.defaults import DEFAULT_DENSITY, DEFAULT_THICKNESS
 from selfsupport.core.errors import InputError
+from selfsupport.core.lazy import lazy_module
 from selfsupport.core.loads import ExtraMass, G, LoadCase, PointLoad, SelfWeight
+
+tomllib = lazy_module("tomllib")  # (its regexes compile on import: ~3 ms of every start; load-case files only)
 
 
 def parse_vertex_value(text: str, what: str) -> tuple[int, float]:

@@ -60,11 +60,10 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from formulations.equilibrium import Topology, weight_matrix
 from selfsupport.core.errors import InfeasibleDesign, InputError, MeshError, SelfSupportError, SupportError
-from selfsupport.core.geometry import bbox_diagonal, face_areas
+from selfsupport.core.geometry import bbox_diagonal, face_areas, near_pairs
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.methods.weightfit_backends import make_backend
@@ -462,12 +461,7 @@ def _check_top_view(scene: Scene, ctx: _Context) -> list[Issue]:
 
 def _check_duplicates(scene: Scene, ctx: _Context) -> list[Issue]:
 
-    # (an unbalanced tree builds 2x faster; the pairs within the radius are the same, sorted below)
-    pairs = cKDTree(ctx.vertices(), balanced_tree=False, compact_nodes=False).query_pairs(COINCIDENT * (1.0 if ctx.V is not None else ctx.diag),
-                                                output_type="ndarray")
-    if not len(pairs):
-        return []
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pairs = near_pairs(ctx.vertices(), COINCIDENT * (1.0 if ctx.V is not None else ctx.diag))  # (in order)
     free = ~scene.supports
     pairs = pairs[free[pairs[:, 0]] | free[pairs[:, 1]]]  # two coincident supports hold each other: harmless
     if not len(pairs):

@@ -34,14 +34,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from selfsupport.core.evidence import triangulate
+from selfsupport.core.lazy import lazy_module
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 
 __all__ = ["WarmStart", "transfer", "as_warm_start", "interpolate_offsets", "interpolate_over_top_view"]
+
+_spatial = lazy_module("scipy.spatial")  # (its KD-tree: ~0.13 s to import, for warm starts only)
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +88,7 @@ def transfer(warm: WarmStart, scene: Scene) -> tuple[np.ndarray, np.ndarray, boo
         X = R + interpolate_offsets(net.mesh.with_vertices(old_ref), offset_old, R[:, :2])
         Eo, En = net.mesh.edges, mesh.edges
         mid_old = 0.5 * (old_ref[Eo[:, 0]] + old_ref[Eo[:, 1]])
-        _, ie = cKDTree(mid_old).query(0.5 * (R[En[:, 0]] + R[En[:, 1]]))
+        _, ie = _spatial.cKDTree(mid_old).query(0.5 * (R[En[:, 0]] + R[En[:, 1]]))
         w = np.asarray(net.weights, float)[ie]
         # edges whose nearest old edge carried nothing (between two old supports) get the median
         carried = w > 0
@@ -153,5 +155,5 @@ def interpolate_over_top_view(mesh: PolyMesh, values: np.ndarray, points: np.nda
         pass
     miss = ~np.isfinite(out).all(axis=1)
     if miss.any():
-        out[miss] = values[cKDTree(xy).query(points[miss])[1]]
+        out[miss] = values[_spatial.cKDTree(xy).query(points[miss])[1]]
     return out
