@@ -12,7 +12,7 @@ import pytest
 
 from formulations import Problem
 from formulations.equilibrium import Topology, weight_matrix
-from selfsupport.core.errors import InputError
+from selfsupport.core.errors import InputError, SelfSupportError
 from selfsupport.core.loads import PointLoad, SelfWeight
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
@@ -619,3 +619,30 @@ def test_ipopt_nearest_to_the_stalled_network_finishes_a_triangulated_free_edged
     for name, net in res.case_networks:
         report = independent_check(net, tol=1e-8)
         assert report.ok, (name, report.stdout)
+
+
+@pytest.mark.parametrize("finish", [True, False])
+def test_the_iteration_over_every_case_leaves_the_finish_its_share_of_the_time(monkeypatch, finish):
+    """Where the continuation is blocked (the quad grid's point load), the iteration over every
+    case stops at 1 − FINISH_SHARE of the solve's time when IPOPT's finish may run, so that the
+    finish has its share; without the finish it has the whole time."""
+    from selfsupport.methods.staggered import method as staggered_method
+
+    problem, v = _quad_grid_point_case()
+    seen, iterate = [], StaggeredLinearization._iterate
+
+    def held(self, problem, opt, progress, warm_start, deadline):
+        if len(problem.loads) == 1:  # (the envelope's own solve)
+            return iterate(self, problem, opt, progress, warm_start, deadline)
+        seen.append(deadline)
+        return iterate(self, problem, replace(opt, max_iter=2), progress, warm_start, deadline)
+
+    monkeypatch.setattr(StaggeredLinearization, "_iterate", held)
+    def no_finish(problem, stalled, deadline, progress):
+        raise SelfSupportError("not in this test")
+
+    monkeypatch.setattr(staggered_method, "ipopt_finish", no_finish)
+    t0 = time.perf_counter()
+    StaggeredLinearization(ipopt_finish=finish).solve(problem, time_limit=30.0)
+    share = cases.FINISH_SHARE if finish else 0.0
+    assert len(seen) == 1 and seen[0] == pytest.approx(t0 + (1 - share) * 30.0, abs=0.5)
