@@ -37,7 +37,10 @@ count square).
 
 When neither the continuation nor the iteration over every case converges, the simultaneous
 method (IPOPT over the positions and every case's weights at once) starts from the iteration's
-network and each case's weights, in the time left (:func:`ipopt_finish`): its answer is the
+network and each case's weights, in the time left, at least :data:`FINISH_SHARE` of the solve's
+(:func:`ipopt_finish`), and seeks the network in equilibrium for every case nearest the
+iteration's: where the iteration stalls because its Step 3 trades the cases' errors, IPOPT's
+steps move the weights across their bounds and the positions together. Its answer is the
 method's when it converges, else its status stands beside the staggered numbers in the report
 ("Infeasible_Problem_Detected" or a failed restoration: IPOPT's evidence of a local
 infeasibility; "Feasible_Point_Found": the joint problem has as many equations as unknowns, see
