@@ -160,6 +160,8 @@ def test_ipopt_finish_runs_within_the_solves_deadline(monkeypatch):
     fin = res.parameters["ipopt_from_staggered"]
     assert res.status != "converged" and fin["status"] != "converged" and fin["ipopt_status"] is not None
     assert f"ended {fin['status']} (IPOPT: {fin['ipopt_status']})" in res.message
+    assert "for the network nearest it, ended" in res.message and fin["nearest_to_start"]
+    assert f"its vertices up to {fin['moved']:.3g} m from it" in res.message
     assert f"{fin['unknowns']} unknowns for {fin['equations']} equations" in res.message
 
 

@@ -601,9 +601,11 @@ def finish_note(stalled: SolveResult, rec: dict[str, Any]) -> str:
     errs = ", ".join(f"{k} {v:.2e}" for k, v in rec["case_errors"].items())
     count = (f"; the joint problem has {rec['unknowns']} unknowns for {rec['equations']} equations "
              f"({rec['free_vertices']} free vertices, {rec['edges']} edges, {rec['cases']} cases)")
+    seeking = " for the network nearest it" if rec.get("nearest_to_start") else ""
     return (f"IPOPT over every case jointly, started from this network (max relative error "
-            f"{stalled.max_relative_error:.2e}), ended {rec['status']} (IPOPT: {rec['ipopt_status']}) in "
-            f"{rec['seconds']:.1f} s at max relative error per case {errs}" + count)
+            f"{stalled.max_relative_error:.2e}){seeking}, ended {rec['status']} (IPOPT: {rec['ipopt_status']}) in "
+            f"{rec['seconds']:.1f} s at max relative error per case {errs}, its vertices up to "
+            f"{rec['moved']:.3g} m from it" + count)
 
 
 def carry_note(carry: dict[str, dict[str, Any]]) -> str:
