@@ -328,3 +328,29 @@ def test_converged_is_said_only_of_a_network_in_equilibrium(shape):
     assert err == pytest.approx(res.max_relative_error, rel=1e-6)
     assert err > res.parameters["tol"] and res.status == "stalled"
     assert "vertices hardest to balance" in res.message
+
+
+def test_a_network_in_equilibrium_is_its_own_nearest(scene, result):
+    """``nearest_to_start`` measures the objective's distances to the start: started from the
+    staggered method's network (in equilibrium, weights within the same default bounds, but not
+    IPOPT's optimum for the reference), the nearest network in equilibrium is the start itself
+    (up to what the tiny weight regulariser trades against the distance), while the plain warm
+    start moves towards the reference's optimum, over twenty times further. The result's
+    distances are still to the reference: the start's."""
+    from selfsupport.methods.staggered import StaggeredLinearization
+
+    start = StaggeredLinearization().solve(scene, LOADS)
+    assert start.status == "converged"
+    diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
+    near = Simultaneous().solve(scene, LOADS, warm_start=start.network, nearest_to_start=True)
+    plain = Simultaneous().solve(scene, LOADS, warm_start=start.network)
+    assert near.status == plain.status == "converged" and near.parameters["nearest_to_start"]
+    moved = {k: np.abs(r.network.vertices - start.network.vertices).max() for k, r in (("near", near), ("plain", plain))}
+    assert moved["near"] < 0.05 * moved["plain"] and moved["plain"] > 1e-4 * diag
+    assert near.distance_mean == pytest.approx(start.distance_mean, rel=1e-2)
+    assert plain.distance_mean < 0.9 * near.distance_mean
+
+
+def test_nearest_to_start_needs_a_start(scene):
+    with pytest.raises(InputError, match="nearest_to_start needs a warm_start"):
+        Simultaneous().solve(scene, LOADS, nearest_to_start=True)

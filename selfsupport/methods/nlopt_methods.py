@@ -105,7 +105,9 @@ class NloptSimultaneous(Simultaneous):
                 "(Simultaneous, --method ipopt) instead")
 
     def _solve_round(self, problem: ThrustNetworkProblem, nlp: dict, x: np.ndarray, loads_scaled: np.ndarray,
-                     warm: dict | None, *, tol: float, max_iter: int, remaining: float, verbose: bool) -> dict:
+                     warm: dict | None, *, tol: float, max_iter: int, remaining: float, verbose: bool,
+                     extra: Any = None) -> dict:
+        # (``extra``: IPOPT's options of a cold round, which nlopt has no use for)
         if self.options["algorithm"] in self.REDUCED:
             return self._solve_round_reduced(problem, nlp, x, loads_scaled, tol=tol, max_iter=max_iter,
                                              remaining=remaining)

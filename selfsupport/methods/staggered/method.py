@@ -15,6 +15,7 @@ from selfsupport.methods import METHODS
 from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.staggered.cases import (
+    FINISH_SHARE,
     any_weights_carry,
     carry_note,
     continuation,
@@ -116,7 +117,9 @@ class StaggeredLinearization:
         res, rec = continuation(self, problem, opt, progress, warm_start, deadline)
         if res is not None:
             return res
-        other = self._iterate(problem, opt, progress, warm_start, deadline) if not out_of_time(deadline) else None
+        # (IPOPT's finish, when it may run, keeps its share of the time from the iteration)
+        until = deadline - FINISH_SHARE * (deadline - t0) if opt.ipopt_finish else deadline
+        other = self._iterate(problem, opt, progress, warm_start, until) if not out_of_time(until) else None
         if other is not None and other.status == "converged":
             return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
                                        parameters={**other.parameters, "load_continuation": rec})
