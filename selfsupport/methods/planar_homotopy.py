@@ -29,12 +29,13 @@ The pull: the stages' minimum-norm steps keep the network near the start of the 
 which is only *a* network in equilibrium (the staggered solve without planar faces lifted the
 free edges of the paper's vault remeshed along its principal directions 0.24 of the diagonal
 off the remesh; at the published spacing 1.3 of it, and the homotopy stalled from there).
-So the start, when its faces are not yet planar, is first drawn toward the reference in
-equilibrium, and the planar end again with its faces held in the band reached: projected-gradient
+So the planar end is drawn toward the reference with its faces held in the band reached, and
+where the homotopy does not converge, its start in equilibrium before it runs again: projected-gradient
 steps toward the closest points of the reference, each restored by the same polish and
-accepted only feasible and closer (:func:`_pull`). Where the homotopy from the pulled start
-does not converge (the vault's grid remesh at the published spacing crawled at 2.2e-3), it
-runs again from the start as given.
+accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start as given
+first; only where it does not converge (the vault's aligned remesh at the published spacing)
+does it run again from the start pulled toward the reference in equilibrium (pulled further,
+it is not always the easier start: lilium's grid remesh crawled from there).
 
 Example: a barrel vault remeshed along its relative principal directions, where the staggered
 method with planar faces stalls:
@@ -259,8 +260,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first, or the
         band's pace could not reach the target within :data:`MAX_STAGES` (:data:`PACE_WINDOW`);
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages,
-        ``starts`` (2: the homotopy from the pulled start did not converge and ran again from the
-        start as given; each history record names its ``start``), and ``pull`` (``None`` when it
+        ``starts`` (2: the homotopy from the start as given did not converge and ran again from the
+        start pulled toward ``reference``; each history record names its ``start``), and ``pull`` (``None`` when it
         did not run; else per pull, ``start`` and ``planar``, its steps, the accepted ones, and
         the mean distance to ``reference`` over its bounding-box diagonal before and after).
     """
@@ -314,25 +315,30 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         return float(np.abs(diagonal_distance(Y, rows)[0]).max(initial=0.0))
 
     pulled: dict[str, Any] | None = {} if pull else None
-    starts, steps = [(X, W)], 0
-    if pulled is not None and nonplanarity(X) > target:
-        # (the start, faces not yet planar: the network in equilibrium nearest the reference; the
-        # homotopy from there first, and from the start as given where that one does not converge)
-        now = time.perf_counter()
-        Xp, Wp, steps, pulled["start"] = pull_toward_reference(
-            X, W, None, in_equilibrium, None if deadline is None else now + PULL_START_SHARE * (deadline - now))
-        if pulled["start"]["accepted"]:
-            starts.insert(0, (Xp, Wp))
-    start = nonplanarity(starts[0][0])
-    history: list[dict] = []
-    for n_start, (X, W) in enumerate(starts):
+    start, steps, history = nonplanarity(X), 0, []
+    X0, W0 = X, W
+    ended = None  # (the first run's end: kept where the second reaches no narrower band)
+    for n_start in range(2):
+        if n_start:
+            # (the homotopy from the start as given did not converge: again from the network in
+            # equilibrium nearest the reference, faces not yet planar, with what time is left)
+            now = time.perf_counter()
+            X, W, k, pulled["start"] = pull_toward_reference(
+                X0, W0, None, in_equilibrium, None if deadline is None else now + PULL_START_SHARE * (deadline - now))
+            steps += k
+            if not pulled["start"]["accepted"]:
+                X, W, band, status = ended
+                break
         X, W, band, k, tried, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac,
                                                band=max(nonplanarity(X), target), target=target, tol=planar.tol,
                                                planar_enough=planar_enough, deadline=deadline, progress=progress)
         steps += k
         history += [{**h, "start": n_start} for h in tried]
-        if status == "converged" or out_of_time(deadline):
+        if ended is not None and status != "converged" and ended[2] < band:
+            X, W, band, status = ended
+        if status == "converged" or out_of_time(deadline) or pulled is None or start <= target:
             break
+        ended = (X, W, band, status)
     if status == "converged" and pulled is not None:  # (the end: faces held within the band reached)
         X, W, k, pulled["planar"] = pull_toward_reference(X, W, band, planar_enough, deadline)
         steps += k
