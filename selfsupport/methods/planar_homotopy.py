@@ -29,13 +29,12 @@ The pull: the stages' minimum-norm steps keep the network near the start of the 
 which is only *a* network in equilibrium (the staggered solve without planar faces lifted the
 free edges of the paper's vault remeshed along its principal directions 0.24 of the diagonal
 off the remesh; at the published spacing 1.3 of it, and the homotopy stalled from there).
-So the planar end is drawn toward the reference with its faces held in the band reached, and
-where the homotopy does not converge, its start in equilibrium before it runs again: projected-gradient
-steps toward the closest points of the reference, each restored by the same polish and
-accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start as given
-first; only where it does not converge (the vault's aligned remesh at the published spacing)
-does it run again from the start pulled toward the reference in equilibrium (pulled further,
-it is not always the easier start: lilium's grid remesh crawled from there).
+So the planar end is drawn toward the reference with its faces held in the band reached:
+projected-gradient steps toward the closest points of the reference, each restored by the same
+polish and accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start
+as given first; only where it does not converge (the vault's aligned remesh at the published
+spacing) does it run again from that start pulled toward the reference in equilibrium (the
+pulled start is not always the easier one: from lilium's grid remesh pulled so, it crawls).
 
 Example: a barrel vault remeshed along its relative principal directions, where the staggered
 method with planar faces stalls:
@@ -193,7 +192,7 @@ def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: 
           deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
     """The feasible network nearest the targets, locally: each step moves the free vertices the
     fraction ``alpha`` of the way to ``targets(X)`` (their closest points on the reference) and
-    restores equilibrium with the faces held in the final band (``form(X)``) by the joint
+    restores equilibrium (and the faces' band, where ``form(X)`` has one) by the joint
     minimum-norm polish. The restoration takes back the step's part across the linearised
     constraints, so the pair is a projected-gradient step on the summed squared distance. A step
     is accepted when the polish converges, the network is ``feasible`` and closer; ``alpha``
@@ -250,7 +249,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     pull
         After a converged homotopy, move toward ``reference`` while staying in equilibrium and
         planar (:func:`_pull`): the homotopy's minimum-norm steps find *a* planar network in
-        equilibrium near its start, not the one nearest the reference.
+        equilibrium near its start, not the one nearest the reference. Where the homotopy does
+        not converge, its start is moved toward ``reference`` in equilibrium and it runs again.
 
     Returns
     -------
@@ -260,10 +260,11 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first, or the
         band's pace could not reach the target within :data:`MAX_STAGES` (:data:`PACE_WINDOW`);
         ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages,
-        ``starts`` (2: the homotopy from the start as given did not converge and ran again from the
-        start pulled toward ``reference``; each history record names its ``start``), and ``pull`` (``None`` when it
-        did not run; else per pull, ``start`` and ``planar``, its steps, the accepted ones, and
-        the mean distance to ``reference`` over its bounding-box diagonal before and after).
+        ``starts`` (2: the homotopy from the start as given did not converge and ran again from
+        the start pulled toward ``reference``; each history record names its ``start``), and
+        ``pull`` (``None`` without the pull; else per pull that ran, ``start`` and ``planar``, its
+        steps, the accepted ones, and the mean distance to ``reference`` over its bounding-box
+        diagonal before and after).
     """
 
     t0 = time.perf_counter()

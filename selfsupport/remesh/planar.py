@@ -16,8 +16,8 @@ the network in equilibrium, it converged in 0.5 s. The best run is returned and
 
 Nearest, not just planar: the homotopy's minimum-norm steps end near its start, and the
 staggered network in equilibrium it starts from can be far from the design (the paper's vault
-remeshed along its principal directions: free edges lifted 0.24 of the diagonal, and the
-planar network 3.3e-2 of it from the reference, mean). The homotopy therefore pulls its planar
+remeshed along its principal directions: free edges lifted 0.24 of the diagonal, and without
+the pull the planar network ends 3.3e-2 of it from the reference, mean). The homotopy therefore pulls its planar
 end toward a reference surface while it stays planar and in equilibrium (and, where it does not
 converge, its start before it runs again): with ``reference`` the design's surface, that vault
 ends about 5e-3 from it. With ``reference`` given, a first solve that converged alone is pulled
