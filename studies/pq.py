@@ -10,7 +10,8 @@ directions and along a fixed grid (``--spacing`` × the network's mean top-view 
 each remesher of ``--remesher``, :data:`selfsupport.remesh.streamlines.METHODS`), each
 solved with planar faces required (:class:`formulations.Planar`, tol 1e-3) by
 :func:`selfsupport.remesh.planar.solve_planar` (the staggered method, and where it does not converge
-the finishes, planar homotopy then IPOPT; ``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
+the finishes, planar homotopy then IPOPT, the homotopy's network pulled toward the scene's reference;
+``--no-finish``: the staggered method alone). Columns: faces, status, solved by,
 max relative error (recomputed from the saved network), max / mean quad non-planarity (distance
 of the diagonals / mean edge length) before (also the mean over the quads off the boundary) and
 after, mean distance to the scene's reference (/ bbox diagonal) before the planar solve (the
@@ -126,7 +127,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                 todo = scene if q is None else q.scene
                 mx, mn = _nonplanarity(todo.mesh)
                 inner = _interior_nonplanarity(todo.mesh)
-                res = solve_planar(todo, tol=1e-3, finish=finish, time_limit=time_limit)
+                res = solve_planar(todo, tol=1e-3, finish=finish, time_limit=time_limit, reference=scene.mesh)
             except SelfSupportError as exc:
                 row.update(status=f"failed: {exc}")
                 rows.append(row)

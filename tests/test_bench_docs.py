@@ -206,23 +206,37 @@ def test_paper_fig12_the_remeshes_at_the_published_spacing(scene):
 def test_paper_fig12_why_the_vault_differs_and_how_our_mesh_differs_from_the_papers():
     pq = rows("pq.csv")
     row = {(r["scene"], r["mesh"]): r for r in pq}
-    m = sentence(PAPER, r"On lilium and cas every remesh that became a planar-quad network in equilibrium \(all but "
-                        r"cas's grid traced along streamlines, which stalls at non-planarity (\S+)\) ends farther from "
-                        r"the reference than the aligned one")
+    m = sentence(PAPER, r"On lilium and cas every grid remesh that became a planar-quad network in equilibrium \(all "
+                        r"but cas's grid traced along streamlines, which (\w+) at non-planarity (\S+)\) ends farther "
+                        r"from the reference than the aligned one; the streamlines along the principal directions end "
+                        r"closer still on lilium \((\S+)\) and farther on cas \((\S+)\)")
     for scene in ("lilium", "cas"):
         aligned = row[scene, PQ_ALIGNED]
-        others = [r for r in pq if r["scene"] == scene and r["mesh"].startswith("remesh") and r is not aligned
-                  and pq_same_spacing(r, aligned)]
-        assert pq_planar(aligned) and all(r["dist_mean"] > aligned["dist_mean"] for r in others if pq_planar(r))
-        assert [r["mesh"] for r in others if not pq_planar(r)] == ([] if scene == "lilium" else ["remesh grid"])
-    assert_shown(m[1], row["cas", "remesh grid"]["nonplanar_max"], "cas streamline grid: non-planarity")
+        grids = [r for r in pq if r["scene"] == scene and r["mesh"].startswith("remesh grid")
+                 and pq_same_spacing(r, aligned)]
+        assert pq_planar(aligned) and all(r["dist_mean"] > aligned["dist_mean"] for r in grids if pq_planar(r))
+        assert [r["mesh"] for r in grids if not pq_planar(r)] == ([] if scene == "lilium" else ["remesh grid"])
+    assert {"stalls": "stalled", "stops": "time_limit"}.get(m[1]) == row["cas", "remesh grid"]["status"]
+    assert_shown(m[2], row["cas", "remesh grid"]["nonplanar_max"], "cas streamline grid: non-planarity")
+    for k, scene, closer in ((3, "lilium", True), (4, "cas", False)):
+        streamlines = row[scene, "remesh principal"]
+        assert_shown(m[k], streamlines["dist_mean"], f"{scene} principal streamlines: distance")
+        assert pq_planar(streamlines) and (streamlines["dist_mean"] < row[scene, PQ_ALIGNED]["dist_mean"]) == closer
+    m = sentence(PAPER, r"On the vault, a 100-vertex network, every remesh becomes a planar-quad network in "
+                        r"equilibrium, at most (\S+) from the reference, where the published `vault-pq-n.obj` \((\d+) "
+                        r"quads\) is (\S+) from the reference; but along the principal directions it ends farther than "
+                        r"along the grid")
+    vault = [r for r in pq if r["scene"] == "vault" and r["mesh"].startswith("remesh")]
+    published = row["vault", "published pq-n"]
+    assert all(pq_planar(r) for r in vault)
+    assert_shown(m[1], max(r["dist_mean"] for r in vault), "vault: the farthest planar remesh")
+    assert max(r["dist_mean"] for r in vault) < published["dist_mean"]
     m = sentence(PAPER, r"starts further from planar than the grid's \(mean non-planarity (\S+) against (\S+)\) and "
-                        r"planarising moves its vertices much further from the reference")
+                        r"further from the reference")
     aligned, grid = row["vault", PQ_ALIGNED], row["vault", "remesh grid (seamless)"]
     assert_shown(m[1], float(aligned["start_nonplanar"].split(" / ")[1]), "vault aligned: mean non-planarity before")
     assert_shown(m[2], float(grid["start_nonplanar"].split(" / ")[1]), "vault grid: mean non-planarity before")
-    assert pq_planar(aligned)
-    assert aligned["dist_mean"] - aligned["dist_start"] > 5 * (grid["dist_mean"] - grid["dist_start"]) > 0
+    assert aligned["dist_start"] > grid["dist_start"] and aligned["dist_mean"] > grid["dist_mean"]
     # off the boundary the two start alike on the vault; on lilium and cas the aligned quads are nearer planar
     m = sentence(PAPER, r"mean non-planarity of the quads with no boundary vertex (\S+) along the principal directions, "
                         r"(\S+) along the grid; on lilium (\S+) against (\S+), on cas (\S+) against (\S+)\)")
@@ -234,17 +248,8 @@ def test_paper_fig12_why_the_vault_differs_and_how_our_mesh_differs_from_the_pap
     m = sentence(PAPER, r"its largest vertex move is (\S+) of the diagonal against the grid's (\S+)\.")
     assert_shown(m[1], aligned["moved_max"], "vault aligned: largest vertex move")
     assert_shown(m[2], grid["moved_max"], "vault grid: largest vertex move")
-    assert aligned["moved_max"] > 2 * grid["moved_max"]
-    m = sentence(PAPER, r"at the published spacing the aligned remesh's planar solve moves its vertices further still "
-                        r"\((\S+) of the diagonal against the grid's (\S+)\) and ends (\w+) at non-planarity (\S+), above the "
-                        r"tolerance")
-    fine_a = row["vault", f"remesh principal (seamless, {PUBLISHED_SPACING})"]
-    fine_g = row["vault", f"remesh grid (seamless, {PUBLISHED_SPACING})"]
-    assert_shown(m[1], fine_a["moved_max"], "vault aligned at the published spacing: largest vertex move")
-    assert_shown(m[2], fine_g["moved_max"], "vault grid at the published spacing: largest vertex move")
-    assert fine_a["moved_max"] > aligned["moved_max"] and m[3] == fine_a["status"] and not pq_planar(fine_a)
-    assert_shown(m[4], fine_a["nonplanar_max"], "vault aligned at the published spacing: non-planarity")
-    m = sentence(PAPER, r"the scene's own mesh made planar ends (\S+) from it")
+    assert aligned["moved_max"] > grid["moved_max"]
+    m = sentence(PAPER, r"The scene's own mesh made planar ends (\S+) from the reference")
     assert_shown(m[1], row["vault", "scene as is"]["dist_mean"], "the vault as is, planar: distance")
     m = sentence(PAPER, r"ours has (\d+) triangles where iso-lines meet the boundary obliquely and (\d+) interior "
                         r"vertices of valence other than 4")

@@ -18,7 +18,8 @@ instead (triangles where a line ends), ``--remesher param`` the iso-lines of a p
 along the unsmoothed field. When the method does not
 converge, the planar homotopy (and where that does not converge, IPOPT) finishes from the
 network in equilibrium without planar faces (:func:`selfsupport.remesh.planar.solve_planar`;
-``--no-finish``: not). Prints the summary; exit codes as ``solve``.
+``--no-finish``: not), and the homotopy's planar network is drawn toward the network's
+reference surface. Prints the summary; exit codes as ``solve``.
 """
 from __future__ import annotations
 
@@ -87,7 +88,7 @@ def run_pq(args: argparse.Namespace) -> int:
                smoothing=args.smoothing)
     left = None if args.time_limit is None else max(args.time_limit - (time.perf_counter() - t0), 1e-3)
     result = solve_planar(q.scene, tol=args.tol, method=args.method, finish=args.finish, time_limit=left,
-                          density=args.density, thickness=args.thickness)
+                          density=args.density, thickness=args.thickness, reference=net.reference)
     planarity = result.parameters.get("planarity") or {}
     write_network_out(args.out, result, args.format, remesh={"field": q.field, "method": q.method, "spacing": q.spacing,
                                             "source": str(args.network), "face_sizes": q.face_size_counts,

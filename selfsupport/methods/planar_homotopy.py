@@ -25,6 +25,17 @@ shrinking faces — the same remesh ended with every row within 9e-4 but quads 2
 (after the remesher's split of its near-triangular quads; without the split, 5.4e-2 with corner
 angles of 0.1°).
 
+The pull: the stages' minimum-norm steps keep the network near the start of the homotopy,
+which is only *a* network in equilibrium (the staggered solve without planar faces lifted the
+free edges of the paper's vault remeshed along its principal directions 0.24 of the diagonal
+off the remesh; at the published spacing 1.3 of it, and the homotopy stalled from there).
+So the planar end is drawn toward the reference with its faces held in the band reached:
+projected-gradient steps toward the closest points of the reference, each restored by the same
+polish and accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start
+as given first; only where it does not converge (the vault's aligned remesh at the published
+spacing) does it run again from that start pulled toward the reference in equilibrium (the
+pulled start is not always the easier one: from lilium's grid remesh pulled so, it crawls).
+
 Example: a barrel vault remeshed along its relative principal directions, where the staggered
 method with planar faces stalls:
 
@@ -52,7 +63,9 @@ import scipy.sparse as sp
 from formulations import Planar, Problem, ThrustNetworkProblem, WeightBounds
 from formulations.terms.planarity import coplanarity_rows
 from selfsupport.core.errors import InputError
+from selfsupport.core.evidence import closest_points, distance_stats
 from selfsupport.core.geometry import diagonal_distance, mean_edge_length
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.methods.base import case_networks, nonplanar_faces_note, planarity_report, term_values
 from selfsupport.methods.deadline import out_of_time
@@ -86,6 +99,17 @@ MAX_STAGES = 400
 PACE_WINDOW = 30
 #: How many times its recent pace a crawling homotopy is granted before it stops.
 PACE_MARGIN = 2.0
+#: The pull toward the reference after the homotopy (:func:`_pull`): the first fraction of the
+#: way to the closest points, the smallest one tried (below it the pull ends), and its most steps.
+PULL_FIRST = 0.5
+PULL_MIN = 1.0 / 64
+PULL_MAX_STEPS = 60
+#: A pull step that lowers the summed squared distance by less than this fraction is small;
+#: :data:`PULL_PATIENCE` small steps in a row end the pull (it is creeping along the constraints).
+PULL_GAIN = 1e-2
+PULL_PATIENCE = 3
+#: The pull of the start gets at most this share of the time left (the homotopy needs the rest).
+PULL_START_SHARE = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,8 +186,49 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
     return X, W, band, steps, history, status
 
 
+def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
+          loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
+          targets: Callable[[np.ndarray], np.ndarray], feasible: Callable[[np.ndarray, np.ndarray], bool],
+          deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
+    """The feasible network nearest the targets, locally: each step moves the free vertices the
+    fraction ``alpha`` of the way to ``targets(X)`` (their closest points on the reference) and
+    restores equilibrium (and the faces' band, where ``form(X)`` has one) by the joint
+    minimum-norm polish. The restoration takes back the step's part across the linearised
+    constraints, so the pair is a projected-gradient step on the summed squared distance. A step
+    is accepted when the polish converges, the network is ``feasible`` and closer; ``alpha``
+    then doubles after two accepted steps in a row, and halves after a rejected one.
+
+    Returns (X, W, polish steps, history)."""
+    def dist(Y: np.ndarray) -> float:
+        return float(np.sum((targets(Y)[free] - Y[free]) ** 2))
+
+    alpha, steps, history, f = PULL_FIRST, 0, [], dist(X)
+    small = run = 0
+    while alpha >= PULL_MIN and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
+        Xp = X.copy()
+        Xp[free] += alpha * (targets(X)[free] - X[free])
+        Xn, Wn, k, err, ok = polish_joint(form(Xp), Xp, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
+                                          load_jacobian=load_jacobian, deadline=deadline)
+        steps += k
+        fn = dist(Xn) if ok else np.inf
+        accept = bool(fn < f and feasible(Xn, Wn))
+        rec = {"pull": len(history), "alpha": alpha, "steps": k, "max_rel_error": err, "distance": fn,
+               "accepted": accept}
+        history.append(rec)
+        if progress is not None:
+            progress(rec)
+        if accept:
+            small = small + 1 if fn > (1 - PULL_GAIN) * f else 0
+            X, W, f, run = Xn, Wn, fn, run + 1
+            alpha = min(2 * alpha, 1.0) if run >= 2 else alpha
+        else:
+            alpha, run = alpha / 2, 0
+    return X, W, steps, history
+
+
 def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
-                    progress: Callable[[dict], None] | None = None) -> SolveResult:
+                    progress: Callable[[dict], None] | None = None, reference: PolyMesh | None = None,
+                    pull: bool = True) -> SolveResult:
     """Planar faces in equilibrium from a network in equilibrium on the same mesh (module docstring).
 
     Parameters
@@ -176,7 +241,16 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     deadline
         ``time.perf_counter()`` value after which no stage starts and no polish step runs.
     progress
-        Called with each stage's record.
+        Called with each stage's record (and each pull step's).
+    reference
+        The surface the pull draws the planar network toward (default: the problem's reference,
+        ``problem.scene.mesh``; a remesh's reference is the network it was lifted to, so pass the
+        design's own surface to stay near that).
+    pull
+        After a converged homotopy, move toward ``reference`` while staying in equilibrium and
+        planar (:func:`_pull`): the homotopy's minimum-norm steps find *a* planar network in
+        equilibrium near its start, not the one nearest the reference. Where the homotopy does
+        not converge, its start is moved toward ``reference`` in equilibrium and it runs again.
 
     Returns
     -------
@@ -185,7 +259,12 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         equilibrium, or the tolerance with the network planar to it in SI units (the planarity report and the max relative error are recomputed from the
         network); ``stalled`` when the cuts became finer than :data:`MAX_SHRINK` first, or the
         band's pace could not reach the target within :data:`MAX_STAGES` (:data:`PACE_WINDOW`);
-        ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages.
+        ``iteration_limit`` after :data:`MAX_STAGES` stages; ``time_limit``. ``parameters["homotopy"]``: start, band reached, target, stages,
+        ``starts`` (2: the homotopy from the start as given did not converge and ran again from
+        the start pulled toward ``reference``; each history record names its ``start``), and
+        ``pull`` (``None`` without the pull; else per pull that ran, ``start`` and ``planar``, its
+        steps, the accepted ones, and the mean distance to ``reference`` over its bounding-box
+        diagonal before and after).
     """
 
     t0 = time.perf_counter()
@@ -209,21 +288,61 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
 
     jac = case_load_jacobians(problem.loads.models, mesh0, sc, top.free)
     h = mean_edge_length(X, top.edges)
-    start = float(np.abs(diagonal_distance(X, rows)[0]).max(initial=0.0))
     target = BAND_END * planar.tol
-    band = max(start, target)
+    ref = mesh0 if reference is None else reference
+    ref_scaled = ref.with_vertices(sc.pos(ref.vertices))  # (the polish's units)
 
-    def form_at(Y: np.ndarray, trial: float) -> ThrustNetworkProblem:
+    def form_at(Y: np.ndarray, trial: float | None) -> ThrustNetworkProblem:  # (trial None: no planarity rows)
         return ThrustNetworkProblem(top, Y, loads_at(Y), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
-                                    planar=_Band(rows, trial, mesh0.n_vertices))
+                                    planar=None if trial is None else _Band(rows, trial, mesh0.n_vertices))
+
+    def in_equilibrium(Y: np.ndarray, Wy: np.ndarray) -> bool:  # (in SI units)
+        return bool(case_networks(problem, sc, Y, list(Wy))[0].in_equilibrium(STAGE_TOL))
 
     def planar_enough(Y: np.ndarray, Wy: np.ndarray) -> bool:  # (every face within the tolerance, in SI units)
         net, _ = case_networks(problem, sc, Y, list(Wy))
         return bool(planarity_report(problem, net)["met"] and net.in_equilibrium(STAGE_TOL))
 
-    X, W, band, steps, history, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac, band=band,
-                                                target=target, tol=planar.tol, planar_enough=planar_enough,
-                                                deadline=deadline, progress=progress)
+    def pull_toward_reference(Y: np.ndarray, Wy: np.ndarray, trial: float | None,
+                              feasible: Callable[[np.ndarray, np.ndarray], bool], until: float | None) -> tuple:
+        before = distance_stats(sc.pos_back(Y), ref)[0]
+        Y, Wy, k, trail = _pull(lambda Z: form_at(Z, trial), Y, Wy, loads_at=loads_at, load_jacobian=jac,
+                                free=np.asarray(scene.free, bool), targets=lambda Z: closest_points(Z, ref_scaled)[0],
+                                feasible=feasible, deadline=until, progress=progress)
+        return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail),
+                          "distance_before": before, "distance_after": distance_stats(sc.pos_back(Y), ref)[0]}
+
+    def nonplanarity(Y: np.ndarray) -> float:
+        return float(np.abs(diagonal_distance(Y, rows)[0]).max(initial=0.0))
+
+    pulled: dict[str, Any] | None = {} if pull else None
+    start, steps, history = nonplanarity(X), 0, []
+    X0, W0 = X, W
+    ended = None  # (the first run's end: kept where the second reaches no narrower band)
+    for n_start in range(2):
+        if n_start:
+            # (the homotopy from the start as given did not converge: again from the network in
+            # equilibrium nearest the reference, faces not yet planar, with what time is left)
+            now = time.perf_counter()
+            X, W, k, pulled["start"] = pull_toward_reference(
+                X0, W0, None, in_equilibrium, None if deadline is None else now + PULL_START_SHARE * (deadline - now))
+            steps += k
+            if not pulled["start"]["accepted"]:
+                X, W, band, status = ended
+                break
+        X, W, band, k, tried, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac,
+                                               band=max(nonplanarity(X), target), target=target, tol=planar.tol,
+                                               planar_enough=planar_enough, deadline=deadline, progress=progress)
+        steps += k
+        history += [{**h, "start": n_start} for h in tried]
+        if ended is not None and status != "converged" and ended[2] < band:
+            X, W, band, status = ended
+        if status == "converged" or out_of_time(deadline) or pulled is None or start <= target:
+            break
+        ended = (X, W, band, status)
+    if status == "converged" and pulled is not None:  # (the end: faces held within the band reached)
+        X, W, k, pulled["planar"] = pull_toward_reference(X, W, band, planar_enough, deadline)
+        steps += k
     net, cases = case_networks(problem, sc, X, list(W))
     report = planarity_report(problem, net)
     if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):  # (recomputed in SI)
@@ -238,7 +357,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         net, cases=cases, status=status, method="planar-homotopy", backend="joint-polish", iterations=steps,
         wall_time=time.perf_counter() - t0, history=tuple(history), message=message,
         parameters={"homotopy": {"start_nonplanarity": start, "band": band, "target": target,
-                                 "stages": len(history), "accepted": sum(r["accepted"] for r in history)},
+                                 "stages": len(history), "accepted": sum(r["accepted"] for r in history),
+                                 "starts": n_start + 1, "pull": pulled},
                     "planarity": report, "problem": problem.describe(), "load_cases": list(problem.loads.names),
                     "scaling": asdict(sc)},
         terms=term_values(problem, net, default=DEFAULT_OBJECTIVE))
