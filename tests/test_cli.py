@@ -503,6 +503,14 @@ def test_a_command_imports_its_own_module_only():
     assert {m for m in mods if m.startswith("selfsupport.cli.")} == {"selfsupport.cli.common", "selfsupport.cli.figures"}
 
 
+def _command_module_on_path(folder, monkeypatch, name: str) -> None:
+    """``folder`` joins the command package's path, with no module ``name`` imported from it yet."""
+    import selfsupport.cli as package
+
+    monkeypatch.setattr(package, "__path__", [*package.__path__, str(folder)])
+    monkeypatch.delitem(sys.modules, f"selfsupport.cli.{name}", raising=False)
+
+
 def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeypatch, capsys):
     """A module dropped into the package's path is listed by ``--help`` without being imported, and
     runs when named."""
@@ -510,10 +518,7 @@ def test_a_new_module_adds_a_command_without_touching_the_core(tmp_path, monkeyp
         "from selfsupport.cli.common import Command\n\n\ndef add(p):\n    p.add_argument('--n', type=int)\n\n\n"
         "def run(args):\n    print('hello', args.n)\n    return 3\n\n\n"
         "COMMANDS = {\n    'hello': Command('say hello'\n                     ' to the world', add, run),\n}\n")
-    import selfsupport.cli as package
-
-    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
-    monkeypatch.delitem(sys.modules, "selfsupport.cli.hello", raising=False)
+    _command_module_on_path(tmp_path, monkeypatch, "hello")
     with pytest.raises(SystemExit):
         cli.main(["--help"])
     assert "say hello to the world" in " ".join(capsys.readouterr().out.split())
@@ -532,10 +537,7 @@ def test_a_command_runs_with_what_was_imported_frozen_out_of_the_garbage_collect
         "import gc\n\nfrom selfsupport.cli.common import Command\n\n\ndef add(p):\n    pass\n\n\n"
         "def run(args):\n    print(gc.get_freeze_count(), gc.isenabled())\n    return 0\n\n\n"
         "COMMANDS = {\n    'frozen': Command('count the frozen objects', add, run),\n}\n")
-    import selfsupport.cli as package
-
-    monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
-    monkeypatch.delitem(sys.modules, "selfsupport.cli.frozen", raising=False)
+    _command_module_on_path(tmp_path, monkeypatch, "frozen")
     assert gc.get_freeze_count() == 0
     assert cli.main(["frozen"]) == 0
     frozen, enabled = capsys.readouterr().out.split()
