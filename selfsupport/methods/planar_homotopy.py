@@ -226,6 +226,37 @@ def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: 
     return X, W, steps, history
 
 
+def _nonplanarity(X: np.ndarray, rows: Any) -> float:
+    """The largest distance between a face's diagonals (the planarity rows ``rows``) at ``X``."""
+    return float(np.abs(diagonal_distance(X, rows)[0]).max(initial=0.0))
+
+
+def _result(problem: Problem, sc: Any, X: np.ndarray, W: np.ndarray, *, status: str, band: float, target: float,
+            steps: int, t0: float, history: list, homotopy: dict[str, Any]) -> SolveResult:
+    """The homotopy's result from its scaled end ``X``, ``W``: the network and the planarity
+    report recomputed in SI units (a ``converged`` end that does not hold there is ``stalled``)."""
+    net, cases = case_networks(problem, sc, X, list(W))
+    report = planarity_report(problem, net)
+    if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):  # (recomputed in SI)
+        status = "stalled"
+    message = "" if status == "converged" else (
+        f"the planar homotopy stopped ({status}) with every face within {band:.2e} of planar, above the "
+        f"{target:.2e} it aims at (max non-planarity {report['max_nonplanarity']:.2e}, max relative error "
+        f"{net.max_relative_error():.2e}{'; ' + note if (note := nonplanar_faces_note(report)) else ''}); "
+        "try a quad mesh along the relative principal directions (selfsupport pq), or there another "
+        "--spacing or remesher")
+    return SolveResult.build(
+        net, cases=cases, status=status, method="planar-homotopy", backend="joint-polish", iterations=steps,
+        wall_time=time.perf_counter() - t0, history=tuple(history), message=message,
+        parameters={"homotopy": {"start_nonplanarity": homotopy["start_nonplanarity"], "band": band,
+                                 "target": target, "stages": len(history),
+                                 "accepted": sum(r["accepted"] for r in history),
+                                 "starts": homotopy["starts"], "pull": homotopy["pull"]},
+                    "planarity": report, "problem": problem.describe(), "load_cases": list(problem.loads.names),
+                    "scaling": asdict(sc)},
+        terms=term_values(problem, net, default=DEFAULT_OBJECTIVE))
+
+
 def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
                     progress: Callable[[dict], None] | None = None, reference: PolyMesh | None = None,
                     pull: bool = True) -> SolveResult:
@@ -312,11 +343,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail),
                           "distance_before": before, "distance_after": distance_stats(sc.pos_back(Y), ref)[0]}
 
-    def nonplanarity(Y: np.ndarray) -> float:
-        return float(np.abs(diagonal_distance(Y, rows)[0]).max(initial=0.0))
-
     pulled: dict[str, Any] | None = {} if pull else None
-    start, steps, history = nonplanarity(X), 0, []
+    start, steps, history = _nonplanarity(X, rows), 0, []
     X0, W0 = X, W
     ended = None  # (the first run's end: kept where the second reaches no narrower band)
     for n_start in range(2):
@@ -331,7 +359,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
                 X, W, band, status = ended
                 break
         X, W, band, k, tried, status = _stages(form_at, X, W, loads_at=loads_at, load_jacobian=jac,
-                                               band=max(nonplanarity(X), target), target=target, tol=planar.tol,
+                                               band=max(_nonplanarity(X, rows), target), target=target, tol=planar.tol,
                                                planar_enough=planar_enough, deadline=deadline, progress=progress)
         steps += k
         history += [{**h, "start": n_start} for h in tried]
@@ -343,22 +371,5 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     if status == "converged" and pulled is not None:  # (the end: faces held within the band reached)
         X, W, k, pulled["planar"] = pull_toward_reference(X, W, band, planar_enough, deadline)
         steps += k
-    net, cases = case_networks(problem, sc, X, list(W))
-    report = planarity_report(problem, net)
-    if status == "converged" and not (report["met"] and net.in_equilibrium(STAGE_TOL)):  # (recomputed in SI)
-        status = "stalled"
-    message = "" if status == "converged" else (
-        f"the planar homotopy stopped ({status}) with every face within {band:.2e} of planar, above the "
-        f"{target:.2e} it aims at (max non-planarity {report['max_nonplanarity']:.2e}, max relative error "
-        f"{net.max_relative_error():.2e}{'; ' + note if (note := nonplanar_faces_note(report)) else ''}); "
-        "try a quad mesh along the relative principal directions (selfsupport pq), or there another "
-        "--spacing or remesher")
-    return SolveResult.build(
-        net, cases=cases, status=status, method="planar-homotopy", backend="joint-polish", iterations=steps,
-        wall_time=time.perf_counter() - t0, history=tuple(history), message=message,
-        parameters={"homotopy": {"start_nonplanarity": start, "band": band, "target": target,
-                                 "stages": len(history), "accepted": sum(r["accepted"] for r in history),
-                                 "starts": n_start + 1, "pull": pulled},
-                    "planarity": report, "problem": problem.describe(), "load_cases": list(problem.loads.names),
-                    "scaling": asdict(sc)},
-        terms=term_values(problem, net, default=DEFAULT_OBJECTIVE))
+    return _result(problem, sc, X, W, status=status, band=band, target=target, steps=steps, t0=t0,
+                   history=history, homotopy={"start_nonplanarity": start, "starts": n_start + 1, "pull": pulled})
