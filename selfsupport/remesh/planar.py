@@ -75,16 +75,23 @@ def _better(a: Any, b: Any) -> bool:
     return a.max_relative_error < b.max_relative_error
 
 
+def _homotopy_problem(scene: Any, planar: list, solve_kw: dict[str, Any]) -> Any:
+    """The stated problem with planar faces, when the planar homotopy takes it (one load case, a
+    free top view, no hull); else ``None``."""
+    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(stated_problem).parameters}
+    problem = stated_problem(scene, constraints=planar, **problem_kw)
+    takes = len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None
+    return problem if takes else None
+
+
 def _pulled(result: Any, scene: Any, planar: list, reference: PolyMesh | None, deadline: float | None,
             solve_kw: dict[str, Any]) -> Any:
     """``result`` (planar, in equilibrium) drawn toward ``reference`` by the planar homotopy's
     pull, when it converged, has one load case, a free top view and no hull, and ``reference``
     is given; the pulled network when it is converged and closer, else ``result``. The time and
     ``parameters["planar_pull"]`` (the pull's record, ``None`` when it did not run) say so."""
-    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(stated_problem).parameters}
-    problem = stated_problem(scene, constraints=planar, **problem_kw) if reference is not None else None
-    if (problem is None or result.status != "converged" or len(problem.loads) != 1 or problem.fixed_top_view
-            or problem.hull_thickness() is not None):
+    problem = _homotopy_problem(scene, planar, solve_kw) if reference is not None else None
+    if problem is None or result.status != "converged":
         return dataclasses.replace(result, parameters={**result.parameters, "planar_pull": None})
     pulled = planar_homotopy(problem, result, deadline=deadline, reference=reference)
     record = pulled.parameters["homotopy"]["pull"]
@@ -171,9 +178,8 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
         return dataclasses.replace(first, wall_time=time.perf_counter() - t0, message=f"{first.message}; {note}",
                                    parameters={**first.parameters, "planar_finish": {"status": "not run", "why": note}})
     runs = [("first", first)]
-    problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(stated_problem).parameters}
-    problem = stated_problem(scene, constraints=planar, **problem_kw)
-    if len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None:
+    problem = _homotopy_problem(scene, planar, solve_kw)
+    if problem is not None:
         runs.append(("homotopy", planar_homotopy(problem, eq, deadline=None if time_limit is None
                                                  else t0 + time_limit, reference=reference)))
     if runs[-1][1].status != "converged" and not out_of_time():
