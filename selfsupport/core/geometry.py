@@ -162,8 +162,8 @@ def near_pairs(points: np.ndarray, r: float) -> np.ndarray:
     # more becomes two), shifted by one so that index − 1 stays in range
     key, extents = np.zeros(n, np.int64), []
     for j in range(d):
-        u, inv = np.unique(C[:, j], return_inverse=True)
-        compact = np.concatenate([[0], np.cumsum(np.minimum(np.diff(u), 2))]) + 1
+        occupied, inv = np.unique(C[:, j], return_inverse=True)
+        compact = np.concatenate([[0], np.cumsum(np.minimum(np.diff(occupied), 2))]) + 1
         extents.append(int(compact[-1]) + 2)
         if math.prod(extents) >= 2 ** 62:
             pairs = _spatial.cKDTree(P).query_pairs(float(r), output_type="ndarray").astype(np.intp)
