@@ -73,7 +73,7 @@ from selfsupport.methods.polish import case_load_jacobians, polish_joint
 from selfsupport.methods.staggered import DEFAULT_OBJECTIVE
 from selfsupport.methods.warm import as_warm_start, transfer
 
-__all__ = ["planar_homotopy", "BAND_END"]
+__all__ = ["planar_homotopy", "handles", "BAND_END"]
 
 #: The band ends at this fraction of the problem's planarity tolerance (the margin keeps the
 #: reported non-planarity, measured in SI units after the scaling's round trip, below it). A
@@ -257,6 +257,11 @@ def _result(problem: Problem, sc: Any, X: np.ndarray, W: np.ndarray, *, status: 
         terms=term_values(problem, net, default=DEFAULT_OBJECTIVE))
 
 
+def handles(problem: Problem) -> bool:
+    """Whether :func:`planar_homotopy` takes ``problem``: one load case, a free top view, no hull."""
+    return len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None
+
+
 def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
                     progress: Callable[[dict], None] | None = None, reference: PolyMesh | None = None,
                     pull: bool = True) -> SolveResult:
@@ -302,7 +307,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     planar = problem.constraint(Planar)
     if planar is None:
         raise InputError("the planar homotopy needs the Planar constraint in the problem")
-    if len(problem.loads) != 1 or problem.fixed_top_view or problem.hull_thickness() is not None:
+    if not handles(problem):
         raise InputError("the planar homotopy handles one load case, a free top view and no hull")
     scene = problem.scene
     mesh0 = scene.mesh

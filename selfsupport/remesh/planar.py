@@ -50,7 +50,7 @@ from selfsupport.io.problem import problem as stated_problem
 from selfsupport.io.scenes import as_scene, design_of
 from selfsupport.methods import capabilities, find_method
 from selfsupport.methods.choice import AUTO
-from selfsupport.methods.planar_homotopy import planar_homotopy
+from selfsupport.methods.planar_homotopy import handles, planar_homotopy
 from selfsupport.methods.solve import solve
 
 __all__ = ["solve_planar", "finish_summary", "finish_method", "FIRST_SHARE"]
@@ -80,8 +80,7 @@ def _homotopy_problem(scene: Any, planar: list, solve_kw: dict[str, Any]) -> Any
     free top view, no hull); else ``None``."""
     problem_kw = {k: v for k, v in solve_kw.items() if k in inspect.signature(stated_problem).parameters}
     problem = stated_problem(scene, constraints=planar, **problem_kw)
-    takes = len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None
-    return problem if takes else None
+    return problem if handles(problem) else None
 
 
 def _pulled(result: Any, scene: Any, planar: list, reference: PolyMesh | None, deadline: float | None,
