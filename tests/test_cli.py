@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -483,18 +484,21 @@ def test_the_command_line_sends_idle_blas_threads_to_sleep_before_numpy_loads(us
 #: IPOPT's hull search and sensitivities, CasADi's symbolic expressions), the analysis,
 #: scipy.optimize (a built-in shape's catenary, the polish's last fallback), plots, the browser
 #: tool and the sweeps; nor scipy.spatial with scipy.special (~0.13 s: the input check's coincident
-#: vertices and the smallest box's hull are numpy kernels), nor tomllib (load-case files).
-NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "scipy.spatial", "scipy.special", "tomllib",
+#: vertices and the smallest box's hull are numpy kernels), nor tomllib (load-case files), nor rich
+#: off a terminal (its progress lines are not printed there, its summary is plain text).
+NOT_FOR_A_PLAIN_SOLVE = ("casadi", "scipy.optimize", "scipy.spatial", "scipy.special", "tomllib", "rich",
                          "selfsupport.methods.multilevel",
                          "selfsupport.methods.prolong", "selfsupport.methods.simultaneous", "selfsupport.methods.sensitivity", "selfsupport.analysis",
                          "selfsupport.structure", "selfsupport.figures", "matplotlib", "plotly", "starlette", "dask")
 
 
-def test_a_plain_solve_imports_only_what_it_needs(barrel_obj, tmp_path):
+@pytest.mark.parametrize("quiet", [("--quiet",), ()])
+def test_a_plain_solve_imports_only_what_it_needs(barrel_obj, tmp_path, quiet):
     out = tmp_path / "net.json"
-    _, mods = _modules_after("solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), "--quiet")
+    summary, mods = _modules_after("solve", str(barrel_obj), "--supports", "boundary", "--out", str(out), *quiet)
     assert document_check(json.loads(out.read_text()))["max_rel"] <= 1e-8  # (it did solve)
     assert sorted(m for m in mods if m.startswith(NOT_FOR_A_PLAIN_SOLVE)) == []
+    assert re.search(r"^max relative error +\S+$", summary, re.M)  # (the summary printed, without rich)
 
 
 def test_a_command_imports_its_own_module_only():
@@ -565,6 +569,101 @@ def test_a_module_may_not_redefine_a_command(tmp_path, monkeypatch):
     monkeypatch.setattr(package, "__path__", [*package.__path__, str(tmp_path)])
     with pytest.raises(TypeError, match=r"selfsupport.cli.again redefines command\(s\) \['solve'\]"):
         cli.command_index()
+
+
+def _rich_table(title: str, rows, width: int) -> str:
+    """``print_table``'s table as rich lays it out on a console ``width`` wide, off a terminal."""
+    import io
+
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=title, show_header=False, title_justify="left", box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in rows:
+        t.add_row(k, v)
+    console = Console(file=io.StringIO(), highlight=False, soft_wrap=True, width=width)
+    with console.capture() as cap:
+        console.print(t)
+    return "".join(line.rstrip() + "\n" for line in cap.get().splitlines())
+
+
+def test_the_plain_summary_table_is_the_text_rich_lays_out_off_a_terminal():
+    """Off a terminal ``print_table`` writes the table without rich: the same text, wrapped at the
+    same words, for tables that fit, that wrap their values (one line or several, runs of
+    spaces), that wrap their keys, at several console widths; where only rich can lay it out
+    (markup, emoji codes, other than printable ASCII, a word wider than its column) it says so."""
+    import random
+
+    rng = random.Random(7)
+
+    def text(words: int) -> str:
+        out = ""
+        for _ in range(words):
+            out += "".join(rng.choice("abcxyz0123.,-()=<") for _ in range(rng.choice([1, 2, 4, 7, 11])))
+            out += rng.choice([" ", " ", "  ", "\n"])
+        return out if rng.random() < 0.5 else out.strip()
+
+    compared = wrapped = 0
+    for _ in range(600):
+        width = rng.choice([30, 50, 80, 120])
+        rows = [(text(rng.choice([1, 2, 4, 9])), text(rng.choice([0, 1, 3, 8, 20]))) for _ in range(rng.randint(1, 5))]
+        title = text(rng.choice([0, 1, 4, 15]))
+        plain = cli.common.plain_table(title, rows, width)
+        if plain is not None:
+            compared += 1
+            wrapped += any(len(k) + len(v) + 2 > width for k, v in rows)
+            assert plain == _rich_table(title, rows, width), (title, rows, width)
+    assert compared > 200 and wrapped > 50
+    summary = [("scene", "structural"), ("method", "staggered (auto: 527 vertices <= 3,000: one level is fastest at "
+                                                    "this size)"), ("max relative error", "1.640e-12")]
+    assert cli.common.plain_table("selfsupport solve -> out.json", summary, 80) == _rich_table(
+        "selfsupport solve -> out.json", summary, 80)
+    for rows in ([("a", "[bold]x[/bold]")], [("a", "at :smile: o'clock")], [("a", "σ = 2")], [("a", "x" * 90)], []):
+        assert cli.common.plain_table("t", rows, 80) is None
+
+
+def test_progress_off_a_terminal_prints_nothing_and_builds_no_console(monkeypatch):
+    import io
+
+    from selfsupport.core.progress import ProgressDisplay
+
+    monkeypatch.delenv("FORCE_COLOR", raising=False)
+    monkeypatch.delenv("TTY_COMPATIBLE", raising=False)
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    p = ProgressDisplay()
+    p({"iteration": 1, "max_rel_error": 0.5})
+    assert p.console is None and not p.enabled and p.records == 1 and sys.stderr.getvalue() == ""
+
+
+_CONSOLE_MAIN = ("import atexit, sys, threading, time\n"
+                 "atexit.register(lambda: print('exit handler ran', flush=True))\n"
+                 "def wait():  # (until the main thread is done: Python's own exit)\n"
+                 "    while threading.main_thread().is_alive():\n"
+                 "        time.sleep(0.01)\n"
+                 "    print('thread finished', flush=True)\n"
+                 "if sys.argv[1] == 'thread':\n"
+                 "    threading.Thread(target=wait).start()\n"
+                 "sys.argv = ['selfsupport', *sys.argv[2:]]\n"
+                 "from selfsupport.cli import console_main\nconsole_main()\n")
+
+
+@pytest.mark.parametrize("thread", [False, True])
+def test_the_console_script_ends_with_the_commands_exit_code_its_output_and_exit_handlers(barrel_obj, tmp_path,
+                                                                                           thread):
+    """The process ends with the command's exit code, after everything it printed (through a
+    pipe, buffered) and the exit handlers; a thread still running is waited for as Python does."""
+    out = tmp_path / "net.json"
+    p = subprocess.run([sys.executable, "-c", _CONSOLE_MAIN, "thread" if thread else "-", "solve", str(barrel_obj),
+                        "--supports", "boundary", "--out", str(out), "--max-iter", "1"], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == cli.EXIT_CODES["limit"], p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0] == f"selfsupport solve -> {out}"
+    assert any(re.match(r"max relative error +\S+$", line) for line in lines)
+    assert lines[-2:] == ["thread finished", "exit handler ran"] if thread else lines[-1] == "exit handler ran"
+    assert "Traceback" not in p.stderr and out.is_file()
 
 
 def test_progress_prints_one_line_per_record_with_its_numbers():

@@ -19,6 +19,7 @@ from selfsupport.cli.common import (
                                   CommandEntry,
                                   build_parser,
                                   command_index,
+                                  console_main,
                                   discover_commands,
                                   load_command,
                                   load_scene,
@@ -27,4 +28,5 @@ from selfsupport.cli.common import (
 )
 
 __all__ = ["COMMANDS", "EXIT_CODES", "IPOPT_HINT_MAX", "STATUS_EXIT", "STATUS_HINT", "Command", "CommandEntry",
-           "build_parser", "command_index", "discover_commands", "load_command", "load_scene", "main", "summary_rows"]
+           "build_parser", "command_index", "console_main", "discover_commands", "load_command", "load_scene", "main",
+           "summary_rows"]

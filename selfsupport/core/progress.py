@@ -4,7 +4,8 @@
 history records (dicts) and prints the fields it knows — iteration (or IPOPT load round),
 max relative error, fit energy E, the penalties α and β, the time since the start — with
 rich. It prints nothing when disabled (``--quiet``) or when its stream is not a terminal
-(logs and pipes get only the final summary the CLI prints).
+(logs and pipes get only the final summary the CLI prints); then rich is not imported at all
+(~0.03 CPU s of a command's start).
 
 >>> import io
 >>> from rich.console import Console
@@ -16,13 +17,29 @@ True
 """
 from __future__ import annotations
 
+import os
+import sys
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-from rich.console import Console
+if TYPE_CHECKING:
+    from rich.console import Console
 
-__all__ = ["Column", "COLUMNS", "ProgressDisplay"]
+__all__ = ["Column", "COLUMNS", "ProgressDisplay", "may_be_terminal"]
+
+
+def may_be_terminal(stream: Any) -> bool:
+    """Whether rich may treat ``stream`` as a terminal (styles, the terminal's width): a TTY, or
+    an environment that forces it (``FORCE_COLOR``, ``TTY_COMPATIBLE``). False means rich would
+    certainly not, so plain text serves."""
+    if "FORCE_COLOR" in os.environ or "TTY_COMPATIBLE" in os.environ:
+        return True
+    isatty = getattr(stream, "isatty", None)
+    try:
+        return bool(isatty and isatty())
+    except ValueError:  # (a closed stream)
+        return False
 
 
 @dataclass(frozen=True)
@@ -67,14 +84,20 @@ class ProgressDisplay:
     Parameters
     ----------
     console
-        Where to print (default: a rich console on stderr).
+        Where to print (default: a rich console on stderr; none when nothing would be printed).
     enabled
         ``False`` silences it; ``None`` (default) means "only if the console is a terminal".
     """
 
     def __init__(self, console: Console | None = None, enabled: bool | None = None) -> None:
-        self.console = console if console is not None else Console(stderr=True, highlight=False)
-        self.enabled = self.console.is_terminal if enabled is None else bool(enabled)
+        if console is None and (enabled is False or (enabled is None and not may_be_terminal(sys.stderr))):
+            console, enabled = None, False  # (nothing to print: no console, no rich)
+        elif console is None:
+            from rich.console import Console
+
+            console = Console(stderr=True, highlight=False)
+        self.console = console
+        self.enabled = console.is_terminal if enabled is None else bool(enabled)
         self.columns: tuple[Column, ...] | None = None
         self.t0 = time.perf_counter()
         self.records = 0
