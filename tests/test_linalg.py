@@ -166,3 +166,27 @@ def test_the_gram_matrix_from_kept_products_is_scipys_bit_for_bit(at_reference, 
     assert np.array_equal(Qk.data, Qp.data)
     np.testing.assert_allclose(Qk.toarray(), (A.T @ A).toarray() + 0.25 * np.eye(A.shape[1]), rtol=1e-13, atol=1e-13)
     assert at_reference is False or int((A.data == 0).sum()) > 0  # (the reference's grid: exact zeros)
+
+
+def test_the_lower_triangle_is_scipys_tril_entry_for_entry_stored_zeros_kept():
+    """The factorizations' lower triangle: for canonical CSC/CSR input (the solvers' products),
+    with stored zeros and for a matrix with duplicates (summed), the same pattern and the same
+    values as ``sp.tril``'s, in sorted CSC."""
+    from selfsupport.core.linalg import _lower_csc
+
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        n = int(rng.integers(1, 40))
+        A = sp.random(n, n, density=rng.uniform(0.05, 0.6), random_state=rng, format="csr")
+        M = (A + A.T + sp.identity(n)).tocsr()
+        M.data[rng.random(M.nnz) < 0.2] = 0.0  # stored zeros: CHOLMOD's ordering depends on them
+        coo = M.tocoo()
+        dup = sp.csc_matrix((np.r_[coo.data, 1.5], (np.r_[coo.row, n - 1], np.r_[coo.col, 0])), shape=M.shape)
+        for X in (M, M.tocsc(), dup):
+            L, ref = _lower_csc(X), sp.tril(sp.csc_matrix(X), format="csc")
+            ref.sum_duplicates()
+            ref.sort_indices()
+            assert L.format == "csc" and L.has_canonical_format
+            for a, b in ((L.indptr, ref.indptr), (L.indices, ref.indices), (L.data, ref.data)):
+                np.testing.assert_array_equal(a, b)
+        assert np.count_nonzero(_lower_csc(M).data == 0) == np.count_nonzero(coo.data[coo.row >= coo.col] == 0)

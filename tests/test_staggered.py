@@ -655,3 +655,26 @@ def test_load_cases_that_are_not_proportional_take_the_coupled_step_from_the_sta
     _check_cases(scene, default)
     heavier = StaggeredLinearization().solve(scene, {"a": SelfWeight(), "b": SelfWeight(density=3000)})
     assert heavier.parameters["coupled"] is False
+
+
+def test_fan_areas_are_the_cross_product_form_bit_for_bit_and_vertex_areas_sum_to_the_area():
+    """The per-coordinate fan kernel gives what ``0.5 * np.cross(v_k - c, v_next - c)`` gives,
+    to the last bit (results depend on round-off), on a mesh of triangles, quads and a pentagon
+    moved off its plane; each vertex's share of the area sums to the faces' area."""
+    from selfsupport.core.geometry import _fan, face_centroids
+
+    rng = np.random.default_rng(5)
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0], [0.5, 2, 0], [1.5, 2.2, 0],
+                  [2.5, 1.8, 0]], float)
+    faces = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6], [4, 5, 8, 7, 6]]
+    mesh = PolyMesh.from_faces(V, faces)
+    for _ in range(20):
+        X = V + rng.normal(scale=0.2, size=V.shape)
+        face_of, nxt, _ = mesh.corner_data
+        c = face_centroids(mesh, X)[face_of]
+        expected = 0.5 * np.cross(X[mesh.face_vertices] - c, X[nxt] - c)
+        got_face_of, vec, got_nxt = _fan(mesh, X)
+        np.testing.assert_array_equal(vec, expected)
+        np.testing.assert_array_equal(got_face_of, face_of)
+        np.testing.assert_array_equal(got_nxt, nxt)
+        assert vertex_areas(mesh, X).sum() == pytest.approx(face_areas(mesh, X).sum(), rel=1e-12)
