@@ -746,3 +746,29 @@ def test_a_stalled_result_on_a_free_edged_quad_vault_reports_its_plans_block(mon
     assert fp["self_stresses"] == _svd_count(_plan_matrix(scene, res.network.vertices), cases.SELF_STRESS_RTOL)
     assert fp["self_stresses"] < fp["needed"] == 42 and fp["verdict"] == "blocked" and fp["residual"] > 1e-3
     assert cases.fixed_plan_note(fp) in res.message
+
+
+@pytest.mark.parametrize("mesh", ["free-edged quad vault", "quad barrel vault"])
+def test_the_sparse_self_stress_basis_spans_numpys_null_space_of_the_plan(monkeypatch, mesh):
+    """:func:`self_stress_basis` by the sparse route (the dense route's limit set to zero) with
+    the sparse count is orthonormal and spans the null space numpy's SVD gives for the plan
+    matrix at that resolution (the cosines of the principal angles: all 1), on the vault's
+    single-case network (four self-stresses at that resolution) and the barrel vault's plan (ten)."""
+    import scipy.linalg
+
+    if mesh == "quad barrel vault":
+        scene = barrel_vault(nx=5, ny=7, quads=True)
+        X = scene.mesh.vertices
+    else:
+        scene, _ = _free_edged_quad_vault()
+        X = StaggeredLinearization().solve(scene, SW).network.vertices
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    monkeypatch.setattr(cases, "SELF_STRESS_MAX_EDGES", 0)
+    k = cases.top_view_self_stresses(top, X)["self_stresses"]
+    H = _plan_matrix(scene, X)
+    N = scipy.linalg.null_space(H, rcond=cases.SELF_STRESS_SPARSE_RTOL)
+    S = cases.self_stress_basis(top, X, k)
+    assert S.shape == N.shape == (top.m, 4 if mesh != "quad barrel vault" else 10)
+    assert np.abs(S.T @ S - np.identity(k)).max() < 1e-12
+    assert np.abs(H @ S).max() <= 1e-7 * np.abs(H).max()
+    assert np.linalg.svd(N.T @ S, compute_uv=False).min() == pytest.approx(1.0, abs=1e-6)

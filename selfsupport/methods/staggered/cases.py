@@ -618,14 +618,20 @@ def _plan_mechanisms(H: sp.spmatrix) -> tuple[int | None, float | None]:
     return int(zero.sum()), float(s[~zero].min())
 
 
-def self_stress_basis(top: Topology, X: np.ndarray, k: int, *, seed: int = 0) -> np.ndarray:
-    """An orthonormal basis ``(m, k)`` of the horizontal self-stresses of the top view of ``X``
-    (``k``: their count, :func:`top_view_self_stresses`): ``k`` random vectors projected twice
-    onto the null space of ``H`` (``w − Hᵀ (H Hᵀ + σ I)⁻¹ H w``, ``σ`` round-off level, one sparse
-    LU), then orthonormalised. Singular values of ``H`` well above ``√σ`` are projected out."""
-    from scipy.sparse.linalg import splu  # (only for the report of a block)
+def self_stress_basis(top: Topology, X: np.ndarray, k: int | None = None, *, seed: int = 0) -> np.ndarray:
+    """An orthonormal basis ``(m, k)`` of the horizontal self-stresses of the top view of ``X``,
+    by the route :func:`top_view_self_stresses` counts them: up to
+    :data:`SELF_STRESS_MAX_EDGES` edges the null space of the dense SVD (``k`` unused); above,
+    ``k`` (their count) random vectors projected twice onto the null space of ``H`` (``w − Hᵀ
+    (H Hᵀ + σ I)⁻¹ H w``, one sparse LU), then orthonormalised. ``σ`` is 1e-14 of ``H Hᵀ``'s
+    largest diagonal entry, so singular values of ``H`` above ~1e-7 of its largest
+    (:data:`SELF_STRESS_SPARSE_RTOL`) are projected out and those below kept."""
+    from scipy.linalg import null_space  # (only for the report of a block)
+    from scipy.sparse.linalg import splu
 
     H = plan_matrix(top, X).tocsr()
+    if top.m <= SELF_STRESS_MAX_EDGES or k is None:
+        return null_space(H.toarray(), rcond=SELF_STRESS_RTOL)
     G = (H @ H.T).tocsc()
     lu = splu((G + sp.identity(G.shape[0]) * 1e-14 * float(G.diagonal().max(initial=1.0))).tocsc())
     W = np.random.default_rng(seed).standard_normal((top.m, k))
