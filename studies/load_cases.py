@@ -25,7 +25,10 @@ reported), the IPOPT finish's status and the joint count (unknowns less equation
 horizontal equations, ``m − 2 n_free``) and, where the continuation was blocked, the horizontal
 self-stresses of the envelope's plan (:func:`selfsupport.methods.staggered.cases.top_view_self_stresses`:
 one means no heights and no weights of either sign carry cases that are not proportional over
-it), and, where the result did not converge, how far any weights (either sign, unbounded) carry
+it), and, where the result did not converge, the fixed-plan test at its network
+(:func:`selfsupport.methods.staggered.cases.fixed_plan`: the self-stresses of its plan, the fewest
+that ``C`` cases need over a generic fixed plan, ``⌈(C − 1) n_free / C⌉``, and, below that, the
+least-squares residual over that plan with heights and weights of either sign free), and how far any weights (either sign, unbounded) carry
 the cases' load differences at its geometry
 (:func:`selfsupport.methods.staggered.cases.any_weights_carry`: well above round-off, the
 geometry blocks), and, where the continuation was blocked, the compression test of its report at
@@ -63,6 +66,9 @@ COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_sha
            Column("freedom", "unknowns − equations", "{:d}"),
            Column("plan_count", "plan: edges − horizontal equations", "{:d}"),
            Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:d}"),
+           Column("result_self_stresses", "self-stresses of the result's plan", "{:d}"),
+           Column("fixed_plan_needed", "fewest the cases need over a generic fixed plan", "{:d}"),
+           Column("fixed_plan_residual", "least squares over the result's plan: residual", "{:.1e}"),
            Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
            Column("blocked_case", "the continuation's blocked case"),
            Column("compression_lp", "within the bounds at its last network (LP)"),
@@ -186,11 +192,13 @@ def run(job: dict, out: Path, checker: Path) -> dict:
     carry = params.get("any_weights_carry") or {}
     plan = (params.get("load_continuation") or {}).get("top_view") or {}
     block = (params.get("load_continuation") or {}).get("blocking") or {}
+    fp = params.get("fixed_plan") or {}
     lp = block.get("tension") or {}
     row.update(status=d.get("status"), errors=" ".join(f"{k}={e:.2e}" for k, e in errs.items()), worst_case=worst,
                worst_error=errs[worst], ipopt_status=fin.get("ipopt_status"), freedom=fin.get("freedom"),
                ipopt_error=fin.get("max_relative_error"), ipopt_seconds=fin.get("seconds"),
-               plan_self_stresses=plan.get("self_stresses"),
+               plan_self_stresses=plan.get("self_stresses"), result_self_stresses=fp.get("self_stresses"),
+               fixed_plan_needed=fp.get("needed"), fixed_plan_residual=fp.get("residual"),
                carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
                blocked_case=block.get("case"), compression_lp=lp.get("status"), tension_share=lp.get("tension_share"),
                message=d.get("message"))

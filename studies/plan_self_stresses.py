@@ -39,11 +39,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from formulations.equilibrium import Topology, weight_matrix
 from selfsupport.core.result import Network
-from selfsupport.methods.staggered.cases import SELF_STRESS_RTOL, least_tension, plan_matrix
+from selfsupport.methods.staggered import cases
+from selfsupport.methods.staggered.cases import least_tension
 
 
 def network_topology(net: Network) -> Topology:
@@ -52,8 +52,9 @@ def network_topology(net: Network) -> Topology:
 
 
 def self_stress_basis(top: Topology, X: np.ndarray) -> np.ndarray:
-    """An orthonormal basis ``(m, k)`` of the plan's horizontal self-stresses at ``X`` (dense SVD)."""
-    return scipy.linalg.null_space(plan_matrix(top, X).toarray(), rcond=SELF_STRESS_RTOL)
+    """An orthonormal basis ``(m, k)`` of the plan's horizontal self-stresses at ``X``
+    (:func:`selfsupport.methods.staggered.cases.self_stress_basis`, by the count's route)."""
+    return cases.self_stress_basis(top, X, cases.top_view_self_stresses(top, X)["self_stresses"])
 
 
 def edge_rings(top: Topology, vertex: int) -> np.ndarray:

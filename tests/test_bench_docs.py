@@ -464,3 +464,15 @@ def test_problem_triangulated_cas_stands_by_ipopts_finish_and_cas_as_quads_does_
     assert quads["plan_count"] == int(m[7]) and quads["status"] != "converged"
     assert quads["ipopt_status"] != "Solve_Succeeded"
     assert_shown(m[8], quads["worst_error"], "cas quads: the worst case's error")
+
+
+def test_problem_cas_quads_plan_is_blocked_over_a_fixed_plan():
+    m = sentence(PROBLEM, r"Its plan has (\d+) self-stresses at the envelope's network and at the result's, where its "
+                          r"two cases that are not proportional \(snow is the empty case scaled\) need (\d+) over a "
+                          r"generic fixed plan, and a least-squares solve over the result's plan \(20 Gauss–Newton steps\) "
+                          r"leaves the point case at (\S+):")
+    (quads,) = [r for r in rows("load_cases.csv")
+                if r["scene"] == "cas" and r["variant"] == "default" and round(100 * r["point_share"]) == 5]
+    assert quads["plan_self_stresses"] == quads["result_self_stresses"] == int(m[1])
+    assert quads["result_self_stresses"] < quads["fixed_plan_needed"] == int(m[2])
+    assert_shown(m[3], quads["fixed_plan_residual"], "cas quads: the least squares over the result's plan")

@@ -648,3 +648,127 @@ def test_the_iteration_over_every_case_leaves_the_finish_its_share_of_the_time(m
     StaggeredLinearization(ipopt_finish=finish).solve(problem, time_limit=30.0)
     share = cases.FINISH_SHARE if finish else 0.0
     assert len(seen) == 1 and seen[0] == pytest.approx(t0 + (1 - share) * 30.0, abs=0.5)
+
+
+def _svd_count(H: np.ndarray, rtol: float) -> int:
+    """Edges less the rank of the dense plan matrix ``H`` (numpy's SVD, singular values above
+    ``rtol`` times the largest): the plan's horizontal self-stresses, measured independently."""
+    s = np.linalg.svd(H, compute_uv=False)
+    return H.shape[1] - int(np.count_nonzero(s > rtol * s[0]))
+
+
+@pytest.mark.parametrize("mesh", ["free-edged quad vault", "quad barrel vault"])
+def test_the_sparse_self_stress_count_is_numpys_svd_count(monkeypatch, mesh):
+    """Above :data:`SELF_STRESS_MAX_EDGES` the count is the edges less the horizontal equations
+    plus the plan's mechanisms (the zero eigenvalues of ``H Hᵀ``): on the free-edged quad
+    vault's single-case network (as many edges as horizontal equations, one self-stress: one
+    mechanism) and on a quad barrel vault's plan (one self-stress per inner grid line, no
+    mechanism), with the dense route's limit set to zero, it equals numpy's SVD count of the plan
+    matrix at the sparse route's resolution (the vault's plan has three more singular values
+    between 1e-9 and 2e-8 of the largest, then none below 1e-3: four at that resolution, one at
+    the dense route's)."""
+    if mesh == "quad barrel vault":
+        scene = barrel_vault(nx=5, ny=7, quads=True)
+        X = scene.mesh.vertices
+    else:
+        scene, _ = _free_edged_quad_vault()
+        X = StaggeredLinearization().solve(scene, SW).network.vertices
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    expected = _svd_count(_plan_matrix(scene, X), cases.SELF_STRESS_SPARSE_RTOL)
+    monkeypatch.setattr(cases, "SELF_STRESS_MAX_EDGES", 0)
+    tv = cases.top_view_self_stresses(top, X)
+    assert tv["route"] == "sparse" and tv["self_stresses"] == expected == (4 if mesh != "quad barrel vault" else 4 + 6)
+    assert tv["next_singular"] > 1e3 * cases.SELF_STRESS_SPARSE_RTOL
+
+
+def _quad_vault_cases_at_one_network() -> tuple[Scene, SolveResult]:
+    """The free-edged quad vault's single-case network (self-weight alone) as a result over two
+    cases: self-weight, and self-weight with 5% of it at the highest free vertex."""
+    scene, _ = _free_edged_quad_vault()
+    one = StaggeredLinearization().solve(scene, SW)
+    net = one.network
+    free = np.flatnonzero(~scene.supports)
+    v = int(free[np.argmax(net.vertices[free, 2])])
+    point = net.loads.copy()
+    point[v] -= 0.05 * float(-net.loads[free].sum())
+    nets = (("empty", net), ("point", replace(net, loads=point)))
+    return scene, SolveResult.build(net, cases=nets, status="stalled", method="staggered", backend="x",
+                                    iterations=0, wall_time=0.0)
+
+
+def test_over_a_plan_with_one_self_stress_no_heights_carry_a_point_load_case():
+    """The fixed-plan test at the free-edged quad vault's single-case network: the count is
+    numpy's SVD count (one self-stress ``u``), far below the ``⌈n/2⌉`` two cases need, and the
+    least-squares floor is the analytic one: with case 'empty' balanced, ``D(a u) z = F_1`` makes
+    the vertical load of any multiple of ``u`` at those heights a multiple of ``F_1``, so case
+    'point' is left with the residual of projecting its relative rows on ``F_1``'s."""
+    scene, res = _quad_vault_cases_at_one_network()
+    net = res.network
+    fp = cases.fixed_plan(res)
+    free = ~scene.supports
+    n = int(free.sum())
+    assert fp["self_stresses"] == _svd_count(_plan_matrix(scene, net.vertices), cases.SELF_STRESS_RTOL) == 1
+    assert fp["needed"] == -(-n // 2) and fp["unknowns"] == n + 2 and fp["equations"] == 2 * n
+    F1, F2 = net.loads[free], res.case_networks[1][1].loads[free]
+    a, b = F1 / np.abs(F2), F2 / np.abs(F2)
+    floor = np.abs(b - (a @ b) / (a @ a) * a).max()
+    assert fp["verdict"] == "blocked" and fp["case"] == "point"
+    assert fp["residual"] == pytest.approx(floor, rel=1e-6) and floor > 0.5
+    note = cases.fixed_plan_note(fp)
+    assert "are 1-dimensional (168 edges for 168 horizontal equations)" in note and f"{floor:.2e}" in note
+
+
+def test_a_triangulated_plan_is_not_blocked_by_the_count():
+    """The same vault split into triangles: edges less horizontal equations alone exceed the
+    self-stresses two cases need over a fixed plan, and the count is numpy's SVD count."""
+    from selfsupport.core.evidence import triangulate
+
+    quads, _ = _free_edged_quad_vault()
+    scene = Scene(PolyMesh.from_faces(quads.mesh.vertices, triangulate(quads.mesh)), quads.supports, name="tri")
+    one = StaggeredLinearization().solve(scene, SW)
+    res = SolveResult.build(one.network, cases=(("empty", one.network), ("again", one.network)), status="stalled",
+                            method="staggered", backend="x", iterations=0, wall_time=0.0)
+    fp = cases.fixed_plan(res)
+    assert fp["self_stresses"] == _svd_count(_plan_matrix(scene, one.network.vertices), cases.SELF_STRESS_RTOL)
+    assert fp["self_stresses"] >= fp["edges"] - fp["horizontal_equations"] >= fp["needed"]
+    assert fp["verdict"] == "not blocked by the count" and cases.fixed_plan_note(fp) == ""
+
+
+def test_a_stalled_result_on_a_free_edged_quad_vault_reports_its_plans_block(monkeypatch):
+    """The free-edged quad vault's iteration over both cases held to two iterations, without the
+    finish: the result records the fixed-plan test at its network, whose count is numpy's SVD
+    count of its plan matrix and below what two cases need, and its message says so."""
+    scene, problem = _free_edged_quad_vault()
+    _two_iterations(monkeypatch)
+    res = StaggeredLinearization(ipopt_finish=False).solve(problem)
+    assert res.status != "converged"
+    fp = res.parameters["fixed_plan"]
+    assert fp["self_stresses"] == _svd_count(_plan_matrix(scene, res.network.vertices), cases.SELF_STRESS_RTOL)
+    assert fp["self_stresses"] < fp["needed"] == 42 and fp["verdict"] == "blocked" and fp["residual"] > 1e-3
+    assert cases.fixed_plan_note(fp) in res.message
+
+
+@pytest.mark.parametrize("mesh", ["free-edged quad vault", "quad barrel vault"])
+def test_the_sparse_self_stress_basis_spans_numpys_null_space_of_the_plan(monkeypatch, mesh):
+    """:func:`self_stress_basis` by the sparse route (the dense route's limit set to zero) with
+    the sparse count is orthonormal and spans the null space numpy's SVD gives for the plan
+    matrix at that resolution (the cosines of the principal angles: all 1), on the vault's
+    single-case network (four self-stresses at that resolution) and the barrel vault's plan (ten)."""
+    import scipy.linalg
+
+    if mesh == "quad barrel vault":
+        scene = barrel_vault(nx=5, ny=7, quads=True)
+        X = scene.mesh.vertices
+    else:
+        scene, _ = _free_edged_quad_vault()
+        X = StaggeredLinearization().solve(scene, SW).network.vertices
+    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    monkeypatch.setattr(cases, "SELF_STRESS_MAX_EDGES", 0)
+    k = cases.top_view_self_stresses(top, X)["self_stresses"]
+    H = _plan_matrix(scene, X)
+    N = scipy.linalg.null_space(H, rcond=cases.SELF_STRESS_SPARSE_RTOL)
+    S = cases.self_stress_basis(top, X, k)
+    assert S.shape == N.shape == (top.m, 4 if mesh != "quad barrel vault" else 10)
+    assert np.abs(S.T @ S - np.identity(k)).max() < 1e-12
+    assert np.abs(H @ S).max() <= 1e-7 * np.abs(H).max()
+    assert np.linalg.svd(N.T @ S, compute_uv=False).min() == pytest.approx(1.0, abs=1e-6)

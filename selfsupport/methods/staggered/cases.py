@@ -56,6 +56,17 @@ envelope's network and reported with a block). Several cases need a plan with mo
 step from the envelope's network does not reach; where the iteration finds none either, more
 edges (quads split into triangles) or supports on the free edges give the plan room.
 
+More self-stresses are not enough over a fixed plan either: with ``k`` of them every case's
+weights are ``S a_c`` and the cases share the heights, ``C n_free`` vertical equations for
+``n_free + C k`` unknowns, so a generic plan carries ``C`` cases that are not proportional only
+with ``k ≥ (C − 1) n_free / C`` (a quad mesh with free edges has ``m − 2 n_free`` plus its
+mechanisms, far fewer: cas as quads 84 for 1,358 free vertices). Where the iteration over every
+case stalls, this is measured at its network (:func:`fixed_plan`: the count, then a
+least-squares solve over that plan with heights and weights of either sign free) and reported.
+The count is generic, not a proof that no geometry stands: a plan the solve moves to can be a
+special one where the vertical equations are dependent (the tests' 10 × 10 quad vault carries
+two cases over a plan with two self-stresses); it says the plan must move, possibly far.
+
 Where the continuation stops short of ``t = 1`` the cases are measured at the last network that
 carried ``t`` of them: each case's own weight fit there (Step 2, within the bounds) gives its
 relative residual per vertex, and the fit's bound multipliers name the edges whose bound blocks
@@ -81,7 +92,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
-from formulations.equilibrium import Topology, load_vector, residual, weight_matrix
+from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods import find_method, method_class
@@ -128,9 +139,19 @@ TENSION_RTOL = 1e-6
 #: Most seconds :func:`least_tension` gives one case's LP (HiGHS on 4,240 edges, triangulated
 #: cas: 3–6 s); never past the caller's deadline.
 TENSION_LP_SECONDS = 60.0
-#: Most active edges for which :func:`top_view_self_stresses` is measured (a dense SVD: 0.01 s at
-#: 168 edges, 0.2 s at 1,500).
+#: Most active edges for which :func:`top_view_self_stresses` takes a dense SVD (0.01 s at 168
+#: edges, 0.2 s at 1,500; 18–32 s at cas's 2,800 on a loaded machine); above it, the sparse count
+#: (:func:`_plan_mechanisms`: 0.04 s there).
 SELF_STRESS_MAX_EDGES = 1500
+#: In the sparse count, a singular value of the horizontal equilibrium matrix at most this times
+#: its largest counts as zero: its squares come from ``H Hᵀ``, whose round-off (~1e-16 of its
+#: largest eigenvalue) hides singular values below ~1e-8 of the largest.
+SELF_STRESS_SPARSE_RTOL = 1e-7
+#: Most Gauss–Newton steps of :func:`fixed_plan` (each 0.1–0.3 s on cas's 1,358 free vertices).
+FIXED_PLAN_STEPS = 20
+#: Most share of the solve's time :func:`fixed_plan` takes, after the iteration over every case and
+#: before IPOPT's finish.
+FIXED_PLAN_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -545,25 +566,213 @@ def top_view_self_stresses(top: Topology, X: np.ndarray) -> dict[str, Any]:
     weights over this top view are among them, and the heights enter only the vertical rows:
     where they form a one-dimensional space every case's weights are multiples of one vector
     ``u``, the vertical rows read ``D(u) z = L_c / λ_c`` with the same heights ``z``, and so no
-    heights and no weights of either sign carry cases whose loads are not proportional.
+    heights and no weights of either sign carry cases whose loads are not proportional (more
+    self-stresses: :func:`fixed_plan`).
 
     Returns the count of edges ``m``, of horizontal equations ``2 n_free`` (a mesh with
     ``m ≤ 2 n_free``, such as a quad mesh with free edges, has no self-stress at a generic top
-    view: a solve finds a special one with one), and, for at most
-    :data:`SELF_STRESS_MAX_EDGES` edges, ``self_stresses``: the dimension of the space (singular
-    values of ``H`` at most :data:`SELF_STRESS_RTOL` times the largest, and the ``m − 2 n_free``
-    beyond its rows) with ``next_singular``, the smallest singular value above that over the
-    largest (how far the top view is from one more); ``None`` above the limit."""
+    view: a solve finds a special one with one), ``self_stresses``: the dimension of the space,
+    ``m − rank H``, and ``next_singular``, the smallest singular value of ``H`` counted nonzero
+    over the largest (how far the top view is from one more), and ``route``. Up to
+    :data:`SELF_STRESS_MAX_EDGES` edges a dense SVD (singular values at most
+    :data:`SELF_STRESS_RTOL` times the largest count as zero); above, ``m − 2 n_free`` plus the
+    plan's mechanisms, the zero singular values of ``Hᵀ`` (:func:`_plan_mechanisms`, resolved to
+    :data:`SELF_STRESS_SPARSE_RTOL`); ``self_stresses`` None where that count did not resolve."""
     H = plan_matrix(top, X)
     out: dict[str, Any] = {"edges": top.m, "horizontal_equations": 2 * top.n_free,
                            "self_stresses": None, "next_singular": None}
-    if top.m > SELF_STRESS_MAX_EDGES or top.m == 0:
+    if top.m == 0:
+        return out
+    if top.m > SELF_STRESS_MAX_EDGES:
+        mech, nxt = _plan_mechanisms(H)
+        out["route"] = "sparse"
+        if mech is not None:
+            out.update(self_stresses=top.m - 2 * top.n_free + mech, next_singular=nxt)
         return out
     s = np.linalg.svd(H.toarray(), compute_uv=False)
     s = np.r_[s, np.zeros(max(top.m - s.size, 0))] / max(float(s[0]), np.finfo(float).tiny)
     zero = s <= SELF_STRESS_RTOL
-    out.update(self_stresses=int(zero.sum()), next_singular=float(s[~zero].min()) if (~zero).any() else None)
+    out.update(self_stresses=int(zero.sum()), next_singular=float(s[~zero].min()) if (~zero).any() else None,
+               route="dense")
     return out
+
+
+def _plan_mechanisms(H: sp.spmatrix) -> tuple[int | None, float | None]:
+    """The dimension of the null space of ``Hᵀ`` (the plan's infinitesimal mechanisms: ``rank H =
+    2 n_free`` less it) and the smallest singular value of ``H`` above zero over its largest, from
+    the smallest eigenvalues of ``H Hᵀ`` (shift-invert Lanczos, sparse LU). (None, None) where
+    every eigenvalue asked for is zero (more mechanisms than asked for)."""
+    from scipy.sparse.linalg import eigsh  # (only for the report of a block)
+
+    G = (H @ H.T).tocsc()
+    rows = G.shape[0]
+    lmax = float(eigsh(G, k=1, which="LA", return_eigenvectors=False)[0]) if rows > 1 else float(G.toarray().max())
+    nev = min(rows - 1, max(rows - H.shape[1], 0) + 8)
+    if nev < 1 or lmax <= 0.0:
+        return None, None
+    vals = eigsh(G, k=nev, sigma=-1e-12 * lmax, which="LM", return_eigenvectors=False)
+    s = np.sort(np.sqrt(np.abs(vals) / lmax))
+    zero = s <= SELF_STRESS_SPARSE_RTOL
+    if zero.all():
+        return None, None
+    return int(zero.sum()), float(s[~zero].min())
+
+
+def self_stress_basis(top: Topology, X: np.ndarray, k: int | None = None, *, seed: int = 0) -> np.ndarray:
+    """An orthonormal basis ``(m, k)`` of the horizontal self-stresses of the top view of ``X``,
+    by the route :func:`top_view_self_stresses` counts them: up to
+    :data:`SELF_STRESS_MAX_EDGES` edges the null space of the dense SVD (``k`` unused); above,
+    ``k`` (their count) random vectors projected twice onto the null space of ``H`` (``w − Hᵀ
+    (H Hᵀ + σ I)⁻¹ H w``, one sparse LU), then orthonormalised. ``σ`` is 1e-14 of ``H Hᵀ``'s
+    largest diagonal entry, so singular values of ``H`` above ~1e-7 of its largest
+    (:data:`SELF_STRESS_SPARSE_RTOL`) are projected out and those below kept."""
+    from scipy.linalg import null_space  # (only for the report of a block)
+    from scipy.sparse.linalg import splu
+
+    H = plan_matrix(top, X).tocsr()
+    if top.m <= SELF_STRESS_MAX_EDGES or k is None:
+        return null_space(H.toarray(), rcond=SELF_STRESS_RTOL)
+    G = (H @ H.T).tocsc()
+    lu = splu((G + sp.identity(G.shape[0]) * 1e-14 * float(G.diagonal().max(initial=1.0))).tocsc())
+    W = np.random.default_rng(seed).standard_normal((top.m, k))
+    for _ in range(2):
+        W = W - H.T @ lu.solve(H @ W)
+    return np.linalg.qr(W)[0]
+
+
+def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, Any]:
+    """Whether, over the top view of ``result``'s network (several cases), any heights and any
+    weights of either sign carry every case (loads held at the network's).
+
+    Over a fixed plan every case's weights lie among its ``k`` horizontal self-stresses
+    (:func:`top_view_self_stresses`), ``w_c = S a_c``, and the cases share the heights: ``C n_free``
+    vertical equations for ``n_free + C k`` unknowns. Where ``k < (C − 1) n_free / C`` they
+    outnumber the unknowns and generically no heights carry the cases (``needed``: the least
+    ``k`` that does not); this is then measured by a least-squares solve (variable projection,
+    Gauss–Newton, at most :data:`FIXED_PLAN_STEPS` steps): the first case exactly balanced (its
+    heights solved for its coefficients ``a_1``), every other case's coefficients the linear least
+    squares of its vertical rows at those heights, ``a_1`` moved to lower the others' relative
+    residuals. A floor well above round-off (:data:`BLOCKED_RESIDUAL`) is the local evidence that
+    the plan must move; the count is the generic one.
+
+    Returns
+    -------
+    :func:`top_view_self_stresses` with ``cases``, ``needed``, ``unknowns``, ``equations`` and
+    ``verdict``: "blocked" (with ``case``, the worst case, ``residual`` and ``start_residual``,
+    its max relative residual per vertex after and before the solve, ``steps``, ``seconds``),
+    "carried" (the solve reached the threshold), "not blocked by the count" or "not measured"
+    (the count did not resolve, or no time).
+    """
+    from scipy.linalg import cho_factor, cho_solve  # (only for the report of a block)
+    from scipy.sparse.linalg import splu
+
+    t0 = time.perf_counter()
+    (_, first), *_ = result.case_networks
+    top = Topology.build(first.mesh.n_vertices, first.edges[first.active_edges], first.supports)
+    X = first.vertices
+    n, C = top.n_free, len(result.case_networks)
+    out = top_view_self_stresses(top, X)
+    k = out["self_stresses"]
+    out.update(cases=C, needed=-(-(C - 1) * n // C), unknowns=None if k is None else n + C * k, equations=C * n)
+    if k is None or out_of_time(deadline):
+        return {**out, "verdict": "not measured"}
+    if k >= out["needed"]:
+        return {**out, "verdict": "not blocked by the count"}
+    names = [name for name, _ in result.case_networks]
+    if k == 0:  # (no weights balance the plan: every case's vertical rows are its loads alone)
+        return {**out, "verdict": "blocked", "case": names[0], "balanced": None, "residual": 1.0,
+                "start_residual": 1.0, "steps": 0, "seconds": time.perf_counter() - t0}
+    L = np.array([net.loads for _, net in result.case_networks])
+    free = top.free
+    s = 1.0 / np.abs(L[:, free])
+    S = self_stress_basis(top, X, k)
+    z_s = X[~free, 2]
+    pos = X.copy()
+
+    def heights(a: np.ndarray) -> tuple[np.ndarray, Any, np.ndarray] | None:
+        """The first case's heights for coefficients ``a``, its factor and the vertical rows."""
+        w = S @ a
+        K_ff, K_fs = position_blocks(top, w)
+        try:
+            lu = splu(K_ff.tocsc())
+        except RuntimeError:  # (a singular stress Laplacian: no heights)
+            return None
+        pos[free, 2] = lu.solve(L[0, free] - K_fs @ z_s)
+        return pos[free, 2].copy(), lu, weight_matrix(top, pos).tocsr()[2::3]
+
+    def others(a: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The other cases' relative vertical residuals (stacked) at ``a``'s heights, and their
+        Jacobian in ``a`` (Kaufman's: the projection of the coefficients' fit held)."""
+        h = heights(a)
+        if h is None:
+            return None
+        z, lu, Vz = h
+        VS = Vz @ S
+        dz = -lu.solve(VS) if jac else None  # (K_ff dz = −Vz S: the first case stays balanced)
+        r, J = [], []
+        for c in range(1, C):
+            # (normal equations: LAPACK's least squares on a tall dense matrix is 50× slower than
+            # its products where the cores are shared, and the floor sought is far above their round-off)
+            M = s[c][:, None] * VS
+            G = M.T @ M
+            G += np.identity(k) * 1e-14 * float(G.diagonal().max(initial=1.0))
+            cho = cho_factor(G)
+            b = cho_solve(cho, M.T @ (s[c] * L[c, free]))
+            r.append(M @ b - s[c] * L[c, free])
+            if jac:
+                D = s[c][:, None] * (position_blocks(top, S @ b)[0] @ dz)
+                J.append(D - M @ cho_solve(cho, M.T @ D))
+        return np.concatenate(r), (np.vstack(J) if jac else None)
+
+    # (the first case's coefficients fitted at the network's heights: its heights then move least)
+    M0 = s[0][:, None] * (weight_matrix(top, X).tocsr()[2::3] @ S)
+    a = cho_solve(cho_factor(M0.T @ M0 + np.identity(k) * 1e-14 * float((M0 * M0).sum(axis=0).max())),
+                  M0.T @ (s[0] * L[0, free]))
+    got = others(a, True)
+    if got is None:
+        return {**out, "verdict": "not measured", "reason": "the first case's stress Laplacian is singular"}
+    r, J = got
+    start, lam, steps = np.abs(r).max(), 1e-3, 0
+    while steps < FIXED_PLAN_STEPS and np.abs(r).max() > BLOCKED_RESIDUAL and not out_of_time(deadline):
+        steps += 1
+        JtJ = J.T @ J
+        step = np.linalg.solve(JtJ + lam * np.diag(np.diag(JtJ) + 1e-300), -J.T @ r)
+        trial = others(a + step, False)
+        if trial is not None and trial[0] @ trial[0] < r @ r:
+            a, lam = a + step, max(lam / 3.0, 1e-12)
+            r, J = others(a, True)  # type: ignore[misc]
+        else:
+            lam *= 4.0
+            if lam > 1e12:
+                break
+    per_case = np.abs(r).reshape(C - 1, n).max(axis=1)
+    worst = int(np.argmax(per_case))
+    verdict = "carried" if per_case.max() <= BLOCKED_RESIDUAL else "blocked"
+    return {**out, "verdict": verdict, "case": names[1 + worst], "balanced": names[0],
+            "residual": float(per_case.max()), "start_residual": float(start), "steps": steps,
+            "seconds": time.perf_counter() - t0}
+
+
+def fixed_plan_note(fp: dict[str, Any]) -> str:
+    """:func:`fixed_plan` in one sentence, where it measured a block (empty otherwise)."""
+    if fp.get("verdict") != "blocked":
+        return ""
+    if fp["self_stresses"] == 0:
+        return (f"this network's plan has no horizontal self-stress ({fp['edges']} edges for "
+                f"{fp['horizontal_equations']} horizontal equations, full rank): no weights of either sign balance "
+                f"its free vertices in plan, so over it no case stands, let alone {fp['cases']}; the plan must move "
+                f"to a special one")
+    return (f"over this network's plan the horizontal self-stresses (weights of either sign balancing every free "
+            f"vertex in plan) are {fp['self_stresses']}-dimensional ({fp['edges']} edges for "
+            f"{fp['horizontal_equations']} horizontal equations), so the {fp['cases']} cases' vertical equations "
+            f"({fp['equations']}) outnumber the heights and the self-stresses' coefficients ({fp['unknowns']}): "
+            f"generically no heights carry the cases over a plan with fewer than {fp['needed']} self-stresses; "
+            f"a least-squares solve over this plan (case {fp['balanced']!r} balanced exactly, heights and every "
+            f"case's weights of either sign free, loads held) leaves case {fp['case']!r} at max relative residual "
+            f"{fp['residual']:.2e} (from {fp['start_residual']:.2e}, {fp['steps']} Gauss–Newton steps): the plan "
+            f"must move to a special one, where the vertical equations are dependent, and the nearest network in "
+            f"equilibrium may be far; more edges (quads split into triangles) or supports on the free edges give "
+            f"every plan room")
 
 
 def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,

@@ -16,10 +16,13 @@ from selfsupport.methods.base import as_problem, cases_proportional, loads_or_op
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.staggered.cases import (
     FINISH_SHARE,
+    FIXED_PLAN_SHARE,
     any_weights_carry,
     carry_note,
     continuation,
     finish_note,
+    fixed_plan,
+    fixed_plan_note,
     ipopt_finish,
     proportional_members,
     with_members,
@@ -126,6 +129,11 @@ class StaggeredLinearization:
         if other is None:  # (no time left: the envelope's network is no answer)
             other = _Run(self, problem, replace(opt, coupled=False, time_limit=0.0), progress, None, None).solve()
         note, params = None, {**other.parameters, "load_continuation": rec}
+        # whether the iteration's plan can carry every case (its share of the time before the finish)
+        fp = fixed_plan(other, min(deadline, time.perf_counter() + FIXED_PLAN_SHARE * (deadline - t0))) \
+            if len(other.case_networks) > 1 else None
+        if fp is not None:
+            params["fixed_plan"] = fp
         fin = None
         if opt.ipopt_finish and not out_of_time(deadline):
             try:
@@ -148,8 +156,10 @@ class StaggeredLinearization:
         if len(other.case_networks) > 1 and other.status != "converged":
             params["any_weights_carry"] = any_weights_carry(other)
             carry = carry_note(params["any_weights_carry"])
+        plan = fixed_plan_note(fp) if fp is not None else None
         return dataclasses.replace(other, wall_time=time.perf_counter() - t0,
-                                   message="; ".join(m for m in (other.message, rec.get("message"), carry, note) if m),
+                                   message="; ".join(m for m in (other.message, rec.get("message"), carry, plan, note)
+                                                     if m),
                                    parameters=params)
 
     def _iterate(self, problem: Problem, opt: StaggeredOptions, progress: Callable[[dict], None] | None,
