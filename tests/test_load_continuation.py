@@ -657,6 +657,18 @@ def _svd_count(H: np.ndarray, rtol: float) -> int:
     return H.shape[1] - int(np.count_nonzero(s > rtol * s[0]))
 
 
+def _plan_of(mesh: str):
+    """The scene, the plan's positions and topology of the self-stress tests' two meshes: the
+    free-edged quad vault's single-case network, or a quad barrel vault as built."""
+    if mesh == "quad barrel vault":
+        scene = barrel_vault(nx=5, ny=7, quads=True)
+        X = scene.mesh.vertices
+    else:
+        scene, _ = _free_edged_quad_vault()
+        X = StaggeredLinearization().solve(scene, SW).network.vertices
+    return scene, X, Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+
+
 @pytest.mark.parametrize("mesh", ["free-edged quad vault", "quad barrel vault"])
 def test_the_sparse_self_stress_count_is_numpys_svd_count(monkeypatch, mesh):
     """Above :data:`SELF_STRESS_MAX_EDGES` the count is the edges less the horizontal equations
@@ -667,13 +679,7 @@ def test_the_sparse_self_stress_count_is_numpys_svd_count(monkeypatch, mesh):
     matrix at the sparse route's resolution (the vault's plan has three more singular values
     between 1e-9 and 2e-8 of the largest, then none below 1e-3: four at that resolution, one at
     the dense route's)."""
-    if mesh == "quad barrel vault":
-        scene = barrel_vault(nx=5, ny=7, quads=True)
-        X = scene.mesh.vertices
-    else:
-        scene, _ = _free_edged_quad_vault()
-        X = StaggeredLinearization().solve(scene, SW).network.vertices
-    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    scene, X, top = _plan_of(mesh)
     expected = _svd_count(_plan_matrix(scene, X), cases.SELF_STRESS_SPARSE_RTOL)
     monkeypatch.setattr(cases, "SELF_STRESS_MAX_EDGES", 0)
     tv = cases.top_view_self_stresses(top, X)
@@ -756,13 +762,7 @@ def test_the_sparse_self_stress_basis_spans_numpys_null_space_of_the_plan(monkey
     single-case network (four self-stresses at that resolution) and the barrel vault's plan (ten)."""
     import scipy.linalg
 
-    if mesh == "quad barrel vault":
-        scene = barrel_vault(nx=5, ny=7, quads=True)
-        X = scene.mesh.vertices
-    else:
-        scene, _ = _free_edged_quad_vault()
-        X = StaggeredLinearization().solve(scene, SW).network.vertices
-    top = Topology.build(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports)
+    scene, X, top = _plan_of(mesh)
     monkeypatch.setattr(cases, "SELF_STRESS_MAX_EDGES", 0)
     k = cases.top_view_self_stresses(top, X)["self_stresses"]
     H = _plan_matrix(scene, X)
