@@ -640,52 +640,17 @@ def self_stress_basis(top: Topology, X: np.ndarray, k: int | None = None, *, see
     return np.linalg.qr(W)[0]
 
 
-def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, Any]:
-    """Whether, over the top view of ``result``'s network (several cases), any heights and any
-    weights of either sign carry every case (loads held at the network's).
-
-    Over a fixed plan every case's weights lie among its ``k`` horizontal self-stresses
-    (:func:`top_view_self_stresses`), ``w_c = S a_c``, and the cases share the heights: ``C n_free``
-    vertical equations for ``n_free + C k`` unknowns. Where ``k < (C − 1) n_free / C`` they
-    outnumber the unknowns and generically no heights carry the cases (``needed``: the least
-    ``k`` that does not); this is then measured by a least-squares solve (variable projection,
-    Gauss–Newton, at most :data:`FIXED_PLAN_STEPS` steps): the first case exactly balanced (its
-    heights solved for its coefficients ``a_1``), every other case's coefficients the linear least
-    squares of its vertical rows at those heights, ``a_1`` moved to lower the others' relative
-    residuals. A floor well above round-off (:data:`BLOCKED_RESIDUAL`) is the local evidence that
-    the plan must move; the count is the generic one.
-
-    Returns
-    -------
-    :func:`top_view_self_stresses` with ``cases``, ``needed``, ``unknowns``, ``equations`` and
-    ``verdict``: "blocked" (with ``case``, the worst case, ``residual`` and ``start_residual``,
-    its max relative residual per vertex after and before the solve, ``steps``, ``seconds``),
-    "carried" (the solve reached the threshold), "not blocked by the count" or "not measured"
-    (the count did not resolve, or no time).
-    """
+def _plan_fit(top: Topology, X: np.ndarray, L: np.ndarray, S: np.ndarray,
+              deadline: float | None) -> tuple[np.ndarray, float, int] | None:
+    """:func:`fixed_plan`'s least-squares solve over the plan of ``X`` with self-stress basis
+    ``S``: the cases' loads ``L`` (one row per case), the first balanced exactly. Returns the
+    other cases' stacked relative vertical residuals at its end, the largest at its start, and its
+    steps; None where the first case's stress Laplacian is singular."""
     from scipy.linalg import cho_factor, cho_solve  # (only for the report of a block)
     from scipy.sparse.linalg import splu
 
-    t0 = time.perf_counter()
-    (_, first), *_ = result.case_networks
-    top = Topology.build(first.mesh.n_vertices, first.edges[first.active_edges], first.supports)
-    X = first.vertices
-    n, C = top.n_free, len(result.case_networks)
-    out = top_view_self_stresses(top, X)
-    k = out["self_stresses"]
-    out.update(cases=C, needed=-(-(C - 1) * n // C), unknowns=None if k is None else n + C * k, equations=C * n)
-    if k is None or out_of_time(deadline):
-        return {**out, "verdict": "not measured"}
-    if k >= out["needed"]:
-        return {**out, "verdict": "not blocked by the count"}
-    names = [name for name, _ in result.case_networks]
-    if k == 0:  # (no weights balance the plan: every case's vertical rows are its loads alone)
-        return {**out, "verdict": "blocked", "case": names[0], "balanced": None, "residual": 1.0,
-                "start_residual": 1.0, "steps": 0, "seconds": time.perf_counter() - t0}
-    L = np.array([net.loads for _, net in result.case_networks])
-    free = top.free
+    free, (C, k) = top.free, (len(L), S.shape[1])
     s = 1.0 / np.abs(L[:, free])
-    S = self_stress_basis(top, X, k)
     z_s = X[~free, 2]
     pos = X.copy()
 
@@ -730,7 +695,7 @@ def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, 
                   M0.T @ (s[0] * L[0, free]))
     got = others(a, True)
     if got is None:
-        return {**out, "verdict": "not measured", "reason": "the first case's stress Laplacian is singular"}
+        return None
     r, J = got
     start, lam, steps = np.abs(r).max(), 1e-3, 0
     while steps < FIXED_PLAN_STEPS and np.abs(r).max() > BLOCKED_RESIDUAL and not out_of_time(deadline):
@@ -745,6 +710,53 @@ def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, 
             lam *= 4.0
             if lam > 1e12:
                 break
+    return r, float(start), steps
+
+
+def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, Any]:
+    """Whether, over the top view of ``result``'s network (several cases), any heights and any
+    weights of either sign carry every case (loads held at the network's).
+
+    Over a fixed plan every case's weights lie among its ``k`` horizontal self-stresses
+    (:func:`top_view_self_stresses`), ``w_c = S a_c``, and the cases share the heights: ``C n_free``
+    vertical equations for ``n_free + C k`` unknowns. Where ``k < (C − 1) n_free / C`` they
+    outnumber the unknowns and generically no heights carry the cases (``needed``: the least
+    ``k`` that does not); this is then measured by a least-squares solve (variable projection,
+    Gauss–Newton, at most :data:`FIXED_PLAN_STEPS` steps): the first case exactly balanced (its
+    heights solved for its coefficients ``a_1``), every other case's coefficients the linear least
+    squares of its vertical rows at those heights, ``a_1`` moved to lower the others' relative
+    residuals. A floor well above round-off (:data:`BLOCKED_RESIDUAL`) is the local evidence that
+    the plan must move; the count is the generic one.
+
+    Returns
+    -------
+    :func:`top_view_self_stresses` with ``cases``, ``needed``, ``unknowns``, ``equations`` and
+    ``verdict``: "blocked" (with ``case``, the worst case, ``residual`` and ``start_residual``,
+    its max relative residual per vertex after and before the solve, ``steps``, ``seconds``),
+    "carried" (the solve reached the threshold), "not blocked by the count" or "not measured"
+    (the count did not resolve, or no time).
+    """
+    t0 = time.perf_counter()
+    (_, first), *_ = result.case_networks
+    top = Topology.build(first.mesh.n_vertices, first.edges[first.active_edges], first.supports)
+    X = first.vertices
+    n, C = top.n_free, len(result.case_networks)
+    out = top_view_self_stresses(top, X)
+    k = out["self_stresses"]
+    out.update(cases=C, needed=-(-(C - 1) * n // C), unknowns=None if k is None else n + C * k, equations=C * n)
+    if k is None or out_of_time(deadline):
+        return {**out, "verdict": "not measured"}
+    if k >= out["needed"]:
+        return {**out, "verdict": "not blocked by the count"}
+    names = [name for name, _ in result.case_networks]
+    if k == 0:  # (no weights balance the plan: every case's vertical rows are its loads alone)
+        return {**out, "verdict": "blocked", "case": names[0], "balanced": None, "residual": 1.0,
+                "start_residual": 1.0, "steps": 0, "seconds": time.perf_counter() - t0}
+    got = _plan_fit(top, X, np.array([net.loads for _, net in result.case_networks]),
+                    self_stress_basis(top, X, k), deadline)
+    if got is None:
+        return {**out, "verdict": "not measured", "reason": "the first case's stress Laplacian is singular"}
+    r, start, steps = got
     per_case = np.abs(r).reshape(C - 1, n).max(axis=1)
     worst = int(np.argmax(per_case))
     verdict = "carried" if per_case.max() <= BLOCKED_RESIDUAL else "blocked"
