@@ -30,11 +30,12 @@ which is only *a* network in equilibrium (the staggered solve without planar fac
 free edges of the paper's vault remeshed along its principal directions 0.24 of the diagonal
 off the remesh; at the published spacing 1.3 of it, and the homotopy stalled from there).
 So the planar end is drawn toward the reference with its faces held in the band reached:
-projected-gradient steps toward the closest points of the reference, each restored by the same
-polish and accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start
-as given first; only where it does not converge (the vault's aligned remesh at the published
-spacing) does it run again from that start pulled toward the reference in equilibrium (the
-pulled start is not always the easier one: from lilium's grid remesh pulled so, it crawls).
+constrained Levenberg–Marquardt steps toward the tangent planes at the closest points of the
+reference, each restored by the same polish and accepted only feasible and closer
+(:func:`_pull`). The homotopy runs from the start as given first; only where it does not
+converge (the vault's aligned remesh at the published spacing) does it run again from that
+start pulled toward the reference in equilibrium (:func:`_pull_start`; the pulled start is not
+always the easier one: from lilium's grid remesh pulled so, it crawls).
 
 Example: a barrel vault remeshed along its relative principal directions, where the staggered
 method with planar faces stalls:
