@@ -118,6 +118,8 @@ PULL_PATIENCE = 2
 #: cosine at least this is drawn to the tangent plane, others (their closest point on the
 #: surface's edge) to the point.
 PULL_PLANE_COS = 0.95
+#: Rounds of :func:`_band_step` (each holds the faces the step would carry past the band).
+PULL_ACTIVE_ROUNDS = 5
 #: The pull of the homotopy's start (:func:`_pull_start`): the first fraction of the way to the
 #: closest points, the smallest one tried (below it the pull ends), its most steps; a step that
 #: lowers the summed squared distance by less than :data:`START_PULL_GAIN` is small, and
@@ -134,14 +136,21 @@ PULL_START_SHARE = 0.25
 @dataclass(frozen=True, eq=False)
 class _Band:
     """The planarity rows of one stage, in the shape :func:`polish_joint` reads (``linearize``):
-    each face whose non-planarity is at or past ``band`` held on it, the rest left free."""
+    each face whose non-planarity is at or past ``band`` held on it, the rest left free; or, with
+    ``held`` (per face 0, or the sign of the side of the band it is held on), those faces."""
 
     rows: np.ndarray  # (r, 4) corners, coplanarity_rows' order
     band: float
     n_vertices: int
+    held: np.ndarray | None = None
 
     def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         r, J = diagonal_distance(V, self.rows, jacobian=True)
+        if self.held is not None:
+            on = np.flatnonzero(self.held)
+            if on.size:
+                return r[on] - self.held[on] * self.band, J[on]
+            return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
         held = np.flatnonzero(np.abs(r) > (1 - 1e-3) * self.band)
         if held.size == 0:  # (one empty row: the polish's system keeps its shape)
             return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
@@ -281,7 +290,32 @@ def _pull_start(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarra
     return X, W, steps, history
 
 
-def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
+def _band_step(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, d0: np.ndarray,
+               D: sp.spmatrix, *, loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any,
+               deadline: float | None) -> tuple | None:
+    """:func:`~selfsupport.methods.polish.constrained_step` with the faces' band as inequalities:
+    no face held at first; a face the step would carry past the band is held on it (on the side
+    it would cross) and the step redone, for at most :data:`PULL_ACTIVE_ROUNDS` rounds. (Holding
+    every face at the band, as the polish does, kept faces the step would move inwards on it, and
+    the pull stopped where they piled up.) ``form(X, held)``: the problem with ``held``
+    (:class:`_Band`). Returns ``(X + d_X, W + d_W)``, or None past ``deadline``."""
+    band = form(X).planar
+    held = None if band is None else np.zeros(len(band.rows))
+    for _ in range(PULL_ACTIVE_ROUNDS):
+        lin = constrained_step(form(X, held), X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian,
+                               deadline=deadline)
+        if lin is None or held is None:
+            return lin
+        r = diagonal_distance(lin[0], band.rows)[0]
+        out = (held == 0) & (np.abs(r) > band.band)
+        if not out.any():
+            break
+        held = held.copy()
+        held[out] = np.sign(r[out])
+    return lin
+
+
+def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
           loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
           targets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
           feasible: Callable[[np.ndarray, np.ndarray], bool],
@@ -311,8 +345,7 @@ def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: 
     small = 0
     while mu <= PULL_MU_MAX and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
         d0, D = _reference_step(X, fidx, *targets(X), mu)
-        lin = constrained_step(form(X), X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian,
-                               deadline=deadline)
+        lin = _band_step(form, X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian, deadline=deadline)
         if lin is None:  # (the deadline passed inside the step)
             break
         Xn, Wn, k, err, ok = polish_joint(form(lin[0]), *lin, loads_at=loads_at, tol=STAGE_TOL,
@@ -435,9 +468,10 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     ref = mesh0 if reference is None else reference
     ref_scaled = ref.with_vertices(sc.pos(ref.vertices))  # (the polish's units)
 
-    def form_at(Y: np.ndarray, trial: float | None) -> ThrustNetworkProblem:  # (trial None: no planarity rows)
+    def form_at(Y: np.ndarray, trial: float | None, held: np.ndarray | None = None) -> ThrustNetworkProblem:
+        # (trial None: no planarity rows; held: the faces held, see _Band)
         return ThrustNetworkProblem(top, Y, loads_at(Y), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
-                                    planar=None if trial is None else _Band(rows, trial, mesh0.n_vertices))
+                                    planar=None if trial is None else _Band(rows, trial, mesh0.n_vertices, held))
 
     def in_equilibrium(Y: np.ndarray, Wy: np.ndarray) -> bool:  # (in SI units)
         return bool(case_networks(problem, sc, Y, list(Wy))[0].in_equilibrium(STAGE_TOL))
@@ -451,7 +485,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         before = distance_stats(sc.pos_back(Y), ref)[0]
         # (the start, faces not yet planar (trial None): by _pull_start, see there)
         Y, Wy, k, trail = (_pull if trial is not None else _pull_start)(
-            lambda Z: form_at(Z, trial), Y, Wy, loads_at=loads_at, load_jacobian=jac, free=np.asarray(scene.free, bool),
+            lambda Z, held=None: form_at(Z, trial, held), Y, Wy, loads_at=loads_at, load_jacobian=jac, free=np.asarray(scene.free, bool),
             targets=lambda Z: closest_points(Z, ref_scaled)[::2], feasible=feasible, deadline=until, progress=progress)
         return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail),
                           "distance_before": before, "distance_after": distance_stats(sc.pos_back(Y), ref)[0]}
