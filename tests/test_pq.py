@@ -228,8 +228,9 @@ def test_the_planar_finish_ends_near_the_reference_not_only_planar(how):
     barrel vault remeshed along its principal directions: without the pull the planar network
     ends farther from the vault than the remesh began (measured 3.1e-5 vs 1.5e-5 of the diagonal,
     seamless; 4.7e-4 vs 1.1e-5, streamlines, whose staggered network in equilibrium starts
-    4.4e-4 off); with it less than half as far: closer than the remesh began (1.8e-17, seamless),
-    2.3e-6 (streamlines). Planar and in equilibrium by the distance
+    4.4e-4 off); with it on the vault, a cylinder its planar quads can lie on (1.8e-17,
+    seamless; 6.6e-15, streamlines, where holding every face on the band in the pull's steps
+    stopped it at 2.3e-6). Planar and in equilibrium by the distance
     computed here and the independent checker."""
     from selfsupport.methods.planar_homotopy import planar_homotopy
     from selfsupport.remesh.planar import solve_planar
@@ -247,8 +248,8 @@ def test_the_planar_finish_ends_near_the_reference_not_only_planar(how):
     res = solve_planar(scene, tol=1e-3, reference=shape.mesh)
     assert plain.status == res.status == "converged" and res.parameters["planar_finish"]["returned"] == "homotopy"
     assert dist(plain) > began
-    # (on the seamless remesh the planar quads can lie on the vault, a cylinder: the pull gets there)
-    assert dist(res) < 0.5 * dist(plain) and dist(res) < (1e-3 if how == "seamless" else 0.5) * began
+    # (planar quads along a cylinder's principal directions can lie on it: the pull gets there)
+    assert dist(res) < 1e-3 * began
     pulls = res.parameters["homotopy"]["pull"]
     assert pulls["planar"]["accepted"] > 0 and pulls["planar"]["distance_after"] == pytest.approx(dist(res), rel=1e-9)
     # (the homotopy from the start as given converged: its end is the plain homotopy's)
