@@ -325,8 +325,8 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
 
     Each step is the Gauss–Newton step toward the tangent planes at the closest points
     (``targets(X)``: closest points and unit normals; :func:`_reference_step`) restricted to the
-    joint polish's linearised constraints (equilibrium, the faces held on the band where
-    ``form(X)`` has one; :func:`~selfsupport.methods.polish.constrained_step`), then restored by
+    joint polish's linearised constraints (equilibrium, and where ``form(X)`` has a band the faces
+    within it, :func:`_band_step`; ``form(X, held)`` that problem with the faces ``held``), then restored by
     the joint polish. A step is accepted when the polish converges and the network is
     ``feasible`` and closer; the damping ``μ`` then falls by :data:`PULL_MU_DOWN`, else rises by
     :data:`PULL_MU_UP`. Point-to-plane rather than point-to-point: the squared distance to a
