@@ -30,11 +30,12 @@ which is only *a* network in equilibrium (the staggered solve without planar fac
 free edges of the paper's vault remeshed along its principal directions 0.24 of the diagonal
 off the remesh; at the published spacing 1.3 of it, and the homotopy stalled from there).
 So the planar end is drawn toward the reference with its faces held in the band reached:
-projected-gradient steps toward the closest points of the reference, each restored by the same
-polish and accepted only feasible and closer (:func:`_pull`). The homotopy runs from the start
-as given first; only where it does not converge (the vault's aligned remesh at the published
-spacing) does it run again from that start pulled toward the reference in equilibrium (the
-pulled start is not always the easier one: from lilium's grid remesh pulled so, it crawls).
+constrained Levenberg–Marquardt steps toward the tangent planes at the closest points of the
+reference, each restored by the same polish and accepted only feasible and closer
+(:func:`_pull`). The homotopy runs from the start as given first; only where it does not
+converge (the vault's aligned remesh at the published spacing) does it run again from that
+start pulled toward the reference in equilibrium (:func:`_pull_start`; the pulled start is not
+always the easier one: from lilium's grid remesh pulled so, it crawls).
 
 Example: a barrel vault remeshed along its relative principal directions, where the staggered
 method with planar faces stalls:
@@ -69,7 +70,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import SolveResult
 from selfsupport.methods.base import case_networks, nonplanar_faces_note, planarity_report, term_values
 from selfsupport.methods.deadline import out_of_time
-from selfsupport.methods.polish import case_load_jacobians, polish_joint
+from selfsupport.methods.polish import case_load_jacobians, constrained_step, polish_joint
 from selfsupport.methods.staggered import DEFAULT_OBJECTIVE
 from selfsupport.methods.warm import as_warm_start, transfer
 
@@ -99,15 +100,35 @@ MAX_STAGES = 400
 PACE_WINDOW = 30
 #: How many times its recent pace a crawling homotopy is granted before it stops.
 PACE_MARGIN = 2.0
-#: The pull toward the reference after the homotopy (:func:`_pull`): the first fraction of the
-#: way to the closest points, the smallest one tried (below it the pull ends), and its most steps.
-PULL_FIRST = 0.5
-PULL_MIN = 1.0 / 64
+#: The pull toward the reference after the homotopy (:func:`_pull`, Levenberg–Marquardt): the
+#: first damping ``μ`` (a tangential move costs ``μ`` times a move across the surface), its
+#: factors after an accepted and a rejected step, its floor, and the ceiling past which the pull
+#: ends (the steps are then too short to matter); its most steps.
+PULL_MU_FIRST = 1e-2
+PULL_MU_DOWN = 4.0
+PULL_MU_UP = 8.0
+PULL_MU_MIN = 1e-8
+PULL_MU_MAX = 1e3
 PULL_MAX_STEPS = 60
 #: A pull step that lowers the summed squared distance by less than this fraction is small;
-#: :data:`PULL_PATIENCE` small steps in a row end the pull (it is creeping along the constraints).
-PULL_GAIN = 1e-2
-PULL_PATIENCE = 3
+#: :data:`PULL_PATIENCE` small steps in a row end the pull (it has converged).
+PULL_GAIN = 1e-3
+PULL_PATIENCE = 2
+#: A vertex whose gap to its closest point makes an angle with the surface's normal there of
+#: cosine at least this is drawn to the tangent plane, others (their closest point on the
+#: surface's edge) to the point.
+PULL_PLANE_COS = 0.95
+#: Rounds of :func:`_band_step` (each holds the faces the step would carry past the band).
+PULL_ACTIVE_ROUNDS = 5
+#: The pull of the homotopy's start (:func:`_pull_start`): the first fraction of the way to the
+#: closest points, the smallest one tried (below it the pull ends), its most steps; a step that
+#: lowers the summed squared distance by less than :data:`START_PULL_GAIN` is small, and
+#: :data:`START_PULL_PATIENCE` small steps in a row end it.
+START_PULL_FIRST = 0.5
+START_PULL_MIN = 1.0 / 64
+START_PULL_MAX_STEPS = 60
+START_PULL_GAIN = 1e-2
+START_PULL_PATIENCE = 3
 #: The pull of the start gets at most this share of the time left (the homotopy needs the rest).
 PULL_START_SHARE = 0.25
 
@@ -115,14 +136,21 @@ PULL_START_SHARE = 0.25
 @dataclass(frozen=True, eq=False)
 class _Band:
     """The planarity rows of one stage, in the shape :func:`polish_joint` reads (``linearize``):
-    each face whose non-planarity is at or past ``band`` held on it, the rest left free."""
+    each face whose non-planarity is at or past ``band`` held on it, the rest left free; or, with
+    ``held`` (per face 0, or the sign of the side of the band it is held on), those faces."""
 
     rows: np.ndarray  # (r, 4) corners, coplanarity_rows' order
     band: float
     n_vertices: int
+    held: np.ndarray | None = None
 
     def linearize(self, V: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         r, J = diagonal_distance(V, self.rows, jacobian=True)
+        if self.held is not None:
+            on = np.flatnonzero(self.held)
+            if on.size:
+                return r[on] - self.held[on] * self.band, J[on]
+            return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
         held = np.flatnonzero(np.abs(r) > (1 - 1e-3) * self.band)
         if held.size == 0:  # (one empty row: the polish's system keeps its shape)
             return np.zeros(1), sp.csr_matrix((1, 3 * self.n_vertices))
@@ -186,11 +214,42 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
     return X, W, band, steps, history, status
 
 
-def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
-          loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
-          targets: Callable[[np.ndarray], np.ndarray], feasible: Callable[[np.ndarray, np.ndarray], bool],
-          deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
-    """The feasible network nearest the targets, locally: each step moves the free vertices the
+def _reference_step(X: np.ndarray, fidx: np.ndarray, closest: np.ndarray, normals: np.ndarray,
+                    mu: float) -> tuple[np.ndarray, sp.csr_matrix]:
+    """The Levenberg–Marquardt step toward the reference of the free vertices ``fidx`` and its
+    metric, for :func:`~selfsupport.methods.polish.constrained_step` (flattened free positions).
+
+    Gauss–Newton on the squared distance to the surface: at a vertex whose closest point lies
+    inside the surface (the gap ``X − C`` along the surface's normal there, within
+    :data:`PULL_PLANE_COS`; ``n`` its direction) the distance to the tangent plane,
+    ``(n · (X + dX − C))²`` (sliding
+    along the surface is free), else — the closest point on the surface's edge — the distance to
+    the point, ``|X + dX − C|²``. With ``P`` the projection (``n nᵀ``, or ``I``) and the damping
+    ``μ |dX|²``, the step minimising the sum is ``d0 = −P (X − C) / (1 + μ)`` and the cost of
+    another step ``d`` is ``(d − d0)ᵀ (P + μ I) (d − d0)``, i.e. ``|D⁻¹ (d − d0)|²`` up to the
+    factor ``μ`` with ``D = (P / μ + I)^(−½) = I + (s − 1) P``, ``s = √(μ / (1 + μ))``
+    (tangential moves cost ``μ``, moves along ``P`` ``1 + μ``)."""
+    g = X[fidx] - closest[fidx]
+    gn = np.linalg.norm(g, axis=1)
+    # (the plane's normal: the gap's direction, the distance's gradient — exactly the normal of
+    # the reference's face the closest point lies on; on the surface, the surface's normal)
+    off = gn > 1e-12 * max(float(np.abs(X).max()), 1.0)
+    n = np.where(off[:, None], g / np.where(off, gn, 1.0)[:, None], normals[fidx])
+    plane = ~off | (np.abs(np.einsum("ij,ij->i", n, normals[fidx])) >= PULL_PLANE_COS)
+    P = np.where(plane[:, None, None], n[:, :, None] * n[:, None, :], np.eye(3)[None])
+    d0 = -np.einsum("kab,kb->ka", P, g) / (1.0 + mu)
+    blocks = np.eye(3)[None] + (np.sqrt(mu / (1.0 + mu)) - 1.0) * P
+    k = np.arange(3 * len(fidx)).reshape(-1, 3)
+    D = sp.csr_matrix((blocks.ravel(), (np.repeat(k, 3, axis=1).ravel(), np.tile(k, (1, 3)).ravel())),
+                      shape=(3 * len(fidx),) * 2)
+    return d0.ravel(), D
+
+
+def _pull_start(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
+                loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
+                targets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], feasible: Callable[[np.ndarray, np.ndarray], bool],
+                deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
+    """The start of the homotopy's second run drawn toward the targets: each step moves the free vertices the
     fraction ``alpha`` of the way to ``targets(X)`` (their closest points on the reference) and
     restores equilibrium (and the faces' band, where ``form(X)`` has one) by the joint
     minimum-norm polish. The restoration takes back the step's part across the linearised
@@ -198,15 +257,20 @@ def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: 
     is accepted when the polish converges, the network is ``feasible`` and closer; ``alpha``
     then doubles after two accepted steps in a row, and halves after a rejected one.
 
+    Not :func:`_pull`'s Gauss–Newton steps: those drew the vault's aligned remesh at the
+    published spacing closer (2.0e-3 of the diagonal against 2.9e-3 after these), and the
+    homotopy stalled from there where it converges from this start; a start for the homotopy
+    is not better for being closer.
+
     Returns (X, W, polish steps, history)."""
     def dist(Y: np.ndarray) -> float:
-        return float(np.sum((targets(Y)[free] - Y[free]) ** 2))
+        return float(np.sum((targets(Y)[0][free] - Y[free]) ** 2))
 
-    alpha, steps, history, f = PULL_FIRST, 0, [], dist(X)
+    alpha, steps, history, f = START_PULL_FIRST, 0, [], dist(X)
     small = run = 0
-    while alpha >= PULL_MIN and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
+    while alpha >= START_PULL_MIN and len(history) < START_PULL_MAX_STEPS and small < START_PULL_PATIENCE and not out_of_time(deadline):
         Xp = X.copy()
-        Xp[free] += alpha * (targets(X)[free] - X[free])
+        Xp[free] += alpha * (targets(X)[0][free] - X[free])
         Xn, Wn, k, err, ok = polish_joint(form(Xp), Xp, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
                                           load_jacobian=load_jacobian, deadline=deadline)
         steps += k
@@ -218,11 +282,87 @@ def _pull(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarray, W: 
         if progress is not None:
             progress(rec)
         if accept:
-            small = small + 1 if fn > (1 - PULL_GAIN) * f else 0
+            small = small + 1 if fn > (1 - START_PULL_GAIN) * f else 0
             X, W, f, run = Xn, Wn, fn, run + 1
             alpha = min(2 * alpha, 1.0) if run >= 2 else alpha
         else:
             alpha, run = alpha / 2, 0
+    return X, W, steps, history
+
+
+def _band_step(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, d0: np.ndarray,
+               D: sp.spmatrix, *, loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any,
+               deadline: float | None) -> tuple | None:
+    """:func:`~selfsupport.methods.polish.constrained_step` with the faces' band as inequalities:
+    no face held at first; a face the step would carry past the band is held on it (on the side
+    it would cross) and the step redone, for at most :data:`PULL_ACTIVE_ROUNDS` rounds. (Holding
+    every face at the band, as the polish does, kept faces the step would move inwards on it, and
+    the pull stopped where they piled up.) ``form(X, held)``: the problem with ``held``
+    (:class:`_Band`). Returns ``(X + d_X, W + d_W)``, or None past ``deadline``."""
+    band = form(X).planar
+    held = None if band is None else np.zeros(len(band.rows))
+    for _ in range(PULL_ACTIVE_ROUNDS):
+        lin = constrained_step(form(X, held), X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian,
+                               deadline=deadline)
+        if lin is None or held is None:
+            return lin
+        r = diagonal_distance(lin[0], band.rows)[0]
+        out = (held == 0) & (np.abs(r) > band.band)
+        if not out.any():
+            break
+        held = held.copy()
+        held[out] = np.sign(r[out])
+    return lin
+
+
+def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
+          loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
+          targets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+          feasible: Callable[[np.ndarray, np.ndarray], bool],
+          deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
+    """The feasible network nearest the reference, locally, by a constrained Levenberg–Marquardt
+    iteration on the summed squared distance of the free vertices to it.
+
+    Each step is the Gauss–Newton step toward the tangent planes at the closest points
+    (``targets(X)``: closest points and unit normals; :func:`_reference_step`) restricted to the
+    joint polish's linearised constraints (equilibrium, and where ``form(X)`` has a band the faces
+    within it, :func:`_band_step`; ``form(X, held)`` that problem with the faces ``held``), then restored by
+    the joint polish. A step is accepted when the polish converges and the network is
+    ``feasible`` and closer; the damping ``μ`` then falls by :data:`PULL_MU_DOWN`, else rises by
+    :data:`PULL_MU_UP`. Point-to-plane rather than point-to-point: the squared distance to a
+    surface is curved only across it, and a step that paid for sliding along it (the
+    Euclidean projected gradient) crept wherever the constraints ask for such sliding. The pull
+    ends after :data:`PULL_PATIENCE` accepted steps in a row of relative gain below
+    :data:`PULL_GAIN`, when ``μ`` passes :data:`PULL_MU_MAX`, after :data:`PULL_MAX_STEPS`
+    steps, or at ``deadline``.
+
+    Returns (X, W, polish steps, history)."""
+    def dist(Y: np.ndarray) -> float:
+        return float(np.sum((targets(Y)[0][free] - Y[free]) ** 2))
+
+    fidx = np.flatnonzero(form(X).topology.free)
+    mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X)
+    small = 0
+    while mu <= PULL_MU_MAX and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
+        d0, D = _reference_step(X, fidx, *targets(X), mu)
+        lin = _band_step(form, X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian, deadline=deadline)
+        if lin is None:  # (the deadline passed inside the step)
+            break
+        Xn, Wn, k, err, ok = polish_joint(form(lin[0]), *lin, loads_at=loads_at, tol=STAGE_TOL,
+                                          max_iter=STAGE_STEPS, load_jacobian=load_jacobian, deadline=deadline)
+        steps += k
+        fn = dist(Xn) if ok else np.inf
+        accept = bool(fn < f and feasible(Xn, Wn))
+        rec = {"pull": len(history), "mu": mu, "steps": k, "max_rel_error": err, "distance": fn, "accepted": accept}
+        history.append(rec)
+        if progress is not None:
+            progress(rec)
+        if accept:
+            small = small + 1 if fn > (1 - PULL_GAIN) * f else 0
+            X, W, f = Xn, Wn, fn
+            mu = max(mu / PULL_MU_DOWN, PULL_MU_MIN)
+        else:
+            mu *= PULL_MU_UP
     return X, W, steps, history
 
 
@@ -328,9 +468,10 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     ref = mesh0 if reference is None else reference
     ref_scaled = ref.with_vertices(sc.pos(ref.vertices))  # (the polish's units)
 
-    def form_at(Y: np.ndarray, trial: float | None) -> ThrustNetworkProblem:  # (trial None: no planarity rows)
+    def form_at(Y: np.ndarray, trial: float | None, held: np.ndarray | None = None) -> ThrustNetworkProblem:
+        # (trial None: no planarity rows; held: the faces held, see _Band)
         return ThrustNetworkProblem(top, Y, loads_at(Y), WeightBounds(sp_.lower, sp_.upper), weight_scale=1.0 / h ** 2,
-                                    planar=None if trial is None else _Band(rows, trial, mesh0.n_vertices))
+                                    planar=None if trial is None else _Band(rows, trial, mesh0.n_vertices, held))
 
     def in_equilibrium(Y: np.ndarray, Wy: np.ndarray) -> bool:  # (in SI units)
         return bool(case_networks(problem, sc, Y, list(Wy))[0].in_equilibrium(STAGE_TOL))
@@ -342,9 +483,10 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
     def pull_toward_reference(Y: np.ndarray, Wy: np.ndarray, trial: float | None,
                               feasible: Callable[[np.ndarray, np.ndarray], bool], until: float | None) -> tuple:
         before = distance_stats(sc.pos_back(Y), ref)[0]
-        Y, Wy, k, trail = _pull(lambda Z: form_at(Z, trial), Y, Wy, loads_at=loads_at, load_jacobian=jac,
-                                free=np.asarray(scene.free, bool), targets=lambda Z: closest_points(Z, ref_scaled)[0],
-                                feasible=feasible, deadline=until, progress=progress)
+        # (the start, faces not yet planar (trial None): by _pull_start, see there)
+        Y, Wy, k, trail = (_pull if trial is not None else _pull_start)(
+            lambda Z, held=None: form_at(Z, trial, held), Y, Wy, loads_at=loads_at, load_jacobian=jac, free=np.asarray(scene.free, bool),
+            targets=lambda Z: closest_points(Z, ref_scaled)[::2], feasible=feasible, deadline=until, progress=progress)
         return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail),
                           "distance_before": before, "distance_after": distance_stats(sc.pos_back(Y), ref)[0]}
 

@@ -426,11 +426,14 @@ def _joint_rows(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.
 
 def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: list, b_eq: np.ndarray, *,
                S: np.ndarray, inner: np.ndarray, xcols: np.ndarray, hull_rows_all: sp.spmatrix | None,
-               deadline: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+               deadline: float | None, toward: tuple | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """One minimum-norm step of the joint polish on the positions and the ``inner`` weights
     (updated in place): weights a step would push past a bound, and vertices it would carry out
     of the hull, are held (the vertices on the face they would cross) and the step redone.
-    Returns (the flattened free-position step, the weights after it), or None past the deadline."""
+    ``toward`` ``(d0, D)``: instead the step nearest ``d0`` (a step of the movable positions) in
+    the metric ``|D⁻¹ (d − d0)|`` on the positions (``D`` sparse, square), the weights' as before
+    (:func:`constrained_step`). Returns (the flattened free-position step, the weights after
+    it), or None past the deadline."""
     top, C, hull = form.topology, form.n_cases, form.hull
     free, nf = top.free, top.n_free
     lo, up = form.lower, form.upper
@@ -466,9 +469,15 @@ def _held_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, JX: lis
                 D = np.ones(J.shape[0])
                 D[p0:p0 + groups[C]] = c
                 J, b = sp.diags(D) @ J, D * b
+        if toward is not None:  # d = d0 + D e, e the minimum-norm solution of (J D) e = b − J d0
+            nx = len(xcols)
+            b = b - J[:, :nx] @ toward[0]
+            J = sp.hstack([J[:, :nx] @ toward[1], J[:, nx:]], format="csr")
         d = min_norm_step(J, groups, b, direct=C <= DIRECT_CASES_MAX, deadline=deadline)
         if d is None:  # the deadline passed inside the step: the best iterate so far
             break
+        if toward is not None:
+            d = np.concatenate([toward[0] + toward[1] @ d[:nx], d[nx:]])
         off, crossing = len(xcols), False
         Wn = W.copy()
         for c in range(C):
@@ -514,6 +523,73 @@ def _inner_weights(form: ThrustNetworkProblem, W: np.ndarray) -> np.ndarray:
     return (W > lo + BOUND_ACTIVE_REL * np.maximum(lo, 1e-300)) & below_up
 
 
+def _columns(form: ThrustNetworkProblem) -> tuple[np.ndarray, sp.spmatrix | None]:
+    """The joint polish's movable entries of the flattened free positions (z only with a fixed
+    top view), and the hull's rows on the free positions' coordinates (None without a hull)."""
+    coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
+    xcols = (3 * np.arange(form.topology.n_free)[:, None] + coords).ravel()
+    fc = (3 * np.flatnonzero(form.topology.free)[:, None] + np.arange(3)).ravel()
+    return xcols, (form.hull._rows[:, fc] if form.hull is not None else None)
+
+
+def _linear_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, L: np.ndarray, planar_rows: tuple | None,
+                 *, load_jacobian: Callable[..., list | None] | None, xcols: np.ndarray,
+                 hull_rows_all: sp.spmatrix | None, deadline: float | None,
+                 toward: tuple | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """One step of the joint polish's linearisation at ``V``, ``W`` (loads ``L``): the rows
+    (:func:`_joint_rows`), then the step with weights and hull held (:func:`_held_step`, with
+    ``toward``). Returns (free-position step, weights) or None past ``deadline``."""
+    S = form.row_scale(L)  # (C, nf)
+    dL = load_jacobian(V, L, deadline=deadline) if load_jacobian is not None else [None] * form.n_cases
+    if dL is None:  # the deadline passed while the load Jacobians were formed
+        return None
+    JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols, planar_rows=planar_rows)
+    return _held_step(form, V, W, JX, b_eq, S=S, inner=_inner_weights(form, W), xcols=xcols,
+                      hull_rows_all=hull_rows_all, deadline=deadline, toward=toward)
+
+
+def constrained_step(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, d0: np.ndarray, D: sp.spmatrix, *,
+                     loads_at: Callable[[np.ndarray], np.ndarray],
+                     load_jacobian: Callable[..., list | None] | None = None,
+                     deadline: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The step of the joint polish's linearised system nearest a wanted step ``d0``.
+
+    Among the steps ``d`` of the free positions and the inner weights that solve the joint
+    polish's linearised equations at ``V``, ``W`` (every case's equilibrium, the held planarity
+    rows of ``form.planar``; weights on a bound held), the one minimising
+    ``|D⁻¹ (d_X − d0)|² + |d_W|²`` (weights in the polish's units, :data:`WEIGHT_STEP_PREFERENCE`).
+    With ``D = I`` and ``d0 = 0`` it is the polish's own minimum-norm step.
+
+    Parameters
+    ----------
+    form
+        As for :func:`polish_joint` (scaled units).
+    V, W
+        ``(n, 3)`` positions and ``(n_cases, m)`` active weights, the point of linearisation.
+    d0
+        Wanted step of the movable free positions, flattened (``(3 n_free,)`` with a free top view).
+    D
+        Square sparse metric on those entries (the step costs ``|D⁻¹ (d_X − d0)|²``).
+    loads_at, load_jacobian, deadline
+        As for :func:`polish_joint`.
+
+    Returns
+    -------
+    ``(V + d_X, W + d_W)`` (weights clipped to their bounds), or None past ``deadline``.
+    """
+    V, W = np.array(V, float), np.array(W, float)
+    L = loads_at(V)
+    _, planar_rows = _joint_error(form, V, W, L)
+    xcols, hull_rows_all = _columns(form)
+    step = _linear_step(form, V, W, L, planar_rows, load_jacobian=load_jacobian, xcols=xcols,
+                        hull_rows_all=hull_rows_all, deadline=deadline, toward=(d0, sp.csr_matrix(D)))
+    if step is None:
+        return None
+    dX, Wn = step
+    V[form.topology.free] += dX.reshape(-1, 3)
+    return V, np.clip(Wn, form.lower, form.upper)
+
+
 def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                  loads_at: Callable[[np.ndarray], np.ndarray], tol: float = JOINT_POLISH_TOL,
                  max_iter: int = JOINT_POLISH_MAX_ITER,
@@ -549,13 +625,8 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
     """
     top = form.topology
     free = top.free
-    nf, C = top.n_free, form.n_cases
     V, W = np.array(V, float), np.array(W, float)
-    coords = np.array([2]) if form.fixed_xy is not None else np.arange(3)
-    xcols = (3 * np.arange(nf)[:, None] + coords).ravel()  # movable entries of X (flattened free positions)
-    hull = form.hull  # (its rows on the free positions' coordinates)
-    fc = (3 * np.flatnonzero(free)[:, None] + np.arange(3)).ravel()
-    hull_rows_all = hull._rows[:, fc] if hull is not None else None
+    xcols, hull_rows_all = _columns(form)
     err = np.inf
     best = (np.inf, V.copy(), W.copy())
     since, best_before, t_step = 0, np.inf, 0.0
@@ -574,14 +645,9 @@ def polish_joint(form: ThrustNetworkProblem, V: np.ndarray, W: np.ndarray, *,
                 or out_of_time(deadline, t_step)):
             break  # round-off floor reached, or no progress for 4 steps (far from a solution: the
             # caller iterates on and polishes from closer): keep the best iterate
-        S = form.row_scale(L)  # (C, nf)
-        dL = load_jacobian(V, L, deadline=deadline) if load_jacobian is not None else [None] * C
-        if dL is None:  # the deadline passed while the load Jacobians were formed
-            break
-        JX, b_eq = _joint_rows(form, V, W, L, S=S, dL=dL, xcols=xcols, planar_rows=planar_rows)
-        step = _held_step(form, V, W, JX, b_eq, S=S, inner=_inner_weights(form, W), xcols=xcols,
-                          hull_rows_all=hull_rows_all, deadline=deadline)
-        if step is None:
+        step = _linear_step(form, V, W, L, planar_rows, load_jacobian=load_jacobian, xcols=xcols,
+                            hull_rows_all=hull_rows_all, deadline=deadline)
+        if step is None:  # the deadline passed while the step was formed
             break
         dX, Wn = step
         V[free] += dX.reshape(-1, 3)
