@@ -402,6 +402,16 @@ def handles(problem: Problem) -> bool:
     return len(problem.loads) == 1 and not problem.fixed_top_view and problem.hull_thickness() is None
 
 
+def _planar_of(problem: Problem) -> Planar:
+    """The problem's planarity constraint; :class:`InputError` where the homotopy cannot take it."""
+    planar = problem.constraint(Planar)
+    if planar is None:
+        raise InputError("the planar homotopy needs the Planar constraint in the problem")
+    if not handles(problem):
+        raise InputError("the planar homotopy handles one load case, a free top view and no hull")
+    return planar
+
+
 def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None = None,
                     progress: Callable[[dict], None] | None = None, reference: PolyMesh | None = None,
                     pull: bool = True) -> SolveResult:
@@ -442,13 +452,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         steps, the accepted ones, and the mean distance to ``reference`` over its bounding-box
         diagonal before and after).
     """
-
     t0 = time.perf_counter()
-    planar = problem.constraint(Planar)
-    if planar is None:
-        raise InputError("the planar homotopy needs the Planar constraint in the problem")
-    if not handles(problem):
-        raise InputError("the planar homotopy handles one load case, a free top view and no hull")
+    planar = _planar_of(problem)
     scene = problem.scene
     mesh0 = scene.mesh
     sp_ = problem.scaled()
