@@ -245,6 +245,11 @@ def test_paper_fig12_why_the_vault_differs_and_how_our_mesh_differs_from_the_pap
         assert_shown(m[k], a, f"{scene} aligned: interior non-planarity before")
         assert_shown(m[k + 1], g, f"{scene} grid: interior non-planarity before")
         assert (abs(a - g) < 0.2 * g) if scene == "vault" else (a < 0.7 * g), scene
+    m = sentence(PAPER, r"At the mean edge the grid remesh keeps (\d+) of its (\d+) faces as triangles where its lines "
+                        r"cross the boundary, the aligned one (\d+) of (\d+);")
+    for (t, n), r in (((m[1], m[2]), grid), ((m[3], m[4]), aligned)):
+        counts = dict(part.split(":") for part in r["faces"].split())
+        assert int(counts.get("3", 0)) == int(t) and sum(map(int, counts.values())) == int(n), r["mesh"]
     m = sentence(PAPER, r"its largest vertex move is (\S+) of the diagonal against the grid's (\S+)\.")
     assert_shown(m[1], aligned["moved_max"], "vault aligned: largest vertex move")
     assert_shown(m[2], grid["moved_max"], "vault grid: largest vertex move")
