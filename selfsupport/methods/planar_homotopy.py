@@ -337,21 +337,23 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     steps, or at ``deadline``.
 
     Returns (X, W, polish steps, history)."""
-    def dist(Y: np.ndarray) -> float:
-        return float(np.sum((targets(Y)[0][free] - Y[free]) ** 2))
+    def dist(Y: np.ndarray, closest: np.ndarray) -> float:
+        return float(np.sum((closest[free] - Y[free]) ** 2))
 
-    fidx = np.flatnonzero(form(X).topology.free)
-    mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X)
+    fidx = np.flatnonzero(free)
+    near = targets(X)  # (the closest points and normals of the current network, found once per network)
+    mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X, near[0])
     small = 0
     while mu <= PULL_MU_MAX and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
-        d0, D = _reference_step(X, fidx, *targets(X), mu)
+        d0, D = _reference_step(X, fidx, *near, mu)
         lin = _band_step(form, X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian, deadline=deadline)
         if lin is None:  # (the deadline passed inside the step)
             break
         Xn, Wn, k, err, ok = polish_joint(form(lin[0]), *lin, loads_at=loads_at, tol=STAGE_TOL,
                                           max_iter=STAGE_STEPS, load_jacobian=load_jacobian, deadline=deadline)
         steps += k
-        fn = dist(Xn) if ok else np.inf
+        near_n = targets(Xn) if ok else None
+        fn = dist(Xn, near_n[0]) if near_n is not None else np.inf
         accept = bool(fn < f and feasible(Xn, Wn))
         rec = {"pull": len(history), "mu": mu, "steps": k, "max_rel_error": err, "distance": fn, "accepted": accept}
         history.append(rec)
@@ -359,7 +361,7 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
             progress(rec)
         if accept:
             small = small + 1 if fn > (1 - PULL_GAIN) * f else 0
-            X, W, f = Xn, Wn, fn
+            X, W, f, near = Xn, Wn, fn, near_n
             mu = max(mu / PULL_MU_DOWN, PULL_MU_MIN)
         else:
             mu *= PULL_MU_UP

@@ -20,8 +20,8 @@ remeshed along its principal directions: free edges lifted 0.24 of the diagonal,
 the pull the planar network ends 3.3e-2 of it from the reference, mean). The homotopy therefore pulls its planar
 end toward a reference surface while it stays planar and in equilibrium (and, where it does not
 converge, its start before it runs again): with ``reference`` the design's surface, that vault
-ends about 5e-3 from it. With ``reference`` given, a first solve that converged alone is pulled
-the same way.
+ends an order of magnitude closer to it (the pq study's table in the benchmarks page). With
+``reference`` given, a first solve that converged alone is pulled the same way.
 
 A barrel vault remeshed along its relative principal directions (the staggered method stalls
 on it, the homotopy converges):

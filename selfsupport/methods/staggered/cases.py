@@ -225,6 +225,11 @@ def _carried(top: Topology, A: sp.spmatrix, diff: np.ndarray, scale: np.ndarray,
             "vertices": [int(v) for v in free_idx[order]], "vertex_residuals": [float(x) for x in r[order]]}
 
 
+def _active_topology(net: Network) -> Topology:
+    """The topology of ``net``'s edges that carry a weight."""
+    return Topology.build(net.mesh.n_vertices, net.edges[net.active_edges], net.supports)
+
+
 def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
     """At the geometry of ``result`` (several cases): per case after the first, whether *any*
     change of the weights — either sign, no bound — carries the case's load difference from the
@@ -234,9 +239,8 @@ def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
     blocks, not the bounds); near round-off, weights of some sign exist here, and the bounds or
     the iteration's reach are what is missing."""
     (first_name, first), *rest = result.case_networks
-    net = first
-    top = Topology.build(net.mesh.n_vertices, net.edges[net.active_edges], net.supports)
-    A = weight_matrix(top, net.vertices).tocsc()
+    top = _active_topology(first)
+    A = weight_matrix(top, first.vertices).tocsc()
     free_idx = np.flatnonzero(top.free)
     return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx)}
             for name, other in rest}
@@ -654,8 +658,9 @@ def _plan_fit(top: Topology, X: np.ndarray, L: np.ndarray, S: np.ndarray,
     z_s = X[~free, 2]
     pos = X.copy()
 
-    def heights(a: np.ndarray) -> tuple[np.ndarray, Any, np.ndarray] | None:
-        """The first case's heights for coefficients ``a``, its factor and the vertical rows."""
+    def heights(a: np.ndarray) -> tuple[Any, np.ndarray] | None:
+        """The first case's heights for coefficients ``a`` (into ``pos``): their factor and the
+        vertical rows there."""
         w = S @ a
         K_ff, K_fs = position_blocks(top, w)
         try:
@@ -663,7 +668,7 @@ def _plan_fit(top: Topology, X: np.ndarray, L: np.ndarray, S: np.ndarray,
         except RuntimeError:  # (a singular stress Laplacian: no heights)
             return None
         pos[free, 2] = lu.solve(L[0, free] - K_fs @ z_s)
-        return pos[free, 2].copy(), lu, weight_matrix(top, pos).tocsr()[2::3]
+        return lu, weight_matrix(top, pos).tocsr()[2::3]
 
     def others(a: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None] | None:
         """The other cases' relative vertical residuals (stacked) at ``a``'s heights, and their
@@ -671,7 +676,7 @@ def _plan_fit(top: Topology, X: np.ndarray, L: np.ndarray, S: np.ndarray,
         h = heights(a)
         if h is None:
             return None
-        z, lu, Vz = h
+        lu, Vz = h
         VS = Vz @ S
         dz = -lu.solve(VS) if jac else None  # (K_ff dz = −Vz S: the first case stays balanced)
         r, J = [], []
@@ -738,7 +743,7 @@ def fixed_plan(result: SolveResult, deadline: float | None = None) -> dict[str, 
     """
     t0 = time.perf_counter()
     (_, first), *_ = result.case_networks
-    top = Topology.build(first.mesh.n_vertices, first.edges[first.active_edges], first.supports)
+    top = _active_topology(first)
     X = first.vertices
     n, C = top.n_free, len(result.case_networks)
     out = top_view_self_stresses(top, X)
