@@ -204,8 +204,10 @@ def test_a_drag_faster_than_the_solves_still_shows_frames_while_it_goes_on():
     during the drag, older than its newest step, and the drag's last step still gets its own."""
     during, last = _stream(max_stale=0.5)
     assert len(during) >= 2 and all(s < last for s in during)
-    starved, _ = _stream(max_stale=float("inf"))  # (every solve cancelled: the old rule)
-    assert starved == []
+    # Under the old rule (every solve cancelled) a frame comes out only where the loaded machine
+    # happened to pause the drag for longer than a solve: fewer than the stale rule gives.
+    starved, _ = _stream(max_stale=float("inf"))
+    assert len(starved) < len(during)
 
 
 def test_after_a_pause_a_newer_request_still_cancels_the_running_solve():
