@@ -17,6 +17,7 @@ from selfsupport.core.loads import SelfWeight
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape, meridian_dome
+from selfsupport.core.subdivision import subdivide_scene
 from selfsupport.core.triangulation import split_faces, split_scene
 from selfsupport.io import read_scene, write_mesh
 from selfsupport.io.sss import write_scene_sss
@@ -266,3 +267,17 @@ def test_the_triangulated_free_edged_vault_stands_under_two_cases(tmp_path, caps
     for case in d["load_cases"]:
         report = independent_check({**d, "weights": case["weights"], "loads": case["loads"]}, tol=1e-8)
         assert report.ok, (case["name"], report.stdout)
+
+
+def test_subdivide_then_triangulate_splits_the_refined_quads(tmp_path, capsys):
+    """--subdivide refines first (Catmull–Clark makes quads), then --triangulate splits every
+    refined quad: 4 × 48 quads of the 60-vertex barrel vault, 384 triangles, and the supports of
+    the subdivided design."""
+    out = tmp_path / "net.json"
+    code = cli.main(["solve", "shape:barrel_vault:60", "--subdivide", "1", "--triangulate", "--out", str(out), "-q"])
+    assert code == 0, capsys.readouterr().err
+    d = json.loads(out.read_text())
+    sub = subdivide_scene(make_shape("barrel_vault", n_vertices=60), 1)
+    assert sub.mesh.n_faces == 4 * 48 and d["parameters"]["triangulated"]["faces"] == sub.mesh.n_faces
+    assert len(d["faces"]) == 2 * sub.mesh.n_faces and all(len(f) == 3 for f in d["faces"])
+    assert sorted(d["supports"]) == np.flatnonzero(sub.supports).tolist()
