@@ -281,3 +281,22 @@ def test_subdivide_then_triangulate_splits_the_refined_quads(tmp_path, capsys):
     assert sub.mesh.n_faces == 4 * 48 and d["parameters"]["triangulated"]["faces"] == sub.mesh.n_faces
     assert len(d["faces"]) == 2 * sub.mesh.n_faces and all(len(f) == 3 for f in d["faces"])
     assert sorted(d["supports"]) == np.flatnonzero(sub.supports).tolist()
+
+
+def test_the_load_case_study_triangulates_by_the_solve_option(tmp_path):
+    """The study's triangulated variant solves the scene file itself with --triangulate, and its
+    plan count is that of the split design (active edges less twice the free vertices); with
+    --variants it runs that variant alone."""
+    from studies import load_cases as study
+
+    scene = _free_edged_vault()
+    write_scene_sss(tmp_path / "vault.sss", scene)
+    (job,) = study.jobs(tmp_path, ("vault",), (0.01, 0.05), ("triangulated",))
+    assert job["variant"] == "triangulated" and job["point_share"] == 0.05 and "--triangulate" in job["extra"]
+    split = split_scene(api.as_scene(str(tmp_path / "vault.sss")))
+    assert job["plan_count"] == int(split.active_edges.sum()) - 2 * int(split.free.sum())
+    # one more than the quads' count per diagonal that carries a weight (not between two supports)
+    quad_edges = _edge_set(scene.mesh)
+    added = np.array([tuple(e) not in quad_edges for e in split.mesh.edges.tolist()])
+    assert 0 < int((added & split.active_edges).sum()) < scene.mesh.n_faces
+    assert job["plan_count"] == study.plan_count(tmp_path / "vault.sss") + int((added & split.active_edges).sum())
