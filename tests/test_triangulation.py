@@ -112,20 +112,42 @@ def test_equal_diagonals_split_as_the_fan_from_corner_0():
     assert np.array_equal(np.asarray(split_faces(mesh).faces), triangulate(mesh))
 
 
-@pytest.mark.parametrize("corner, kind", [((2, 1, 0.2), "reflex"), ((2, 2, 0.0), "straight")])
-def test_a_face_that_is_not_convex_is_refused_by_name(corner, kind):
-    """A dart (corner 2 pushed inside, and off the plane) and a triangle with a fourth corner on
-    one of its sides (a straight corner): refused, naming the face, the vertex and what to do."""
-    V = np.array([[0, 0, 0], [4, 0, 0], corner, [0, 4, 0.]], float)
-    mesh = PolyMesh.from_faces(np.r_[V, [[5, 5, 0.]]], [[1, 4, 2], [0, 1, 2, 3]])
-    with pytest.raises(MeshError, match=rf"face 1 .* corner at vertex 2 is {kind}.*split that face by hand"):
+def test_a_quad_with_one_reflex_or_straight_corner_splits_from_that_corner():
+    """A thin dart 0 (0,0), 1 (10,0.5), 2 (2,0), 3 (10,−0.5), reflex at 2: its shorter diagonal 1-3
+    (length 1) lies outside it, so the split takes 0-2 (length 2), and the two triangles cover its
+    shoelace area 1. A triangle with a fourth vertex on one side (straight at 2) splits from that
+    vertex, into two triangles of positive area."""
+    dart = PolyMesh.from_faces(np.array([[0, 0, 0], [10, 0.5, 0], [2, 0, 0], [10, -0.5, 0]]), [[0, 1, 2, 3]])
+    out = split_faces(dart)
+    assert _edge_set(out) - _edge_set(dart) == {(0, 2)}
+    assert _triangle_areas(out).sum() == pytest.approx(1.0, rel=1e-12)
+    side = PolyMesh.from_faces(np.array([[0, 0, 0], [4, 0, 0], [2, 2, 0], [0, 4, 0.]]), [[1, 2, 3, 0]])
+    out = split_faces(side)  # (2, 2) lies on the side from (4, 0) to (0, 4)
+    assert _edge_set(out) - _edge_set(side) == {(0, 2)}
+    np.testing.assert_allclose(_triangle_areas(out), [4.0, 4.0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("corners, face, vertex, kind", [
+    ([[0, 0, 0], [4, 0, 0], [4, 4, 0], [2, 1, 0.2], [0, 4, 0]], "0 1 2 3 4", 3, "reflex"),  # an arrow
+    ([[0, 0, 0], [4, 0, 0], [2, 2, 0], [0, 4, 0], [-1, 1, 0]], "0 1 2 3 4", 2, "straight"),
+    ([[0, 0, 0], [3, 0, 0], [0, 1, 0], [2, 1.2, 0]], "0 1 2 3", 2, "reflex"),  # a bow-tie: corners 2, 3
+])
+def test_a_face_that_is_not_convex_is_refused_by_name(corners, face, vertex, kind):
+    """An arrow-shaped pentagon (reflex), a pentagon with a vertex on a side (straight) and a
+    self-crossing quad (two corners turn the wrong way): refused, naming the face, the corner and
+    what to do. (The triangle before it is face 0.)"""
+    V = np.r_[np.array(corners, float), [[9, 9, 9], [9, 10, 9], [10, 9, 9]]]
+    n = len(corners)
+    mesh = PolyMesh.from_faces(V, [[n, n + 1, n + 2], list(range(n))])
+    with pytest.raises(MeshError, match=rf"face 1 \(vertices {face}\) .* corner at vertex {vertex} is {kind}.*"
+                                        r"split that face by hand"):
         split_faces(mesh)
 
 
 def test_solve_triangulate_refuses_a_non_convex_face_in_one_line(tmp_path, capsys):
-    V = np.array([[0, 0, 0], [4, 0, 0], [2, 1, 0.5], [0, 4, 0], [4, 4, 0]], float)
-    obj = tmp_path / "dart.obj"
-    write_mesh(obj, PolyMesh.from_faces(V, [[0, 1, 2, 3], [1, 4, 3, 2]]), up="z")
+    V = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [2, 1, 0.5], [0, 4, 0], [2, 6, 0]], float)
+    obj = tmp_path / "arrow.obj"
+    write_mesh(obj, PolyMesh.from_faces(V, [[0, 1, 2, 3, 4], [4, 3, 2, 5]]), up="z")
     out = tmp_path / "net.json"
     code = cli.main(["solve", str(obj), "--up", "z", "--supports", "boundary", "--triangulate", "--out", str(out), "-q"])
     assert_one_line_error(capsys.readouterr().err, code, 2, needle="is not convex in its plane")

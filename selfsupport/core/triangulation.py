@@ -8,11 +8,12 @@ and every original edge kept.
 
 The rule: greedy ear clipping, each step cutting off the corner whose closing diagonal is the
 shortest. On a quad that is the shorter diagonal; on an n-gon short diagonals keep the triangles
-away from slivers. Faces must be strictly convex in their best-fit plane (the plane of their
-vector area), where every corner is an ear; a face that is not is refused, since a diagonal of a
-reflex or straight corner would leave the face or make a zero-area triangle. Diagonals equal to
-round-off go to the fan from corner 0 (:func:`selfsupport.core.evidence.triangulate`), so a
-symmetric face splits as the fan does.
+away from slivers. A face must be strictly convex in its best-fit plane (the plane of its vector
+area), where every corner is an ear, with one exception: a quad with one reflex or straight corner
+(a dart, or a triangle with a vertex on one side, as meshes of panels have) is split from that
+corner, by its one diagonal that stays inside and makes no zero-area triangle. Any other face that
+is not convex is refused. Diagonals equal to round-off go to the fan from corner 0
+(:func:`selfsupport.core.evidence.triangulate`), so a symmetric face splits as the fan does.
 
 Example
 -------
@@ -50,7 +51,8 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
     Parameters
     ----------
     mesh
-        A polygon mesh whose faces are strictly convex in their best-fit planes.
+        A polygon mesh whose faces are strictly convex in their best-fit planes, quads with one
+        reflex or straight corner aside (module docstring).
 
     Returns
     -------
@@ -61,8 +63,8 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
     Raises
     ------
     MeshError
-        A face is not strictly convex in its plane (a reflex or straight corner), naming the
-        face and the corner.
+        A face that is not strictly convex in its plane (a reflex or straight corner; on a quad,
+        two of them), naming the face and the corner.
 
     Examples
     --------
@@ -86,8 +88,16 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
         if n == 3:
             tris[first[faces]] = F
             continue
-        _check_convex(V[F], faces, F)
         P = V[F]
+        bad = _corner_sines(P) <= _MIN_TURN_SINE  # (k, n): corners not strictly convex
+        one = (bad.sum(axis=1) == 1) if n == 4 else np.zeros(len(faces), bool)
+        if (bad.any(axis=1) & ~one).any():
+            _refuse(P, faces, F, bad & ~one[:, None])
+        if one.any():  # a quad's one reflex or straight corner k: the diagonal from it, k to k + 2
+            k = np.argmax(bad[one], axis=1)[:, None]
+            G = np.take_along_axis(F[one], (k + np.arange(4)) % 4, axis=1)
+            tris[first[faces[one]]], tris[first[faces[one]] + 1] = G[:, [0, 1, 2]], G[:, [0, 2, 3]]
+            faces, F, P = faces[~one], F[~one], P[~one]
         left = np.broadcast_to(np.arange(n), F.shape).copy()  # corners still on each face, by position
         rows = np.arange(len(faces))[:, None]
         for step in range(n - 2):
@@ -110,25 +120,25 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
     return PolyMesh(V, tris.ravel(), np.arange(0, 3 * len(tris) + 1, 3))
 
 
-def _check_convex(P: np.ndarray, faces: np.ndarray, F: np.ndarray) -> None:
-    """Raise :class:`MeshError` unless every face's corners ``P`` (k, n, 3) turn the same way,
-    strictly, in the plane of its vector area."""
-    c = P.mean(axis=1, keepdims=True)
-    Q = P - c
-    normal = np.cross(Q, np.roll(Q, -1, axis=1)).sum(axis=1)  # twice the vector area (Newell)
-    nn = np.linalg.norm(normal, axis=1, keepdims=True)
-    unit = normal / np.maximum(nn, 1e-300)
+def _corner_sines(P: np.ndarray) -> np.ndarray:
+    """``(k, n)``: the sine of the turn at every corner of faces ``P`` (k, n, 3), in the plane of
+    the face's vector area (Newell's normal) and signed by it: positive at a convex corner."""
+    Q = P - P.mean(axis=1, keepdims=True)
+    normal = np.cross(Q, np.roll(Q, -1, axis=1)).sum(axis=1)  # twice the vector area
+    unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     a = P - np.roll(P, 1, axis=1)  # edge into each corner
     b = np.roll(P, -1, axis=1) - P  # edge out of it
     sine = np.einsum("kij,kj->ki", np.cross(a, b), unit)
-    sine /= np.maximum(np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2), 1e-300)
-    bad = sine <= _MIN_TURN_SINE
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        kind = "reflex" if sine[k, j] < -_MIN_TURN_SINE else "straight"
-        raise MeshError(f"face {int(faces[k])} (vertices {' '.join(map(str, F[k].tolist()))}) is not convex in its "
-                        f"plane: its corner at vertex {int(F[k, j])} is {kind}, so it cannot be split into "
-                        "triangles by its shortest diagonals; split that face by hand (or make it convex) first")
+    return sine / np.maximum(np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2), 1e-300)
+
+
+def _refuse(P: np.ndarray, faces: np.ndarray, F: np.ndarray, bad: np.ndarray) -> None:
+    """Raise :class:`MeshError` for the first face with a ``bad`` corner (see :func:`split_faces`)."""
+    k, j = np.argwhere(bad)[0]
+    kind = "reflex" if _corner_sines(P[k:k + 1])[0, j] < -_MIN_TURN_SINE else "straight"
+    raise MeshError(f"face {int(faces[k])} (vertices {' '.join(map(str, F[k].tolist()))}) is not convex in its "
+                    f"plane: its corner at vertex {int(F[k, j])} is {kind}, so it cannot be split into triangles "
+                    "by its shortest diagonals; split that face by hand (or make it convex) first")
 
 
 def split_scene(scene: Scene) -> Scene:
