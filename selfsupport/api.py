@@ -36,6 +36,7 @@ from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
+from selfsupport.core.triangulation import SPLIT_RULE, split_scene
 from selfsupport.io import read_mesh, read_network
 from selfsupport.io.loadcases import LoadSpec
 from selfsupport.io.network_json import load_case_entries
@@ -48,7 +49,8 @@ from selfsupport.methods.solve import solve as solve_scene
 from selfsupport.remesh.planar import solve_planar
 
 __all__ = ["AUTO", "METHODS", "MethodSpec", "method_class", "make_method", "solve", "check", "CheckReport", "problem",
-           "weight_bounds", "load_spec", "as_scene", "design_of", "scene_loads", "sensitivity", "koebe", "DEFAULT_DENSITY",
+           "weight_bounds", "load_spec", "as_scene", "design_of", "triangulated_design", "scene_loads", "sensitivity", "koebe",
+           "DEFAULT_DENSITY",
            "DEFAULT_THICKNESS", "DEFAULT_CHECK_TOL"]
 
 #: The modules imported where used, not at the top (a named exception to the layout rule,
@@ -59,7 +61,8 @@ _LAZY = ("selfsupport.methods.sensitivity", "selfsupport.analysis.koebe")
 
 
 def solve(scene_or_path: Scene | str | os.PathLike, *, constraints: Any = (), planar_finish: bool = True,
-          time_limit: float | None = None, started: float | None = None, **kw: Any) -> SolveResult:
+          time_limit: float | None = None, started: float | None = None, triangulate: bool = False,
+          **kw: Any) -> SolveResult:
     """Find the thrust network nearest to a reference surface: :func:`selfsupport.methods.solve.solve`
     (every keyword is its own), and with planar faces the planar finish.
 
@@ -77,6 +80,10 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, constraints: Any = (), pl
     planar_finish
         Run the planar finish where the first solve with planar faces does not converge
         (``False``: that solve alone).
+    triangulate
+        Split the design's faces into triangles first (:func:`triangulated_design`; ``supports``
+        and ``up`` among ``kw`` apply to the file). A scene :func:`triangulated_design` made is
+        recorded either way: ``parameters["triangulated"]`` gives the faces before and after.
 
     Returns
     -------
@@ -91,14 +98,49 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, constraints: Any = (), pl
     ('converged', True)
     """
     planar = [c for c in constraints or () if isinstance(c, Planar)]
+    if triangulate:
+        scene_or_path = triangulated_design(scene_or_path, supports=kw.pop("supports", None), up=kw.pop("up", None))
+    split = scene_or_path.meta.get("triangulated") if isinstance(scene_or_path, Scene) else None
+    if split is not None and planar:
+        raise InputError("planar faces (--planar) are quads kept planar, and a triangulated mesh has none (its "
+                         "triangles are planar already); drop --planar or --triangulate")
     if not planar:
-        return solve_scene(scene_or_path, constraints=constraints, time_limit=time_limit, started=started, **kw)
+        res = solve_scene(scene_or_path, constraints=constraints, time_limit=time_limit, started=started, **kw)
+        return res if split is None else replace(res, parameters={**res.parameters, "triangulated": dict(split)})
     t0 = time.perf_counter() if started is None else float(started)
     limit = None if time_limit is None else max(float(time_limit) - (time.perf_counter() - t0), 1e-3)
     others = [c for c in constraints if not isinstance(c, Planar)]
     return solve_planar(scene_or_path, tol=min(c.tol for c in planar), method=kw.pop("method", AUTO),
                         finish=planar_finish, time_limit=limit, equilibrium_tol=kw.pop("tol", None),
                         constraints=others, **kw)
+
+def triangulated_design(scene_or_path: Scene | str | os.PathLike, *, supports: Any = None,
+                        up: str | None = None) -> Scene:
+    """The design of a scene (:func:`design_of`) with every face split into triangles by
+    :func:`~selfsupport.core.triangulation.split_scene`: the same vertices, supports and vertex
+    loads, every original edge kept and a diagonal added per extra triangle.
+
+    Edge data follow the edges by their two vertices: a ``.sss`` file's edge weights stay on the
+    kept edges (a diagonal is written with 0), and bounds from a file (``bounds=``) or a
+    stress (``max_stress=``) are stated for the split mesh when the solve builds them, the
+    diagonals taking the defaults. A network file's stored network does not start the solve (its
+    faces are not split): it starts from the split reference, as ``meta["design"]["start"]`` says.
+    ``meta["triangulated"]`` records the faces before and after.
+
+    >>> from selfsupport.core.shapes import make_shape
+    >>> triangulated_design(make_shape("barrel_vault", nx=4, ny=3)).meta["triangulated"]
+    {'faces': 12, 'triangles': 24, 'edges': 31, 'edges_after': 43, 'rule': 'shortest diagonals (quads: the shorter one)'}
+    """
+    scene, stored = design_of(as_scene(scene_or_path, supports=supports, up=up))
+    split = split_scene(scene)
+    record = {"faces": scene.mesh.n_faces, "triangles": split.mesh.n_faces, "edges": scene.mesh.n_edges,
+              "edges_after": split.mesh.n_edges, "rule": SPLIT_RULE}
+    meta = {**split.meta, "triangulated": record}
+    if stored is not None:
+        meta["design"] = {**meta.get("design", {}), "start": "the stored reference triangulated (the stored network's "
+                                                              "faces are not split)"}
+    return replace(split, meta=meta)
+
 
 # ------------------------------------------------------------------------------- scenes
 @dataclass(frozen=True, eq=False)

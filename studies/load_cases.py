@@ -14,9 +14,9 @@ share: see below). At 5% also:
 * ``tension allowed``: ``--eps -1e12`` (no bound on the weights; checked with
   ``--allow-tension``): where this converges and the default does not, the compression bound
   blocks; where this fails too, the geometry (one network for every case's equations) does;
-* ``triangulated``: the same design, supports and cases with every quad split along a diagonal
-  (:func:`selfsupport.core.evidence.triangulate`; written as an OBJ and a supports file under
-  ``--out``): more edges than horizontal equations, so the plan has self-stresses to spare.
+* ``triangulated``: the same design, supports and cases with every quad split along its shorter
+  diagonal (``selfsupport solve --triangulate``, :func:`selfsupport.core.triangulation.split_faces`):
+  more edges than horizontal equations, so the plan has self-stresses to spare.
 
 Each solve is ``selfsupport solve --time-limit 120`` in its own process. Per run: status, wall
 time, every case's max relative error by the shared independent checker (its worst case
@@ -56,7 +56,7 @@ SCENES = ("vault-pillar", "lilium", "cas")
 #: variants at the largest share: label -> (extra ``selfsupport solve`` arguments, cases kept, checker flags)
 VARIANTS: dict[str, tuple[list[str], tuple[str, ...], list[str]]] = {
     "tension allowed": (["--eps", "-1e12"], ("empty", "snow", "point"), ["--allow-tension"]),
-    "triangulated": ([], ("empty", "snow", "point"), []),
+    "triangulated": (["--triangulate"], ("empty", "snow", "point"), []),
 }
 
 COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_share", "point share", "{:.0%}"),
@@ -118,51 +118,38 @@ def checked(path: Path, checker: Path, flags: list[str]) -> dict[str, float]:
     return out
 
 
-def triangulated(path: Path, out: Path) -> Path:
-    """The scene at ``path`` with every face split into triangles from its first corner
-    (:func:`selfsupport.core.evidence.triangulate`), written as ``out/NAME-triangulated.obj`` (z
-    up) with its supports beside it (``.supports``); returns the OBJ's path."""
-    from selfsupport import api
-    from selfsupport.core.evidence import triangulate
-    from selfsupport.core.mesh import PolyMesh
-    from selfsupport.io import write_mesh
-
-    scene = api.as_scene(str(path))
-    obj = out / f"{path.stem}-triangulated.obj"
-    write_mesh(obj, PolyMesh.from_faces(scene.mesh.vertices, triangulate(scene.mesh)), up="z")
-    obj.with_suffix(".supports").write_text("\n".join(str(int(i)) for i in np.flatnonzero(scene.supports)) + "\n")
-    return obj
-
-
-def plan_count(path: Path, *, up: str | None = None, supports: Path | None = None) -> int:
-    """Edges that carry a weight less twice the free vertices (the plan's horizontal equations)."""
+def plan_count(path: Path, *, triangulate: bool = False) -> int:
+    """Edges that carry a weight less twice the free vertices (the plan's horizontal equations),
+    of the scene at ``path`` or (``triangulate``) of its design split into triangles as
+    ``selfsupport solve --triangulate`` splits it."""
     from selfsupport import api
 
-    scene = api.as_scene(str(path), up=up, supports=None if supports is None else str(supports))
+    scene = api.triangulated_design(str(path)) if triangulate else api.as_scene(str(path))
     return int(np.count_nonzero(scene.active_edges)) - 2 * int(np.count_nonzero(~scene.supports))
 
 
-def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...], out: Path) -> list[dict]:
-    """The study's solves: per scene the three cases at every share, and the variants at the
-    largest (the triangulated scene written under ``out``)."""
+def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...],
+         variants: tuple[str, ...] = ("default", *VARIANTS)) -> list[dict]:
+    """The study's solves: per scene the three cases at every share (``"default"`` among
+    ``variants``), and the other ``variants`` at the largest."""
     result = []
     for name in names:
         path = scenes / f"{name}.sss"
         v, weight = highest_free_and_weight(path)
         for share in shares:
             cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
-            base = {"scene": name, "path": path, "scene_args": [], "point_share": share, "cases": cases,
+            base = {"scene": name, "path": path, "point_share": share, "cases": cases,
                     "plan_count": plan_count(path)}
-            result.append({**base, "variant": "default", "extra": [], "flags": []})
+            if "default" in variants:
+                result.append({**base, "variant": "default", "extra": [], "flags": []})
             if share != max(shares):
                 continue
             for label, (extra, kept, flags) in VARIANTS.items():
+                if label not in variants:
+                    continue
                 job = {**base, "variant": label, "cases": {k: cases[k] for k in kept}, "extra": extra, "flags": flags}
-                if label == "triangulated":
-                    obj = triangulated(path, out)
-                    sup = obj.with_suffix(".supports")
-                    job.update(path=obj, scene_args=["--supports", str(sup), "--up", "z"],
-                               plan_count=plan_count(obj, up="z", supports=sup))
+                if "--triangulate" in extra:
+                    job["plan_count"] = plan_count(path, triangulate=True)
                 result.append(job)
     return result
 
@@ -175,7 +162,7 @@ def run(job: dict, out: Path, checker: Path) -> dict:
     net = out / f"{stem}.json"
     net.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(job["path"]), *job["scene_args"],
+    p = subprocess.run([sys.executable, "-m", "selfsupport", "solve", str(job["path"]),
                         "--load-cases", str(toml), "--time-limit", str(TIME_LIMIT), "--out", str(net), "-q",
                         *job["extra"]], capture_output=True, text=True)
     row = {"scene": job["scene"], "cases": "+".join(job["cases"]), "point_share": job["point_share"],
@@ -212,12 +199,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--csv", type=Path, default=None, help="the CSV (default: OUT/load_cases.csv)")
     ap.add_argument("--only", nargs="+", default=list(SCENES), choices=SCENES, help="these scenes only")
     ap.add_argument("--shares", nargs="+", type=float, default=list(SHARES), help="point load shares of the self-weight")
+    ap.add_argument("--variants", nargs="+", default=["default", *VARIANTS], choices=["default", *VARIANTS],
+                    help="these variants only (default: all)")
     ap.add_argument("--checker", type=Path, default=DEFAULT_CHECKER)
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     a.csv = a.out / "load_cases.csv" if a.csv is None else a.csv
     stamp, rows = run_stamp(), []
-    for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares)), a.out):
+    for job in jobs(a.scenes, tuple(a.only), tuple(sorted(a.shares)), tuple(a.variants)):
         rows.append({**run(job, a.out, a.checker), **stamp})
         print(json.dumps(rows[-1], default=str), flush=True)
         (a.out / "runs.json").write_text(json.dumps(rows, indent=1, default=str))

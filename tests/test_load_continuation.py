@@ -722,15 +722,16 @@ def test_over_a_plan_with_one_self_stress_no_heights_carry_a_point_load_case():
     assert fp["residual"] == pytest.approx(floor, rel=1e-6) and floor > 0.5
     note = cases.fixed_plan_note(fp)
     assert "are 1-dimensional (168 edges for 168 horizontal equations)" in note and f"{floor:.2e}" in note
+    assert "solve --triangulate" in note  # (the advice names the option that adds the edges)
 
 
 def test_a_triangulated_plan_is_not_blocked_by_the_count():
     """The same vault split into triangles: edges less horizontal equations alone exceed the
     self-stresses two cases need over a fixed plan, and the count is numpy's SVD count."""
-    from selfsupport.core.evidence import triangulate
+    from selfsupport.core.triangulation import split_scene
 
     quads, _ = _free_edged_quad_vault()
-    scene = Scene(PolyMesh.from_faces(quads.mesh.vertices, triangulate(quads.mesh)), quads.supports, name="tri")
+    scene = split_scene(quads)
     one = StaggeredLinearization().solve(scene, SW)
     res = SolveResult.build(one.network, cases=(("empty", one.network), ("again", one.network)), status="stalled",
                             method="staggered", backend="x", iterations=0, wall_time=0.0)

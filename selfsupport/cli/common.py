@@ -355,6 +355,10 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                            f"({result.distance_mean * diag:.3g} m)"),
             ("distance to reference max", f"{result.distance_max:.3e} of bbox diagonal "
                                           f"({result.distance_max * diag:.3g} m)")]
+    split = result.parameters.get("triangulated")
+    if split:
+        rows.append(("triangulated", f"{split['faces']} faces -> {split['triangles']} triangles, {split['edges']} -> "
+                                     f"{split['edges_after']} edges ({split['rule']})"))
     design = result.parameters.get("design")
     if design and "start" in design:  # a re-solved network file or a warm start: what the solve was for
         # and began at (a warm start on a plain scene has no stored reference: the pq finish on a turned vault)
@@ -502,6 +506,11 @@ def _solve_args(p: argparse.ArgumentParser) -> None:
                    help="refine the design by K Catmull-Clark steps first (quads; supports kept along "
                         "creases), e.g. to fabrication resolution; the multilevel method (which auto picks for a "
                         "mesh large enough) then solves the design and each step in turn, each from the one before")
+    p.add_argument("--triangulate", action="store_true",
+                   help="split every face into triangles first, along its shortest diagonals (quads: the shorter "
+                        "one; after --subdivide): more edges than a quad mesh's, which several load cases on a design "
+                        "with free edges need; supports and loads stay on the same vertices, bounds from --bounds "
+                        "stay on the kept edges and the new diagonals take the defaults")
     p.add_argument("--backend", default=None, metavar="NAME",
                    help="inner solver where the method has a choice (staggered: its Step-2 weight fit, "
                         "one of selfsupport.methods.weightfit_backends.WEIGHT_FIT_BACKENDS, default active-set)")
@@ -616,6 +625,8 @@ def _run_solve(args: argparse.Namespace) -> int:
         if "design" in scene.meta:  # (a network file: its stored network cannot start this mesh)
             info = {**scene.meta["design"], "start": f"the stored reference subdivided {args.subdivide}x"}
             scene = replace(scene, meta={**scene.meta, "design": info})
+    if args.triangulate:  # (after --subdivide, whose steps make quads again)
+        scene = api.triangulated_design(scene)
     from formulations.problem import MPA
 
     progress = ProgressDisplay(enabled=False if args.quiet else None)

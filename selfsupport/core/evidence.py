@@ -400,7 +400,9 @@ def _reference_index(mesh: PolyMesh) -> _ReferenceIndex:
 
 
 def triangulate(mesh: PolyMesh) -> np.ndarray:
-    """Fan triangulation ``(t, 3)`` of all faces (corner 0 as apex)."""
+    """Fan triangulation ``(t, 3)`` of all faces (corner 0 as apex): cheap and total, for closest
+    points, drawing and interpolation, where any triangulation of the surface will do. Splitting a
+    design into triangles to solve is :func:`selfsupport.core.triangulation.split_faces`."""
     fo, fv = mesh.face_offsets, mesh.face_vertices
     sizes = np.diff(fo)
     face_of = np.repeat(np.arange(mesh.n_faces), sizes - 2)

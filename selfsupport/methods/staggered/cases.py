@@ -54,7 +54,8 @@ load finds a plan with exactly one, and over such a plan every case's weights ar
 one vector and only proportional loads stand (:func:`top_view_self_stresses`, measured at the
 envelope's network and reported with a block). Several cases need a plan with more, which a
 step from the envelope's network does not reach; where the iteration finds none either, more
-edges (quads split into triangles) or supports on the free edges give the plan room.
+edges (quads split into triangles: ``selfsupport solve --triangulate``) or supports on the free edges give
+the plan room.
 
 More self-stresses are not enough over a fixed plan either: with ``k`` of them every case's
 weights are ``S a_c`` and the cases share the heights, ``C n_free`` vertical equations for
@@ -421,8 +422,8 @@ def _top_view_note(tv: dict[str, Any]) -> str:
             f"{tv['horizontal_equations']} horizontal equations{nxt}): every case's weights there are multiples of "
             f"one vector, so no heights and no weights of either sign carry cases whose loads are not "
             f"proportional, however small their difference; every case needs a top view with two self-stresses "
-            f"(a different plan): more edges than horizontal equations (quads split into triangles) or supports "
-            f"on the free boundary give the plan that room")
+            f"(a different plan): more edges than horizontal equations (quads split into triangles: solve "
+            f"--triangulate) or supports on the free boundary give the plan that room")
 
 
 def _start(run: _Run, envelope: Network, deadline: float) -> dict[str, Any] | None:
@@ -788,8 +789,8 @@ def fixed_plan_note(fp: dict[str, Any]) -> str:
             f"case's weights of either sign free, loads held) leaves case {fp['case']!r} at max relative residual "
             f"{fp['residual']:.2e} (from {fp['start_residual']:.2e}, {fp['steps']} Gauss–Newton steps): the plan "
             f"must move to a special one, where the vertical equations are dependent, and the nearest network in "
-            f"equilibrium may be far; more edges (quads split into triangles) or supports on the free edges give "
-            f"every plan room")
+            f"equilibrium may be far; more edges (quads split into triangles: solve --triangulate) or supports on "
+            f"the free edges give every plan room")
 
 
 def ipopt_finish(problem: Problem, stalled: SolveResult, deadline: float,
