@@ -295,8 +295,8 @@ def _pull_start(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarra
             alpha = min(2 * alpha, 1.0) if run >= 2 else alpha
         else:
             alpha, run = alpha / 2, 0
-    stop = "converged" if alpha < START_PULL_MIN or small >= START_PULL_PATIENCE else (
-        "time_limit" if out_of_time(deadline) else "iteration_limit")
+    stop = ("converged" if small >= START_PULL_PATIENCE else "no_closer_step" if alpha < START_PULL_MIN
+            else "time_limit" if out_of_time(deadline) else "iteration_limit")
     return X, W, steps, history, stop
 
 
@@ -351,8 +351,10 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     Euclidean projected gradient) crept wherever the constraints ask for such sliding.
 
     The pull ends ``"converged"`` when its last :data:`PULL_WINDOW` accepted steps together
-    gained less than :data:`PULL_GAIN` (relative), or when ``μ`` passes :data:`PULL_MU_MAX` (no
-    step long enough to matter is feasible and closer); ``"time_limit"`` when a step would end
+    gained less than :data:`PULL_GAIN` (relative); ``"no_closer_step"`` when ``μ`` passes
+    :data:`PULL_MU_MAX` (no step long enough to matter was feasible and closer: on the
+    reference already, or the polish cannot restore equilibrium to its tolerance after any);
+    ``"time_limit"`` when a step would end
     past ``deadline`` (the caller's share of the time, :data:`PULL_SHARE`; every step honours it
     inside); ``"iteration_limit"`` after :data:`PULL_MAX_STEPS` steps.
 
@@ -365,8 +367,11 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X, near[0])
     kept, t_step = [f], 0.0  # (the summed squared distance after each accepted step, from the start)
     while True:
-        if mu > PULL_MU_MAX or (len(kept) > PULL_WINDOW and kept[-1] > (1 - PULL_GAIN) * kept[-1 - PULL_WINDOW]):
+        if len(kept) > PULL_WINDOW and kept[-1] > (1 - PULL_GAIN) * kept[-1 - PULL_WINDOW]:
             stop = "converged"
+            break
+        if mu > PULL_MU_MAX:
+            stop = "no_closer_step"
             break
         if out_of_time(deadline, t_step):
             stop = "time_limit"
@@ -483,8 +488,9 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         ``starts`` (2: the homotopy from the start as given did not converge and ran again from
         the start pulled toward ``reference``; each history record names its ``start``), and
         ``pull`` (``None`` without the pull; else per pull that ran, ``start`` and ``planar``, its
-        steps, the accepted ones, why it ended (``stop``: ``converged``, ``time_limit`` — the
-        planar pull gets :data:`PULL_SHARE` of the time left — or ``iteration_limit``), and the
+        steps, the accepted ones, why it ended (``stop``: ``converged``, ``no_closer_step``,
+        ``time_limit`` — the planar pull gets :data:`PULL_SHARE` of the time left — or
+        ``iteration_limit``; :func:`_pull`), and the
         mean distance to ``reference`` over its bounding-box diagonal before and after).
     """
     t0 = time.perf_counter()
