@@ -741,8 +741,9 @@ def _dome_grid_for_the_pull():
 def test_the_pull_ends_because_it_converged_not_at_a_cap():
     """The pull toward the reference ends when its last PULL_WINDOW accepted steps together
     gained less than PULL_GAIN of the summed squared distance (read here from the steps'
-    records), not after a fixed number of steps or a couple of small ones (which stopped it
-    after 19 steps, its last five accepted steps still gaining 1.7e-2 together). The network
+    records), not after a fixed number of steps or a couple of small ones (a rule of two steps
+    in a row each gaining under 1e-3 stops this pull after 19 steps, its last five accepted
+    steps still gaining 1.7e-2 together). The network
     it ends at is closer than the homotopy's, planar by the distance computed here, and in
     equilibrium by the independent checker."""
     from selfsupport.methods import planar_homotopy as ph
