@@ -16,7 +16,8 @@ max relative error (recomputed from the saved network), max / mean quad non-plan
 of the diagonals / mean edge length) before (also the mean over the quads off the boundary) and
 after, mean distance to the scene's reference (/ bbox diagonal) before the planar solve (the
 remesh, its heights from the network in equilibrium) and after, the largest distance a vertex
-moved in the planar solve (/ bbox diagonal), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
+moved in the planar solve (/ bbox diagonal), the pull toward the reference (its steps and why it
+ended: converged, or at its share of the time limit), time. The published ``NAME-pq-n.obj`` (where present) is measured the same way
 (its distance to the reference and its non-planarity). ``--densities published`` adds, for every
 scene with such a published mesh, both fields again by the first remesher with the spacing the
 published mesh's mean top-view edge length (rows tagged ``published spacing``): the comparison at
@@ -58,6 +59,7 @@ COLUMNS = [Column("scene", "scene"), Column("mesh", "mesh"), Column("faces", "fa
            Column("dist_start", "dist. to reference before (mean)", "{:.3e}"),
            Column("dist_mean", "dist. to reference (mean)", "{:.3e}"),
            Column("moved_max", "largest vertex move in the planar solve", "{:.2e}"),
+           Column("pull", "pull toward the reference (steps, end)"),
            Column("time_s", "time [s]", "{:.1f}")]
 #: the CSV's columns: the table's, then the run's stamp (:func:`studies.common.run_stamp`)
 CSV_COLUMNS = [*COLUMNS, *STAMP_COLUMNS]
@@ -86,6 +88,14 @@ def _mean_top_edge(mesh) -> float:
     """Mean top-view edge length of a mesh."""
     e = mesh.edges
     return float(np.linalg.norm(mesh.vertices[e[:, 1], :2] - mesh.vertices[e[:, 0], :2], axis=1).mean())
+
+
+def _pull_of(res) -> str:
+    """The planar network's pull toward the reference: its steps and why it ended (empty when
+    none ran)."""
+    rec = (res.parameters.get("homotopy") or {}).get("pull") or res.parameters.get("planar_pull") or {}
+    pull = rec.get("planar")
+    return f"{pull['steps']} steps, {pull['stop']}" if pull else ""
 
 
 def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit: float,
@@ -147,7 +157,7 @@ def run(scenes: Path, out: Path, only: Sequence[str], spacing: float, time_limit
                                        / np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))),
                        nonplanar_max=res.parameters["planarity"]["max_nonplanarity"],
                        dist_start=distance_stats(todo.mesh.vertices, scene.mesh)[0],
-                       dist_mean=distance_stats(res.network.vertices, scene.mesh)[0],
+                       dist_mean=distance_stats(res.network.vertices, scene.mesh)[0], pull=_pull_of(res),
                        time_s=time.perf_counter() - t0)
             rows.append(row)
             print(" | ".join(str(row.get(c.key)) for c in COLUMNS), flush=True)

@@ -728,6 +728,68 @@ def test_one_undamped_pull_step_lands_on_the_tangent_plane_and_slides_for_free()
 
 
 
+def _dome_grid_for_the_pull():
+    """A 200-vertex dome remeshed along a fixed grid (planar quads cannot lie on a dome, so the
+    nearest planar network stays a positive distance off it), in equilibrium, and its problem
+    with planar faces."""
+    shape = make_shape("dome", n_vertices=200)
+    scene = remesh(api.solve(shape).network, field="grid", spacing=0.12, relative=True, method="seamless").scene
+    return shape, scene, api.problem(scene, constraints=[Planar(tol=1e-3)]), api.solve(scene)
+
+
+@requires_checker
+def test_the_pull_ends_because_it_converged_not_at_a_cap():
+    """The pull toward the reference ends when its last PULL_WINDOW accepted steps together
+    gained less than PULL_GAIN of the summed squared distance (read here from the steps'
+    records), not after a fixed number of steps or a couple of small ones (a rule of two steps
+    in a row each gaining under 1e-3 stops this pull after 19 steps, its last five accepted
+    steps still gaining 1.7e-2 together). The network
+    it ends at is closer than the homotopy's, planar by the distance computed here, and in
+    equilibrium by the independent checker."""
+    from selfsupport.methods import planar_homotopy as ph
+
+    shape, scene, problem, eq = _dome_grid_for_the_pull()
+    records: list[dict] = []
+    res = ph.planar_homotopy(problem, eq, reference=shape.mesh, progress=records.append)
+    pull = res.parameters["homotopy"]["pull"]["planar"]
+    kept = [r["distance"] for r in records if "pull" in r and r["accepted"]]
+    assert res.status == "converged" and len(kept) > ph.PULL_WINDOW and pull["steps"] < ph.PULL_MAX_STEPS
+    assert kept[-1] > (1 - ph.PULL_GAIN) * kept[-1 - ph.PULL_WINDOW]
+    assert pull["stop"] == "converged"
+    assert 0 < pull["distance_after"] < pull["distance_before"]
+    assert pull["distance_after"] == pytest.approx(distance_stats(res.network.vertices, shape.mesh)[0], rel=1e-9)
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
+    assert res.max_relative_error <= 1e-8 and independent_check(res).ok
+
+
+@requires_checker
+def test_a_pull_too_slow_to_converge_ends_at_its_share_of_the_time_not_at_the_limit(monkeypatch):
+    """A pull that cannot converge (its gain criterion set to zero, no cap on its steps) ends at PULL_SHARE of the
+    time left when it started, well before the run's limit, with its best network: still
+    planar (the distance computed here) and in equilibrium (the independent checker), closer
+    than the homotopy's."""
+    import time
+
+    from selfsupport.methods import planar_homotopy as ph
+
+    shape, scene, problem, eq = _dome_grid_for_the_pull()
+    monkeypatch.setattr(ph, "PULL_GAIN", 0.0)
+    monkeypatch.setattr(ph, "PULL_MU_MAX", np.inf)
+    monkeypatch.setattr(ph, "PULL_MAX_STEPS", 10 ** 6)
+    limit = 6.0
+    t0 = time.perf_counter()
+    res = ph.planar_homotopy(problem, eq, reference=shape.mesh, deadline=t0 + limit)
+    took = time.perf_counter() - t0
+    pull = res.parameters["homotopy"]["pull"]["planar"]
+    # (the pull started after the homotopy's stages, within the limit: it ends at most
+    # PULL_SHARE of the rest later, plus one step's overrun)
+    assert res.status == "converged" and took < limit * (1 + ph.PULL_SHARE) / 2 + 0.5
+    assert pull["stop"] == "time_limit"
+    assert pull["distance_after"] < pull["distance_before"]
+    assert diagonal_gaps(res.network.mesh, scene.supports).max() <= 1e-3
+    assert res.max_relative_error <= 1e-8 and independent_check(res).ok
+
+
 @pytest.mark.slow
 @requires_checker
 def test_the_gauss_newton_pull_reaches_in_a_few_steps_what_the_creeping_pull_does_not(monkeypatch):

@@ -103,17 +103,25 @@ PACE_MARGIN = 2.0
 #: The pull toward the reference after the homotopy (:func:`_pull`, Levenberg–Marquardt): the
 #: first damping ``μ`` (a tangential move costs ``μ`` times a move across the surface), its
 #: factors after an accepted and a rejected step, its floor, and the ceiling past which the pull
-#: ends (the steps are then too short to matter); its most steps.
+#: ends (the steps are then too short to matter).
 PULL_MU_FIRST = 1e-2
 PULL_MU_DOWN = 4.0
 PULL_MU_UP = 8.0
 PULL_MU_MIN = 1e-8
 PULL_MU_MAX = 1e3
-PULL_MAX_STEPS = 60
-#: A pull step that lowers the summed squared distance by less than this fraction is small;
-#: :data:`PULL_PATIENCE` small steps in a row end the pull (it has converged).
-PULL_GAIN = 1e-3
-PULL_PATIENCE = 2
+#: The pull has converged when its last :data:`PULL_WINDOW` accepted steps together lowered the
+#: summed squared distance by less than the fraction :data:`PULL_GAIN` (1e-4 a step on average:
+#: a hundred more would gain under 1 %). Measured over a window, not step by step: the steps
+#: alternate between long and short ones where the band's active set changes.
+PULL_GAIN = 5e-4
+PULL_WINDOW = 5
+#: The pull's share of the time left when it starts: it refines a network already planar and in
+#: equilibrium, so one too slow to converge ends at its share with its best network, before the
+#: run's limit, rather than being cut by it.
+PULL_SHARE = 0.5
+#: A backstop on the pull's steps where there is no time limit (a converging pull ends far
+#: earlier: it is not a setting of the result).
+PULL_MAX_STEPS = 2000
 #: A vertex whose gap to its closest point makes an angle with the surface's normal there of
 #: cosine at least this is drawn to the tangent plane, others (their closest point on the
 #: surface's edge) to the point.
@@ -262,7 +270,7 @@ def _pull_start(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarra
     homotopy stalled from there where it converges from this start; a start for the homotopy
     is not better for being closer.
 
-    Returns (X, W, polish steps, history)."""
+    Returns (X, W, polish steps, history, why it ended: as :func:`_pull`)."""
     def dist(Y: np.ndarray) -> float:
         return float(np.sum((targets(Y)[0][free] - Y[free]) ** 2))
 
@@ -287,7 +295,9 @@ def _pull_start(form: Callable[[np.ndarray], ThrustNetworkProblem], X: np.ndarra
             alpha = min(2 * alpha, 1.0) if run >= 2 else alpha
         else:
             alpha, run = alpha / 2, 0
-    return X, W, steps, history
+    stop = ("converged" if small >= START_PULL_PATIENCE else "no_closer_step" if alpha < START_PULL_MIN
+            else "time_limit" if out_of_time(deadline) else "iteration_limit")
+    return X, W, steps, history, stop
 
 
 def _band_step(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, d0: np.ndarray,
@@ -301,9 +311,16 @@ def _band_step(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.n
     (:class:`_Band`). Returns ``(X + d_X, W + d_W)``, or None past ``deadline``."""
     band = form(X).planar
     held = None if band is None else np.zeros(len(band.rows))
+    found: list = []  # (every round linearises at X: the loads' Jacobian there, formed once)
+
+    def jacobian_at_x(V: np.ndarray, L: np.ndarray, deadline: float | None = None) -> list | None:
+        if not found:
+            found.append(load_jacobian(V, L, deadline=deadline))
+        return found[0]
+
     for _ in range(PULL_ACTIVE_ROUNDS):
-        lin = constrained_step(form(X, held), X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian,
-                               deadline=deadline)
+        lin = constrained_step(form(X, held), X, W, d0, D, loads_at=loads_at,
+                               load_jacobian=None if load_jacobian is None else jacobian_at_x, deadline=deadline)
         if lin is None or held is None:
             return lin
         r = diagonal_distance(lin[0], band.rows)[0]
@@ -331,23 +348,42 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     ``feasible`` and closer; the damping ``μ`` then falls by :data:`PULL_MU_DOWN`, else rises by
     :data:`PULL_MU_UP`. Point-to-plane rather than point-to-point: the squared distance to a
     surface is curved only across it, and a step that paid for sliding along it (the
-    Euclidean projected gradient) crept wherever the constraints ask for such sliding. The pull
-    ends after :data:`PULL_PATIENCE` accepted steps in a row of relative gain below
-    :data:`PULL_GAIN`, when ``μ`` passes :data:`PULL_MU_MAX`, after :data:`PULL_MAX_STEPS`
-    steps, or at ``deadline``.
+    Euclidean projected gradient) crept wherever the constraints ask for such sliding.
 
-    Returns (X, W, polish steps, history)."""
+    The pull ends ``"converged"`` when its last :data:`PULL_WINDOW` accepted steps together
+    gained less than :data:`PULL_GAIN` (relative); ``"no_closer_step"`` when ``μ`` passes
+    :data:`PULL_MU_MAX` (no step long enough to matter was feasible and closer: on the
+    reference already, or the polish cannot restore equilibrium to its tolerance after any);
+    ``"time_limit"`` when a step would end
+    past ``deadline`` (the caller's share of the time, :data:`PULL_SHARE`; every step honours it
+    inside); ``"iteration_limit"`` after :data:`PULL_MAX_STEPS` steps.
+
+    Returns (X, W, polish steps, history, why it ended)."""
     def dist(Y: np.ndarray, closest: np.ndarray) -> float:
         return float(np.sum((closest[free] - Y[free]) ** 2))
 
     fidx = np.flatnonzero(free)
     near = targets(X)  # (the closest points and normals of the current network, found once per network)
     mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X, near[0])
-    small = 0
-    while mu <= PULL_MU_MAX and len(history) < PULL_MAX_STEPS and small < PULL_PATIENCE and not out_of_time(deadline):
+    kept, t_step = [f], 0.0  # (the summed squared distance after each accepted step, from the start)
+    while True:
+        if len(kept) > PULL_WINDOW and kept[-1] > (1 - PULL_GAIN) * kept[-1 - PULL_WINDOW]:
+            stop = "converged"
+            break
+        if mu > PULL_MU_MAX:
+            stop = "no_closer_step"
+            break
+        if out_of_time(deadline, t_step):
+            stop = "time_limit"
+            break
+        if len(history) >= PULL_MAX_STEPS:
+            stop = "iteration_limit"
+            break
+        t0 = time.perf_counter()
         d0, D = _reference_step(X, fidx, *near, mu)
         lin = _band_step(form, X, W, d0, D, loads_at=loads_at, load_jacobian=load_jacobian, deadline=deadline)
         if lin is None:  # (the deadline passed inside the step)
+            stop = "time_limit"
             break
         Xn, Wn, k, err, ok = polish_joint(form(lin[0]), *lin, loads_at=loads_at, tol=STAGE_TOL,
                                           max_iter=STAGE_STEPS, load_jacobian=load_jacobian, deadline=deadline)
@@ -360,12 +396,13 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
         if progress is not None:
             progress(rec)
         if accept:
-            small = small + 1 if fn > (1 - PULL_GAIN) * f else 0
             X, W, f, near = Xn, Wn, fn, near_n
+            kept.append(f)
             mu = max(mu / PULL_MU_DOWN, PULL_MU_MIN)
         else:
             mu *= PULL_MU_UP
-    return X, W, steps, history
+        t_step = time.perf_counter() - t0
+    return X, W, steps, history, stop
 
 
 def _nonplanarity(X: np.ndarray, rows: Any) -> float:
@@ -451,8 +488,10 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         ``starts`` (2: the homotopy from the start as given did not converge and ran again from
         the start pulled toward ``reference``; each history record names its ``start``), and
         ``pull`` (``None`` without the pull; else per pull that ran, ``start`` and ``planar``, its
-        steps, the accepted ones, and the mean distance to ``reference`` over its bounding-box
-        diagonal before and after).
+        steps, the accepted ones, why it ended (``stop``: ``converged``, ``no_closer_step``,
+        ``time_limit`` — the planar pull gets :data:`PULL_SHARE` of the time left — or
+        ``iteration_limit``; :func:`_pull`), and the
+        mean distance to ``reference`` over its bounding-box diagonal before and after).
     """
     t0 = time.perf_counter()
     planar = _planar_of(problem)
@@ -491,10 +530,10 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
                               feasible: Callable[[np.ndarray, np.ndarray], bool], until: float | None) -> tuple:
         before = distance_stats(sc.pos_back(Y), ref)[0]
         # (the start, faces not yet planar (trial None): by _pull_start, see there)
-        Y, Wy, k, trail = (_pull if trial is not None else _pull_start)(
+        Y, Wy, k, trail, stop = (_pull if trial is not None else _pull_start)(
             lambda Z, held=None: form_at(Z, trial, held), Y, Wy, loads_at=loads_at, load_jacobian=jac, free=np.asarray(scene.free, bool),
             targets=lambda Z: closest_points(Z, ref_scaled)[::2], feasible=feasible, deadline=until, progress=progress)
-        return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail),
+        return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail), "stop": stop,
                           "distance_before": before, "distance_after": distance_stats(sc.pos_back(Y), ref)[0]}
 
     pulled: dict[str, Any] | None = {} if pull else None
@@ -523,7 +562,9 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
             break
         ended = (X, W, band, status)
     if status == "converged" and pulled is not None:  # (the end: faces held within the band reached)
-        X, W, k, pulled["planar"] = pull_toward_reference(X, W, band, planar_enough, deadline)
+        now = time.perf_counter()
+        X, W, k, pulled["planar"] = pull_toward_reference(
+            X, W, band, planar_enough, None if deadline is None else now + PULL_SHARE * (deadline - now))
         steps += k
     return _result(problem, sc, X, W, status=status, band=band, target=target, steps=steps, t0=t0,
                    history=history, homotopy={"start_nonplanarity": start, "starts": n_start + 1, "pull": pulled})
