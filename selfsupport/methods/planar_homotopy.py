@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass
+from functools import partial
 from typing import Any, Callable
 
 import numpy as np
@@ -122,6 +123,11 @@ PULL_SHARE = 0.5
 #: A backstop on the pull's steps where there is no time limit (a converging pull ends far
 #: earlier: it is not a setting of the result).
 PULL_MAX_STEPS = 2000
+#: The pull has reached the reference when the free vertices' root-mean-square distance to it is
+#: below this multiple of the planarity tolerance times the mean edge: a face may be off its
+#: plane by that much, so a network nearer is on the reference to within what its planar faces
+#: resolve.
+PULL_ON_REFERENCE = 1.0
 #: A vertex whose gap to its closest point makes an angle with the surface's normal there of
 #: cosine at least this is drawn to the tangent plane, others (their closest point on the
 #: surface's edge) to the point.
@@ -335,7 +341,7 @@ def _band_step(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.n
 def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarray, *,
           loads_at: Callable[[np.ndarray], np.ndarray], load_jacobian: Any, free: np.ndarray,
           targets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-          feasible: Callable[[np.ndarray, np.ndarray], bool],
+          feasible: Callable[[np.ndarray, np.ndarray], bool], on_reference: float,
           deadline: float | None, progress: Callable[[dict], None] | None) -> tuple:
     """The feasible network nearest the reference, locally, by a constrained Levenberg–Marquardt
     iteration on the summed squared distance of the free vertices to it.
@@ -350,8 +356,9 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     surface is curved only across it, and a step that paid for sliding along it (the
     Euclidean projected gradient) crept wherever the constraints ask for such sliding.
 
-    The pull ends ``"converged"`` when its last :data:`PULL_WINDOW` accepted steps together
-    gained less than :data:`PULL_GAIN` (relative); ``"no_closer_step"`` when ``μ`` passes
+    The pull ends ``"on_reference"`` when the free vertices' root-mean-square distance is below
+    ``on_reference`` (:data:`PULL_ON_REFERENCE`); ``"converged"`` when its last :data:`PULL_WINDOW`
+    accepted steps together gained less than :data:`PULL_GAIN` (relative); ``"no_closer_step"`` when ``μ`` passes
     :data:`PULL_MU_MAX` (no step long enough to matter was feasible and closer: on the
     reference already, or the polish cannot restore equilibrium to its tolerance after any);
     ``"time_limit"`` when a step would end
@@ -367,6 +374,9 @@ def _pull(form: Callable[..., ThrustNetworkProblem], X: np.ndarray, W: np.ndarra
     mu, steps, history, f = PULL_MU_FIRST, 0, [], dist(X, near[0])
     kept, t_step = [f], 0.0  # (the summed squared distance after each accepted step, from the start)
     while True:
+        if f <= on_reference ** 2 * fidx.size:
+            stop = "on_reference"
+            break
         if len(kept) > PULL_WINDOW and kept[-1] > (1 - PULL_GAIN) * kept[-1 - PULL_WINDOW]:
             stop = "converged"
             break
@@ -488,7 +498,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         ``starts`` (2: the homotopy from the start as given did not converge and ran again from
         the start pulled toward ``reference``; each history record names its ``start``), and
         ``pull`` (``None`` without the pull; else per pull that ran, ``start`` and ``planar``, its
-        steps, the accepted ones, why it ended (``stop``: ``converged``, ``no_closer_step``,
+        steps, the accepted ones, why it ended (``stop``: ``on_reference``, ``converged``, ``no_closer_step``,
         ``time_limit`` — the planar pull gets :data:`PULL_SHARE` of the time left — or
         ``iteration_limit``; :func:`_pull`), and the
         mean distance to ``reference`` over its bounding-box diagonal before and after).
@@ -530,7 +540,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
                               feasible: Callable[[np.ndarray, np.ndarray], bool], until: float | None) -> tuple:
         before = distance_stats(sc.pos_back(Y), ref)[0]
         # (the start, faces not yet planar (trial None): by _pull_start, see there)
-        Y, Wy, k, trail, stop = (_pull if trial is not None else _pull_start)(
+        pull = _pull_start if trial is None else partial(_pull, on_reference=PULL_ON_REFERENCE * planar.tol * h)
+        Y, Wy, k, trail, stop = pull(
             lambda Z, held=None: form_at(Z, trial, held), Y, Wy, loads_at=loads_at, load_jacobian=jac, free=np.asarray(scene.free, bool),
             targets=lambda Z: closest_points(Z, ref_scaled)[::2], feasible=feasible, deadline=until, progress=progress)
         return Y, Wy, k, {"steps": len(trail), "accepted": sum(r["accepted"] for r in trail), "stop": stop,
