@@ -27,7 +27,7 @@ from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptio
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
 from selfsupport.methods.staggered.run import _Run
 from studies import load_cases as study
-from tests.conftest import independent_check
+from tests.conftest import independent_check, vault_pillar_layout
 
 SW = SelfWeight(density=2000.0, thickness=0.1)
 
@@ -375,14 +375,7 @@ def _free_edged_quad_vault(n: int = 10, span: float = 3.0):
     t = np.linspace(-0.5, 0.5, n) * span
     x, y = np.meshgrid(t, t)
     V = np.column_stack([x.ravel(), y.ravel(), 1.0 - 0.15 * (x ** 2 + y ** 2).ravel()])
-    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i]
-             for j in range(n - 1) for i in range(n - 1)]
-    sup = np.zeros(n * n, bool)
-    for i, j in ((0, 0), (0, n - 1), (n - 1, 0), (n - 1, n - 1)):
-        di, dj = (1 if i == 0 else -1), (1 if j == 0 else -1)
-        sup[[j * n + i, j * n + i + di, (j + dj) * n + i]] = True
-    c = n // 2
-    sup[[(c - 1) * n + c - 1, (c - 1) * n + c, c * n + c - 1, c * n + c]] = True
+    sup, quads = vault_pillar_layout(n)
     scene = Scene(PolyMesh.from_faces(V, quads), sup, name="free-edged quad vault")
     free = np.flatnonzero(~sup)
     v = int(free[np.argmax(V[free, 2])])

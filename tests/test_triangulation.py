@@ -21,7 +21,7 @@ from selfsupport.core.subdivision import subdivide_scene
 from selfsupport.core.triangulation import split_faces, split_scene
 from selfsupport.io import read_scene, write_mesh
 from selfsupport.io.sss import write_scene_sss
-from tests.conftest import independent_check
+from tests.conftest import independent_check, vault_pillar_layout
 from tests.test_cli import assert_one_line_error
 
 
@@ -227,16 +227,10 @@ def _free_edged_vault(n: int = 8) -> Scene:
     nearest support): the paper's vault-pillar layout, as many edges as horizontal equations."""
     t = np.linspace(-1.0, 1.0, n)
     x, y = np.meshgrid(t, t)
-    sup = np.zeros(n * n, bool)
-    for i, j in ((0, 0), (0, n - 1), (n - 1, 0), (n - 1, n - 1)):
-        di, dj = (1 if i == 0 else -1), (1 if j == 0 else -1)
-        sup[[j * n + i, j * n + i + di, (j + dj) * n + i]] = True
-    c = n // 2
-    sup[[(c - 1) * n + c - 1, (c - 1) * n + c, c * n + c - 1, c * n + c]] = True
+    sup, quads = vault_pillar_layout(n)
     P = np.c_[x.ravel(), y.ravel()]
     d = np.linalg.norm(P[:, None] - P[sup][None], axis=2).min(axis=1)
     V = np.c_[P, 0.9 * (1 - np.exp(-(d / 0.35) ** 2))]
-    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i] for j in range(n - 1) for i in range(n - 1)]
     return Scene(PolyMesh.from_faces(V, quads), sup, name="free-edged vault")
 
 
