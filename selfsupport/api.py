@@ -114,6 +114,7 @@ def solve(scene_or_path: Scene | str | os.PathLike, *, constraints: Any = (), pl
                         finish=planar_finish, time_limit=limit, equilibrium_tol=kw.pop("tol", None),
                         constraints=others, **kw)
 
+
 def triangulated_design(scene_or_path: Scene | str | os.PathLike, *, supports: Any = None,
                         up: str | None = None) -> Scene:
     """The design of a scene (:func:`design_of`) with every face split into triangles by
