@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from selfsupport.core.errors import MeshError
+from selfsupport.core.geometry import face_normals
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 
@@ -81,7 +82,7 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
     n_tri = sizes - 2
     first = np.r_[0, np.cumsum(n_tri)[:-1]]  # each face's first triangle in the output
     tris = np.empty((int(n_tri.sum()), 3), dtype=np.int64)
-    V = mesh.vertices
+    V, normals = mesh.vertices, face_normals(mesh)
     for n in np.unique(sizes):
         faces = np.flatnonzero(sizes == n)
         F = fv[fo[faces][:, None] + np.arange(n)]  # (k, n) vertex indices
@@ -89,10 +90,11 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
             tris[first[faces]] = F
             continue
         P = V[F]
-        bad = _corner_sines(P) <= _MIN_TURN_SINE  # (k, n): corners not strictly convex
+        sines = _corner_sines(P, normals[faces])
+        bad = sines <= _MIN_TURN_SINE  # (k, n): corners not strictly convex
         one = (bad.sum(axis=1) == 1) if n == 4 else np.zeros(len(faces), bool)
         if (bad.any(axis=1) & ~one).any():
-            _refuse(P, faces, F, bad & ~one[:, None])
+            _refuse(sines, faces, F, bad & ~one[:, None])
         if one.any():  # a quad's one reflex or straight corner k: the diagonal from it, k to k + 2
             k = np.argmax(bad[one], axis=1)[:, None]
             G = np.take_along_axis(F[one], (k + np.arange(4)) % 4, axis=1)
@@ -120,22 +122,21 @@ def split_faces(mesh: PolyMesh) -> PolyMesh:
     return PolyMesh(V, tris.ravel(), np.arange(0, 3 * len(tris) + 1, 3))
 
 
-def _corner_sines(P: np.ndarray) -> np.ndarray:
+def _corner_sines(P: np.ndarray, unit: np.ndarray) -> np.ndarray:
     """``(k, n)``: the sine of the turn at every corner of faces ``P`` (k, n, 3), in the plane of
-    the face's vector area (Newell's normal) and signed by it: positive at a convex corner."""
-    Q = P - P.mean(axis=1, keepdims=True)
-    normal = np.cross(Q, np.roll(Q, -1, axis=1)).sum(axis=1)  # twice the vector area
-    unit = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    the face's vector area (its unit normal ``unit``, k × 3) and signed by it: positive at a convex
+    corner."""
     a = P - np.roll(P, 1, axis=1)  # edge into each corner
     b = np.roll(P, -1, axis=1) - P  # edge out of it
     sine = np.einsum("kij,kj->ki", np.cross(a, b), unit)
     return sine / np.maximum(np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2), 1e-300)
 
 
-def _refuse(P: np.ndarray, faces: np.ndarray, F: np.ndarray, bad: np.ndarray) -> None:
-    """Raise :class:`MeshError` for the first face with a ``bad`` corner (see :func:`split_faces`)."""
+def _refuse(sines: np.ndarray, faces: np.ndarray, F: np.ndarray, bad: np.ndarray) -> None:
+    """Raise :class:`MeshError` for the first face with a ``bad`` corner (``sines``: its corners'
+    :func:`_corner_sines`; see :func:`split_faces`)."""
     k, j = np.argwhere(bad)[0]
-    kind = "reflex" if _corner_sines(P[k:k + 1])[0, j] < -_MIN_TURN_SINE else "straight"
+    kind = "reflex" if sines[k, j] < -_MIN_TURN_SINE else "straight"
     raise MeshError(f"face {int(faces[k])} (vertices {' '.join(map(str, F[k].tolist()))}) is not convex in its "
                     f"plane: its corner at vertex {int(F[k, j])} is {kind}, so it cannot be split into triangles "
                     "by its shortest diagonals; split that face by hand (or make it convex) first")
