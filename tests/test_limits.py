@@ -90,8 +90,9 @@ def test_step_3_cg_and_the_polishes_honour_a_passed_deadline():
     Q = np.linalg.qr(rng.normal(size=(50, 3, 3)))[0]
     blocks = Q @ (np.array([1e-3, 1.0, 1e3])[None, :, None] * np.transpose(Q, (0, 2, 1)))  # anisotropic: CG iterates
     with pytest.raises(DeadlineReached):
-        _solve_blocks(H, blocks, np.ones((50, 3)), {}, deadline=time.perf_counter() - 1.0)
-    assert _solve_blocks(H, blocks, np.ones((50, 3)), {}, deadline=time.perf_counter() + 60) is not None
+        _solve_blocks(H, blocks, np.ones((50, 3)), {}, start=np.zeros((50, 3)), deadline=time.perf_counter() - 1.0)
+    assert _solve_blocks(H, blocks, np.ones((50, 3)), {}, start=np.zeros((50, 3)),
+                         deadline=time.perf_counter() + 60) is not None
 
     scene = make_shape("dome", n_vertices=100)
     prob = Problem.build(scene, SelfWeight())

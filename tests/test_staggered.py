@@ -347,6 +347,7 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     from formulations.equilibrium import Topology, block_diagonal, position_blocks
     from selfsupport.core.geometry import vertex_normals
     from selfsupport.methods.staggered import _solve_blocks
+    from selfsupport.methods.staggered.step3 import STEP_RTOL
 
     scene = make_shape("pillar_vault", n_vertices=400)
     m = scene.mesh
@@ -358,12 +359,19 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
     rhs = rng.standard_normal((top.n_free, 3))
     ws: dict = {}
     blocks = b0 * np.eye(3)[None] + b1 * n[:, :, None] * n[:, None, :]  # the reference term + β, as Step 3 builds it
-    x = _solve_blocks(H, blocks, rhs, ws)
     M = (sp.kron(H, sp.identity(3)) + block_diagonal(blocks)).tocsc()
     direct = sp.linalg.spsolve(M, rhs.ravel()).reshape(-1, 3)
-    np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
+    start = direct + 1e-2 * np.abs(direct).max() * rng.standard_normal(direct.shape)  # the iterate, a step away
+    x = _solve_blocks(H, blocks, rhs, ws, start=start, rtol=1e-10)
+    np.testing.assert_allclose(x, direct, rtol=0, atol=1e-9 * np.abs(direct - start).max())
     assert 0 < ws["cg_iterations"] <= 60  # κ ≤ 1 + b1/b0 = 20: bounded, whatever the mesh size
-    assert _solve_blocks(H, blocks, rhs, {}, maxiter=1) is None  # not converged: the caller factors M
+    # the default tolerance is relative to the step's own residual, not to the positions'
+    inexact: dict = {}
+    y = _solve_blocks(H, blocks, rhs, inexact, start=start)
+    residual = lambda v: np.linalg.norm(M @ v.ravel() - rhs.ravel())  # noqa: E731
+    assert residual(y) <= STEP_RTOL * residual(start)
+    assert inexact["cg_iterations"] < ws["cg_iterations"]
+    assert _solve_blocks(H, blocks, rhs, {}, start=start, rtol=1e-10, maxiter=1) is None  # not converged: the caller factors M
     # its light operators give scipy's CG on plain LinearOperators bit for bit (Table 1's numbers stand)
     lam = np.linalg.eigvalsh(blocks)[:, 0]
     pre = spd_factor((H + sp.diags(lam)).tocsc())
@@ -372,8 +380,9 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
                                   matvec=lambda v: (H @ v.reshape(k, 3) + np.einsum("kij,kj->ki", blocks,
                                                                                     v.reshape(k, 3))).ravel())
     prec = sp.linalg.LinearOperator((3 * k, 3 * k), dtype=float, matvec=lambda r: pre.solve(r.reshape(k, 3)).ravel())
-    plain, info = sp.linalg.cg(op, rhs.ravel(), x0=pre.solve(rhs).ravel(), rtol=1e-10, atol=0.0, maxiter=200, M=prec)
-    assert info == 0 and np.array_equal(x.ravel(), plain)
+    r = rhs - (H @ start + np.einsum("kij,kj->ki", blocks, start))
+    plain, info = sp.linalg.cg(op, r.ravel(), x0=pre.solve(r).ravel(), rtol=1e-10, atol=0.0, maxiter=200, M=prec)
+    assert info == 0 and np.array_equal(x, start + plain.reshape(k, 3))
 
 
 def test_a_screened_out_finish_try_would_have_failed():
