@@ -31,6 +31,11 @@ with it, then the joint polish) with ``--time-limit`` seconds of its own. The st
   field (:func:`perturbed_heights`, at most :data:`PERTURBATION` of the span), the cold start's
   uniform weights.
 
+``--max-iter`` raises IPOPT's iteration limit per load round (the method's 3000 end most runs
+in 10–35 s on vault-pillar, well inside ``--time-limit``: with a higher one the time limit ends
+them); ``--eps`` states the lower weight bound (zero or below: tension allowed, no case is then
+carried by another's scaled weights, and the checker runs with ``--allow-tension``).
+
 Per start: the method's status and IPOPT's last status, IPOPT's iterations, seconds, every case's
 max relative error with loads of the final geometry, the free vertices' mean and max distance to
 the reference [m] and the network's mean and max distance to the reference surface over the
@@ -149,14 +154,14 @@ def reduced_result(full: SolveResult, problem: Problem) -> SolveResult:
                              backend=full.backend, iterations=full.iterations, wall_time=full.wall_time)
 
 
-def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, time_limit: float
-                       ) -> tuple[SolveResult | None, dict[str, Any]]:
+def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, time_limit: float,
+                       eps: float | None = None) -> tuple[SolveResult | None, dict[str, Any]]:
     """The design split into triangles solved under the cases (the staggered method, as
-    ``selfsupport solve --triangulate``), and a start on the quads: its positions and each of
-    ``problem``'s cases' weights on the quad edges (:func:`quad_weights`)."""
+    ``selfsupport solve --triangulate``, lower bound ``eps``), and a start on the quads: its
+    positions and each of ``problem``'s cases' weights on the quad edges (:func:`quad_weights`)."""
     tri = api.triangulated_design(str(path))
     t0 = time.perf_counter()
-    res = StaggeredLinearization().solve(build_problem(tri, load_cases=str(toml)), {"time_limit": time_limit})
+    res = StaggeredLinearization().solve(build_problem(tri, load_cases=str(toml), eps=eps), {"time_limit": time_limit})
     info = {"status": res.status, "max_relative_error": res.max_relative_error,
             "seconds": round(time.perf_counter() - t0, 1)}
     nets = dict(res.case_networks)
@@ -169,7 +174,7 @@ def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, tim
 
 
 def starts(path: Path, toml: Path, full: Problem, problem: Problem, seeds: tuple[int, ...],
-           log: Any = print) -> tuple[list[tuple[str, SolveResult | Network | None, bool]], dict[str, Any]]:
+           eps: float | None = None, log: Any = print) -> tuple[list[tuple[str, SolveResult | Network | None, bool]], dict[str, Any]]:
     """The study's starts ``(label, warm start, nearest_to_start)`` for IPOPT over ``problem``
     (``full`` with its proportional cases left out), and what building them measured."""
     scene = problem.scene
@@ -184,7 +189,7 @@ def starts(path: Path, toml: Path, full: Problem, problem: Problem, seeds: tuple
     info["single"] = {"status": single.status, "max_relative_error": single.max_relative_error,
                       "seconds": round(single.wall_time, 1)}
     log(json.dumps({"single": info["single"]}))
-    tri, info["triangulated"] = triangulated_start(path, toml, scene, problem, TIME_LIMIT)
+    tri, info["triangulated"] = triangulated_start(path, toml, scene, problem, TIME_LIMIT, eps)
     log(json.dumps({"triangulated": info["triangulated"]}))
     V = scene.mesh.vertices
     span = float((V[:, :2].max(axis=0) - V[:, :2].min(axis=0)).max())
@@ -218,8 +223,10 @@ def run_start(full: Problem, problem: Problem, members: dict, start: SolveResult
     return with_members(full, res, members, res.parameters["tol"]) if members else res
 
 
-def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None) -> dict[str, Any]:
-    """One start's measurements (module docstring); the checker runs on a converged network."""
+def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags: tuple[str, ...] = ()
+           ) -> dict[str, Any]:
+    """One start's measurements (module docstring); the checker runs on a converged network
+    (with ``flags``)."""
     raw = [h for h in res.history if h.get("stage") == Simultaneous.backend]
     d = np.linalg.norm(res.network.vertices[scene.free] - scene.mesh.vertices[scene.free], axis=1)
     row: dict[str, Any] = {
@@ -231,7 +238,7 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None) -> dic
         "message": res.message}
     write_network(net, res)
     if res.status == "converged" and checker is not None:
-        errs = checked(net, checker, [])
+        errs = checked(net, checker, list(flags))
         row["checker"] = max(errs.values())
         row["checker_errors"] = errs
         row["stands"] = bool(all(e <= STANDS_TOL for e in errs.values()))
@@ -241,27 +248,32 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None) -> dic
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, time_limit: float,
-          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Every start of one scene at one share: its rows and what building the starts measured."""
+          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None, eps: float | None = None
+          ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Every start of one scene at one share: its rows and what building the starts measured.
+    ``eps``: the lower weight bound [N/m] (``None``: the default; zero or below: tension allowed,
+    the checker run with ``--allow-tension``)."""
     name = path.stem
     v, weight = highest_free_and_weight(path)
     cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
     toml = out / f"{name}-{share:g}.toml"
     toml.write_text(toml_text(cases))
     scene = api.as_scene(str(path))
-    full = build_problem(scene, load_cases=str(toml))
+    full = build_problem(scene, load_cases=str(toml), eps=eps)
     members = proportional_members(full)
     problem = without_members(full, members)
     stamp, rows = run_stamp(), []
-    runs, info = starts(path, toml, full, problem, seeds)
+    runs, info = starts(path, toml, full, problem, seeds, eps)
+    flags = ("--allow-tension",) if eps is not None and eps <= 0 else ()
+    tag = ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
     info.update(cases=cases, ipopt_cases=list(problem.loads.names),
                 proportional={full.loads.names[c]: {"of": full.loads.names[r], "factor": k}
                               for c, (r, k) in members.items()})
     for label, start, nearest in runs:
         res = run_start(full, problem, members, start, nearest, time_limit, max_iter)
-        stem = f"{name}-{share:g}{'' if max_iter is None else f'-it{max_iter}'}-{label.replace(', ', '-').replace(' ', '_')}"
+        stem = f"{name}-{share:g}{tag}-{label.replace(', ', '-').replace(' ', '_')}"
         row = {"scene": name, "point_share": share, "start": label, "start_error": start_error(start),
-               **row_of(res, scene, out / f"{stem}.json", checker), **stamp}
+               **row_of(res, scene, out / f"{stem}.json", checker, flags), **stamp}
         rows.append(row)
         print(json.dumps({k: row[k] for k in row if k != "message"}, default=str), flush=True)
     return rows, info
@@ -277,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time-limit", type=float, default=START_TIME_LIMIT, help="seconds per start")
     ap.add_argument("--max-iter", type=int, default=None,
                     help="IPOPT's iteration limit per load round (default: the method's, 3000)")
+    ap.add_argument("--eps", type=float, default=None,
+                    help="lower weight bound [N/m] (default: the scale-free default; <= 0: tension allowed)")
     ap.add_argument("--seeds", type=int, nargs="*", default=list(SEEDS), help="seeds of the perturbed starts")
     a = ap.parse_args(argv)
     path = a.scenes / f"{a.only}.sss"
@@ -284,14 +298,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
     a.out.mkdir(parents=True, exist_ok=True)
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
-                       a.max_iter)
-    stem = f"stand_search-{a.only}-{a.share:g}" + ("" if a.max_iter is None else f"-it{a.max_iter}")
+                       a.max_iter, a.eps)
+    stem = (f"stand_search-{a.only}-{a.share:g}" + ("" if a.max_iter is None else f"-it{a.max_iter}")
+            + ("" if a.eps is None else f"-eps{a.eps:g}"))
     write_csv(a.out / f"{stem}.csv", rows, COLUMNS)
     (a.out / f"{stem}.json").write_text(json.dumps({"starts": info, "rows": rows}, indent=1, default=str))
     found = [r for r in rows if r.get("stands")]
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
-    it = "" if a.max_iter is None else f" --max-iter {a.max_iter}"
+    it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps {a.eps:g}")
     notes = [f"`python -m studies.stand_search --only {a.only} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
              f"cases {info['cases']}; IPOPT over {info['ipopt_cases']}; proportional: {info['proportional']}",
              f"starts: staggered {info['staggered']}; single case {info['single']}; triangulated {info['triangulated']}",
