@@ -41,7 +41,8 @@ max relative error with loads of the final geometry, the free vertices' mean and
 the reference [m] and the network's mean and max distance to the reference surface over the
 bounding-box diagonal, the least weight against ε and, for a converged network, the independent
 checker's max relative error per case on the written network JSON (its verdict at 1e-8). Writes
-``stand_search.csv`` and ``stand_search.md`` (and the networks) to ``--out``.
+``stand_search-SCENE-SHARE.csv``, ``.md`` and ``.json`` (what building the starts measured; with
+``--max-iter`` / ``--eps`` in the name) and every start's network to ``--out``.
 """
 from __future__ import annotations
 
