@@ -35,6 +35,8 @@ with it, then the joint polish) with ``--time-limit`` seconds of its own. The st
 in 10–35 s on vault-pillar, well inside ``--time-limit``: with a higher one the time limit ends
 them); ``--eps`` states the lower weight bound (zero or below: tension allowed, no case is then
 carried by another's scaled weights, and the checker runs with ``--allow-tension``).
+``--control`` runs the same starts on a design that is known to stand under the cases
+(:func:`write_control`): how far IPOPT's verdicts from these starts can be trusted.
 
 Per start: the method's status and IPOPT's last status, IPOPT's iterations, seconds, every case's
 max relative error with loads of the final geometry, the free vertices' mean and max distance to
@@ -57,7 +59,9 @@ import numpy as np
 
 from formulations import LoadCases, Problem
 from selfsupport import api
+from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.scene import Scene
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import COLD_START_FACTOR, Simultaneous
@@ -121,6 +125,23 @@ def quad_weights(split_edges: np.ndarray, split_weights: np.ndarray, edges: np.n
     if missing:
         raise ValueError(f"{len(missing)} edge(s) are not edges of the split mesh, e.g. {missing[0]}")
     return np.asarray(split_weights, float)[..., [index[p] for p in pairs]]
+
+
+def write_control(folder: Path, n: int = 10, span: float = 3.0) -> Path:
+    """The control: the tests' free-edged quad vault (``tests/test_load_continuation.py``: an
+    ``n`` × ``n`` grid over a paraboloid of rise 1 m, the paper's vault-pillar layout of
+    :func:`tests.conftest.vault_pillar_layout`), which the staggered iteration carries under the
+    self-weight and a 5% point load at its highest free vertex, written as ``.sss`` to ``folder``."""
+    from selfsupport.io.sss import write_scene_sss
+    from tests.conftest import vault_pillar_layout  # (the layout stated once, with the tests)
+
+    t = np.linspace(-0.5, 0.5, n) * span
+    x, y = np.meshgrid(t, t)
+    V = np.column_stack([x.ravel(), y.ravel(), 1.0 - 0.15 * (x ** 2 + y ** 2).ravel()])
+    sup, quads = vault_pillar_layout(n)
+    path = folder / "free-edged-quad-vault.sss"
+    write_scene_sss(path, Scene(PolyMesh.from_faces(V, quads), sup, name="free-edged quad vault"))
+    return path
 
 
 def perturbed_heights(vertices: np.ndarray, free: np.ndarray, amplitude: float, seed: int) -> np.ndarray:
@@ -293,11 +314,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eps", type=float, default=None,
                     help="lower weight bound [N/m] (default: the scale-free default; <= 0: tension allowed)")
     ap.add_argument("--seeds", type=int, nargs="*", default=list(SEEDS), help="seeds of the perturbed starts")
+    ap.add_argument("--control", action="store_true",
+                    help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
-    path = a.scenes / f"{a.only}.sss"
+    a.out.mkdir(parents=True, exist_ok=True)
+    if a.control:
+        path = write_control(a.out)
+        a.only = path.stem
+    else:
+        path = a.scenes / f"{a.only}.sss"
     if not path.is_file():
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
-    a.out.mkdir(parents=True, exist_ok=True)
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
                        a.max_iter, a.eps)
     stem = (f"stand_search-{a.only}-{a.share:g}" + ("" if a.max_iter is None else f"-it{a.max_iter}")
@@ -308,7 +335,8 @@ def main(argv: list[str] | None = None) -> int:
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
     it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps {a.eps:g}")
-    notes = [f"`python -m studies.stand_search --only {a.only} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
+    which = "--control" if a.control else f"--only {a.only}"
+    notes = [f"`python -m studies.stand_search {which} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
              f"cases {info['cases']}; IPOPT over {info['ipopt_cases']}; proportional: {info['proportional']}",
              f"starts: staggered {info['staggered']}; single case {info['single']}; triangulated {info['triangulated']}",
              verdict]
