@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from selfsupport import api
 from selfsupport.core.evidence import residuals, stress_sums
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.shapes import make_shape
 from selfsupport.core.triangulation import split_faces
-from studies.stand_search import perturbed_heights, quad_weights
+from studies.stand_search import perturbed_heights, quad_weights, write_control
 from tests.conftest import vault_pillar_layout
 
 
@@ -71,3 +72,11 @@ def test_perturbed_heights_move_only_the_free_heights_by_the_amplitude_and_repea
     assert np.isclose(np.abs(P[free, 2] - V[free, 2]).max(), 0.05, rtol=1e-12)
     assert np.array_equal(P, perturbed_heights(V, free, 0.05, seed=2))
     assert not np.allclose(P, perturbed_heights(V, free, 0.05, seed=3))
+
+
+def test_the_control_is_the_free_edged_quad_vault_with_as_many_edges_as_horizontal_equations(tmp_path):
+    scene = api.as_scene(str(write_control(tmp_path)))
+    assert scene.mesh.n_vertices == 100 and np.count_nonzero(scene.free) == 84
+    assert np.count_nonzero(scene.active_edges) == 2 * 84 == 168
+    sup, _ = vault_pillar_layout(10)
+    assert np.array_equal(scene.supports, sup)
