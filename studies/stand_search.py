@@ -11,7 +11,8 @@ on all faces; a point load of ``--share`` of the self-weight at the highest free
 the empty case's loads times a factor at any geometry, so, as the solve does
 (:func:`selfsupport.methods.staggered.cases.proportional_members`), IPOPT solves the cases that are
 not proportional (empty and point) and the snow case's network is the empty one's weights times
-that factor (:func:`~selfsupport.methods.staggered.cases.with_members`), re-measured at the result.
+that factor (:func:`~selfsupport.methods.staggered.cases.with_members`), re-measured at the result
+(``--all-cases``: IPOPT over all three, snow's weights its own unknowns).
 
 Each start is one run of the project's simultaneous method (:class:`selfsupport.methods.simultaneous.Simultaneous`,
 its defaults: the default compression bound ε, no upper bound, IPOPT's ``tol`` 1e-9 and at most
@@ -273,11 +274,11 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags:
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, time_limit: float,
-          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None, eps: float | None = None
-          ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None, eps: float | None = None,
+          all_cases: bool = False) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Every start of one scene at one share: its rows and what building the starts measured.
     ``eps``: the lower weight bound [N/m] (``None``: the default; zero or below: tension allowed,
-    the checker run with ``--allow-tension``)."""
+    the checker run with ``--allow-tension``); ``all_cases``: IPOPT over the proportional cases too."""
     name = path.stem
     v, weight = highest_free_and_weight(path)
     cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
@@ -285,12 +286,13 @@ def study(path: Path, out: Path, checker: Path | None, share: float, time_limit:
     toml.write_text(toml_text(cases))
     scene = api.as_scene(str(path))
     full = build_problem(scene, load_cases=str(toml), eps=eps)
-    members = proportional_members(full)
+    members = {} if all_cases else proportional_members(full)
     problem = without_members(full, members)
     stamp, rows = run_stamp(), []
     runs, info = starts(path, toml, full, problem, seeds, eps)
     flags = ("--allow-tension",) if eps is not None and eps <= 0 else ()
-    tag = ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
+    tag = ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}") + \
+        ("-all" if all_cases else "")
     info.update(cases=cases, ipopt_cases=list(problem.loads.names),
                 proportional={full.loads.names[c]: {"of": full.loads.names[r], "factor": k}
                               for c, (r, k) in members.items()})
@@ -317,6 +319,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eps", type=float, default=None,
                     help="lower weight bound [N/m] (default: the scale-free default; <= 0: tension allowed)")
     ap.add_argument("--seeds", type=int, nargs="*", default=list(SEEDS), help="seeds of the perturbed starts")
+    ap.add_argument("--all-cases", action="store_true",
+                    help="IPOPT over every case, the proportional ones (snow) too")
     ap.add_argument("--control", action="store_true",
                     help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
@@ -329,15 +333,16 @@ def main(argv: list[str] | None = None) -> int:
     if not path.is_file():
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
-                       a.max_iter, a.eps)
+                       a.max_iter, a.eps, a.all_cases)
     stem = (f"stand_search-{a.only}-{a.share:g}" + ("" if a.max_iter is None else f"-it{a.max_iter}")
-            + ("" if a.eps is None else f"-eps{a.eps:g}"))
+            + ("" if a.eps is None else f"-eps{a.eps:g}") + ("-all" if a.all_cases else ""))
     write_csv(a.out / f"{stem}.csv", rows, COLUMNS)
     (a.out / f"{stem}.json").write_text(json.dumps({"starts": info, "rows": rows}, indent=1, default=str))
     found = [r for r in rows if r.get("stands")]
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
-    it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps {a.eps:g}")
+    it = (("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps {a.eps:g}")
+          + (" --all-cases" if a.all_cases else ""))
     which = "--control" if a.control else f"--only {a.only}"
     notes = [f"`python -m studies.stand_search {which} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
              f"cases {info['cases']}; IPOPT over {info['ipopt_cases']}; proportional: {info['proportional']}",
