@@ -169,15 +169,6 @@ def cold_weights(problem: Problem, vertices: np.ndarray) -> np.ndarray:
     return np.full(problem.scene.mesh.n_edges, float(sc.weight_back(COLD_START_FACTOR * form.weight_scale)))
 
 
-def reduced_result(full: SolveResult, problem: Problem) -> SolveResult:
-    """A result over ``problem``'s cases (by name) from one over more: its networks of those cases
-    (the start of a solve of ``problem``)."""
-    nets = dict(full.case_networks)
-    cases = tuple((name, nets[name]) for name in problem.loads.names)
-    return SolveResult.build(cases[0][1], cases=cases, status=full.status, method=full.method,
-                             backend=full.backend, iterations=full.iterations, wall_time=full.wall_time)
-
-
 def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, time_limit: float,
                        eps: float | None = None) -> tuple[SolveResult | None, dict[str, Any]]:
     """The design split into triangles solved under the cases (the staggered method, as
