@@ -34,8 +34,9 @@ with it, then the joint polish) with ``--time-limit`` seconds of its own. The st
 
 ``--max-iter`` raises IPOPT's iteration limit per load round (the method's 3000 end most runs
 in 10–35 s on vault-pillar, well inside ``--time-limit``: with a higher one the time limit ends
-them); ``--eps`` states the lower weight bound (zero or below: tension allowed, no case is then
-carried by another's scaled weights, and the checker runs with ``--allow-tension``).
+them); ``--eps`` states the lower weight bound (zero or below, e.g. ``--eps=-1e12``: tension
+allowed; no case is then carried by another's scaled weights, and the checker runs with
+``--allow-tension``).
 ``--control`` runs the same starts on a design that is known to stand under the cases
 (:func:`write_control`): how far IPOPT's verdicts from these starts can be trusted.
 
@@ -332,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     found = [r for r in rows if r.get("stands")]
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
-    it = (("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps {a.eps:g}")
+    it = (("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps={a.eps:g}")
           + (" --all-cases" if a.all_cases else ""))
     which = "--control" if a.control else f"--only {a.only}"
     notes = [f"`python -m studies.stand_search {which} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
