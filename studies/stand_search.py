@@ -67,10 +67,11 @@ from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
+from selfsupport.io.sss import write_scene_sss
 from selfsupport.methods.simultaneous import COLD_START_FACTOR, Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.staggered.cases import FINISH_SHARE, proportional_members, with_members, without_members
-from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, write_csv, write_markdown
+from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, vault_pillar_layout, write_csv, write_markdown
 from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, toml_text
 
 #: Largest height change of a perturbed start, relative to the span (the bounding box's largest
@@ -133,11 +134,8 @@ def quad_weights(split_edges: np.ndarray, split_weights: np.ndarray, edges: np.n
 def write_control(folder: Path, n: int = 10, span: float = 3.0) -> Path:
     """The control: the tests' free-edged quad vault (``tests/test_load_continuation.py``: an
     ``n`` × ``n`` grid over a paraboloid of rise 1 m, the paper's vault-pillar layout of
-    :func:`tests.conftest.vault_pillar_layout`), which the staggered iteration carries under the
+    :func:`studies.common.vault_pillar_layout`), which the staggered iteration carries under the
     self-weight and a 5% point load at its highest free vertex, written as ``.sss`` to ``folder``."""
-    from selfsupport.io.sss import write_scene_sss
-    from tests.conftest import vault_pillar_layout  # (the layout stated once, with the tests)
-
     t = np.linspace(-0.5, 0.5, n) * span
     x, y = np.meshgrid(t, t)
     V = np.column_stack([x.ravel(), y.ravel(), 1.0 - 0.15 * (x ** 2 + y ** 2).ravel()])

@@ -178,20 +178,6 @@ def document_floors(d: dict) -> np.ndarray:
         return np.finfo(float).eps * np.linalg.norm(S[~sup], axis=1) / np.abs(L[~sup])
 
 
-def vault_pillar_layout(n: int) -> tuple[np.ndarray, list[list[int]]]:
-    """The paper's vault-pillar layout on an n × n grid of vertices (row-major): supports on three
-    vertices at each corner and a 2 × 2 pillar in the middle, and the grid's quads. At n = 10, 168
-    edges for 84 free vertices: as many edges as horizontal equations."""
-    sup = np.zeros(n * n, bool)
-    for i, j in ((0, 0), (0, n - 1), (n - 1, 0), (n - 1, n - 1)):
-        di, dj = (1 if i == 0 else -1), (1 if j == 0 else -1)
-        sup[[j * n + i, j * n + i + di, (j + dj) * n + i]] = True
-    c = n // 2
-    sup[[(c - 1) * n + c - 1, (c - 1) * n + c, c * n + c - 1, c * n + c]] = True
-    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i] for j in range(n - 1) for i in range(n - 1)]
-    return sup, quads
-
-
 def face_area(V: Any, faces: list[list[int]]) -> float:
     """Total area with every face triangulated as a fan around its centroid (as the shared checker
     does: non-planar quads have no other canonical area)."""

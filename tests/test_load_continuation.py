@@ -27,7 +27,8 @@ from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptio
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
 from selfsupport.methods.staggered.run import _Run
 from studies import load_cases as study
-from tests.conftest import independent_check, vault_pillar_layout
+from studies.common import vault_pillar_layout
+from tests.conftest import independent_check
 
 SW = SelfWeight(density=2000.0, thickness=0.1)
 

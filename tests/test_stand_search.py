@@ -10,8 +10,8 @@ from selfsupport.core.evidence import residuals, stress_sums
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.shapes import make_shape
 from selfsupport.core.triangulation import split_faces
+from studies.common import vault_pillar_layout
 from studies.stand_search import perturbed_heights, quad_weights, write_control
-from tests.conftest import vault_pillar_layout
 
 
 def _split(mesh: PolyMesh) -> tuple[PolyMesh, np.ndarray]:

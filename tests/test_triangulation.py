@@ -21,7 +21,8 @@ from selfsupport.core.subdivision import subdivide_scene
 from selfsupport.core.triangulation import split_faces, split_scene
 from selfsupport.io import read_scene, write_mesh
 from selfsupport.io.sss import write_scene_sss
-from tests.conftest import independent_check, vault_pillar_layout
+from studies.common import vault_pillar_layout
+from tests.conftest import independent_check
 from tests.test_cli import assert_one_line_error
 
 
