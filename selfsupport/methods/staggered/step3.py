@@ -260,8 +260,9 @@ def _solve_blocks(H: sp.csr_matrix, blocks: np.ndarray, rhs: np.ndarray, ws: dic
     preconditioner ``(H + diag(λ_min(B_i)))⁻¹`` per coordinate (the isotropic part of each block;
     ``⊕ B_i − λ_min ⊗ I`` is PSD, so the preconditioned system's eigenvalues are ≥ 1), solved for
     ``x − start`` to ``rtol`` of its own residual (``start``: the current positions, so the
-    tolerance is relative to the step, not to the coordinates); None if CG does not converge. Raises :class:`~selfsupport.methods.deadline.DeadlineReached` when the
-    next CG iteration would end past ``deadline`` (a partial step is no step)."""
+    tolerance is relative to the step, not to the coordinates); None if CG does not converge.
+    Raises :class:`~selfsupport.methods.deadline.DeadlineReached` when the next CG iteration would
+    end past ``deadline`` (a partial step is no step)."""
     k = H.shape[0]
     lam = np.linalg.eigvalsh(blocks)[:, 0]
     pre = ws["pre"] = spd_factor((H + sp.diags(lam)).tocsc(), reuse=ws.get("pre"))
