@@ -81,7 +81,7 @@ PERTURBATION = 0.03
 SEEDS = (0, 1, 2, 3, 4)
 #: Per-start time limit [s] (IPOPT's wall time over all its load rounds, and the polish).
 START_TIME_LIMIT = 90.0
-#: The verdict's threshold on every case's max relative error (the issue's, the checker's ``--tol``).
+#: The verdict's threshold on every case's max relative error (the independent checker's ``--tol``).
 STANDS_TOL = 1e-8
 
 COLUMNS = (Column("scene", "scene"), Column("point_share", "point share", "{:.0%}"), Column("start", "start"),
@@ -263,6 +263,12 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags:
     return row
 
 
+def run_tag(max_iter: int | None, eps: float | None, all_cases: bool) -> str:
+    """The file names' tag of a run's options beyond the defaults."""
+    return (("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
+            + ("-all" if all_cases else ""))
+
+
 def study(path: Path, out: Path, checker: Path | None, share: float, time_limit: float,
           seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None, eps: float | None = None,
           all_cases: bool = False) -> tuple[list[dict[str, Any]], dict[str, Any]]:
@@ -281,8 +287,7 @@ def study(path: Path, out: Path, checker: Path | None, share: float, time_limit:
     stamp, rows = run_stamp(), []
     runs, info = starts(path, toml, full, problem, seeds, eps)
     flags = ("--allow-tension",) if eps is not None and eps <= 0 else ()
-    tag = ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}") + \
-        ("-all" if all_cases else "")
+    tag = run_tag(max_iter, eps, all_cases)
     info.update(cases=cases, ipopt_cases=list(problem.loads.names),
                 proportional={full.loads.names[c]: {"of": full.loads.names[r], "factor": k}
                               for c, (r, k) in members.items()})
@@ -324,8 +329,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
                        a.max_iter, a.eps, a.all_cases)
-    stem = (f"stand_search-{a.only}-{a.share:g}" + ("" if a.max_iter is None else f"-it{a.max_iter}")
-            + ("" if a.eps is None else f"-eps{a.eps:g}") + ("-all" if a.all_cases else ""))
+    stem = f"stand_search-{a.only}-{a.share:g}" + run_tag(a.max_iter, a.eps, a.all_cases)
     write_csv(a.out / f"{stem}.csv", rows, COLUMNS)
     (a.out / f"{stem}.json").write_text(json.dumps({"starts": info, "rows": rows}, indent=1, default=str))
     found = [r for r in rows if r.get("stands")]
