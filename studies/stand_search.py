@@ -8,11 +8,10 @@ them anywhere? IPOPT over every case jointly from several starts.
 
 The cases are those of :mod:`studies.load_cases` (its functions build them): empty; snow 80 kg/m²
 on all faces; a point load of ``--share`` of the self-weight at the highest free vertex. Snow is
-the empty case's loads times a factor at any geometry, so, as the solve does
-(:func:`selfsupport.methods.staggered.cases.proportional_members`), IPOPT solves the cases that are
+the empty case's loads times a factor at any geometry, so, as every method does
+(:func:`selfsupport.methods.base.proportional_members`), IPOPT solves the cases that are
 not proportional (empty and point) and the snow case's network is the empty one's weights times
-that factor (:func:`~selfsupport.methods.staggered.cases.with_members`), re-measured at the result
-(``--all-cases``: IPOPT over all three, snow's weights its own unknowns).
+that factor (:func:`~selfsupport.methods.base.with_members`), re-measured at the result.
 
 Each start is one run of the project's simultaneous method (:class:`selfsupport.methods.simultaneous.Simultaneous`,
 its defaults: the default compression bound ε, no upper bound, IPOPT's ``tol`` 1e-9 and at most
@@ -68,9 +67,10 @@ from selfsupport.core.scene import Scene
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.io.sss import write_scene_sss
+from selfsupport.methods.base import proportional_members
 from selfsupport.methods.simultaneous import COLD_START_FACTOR, Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
-from selfsupport.methods.staggered.cases import FINISH_SHARE, proportional_members, with_members, without_members
+from selfsupport.methods.staggered.cases import FINISH_SHARE
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, vault_pillar_layout, write_csv, write_markdown
 from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, toml_text
 
@@ -187,10 +187,10 @@ def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, tim
                              iterations=0, wall_time=0.0), info
 
 
-def starts(path: Path, toml: Path, full: Problem, problem: Problem, seeds: tuple[int, ...],
-           eps: float | None = None, log: Any = print) -> tuple[list[tuple[str, SolveResult | Network | None, bool]], dict[str, Any]]:
-    """The study's starts ``(label, warm start, nearest_to_start)`` for IPOPT over ``problem``
-    (``full`` with its proportional cases left out), and what building them measured."""
+def starts(path: Path, toml: Path, problem: Problem, seeds: tuple[int, ...], eps: float | None = None,
+           log: Any = print) -> tuple[list[tuple[str, SolveResult | Network | None, bool]], dict[str, Any]]:
+    """The study's starts ``(label, warm start, nearest_to_start)`` for IPOPT over ``problem``,
+    and what building them measured."""
     scene = problem.scene
     info: dict[str, Any] = {}
     stag_limit = TIME_LIMIT * (1 - FINISH_SHARE)
@@ -226,15 +226,13 @@ def start_error(start: SolveResult | Network | None) -> float | None:
     return None
 
 
-def run_start(full: Problem, problem: Problem, members: dict, start: SolveResult | Network | None, nearest: bool,
-              time_limit: float, max_iter: int | None = None) -> SolveResult:
+def run_start(problem: Problem, start: SolveResult | Network | None, nearest: bool, time_limit: float,
+              max_iter: int | None = None) -> SolveResult:
     """IPOPT over ``problem``'s cases from ``start`` (the simultaneous method; ``max_iter``: its
-    iteration limit per load round, ``None`` its default), with ``full``'s proportional cases
-    (``members``) added at its geometry."""
+    iteration limit per load round, ``None`` its default)."""
     opts = {"warm_start": start, "time_limit": time_limit, "nearest_to_start": nearest,
             **({} if max_iter is None else {"max_iter": max_iter})}
-    res = Simultaneous().solve(problem, opts)
-    return with_members(full, res, members, res.parameters["tol"]) if members else res
+    return Simultaneous().solve(problem, opts)
 
 
 def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags: tuple[str, ...] = ()
@@ -263,36 +261,33 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags:
     return row
 
 
-def run_tag(max_iter: int | None, eps: float | None, all_cases: bool) -> str:
+def run_tag(max_iter: int | None, eps: float | None) -> str:
     """The file names' tag of a run's options beyond the defaults."""
-    return (("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
-            + ("-all" if all_cases else ""))
+    return ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, time_limit: float,
-          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None, eps: float | None = None,
-          all_cases: bool = False) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+          seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None,
+          eps: float | None = None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Every start of one scene at one share: its rows and what building the starts measured.
     ``eps``: the lower weight bound [N/m] (``None``: the default; zero or below: tension allowed,
-    the checker run with ``--allow-tension``); ``all_cases``: IPOPT over the proportional cases too."""
+    the checker run with ``--allow-tension``)."""
     name = path.stem
     v, weight = highest_free_and_weight(path)
     cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
     toml = out / f"{name}-{share:g}.toml"
     toml.write_text(toml_text(cases))
     scene = api.as_scene(str(path))
-    full = build_problem(scene, load_cases=str(toml), eps=eps)
-    members = {} if all_cases else proportional_members(full)
-    problem = without_members(full, members)
+    problem = build_problem(scene, load_cases=str(toml), eps=eps)
+    members, names = proportional_members(problem), problem.loads.names
     stamp, rows = run_stamp(), []
-    runs, info = starts(path, toml, full, problem, seeds, eps)
+    runs, info = starts(path, toml, problem, seeds, eps)
     flags = ("--allow-tension",) if eps is not None and eps <= 0 else ()
-    tag = run_tag(max_iter, eps, all_cases)
-    info.update(cases=cases, ipopt_cases=list(problem.loads.names),
-                proportional={full.loads.names[c]: {"of": full.loads.names[r], "factor": k}
-                              for c, (r, k) in members.items()})
+    tag = run_tag(max_iter, eps)
+    info.update(cases=cases, ipopt_cases=[n for c, n in enumerate(names) if c not in members],
+                proportional={names[c]: {"of": names[r], "factor": k} for c, (r, k) in members.items()})
     for label, start, nearest in runs:
-        res = run_start(full, problem, members, start, nearest, time_limit, max_iter)
+        res = run_start(problem, start, nearest, time_limit, max_iter)
         stem = f"{name}-{share:g}{tag}-{label.replace(', ', '-').replace(' ', '_')}"
         row = {"scene": name, "point_share": share, "start": label, "start_error": start_error(start),
                **row_of(res, scene, out / f"{stem}.json", checker, flags), **stamp}
@@ -314,8 +309,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eps", type=float, default=None,
                     help="lower weight bound [N/m] (default: the scale-free default; <= 0: tension allowed)")
     ap.add_argument("--seeds", type=int, nargs="*", default=list(SEEDS), help="seeds of the perturbed starts")
-    ap.add_argument("--all-cases", action="store_true",
-                    help="IPOPT over every case, the proportional ones (snow) too")
     ap.add_argument("--control", action="store_true",
                     help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
@@ -328,15 +321,14 @@ def main(argv: list[str] | None = None) -> int:
     if not path.is_file():
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
-                       a.max_iter, a.eps, a.all_cases)
-    stem = f"stand_search-{a.only}-{a.share:g}" + run_tag(a.max_iter, a.eps, a.all_cases)
+                       a.max_iter, a.eps)
+    stem = f"stand_search-{a.only}-{a.share:g}" + run_tag(a.max_iter, a.eps)
     write_csv(a.out / f"{stem}.csv", rows, COLUMNS)
     (a.out / f"{stem}.json").write_text(json.dumps({"starts": info, "rows": rows}, indent=1, default=str))
     found = [r for r in rows if r.get("stands")]
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
-    it = (("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps={a.eps:g}")
-          + (" --all-cases" if a.all_cases else ""))
+    it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps={a.eps:g}")
     which = "--control" if a.control else f"--only {a.only}"
     notes = [f"`python -m studies.stand_search {which} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
              f"cases {info['cases']}; IPOPT over {info['ipopt_cases']}; proportional: {info['proportional']}",

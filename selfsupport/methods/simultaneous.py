@@ -14,6 +14,10 @@ and solved by ``ca.nlpsol`` (IPOPT with MUMPS, adaptive μ) in the problem's sca
 of the first case). Constraint rows are divided by ``|L_c,i|``, so IPOPT's ``tol`` bounds the
 paper's relative error directly. The hull is hard here: its penalty term, which
 :meth:`~formulations.Problem.terms` appends for penalty methods, is left out of the objective.
+A case that another carries with its weights times a factor (snow on the self-weight:
+:func:`~selfsupport.methods.base.proportional_members`) is left out of the NLP and added to the
+result with those scaled weights: it adds no condition, and left in, it made three cases on a
+quad mesh a square system, whose rounds IPOPT ends only at an acceptable level.
 
 Loads depend on the geometry (self-weight ∝ area). They are held fixed during one IPOPT run;
 then every case's loads are re-estimated from the result (Anderson-accelerated) and the problem
@@ -71,8 +75,11 @@ from selfsupport.methods.base import (
     cases_max_error,
     load_cases_note,
     planarity_report,
+    proportional_members,
     short_of_tol,
     term_values,
+    with_members,
+    without_members,
 )
 from selfsupport.methods.deadline import ipopt_stop_callback, out_of_time
 from selfsupport.methods.polish import HULL_ACTIVE_REL, JOINT_POLISH_TOL, case_load_jacobians, polish_joint
@@ -390,6 +397,13 @@ class Simultaneous:
         problem = as_problem(problem, loads, eps=eps, w_max=w_max, objective=objective, constraints=constraints)
         validate_problem(problem)
         self._check_problem(problem)
+        members = proportional_members(problem)
+        if members:  # (a case another carries with scaled weights: solved without it, then added)
+            kept = [c for c in range(len(problem.loads)) if c not in members]
+            inner = self.run(without_members(problem, members),
+                             dataclasses.replace(opts, warm_start=_kept_cases(opts.warm_start, kept)),
+                             progress=progress, deadline=deadline)
+            return SimultaneousRun(with_members(problem, inner.result, members, opts.tol), inner.answer)
         if self.continuation:
             return self._continue(problem, opts, deadline, progress, t_start)
         st = self._start(problem, opts, deadline, progress)
@@ -785,6 +799,15 @@ def _start_vertices(scene: Scene, warm_start: Network | SolveResult | None) -> n
                          f"the scene {n} / {scene.mesh.n_edges}; warm-start only from a network on the same mesh")
     V[scene.free] = net.vertices[scene.free]
     return V
+
+
+def _kept_cases(warm_start: Any, kept: list[int]) -> Any:
+    """A warm start for the problem without its proportional cases: a result with every case's
+    network keeps those of the ``kept`` cases (the first among them); anything else as it is."""
+    if not isinstance(warm_start, SolveResult) or len(warm_start.cases) <= max(kept, default=0):
+        return warm_start
+    nets = tuple(warm_start.cases[c] for c in kept)
+    return dataclasses.replace(warm_start, network=nets[0][1], cases=nets if len(nets) > 1 else ())
 
 
 def _start_weights(warm_start: Network | SolveResult, scene: Scene, n_cases: int, sc: Scaling) -> np.ndarray:

@@ -31,7 +31,7 @@ share of the time (:data:`SHARE`), and the rest is the iteration's.
 
 A case whose loads are another's times a factor ``k ≥ 1`` (snow on the self-weight) is left out
 of all this and added at the end with that case's weights times ``k``
-(:func:`proportional_members`, :func:`with_members`): it adds no condition on the geometry, but
+(:func:`~selfsupport.methods.base.proportional_members`, :func:`~selfsupport.methods.base.with_members`): it adds no condition on the geometry, but
 left in, it adds equations the iteration must fit (on a quad mesh, three such cases make the
 count square).
 
@@ -97,7 +97,6 @@ from formulations.equilibrium import Topology, load_vector, position_blocks, res
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods import find_method, method_class
-from selfsupport.methods.base import PROPORTIONAL_RTOL, cases_in_equilibrium
 from selfsupport.methods.deadline import out_of_time, remaining
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, max_rel_error, min_norm_step
 from selfsupport.methods.staggered.conclude import conclude, final_polish, refinement_steps
@@ -849,67 +848,3 @@ def carry_note(carry: dict[str, dict[str, Any]]) -> str:
             "iteration's reach, block it")
 
 
-def proportional_members(problem: Problem) -> dict[int, tuple[int, float]]:
-    """The cases another (earlier) case carries with its weights times a factor: ``{c: (r, k)}``
-    where case ``c``'s loads at the reference are ``k ≥ 1`` times case ``r``'s (within
-    :data:`~selfsupport.methods.base.PROPORTIONAL_RTOL`; snow on the self-weight, a heavier
-    material). Weights ``k w_r`` balance ``k L_r`` at the same geometry exactly, so such a case
-    adds equations and unknowns to the joint problem but no condition: left in, it makes the
-    count square on a quad mesh (:func:`joint_freedom`), and the iteration must fit it as if it
-    could pull the geometry elsewhere. Only where the bounds hold the scaled weights too: a
-    positive lower bound (``k w_r ≥ w_r ≥ ε``) and no upper one; ``k ≥ 1`` for the same reason."""
-    b = problem.bounds
-    lower_ok = b.lower is None or bool(np.all(np.asarray(b.lower, float)[~np.isnan(np.asarray(b.lower, float))] > 0))
-    upper_ok = b.upper is None or bool(np.all(~np.isfinite(np.asarray(b.upper, float))))
-    if not (lower_ok and upper_ok):
-        return {}
-    scene = problem.scene
-    L = problem.loads.nodal(scene.mesh, scene.mesh.vertices)[:, ~scene.supports]
-    out: dict[int, tuple[int, float]] = {}
-    for c in range(1, len(L)):
-        for r in range(c):
-            if r in out:
-                continue
-            k = float(L[c] @ L[r]) / max(float(L[r] @ L[r]), 1e-300)
-            if k >= 1.0 and np.abs(L[c] - k * L[r]).max() <= PROPORTIONAL_RTOL * np.abs(L[c]).max():
-                out[c] = (r, k)
-                break
-    return out
-
-
-def without_members(problem: Problem, members: dict[int, tuple[int, float]]) -> Problem:
-    """``problem`` with the cases of :func:`proportional_members` left out (the first case stays:
-    it is never a member, and it sets the default bounds and the scaling)."""
-    kept = tuple(case for c, case in enumerate(problem.loads.cases) if c not in members)
-    return replace(problem, loads=LoadCases(kept))
-
-
-def with_members(problem: Problem, result: SolveResult, members: dict[int, tuple[int, float]],
-                 tol: float) -> SolveResult:
-    """The result of the problem without its members (:func:`without_members`) as a result of
-    ``problem``: each member's network at the same geometry, its loads there and its case's
-    weights times the factor of its loads over that case's there. Every case's evidence is its
-    own network's; a result that was "converged" and has a member outside ``tol`` is "stalled"."""
-    kept = [c for c in range(len(problem.loads)) if c not in members]
-    solved = dict(zip(kept, (net for _, net in result.case_networks)))
-    nets = []
-    free = ~problem.scene.supports
-    for c, (name, model) in enumerate(problem.loads.cases):
-        if c in solved:
-            nets.append((name, solved[c]))
-            continue
-        rep = solved[members[c][0]]
-        L = model.nodal(rep.mesh, rep.vertices)
-        k = float(L[free] @ rep.loads[free]) / float(rep.loads[free] @ rep.loads[free])
-        nets.append((name, dataclasses.replace(rep, weights=k * rep.weights, loads=L)))
-    names = problem.loads.names
-    note = "; ".join(f"case {names[c]!r} is case {names[r]!r} times {k:.6g} (its weights scaled)"
-                     for c, (r, k) in members.items())
-    status, message = result.status, f"{result.message}; {note}" if result.message else note
-    if status == "converged" and not cases_in_equilibrium(nets, tol):
-        status, message = "stalled", message + "; a scaled case is not in equilibrium at the result's geometry"
-    return dataclasses.replace(result, cases=tuple(nets), status=status, message=message,
-                               max_relative_error=max(n.max_relative_error() for _, n in nets),
-                               min_weight=min(n.min_weight() for _, n in nets),
-                               parameters={**result.parameters, "problem": problem.describe(), "proportional_cases": {
-                                   names[c]: {"of": names[r], "factor": k} for c, (r, k) in members.items()}})

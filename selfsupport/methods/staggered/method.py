@@ -12,7 +12,14 @@ from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.methods import METHODS
-from selfsupport.methods.base import as_problem, cases_proportional, loads_or_options
+from selfsupport.methods.base import (
+    as_problem,
+    cases_proportional,
+    loads_or_options,
+    proportional_members,
+    with_members,
+    without_members,
+)
 from selfsupport.methods.deadline import out_of_time
 from selfsupport.methods.staggered.cases import (
     FINISH_SHARE,
@@ -24,9 +31,6 @@ from selfsupport.methods.staggered.cases import (
     fixed_plan,
     fixed_plan_note,
     ipopt_finish,
-    proportional_members,
-    with_members,
-    without_members,
 )
 from selfsupport.methods.staggered.options import StaggeredOptions, _options
 from selfsupport.methods.staggered.run import _Run
