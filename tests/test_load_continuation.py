@@ -22,7 +22,7 @@ from selfsupport.io.problem import load_spec
 from selfsupport.methods.base import proportional_members
 from selfsupport.methods.deadline import remaining
 from selfsupport.methods.memory import GIB, estimate_solve_bytes
-from selfsupport.methods.simultaneous import Simultaneous, _kept_cases
+from selfsupport.methods.simultaneous import Simultaneous, kept_cases
 from selfsupport.methods.solve import solve
 from selfsupport.methods.staggered import StaggeredLinearization, StaggeredOptions, cases
 from selfsupport.methods.staggered.cases import BLOCKED_RESIDUAL, continuation
@@ -359,7 +359,7 @@ def test_ipopt_over_three_cases_carries_the_proportional_one_by_scaled_weights()
         report = independent_check(net, tol=1e-9)
         assert report.ok, (name, report.stdout)
     # a warm start with every case's network gives the joint problem those of the cases it keeps
-    kept = _kept_cases(res, [0, 2])
+    kept = kept_cases(res, [0, 2])
     assert [n for n, _ in kept.case_networks] == ["empty", "point"] and kept.network is nets["empty"]
 
 

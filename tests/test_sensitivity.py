@@ -99,6 +99,31 @@ def test_matches_finite_differences_of_re_solves(regularised, parameter):
     np.testing.assert_array_equal(s.d_vertices[SCENE.supports], 0.0)
 
 
+def test_a_case_carried_by_scaled_weights_matches_finite_differences(regularised):
+    """Snow on the self-weight is the empty case times k = 1 + 80 / (0.1 ρ) at any geometry: the
+    simultaneous method solves without it and adds k w, so its derivative is k dw + (dk/dρ) w
+    (dk/dρ ≠ 0: ρ is the self-weight's, not the snow's), against central differences of re-solves."""
+    def make(rho: float) -> Problem:
+        sw = SelfWeight(density=rho, thickness=0.1)
+        return Problem.build(SCENE, {"empty": sw, "snow": sw + SelfWeight(density=80.0, thickness=1.0)})
+
+    theta, h = 2000.0, 2.0
+    base = anchored_run(make(theta))
+    assert base.result.status == "converged" and "snow" in base.result.parameters["proportional_cases"]
+    s = sensitivity(base, "density", problem=make(theta))
+    assert s.case_names == ("empty", "snow")
+    np.testing.assert_array_equal(s.active["lower"][1], s.active["lower"][0])
+    plus, minus = (Simultaneous().solve(make(theta + sg * h), tol=TIGHT, warm_start=base.result) for sg in (1, -1))
+    assert plus.status == minus.status == "converged"
+    for c in range(2):
+        dw = (plus.case_networks[c][1].weights - minus.case_networks[c][1].weights) / (2 * h)
+        assert rel(s.d_weights[c], dw) <= 1e-4, (c, rel(s.d_weights[c], dw))
+    k = 1 + 80.0 / (0.1 * theta)
+    w = base.result.case_networks[0][1].weights
+    np.testing.assert_allclose(s.d_weights[1], k * s.d_weights[0] - 800.0 / theta ** 2 * w,
+                               rtol=0, atol=1e-9 * np.abs(s.d_weights[1]).max())
+
+
 def test_pure_self_weight_scales_analytically():
     """Pure self-weight: the scaled problem does not depend on ρ, so the shape stays and every
     weight (those on ε too: ε is relative to the load) scales with ρ: dw/dρ = w/ρ, dV/dρ = 0.

@@ -74,8 +74,9 @@ from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.loadcases import LoadSpec
 from selfsupport.methods import METHODS, capabilities
+from selfsupport.methods.base import proportional_members, without_members
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, HULL_ACTIVE_REL, load_colouring
-from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE, Simultaneous, SimultaneousRun
+from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE, Simultaneous, SimultaneousRun, kept_cases
 
 #: Relative stationarity residual (with least-squares multipliers on the active set) above which
 #: the point is not a KKT point of the NLP and no sensitivity is given (a staggered result: O(1)).
@@ -638,6 +639,33 @@ def _in_si(opt: _Optimum, act: _ActiveSet, *, dz: np.ndarray, dlnF: float) -> tu
     return d_vertices, tuple(d_weights), active
 
 
+def _with_members(problem: Problem, members: dict[int, tuple[int, float]], par: Parameter, result: SolveResult,
+                  d_weights: tuple, active: dict[str, Any]) -> tuple[tuple, dict[str, Any], tuple[str, ...]]:
+    """Every case's dw/dθ and active bounds, the proportional cases (``members``, left out of the
+    NLP) added: a member's weights are its case's times ``k = L_c·L_r / L_r·L_r`` at any geometry,
+    so ``dw_c = k dw_r + (dk/dθ) w_r`` with ``dk/dθ`` from ∂L/∂θ at the optimum; its bounds
+    held are its case's. ``result``: the optimum of the NLP without the members."""
+    free, V = ~problem.scene.supports, result.network.vertices
+    L = problem.loads.nodal(problem.scene.mesh, V)[:, free]
+    dL = par.d_loads(problem, V)[:, free]
+    kept = [c for c in range(len(problem.loads)) if c not in members]
+    solved = dict(zip(kept, range(len(kept))))
+    nets = [n.weights for _, n in result.case_networks]
+    dw, lower, upper = [], [], []
+    for c in range(len(problem.loads)):
+        r = members[c][0] if c in members else c
+        j = solved[r]
+        if c in members:
+            rr, cr = float(L[r] @ L[r]), float(L[c] @ L[r])
+            dk = (float(dL[c] @ L[r] + L[c] @ dL[r]) * rr - cr * 2.0 * float(L[r] @ dL[r])) / rr ** 2
+            dw.append(cr / rr * d_weights[j] + dk * nets[j])
+        else:
+            dw.append(d_weights[j])
+        lower.append(active["lower"][j])
+        upper.append(active["upper"][j])
+    return tuple(dw), {**active, "lower": tuple(lower), "upper": tuple(upper)}, tuple(problem.loads.names)
+
+
 # -------------------------------------------------------------------------------- main
 def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Problem | None = None) -> Sensitivity:
     """dV/dθ and dw/dθ of a converged simultaneous (IPOPT) solve, from its KKT system.
@@ -668,6 +696,11 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
         problem = problem_of(result)
     par = parse_parameter(parameter)
     theta = par.value(problem)
+    full = problem
+    members = proportional_members(problem) if result.parameters.get("proportional_cases") else {}
+    if members:  # (the NLP was solved without them: see Simultaneous; they are added below)
+        kept = [c for c in range(len(problem.loads)) if c not in members]
+        problem, result = without_members(problem, members), kept_cases(result, kept)
     form, sc = _formulation(result, answer, problem)
     opt = _optimum(result, problem, form, sc)
     act = _active_set(opt)
@@ -677,6 +710,9 @@ def sensitivity(result_or_run: Any, parameter: str | Parameter, *, problem: Prob
     rhs, dlnF = _parameter_rhs(par, opt, act, Mp=Mp, Gp=Gp)
     dz, solve_res, cond = _solve_kkt(K, rhs)
     d_vertices, d_weights, active = _in_si(opt, act, dz=dz, dlnF=dlnF)
+    names = tuple(form.case_names)
+    if members:
+        d_weights, active, names = _with_members(full, members, par, result, d_weights, active)
     return Sensitivity(parameter=par.label, value=theta, d_vertices=d_vertices, d_weights=d_weights,
-                       case_names=tuple(form.case_names), active=active, kkt_residual=stationarity,
+                       case_names=names, active=active, kkt_residual=stationarity,
                        weakly_active=weak, condition=cond, solve_residual=solve_res)

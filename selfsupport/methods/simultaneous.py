@@ -401,7 +401,7 @@ class Simultaneous:
         if members:  # (a case another carries with scaled weights: solved without it, then added)
             kept = [c for c in range(len(problem.loads)) if c not in members]
             inner = self.run(without_members(problem, members),
-                             dataclasses.replace(opts, warm_start=_kept_cases(opts.warm_start, kept)),
+                             dataclasses.replace(opts, warm_start=kept_cases(opts.warm_start, kept)),
                              progress=progress, deadline=deadline)
             return SimultaneousRun(with_members(problem, inner.result, members, opts.tol), inner.answer)
         if self.continuation:
@@ -801,9 +801,10 @@ def _start_vertices(scene: Scene, warm_start: Network | SolveResult | None) -> n
     return V
 
 
-def _kept_cases(warm_start: Any, kept: list[int]) -> Any:
-    """A warm start for the problem without its proportional cases: a result with every case's
-    network keeps those of the ``kept`` cases (the first among them); anything else as it is."""
+def kept_cases(warm_start: Any, kept: list[int]) -> Any:
+    """A result of the problem without its proportional cases (a warm start, the NLP's optimum):
+    a result with every case's network keeps those of the ``kept`` cases (the first among them);
+    anything else as it is."""
     if not isinstance(warm_start, SolveResult) or len(warm_start.cases) <= max(kept, default=0):
         return warm_start
     nets = tuple(warm_start.cases[c] for c in kept)
