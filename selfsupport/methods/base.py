@@ -266,6 +266,12 @@ def cases_proportional(problem: Problem) -> bool:
     return bool(off.max() <= PROPORTIONAL_RTOL)
 
 
+def load_factor(L_c: np.ndarray, L_r: np.ndarray) -> float:
+    """The least-squares factor ``k`` of loads ``L_c ≈ k L_r`` (``L_c·L_r / L_r·L_r``): a
+    proportional case's weights are its case's times ``k``."""
+    return float(L_c @ L_r) / max(float(L_r @ L_r), 1e-300)
+
+
 def proportional_members(problem: Problem) -> dict[int, tuple[int, float]]:
     """The cases another (earlier) case carries with its weights times a factor: ``{c: (r, k)}``
     where case ``c``'s loads at the reference are ``k ≥ 1`` times case ``r``'s (within
@@ -287,7 +293,7 @@ def proportional_members(problem: Problem) -> dict[int, tuple[int, float]]:
         for r in range(c):
             if r in out:
                 continue
-            k = float(L[c] @ L[r]) / max(float(L[r] @ L[r]), 1e-300)
+            k = load_factor(L[c], L[r])
             if k >= 1.0 and np.abs(L[c] - k * L[r]).max() <= PROPORTIONAL_RTOL * np.abs(L[c]).max():
                 out[c] = (r, k)
                 break
@@ -317,7 +323,7 @@ def with_members(problem: Problem, result: SolveResult, members: dict[int, tuple
             continue
         rep = solved[members[c][0]]
         L = model.nodal(rep.mesh, rep.vertices)
-        k = float(L[free] @ rep.loads[free]) / float(rep.loads[free] @ rep.loads[free])
+        k = load_factor(L[free], rep.loads[free])
         nets.append((name, dataclasses.replace(rep, weights=k * rep.weights, loads=L)))
     names = problem.loads.names
     note = "; ".join(f"case {names[c]!r} is case {names[r]!r} times {k:.6g} (its weights scaled)"

@@ -74,7 +74,7 @@ from selfsupport.core.result import SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.io.loadcases import LoadSpec
 from selfsupport.methods import METHODS, capabilities
-from selfsupport.methods.base import proportional_members, without_members
+from selfsupport.methods.base import load_factor, proportional_members, without_members
 from selfsupport.methods.polish import BOUND_ACTIVE_REL, HULL_ACTIVE_REL, load_colouring
 from selfsupport.methods.simultaneous import DEFAULT_OBJECTIVE, Simultaneous, SimultaneousRun, kept_cases
 
@@ -656,9 +656,9 @@ def _with_members(problem: Problem, members: dict[int, tuple[int, float]], par: 
         r = members[c][0] if c in members else c
         j = solved[r]
         if c in members:
-            rr, cr = float(L[r] @ L[r]), float(L[c] @ L[r])
-            dk = (float(dL[c] @ L[r] + L[c] @ dL[r]) * rr - cr * 2.0 * float(L[r] @ dL[r])) / rr ** 2
-            dw.append(cr / rr * d_weights[j] + dk * nets[j])
+            k = load_factor(L[c], L[r])
+            dk = float(dL[c] @ L[r] + L[c] @ dL[r] - 2.0 * k * (L[r] @ dL[r])) / float(L[r] @ L[r])
+            dw.append(k * d_weights[j] + dk * nets[j])
         else:
             dw.append(d_weights[j])
         lower.append(active["lower"][j])
