@@ -476,6 +476,38 @@ def test_pq_time_limit_holds_for_the_whole_command(tmp_path):
     assert wall <= limit + 0.4
 
 
+def test_a_planar_homotopy_cut_by_its_deadline_says_time_limit_wherever_the_cut_falls(monkeypatch):
+    """On a clock that ticks once per reading (deterministic: the run reads it the same way each
+    time), a homotopy given up at its first failed cut (``MAX_SHRINK`` = the first cut), cut at 20
+    points spread over its run, ends ``time_limit`` where the cut falls in its stages and
+    ``converged`` after them, never ``stalled``: a stage the deadline stops is not a cut too coarse
+    (before: ``stalled`` at 3 of them)."""
+    import time
+
+    from selfsupport.methods import planar_homotopy as ph
+
+    net = api.solve(make_shape("barrel_vault", nx=8, ny=10)).network
+    scene = remesh(net, field="principal", spacing=0.1, relative=True, method="streamlines").scene
+    eq = api.solve(scene)
+    problem = api.problem(scene, constraints=[Planar(tol=1e-3)])
+    monkeypatch.setattr(ph, "MAX_SHRINK", ph.FIRST_SHRINK)
+    ticks = iter(range(1, 10 ** 9))
+    monkeypatch.setattr(time, "perf_counter", lambda: float(next(ticks)))
+
+    def run(after: float) -> tuple[str, float]:
+        start = time.perf_counter()
+        res = ph.planar_homotopy(problem, eq, deadline=start + after)
+        return res.status, time.perf_counter() - start
+
+    status, n = run(1e12)  # (a deadline that does not come: its run reads the clock as a cut one does)
+    assert status == "converged"
+    ends = [run(float(a))[0] for a in np.linspace(1, n - 2, 20)]
+    # (time_limit up to where the stages end; past it, the pull after them ends early, converged)
+    assert ends[0] == "time_limit" and set(ends) <= {"time_limit", "converged"}, ends
+    assert ends == sorted(ends, key=lambda s: s == "converged"), ends
+    assert run(n + 1)[0] == "converged"
+
+
 @requires_checker
 def test_solve_planar_flag_finishes_where_the_penalty_stalls_and_leaves_fully_supported_quads_alone(tmp_path):
     """``selfsupport solve --planar`` on a remeshed barrel vault where the staggered method with
@@ -797,7 +829,8 @@ def test_a_pull_too_slow_to_converge_ends_at_its_share_of_the_time_not_at_the_li
 def test_the_gauss_newton_pull_reaches_in_a_few_steps_what_the_creeping_pull_does_not(monkeypatch):
     """A barrel vault (a cylinder: planar quads along its principal directions can lie on it)
     remeshed along them and made planar: the pull with point-to-plane Gauss–Newton steps brings
-    the planar network onto the vault (measured 1.8e-17 of the diagonal from 3.1e-5, 45 steps),
+    the planar network onto the vault (measured 1.6e-17 of the diagonal from 3.1e-5, 46 steps,
+    its stop on reaching what the faces resolve turned off),
     where the projected-gradient pull toward the closest points (the start's pull,
     :func:`_pull_start`, put in its place) with as many steps ends over a thousand times farther
     (1.3e-5; 6.8e-8 after 300 steps). Both in equilibrium (the independent checker) and planar."""
@@ -806,9 +839,11 @@ def test_the_gauss_newton_pull_reaches_in_a_few_steps_what_the_creeping_pull_doe
     shape = make_shape("barrel_vault", nx=8, ny=10)
     scene = remesh(api.solve(shape).network, field="principal", spacing=0.1, relative=True, method="seamless").scene
     problem, eq = api.problem(scene, constraints=[Planar(tol=1e-3)]), api.solve(scene)
+    monkeypatch.setattr(ph, "PULL_ON_REFERENCE", 0.0)  # (the pull's full course: the start is on the vault to what its faces resolve)
     fast = ph.planar_homotopy(problem, eq, reference=shape.mesh)
     pulled = fast.parameters["homotopy"]["pull"]["planar"]
-    monkeypatch.setattr(ph, "_pull", ph._pull_start)
+    start_pull = ph._pull_start
+    monkeypatch.setattr(ph, "_pull", lambda *a, on_reference, **kw: start_pull(*a, **kw))
     monkeypatch.setattr(ph, "START_PULL_MAX_STEPS", pulled["steps"])
     slow = ph.planar_homotopy(problem, eq, reference=shape.mesh)
     crept = slow.parameters["homotopy"]["pull"]["planar"]

@@ -202,8 +202,10 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
             break
         trial = band if first else max(band * shrink, target)  # (the first stage: equilibrium at the start's band)
         form = form_at(X, trial)
+        t_stage = time.perf_counter()
         Xn, Wn, k, err, ok = polish_joint(form, X, W, loads_at=loads_at, tol=STAGE_TOL, max_iter=STAGE_STEPS,
                                           load_jacobian=load_jacobian, deadline=deadline)
+        t_stage = time.perf_counter() - t_stage
         steps += k
         rec = {"iteration": len(history), "band": trial, "steps": k, "max_rel_error": err, "accepted": bool(ok)}
         history.append(rec)
@@ -215,6 +217,11 @@ def _stages(form_at: Callable[[np.ndarray, float], ThrustNetworkProblem], X: np.
             if band <= target or (band <= tol and planar_enough(X, W)):
                 status = "converged"
                 break
+        elif out_of_time(deadline, t_stage):
+            # (the polish stops a step short of the deadline: a stage failed so near it failed
+            # for want of time, not for a cut too coarse, and another would fail the same way)
+            status = "time_limit"
+            break
         elif first:
             break  # the start is not in equilibrium to within the polish's reach
         else:
@@ -503,10 +510,8 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         ``iteration_limit``; :func:`_pull`), and the
         mean distance to ``reference`` over its bounding-box diagonal before and after).
     """
-    t0 = time.perf_counter()
-    planar = _planar_of(problem)
-    scene = problem.scene
-    mesh0 = scene.mesh
+    t0, planar = time.perf_counter(), _planar_of(problem)
+    scene, mesh0 = problem.scene, problem.scene.mesh
     sp_ = problem.scaled()
     top, sc = sp_.top, sp_.scaling
     V, w, _ = transfer(as_warm_start(warm_start), scene)
@@ -519,8 +524,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         return sc.loads_at(problem.loads, mesh0, Y)
 
     jac = case_load_jacobians(problem.loads.models, mesh0, sc, top.free)
-    h = mean_edge_length(X, top.edges)
-    target = BAND_END * planar.tol
+    h, target = mean_edge_length(X, top.edges), BAND_END * planar.tol
     ref = mesh0 if reference is None else reference
     ref_scaled = ref.with_vertices(sc.pos(ref.vertices))  # (the polish's units)
 
@@ -549,8 +553,7 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
 
     pulled: dict[str, Any] | None = {} if pull else None
     start, steps, history = _nonplanarity(X, rows), 0, []
-    X0, W0 = X, W
-    ended = None  # (the first run's end: kept where the second reaches no narrower band)
+    X0, W0, ended = X, W, None  # (ended: the first run's end, kept where the second reaches no narrower band)
     for n_start in range(2):
         if n_start:
             # (the homotopy from the start as given did not converge: again from the network in
@@ -568,8 +571,12 @@ def planar_homotopy(problem: Problem, warm_start: Any, *, deadline: float | None
         steps += k
         history += [{**h, "start": n_start} for h in tried]
         if ended is not None and status != "converged" and ended[2] < band:
-            X, W, band, status = ended
-        if status == "converged" or out_of_time(deadline) or pulled is None or start <= target:
+            # (the first run's narrower band; a second run cut by the limit still ends the call by it)
+            X, W, band, status = *ended[:3], status if status == "time_limit" else ended[3]
+        if status == "converged" or pulled is None or start <= target:
+            break
+        if out_of_time(deadline):
+            status = "time_limit"  # (the second start, not tried for want of time, ends it)
             break
         ended = (X, W, band, status)
     if status == "converged" and pulled is not None:  # (the end: faces held within the band reached)

@@ -137,8 +137,9 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
     -------
     SolveResult
         The better run (converged first, then the smaller max relative error) with the time and
-        iterations of all runs; ``parameters["planar_finish"]`` describes the finish (``None``
-        when it did not run).
+        iterations of all runs, its status ``time_limit`` when it did not converge and the limit
+        has passed (a run was cut or skipped for want of time); ``parameters["planar_finish"]``
+        describes the finish (``None`` when it did not run).
     """
 
 
@@ -194,8 +195,11 @@ def solve_planar(scene: Any, *, tol: float = 1e-3, method: str = "staggered", fi
                   f"{r.status} at {r.max_relative_error:.2e}" for _, r in runs[1:])
     summary = {n_: {"method": r.method, "status": r.status, "max_relative_error": r.max_relative_error,
                     "iterations": r.iterations, "wall_time": r.wall_time} for n_, r in runs}
+    # (a call past its limit that did not converge ended by the limit: a run skipped or cut for want of time)
+    status = chosen.status if chosen.status == "converged" or not out_of_time() else "time_limit"
     return dataclasses.replace(
-        chosen, wall_time=time.perf_counter() - t0, iterations=eq.iterations + sum(r.iterations for _, r in runs),
+        chosen, status=status, wall_time=time.perf_counter() - t0,
+        iterations=eq.iterations + sum(r.iterations for _, r in runs),
         message="; ".join(m for m in (chosen.message, note) if m),
         parameters={**chosen.parameters, "planar_finish": {
             **summary, "equilibrium": {"status": eq.status, "iterations": eq.iterations, "wall_time": eq.wall_time},
