@@ -8,14 +8,16 @@ import numpy as np
 import pytest
 
 from formulations import PointDistance
+from selfsupport import api
 from selfsupport.core.errors import BackendUnavailable, InputError
 from selfsupport.core.geometry import face_areas
 from selfsupport.core.loads import SelfWeight
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.result import STATUSES
 from selfsupport.core.scene import Scene
+from selfsupport.core.shapes import make_shape
 from selfsupport.methods.nlopt_methods import NloptSimultaneous
-from selfsupport.methods.simultaneous import Simultaneous
+from selfsupport.methods.simultaneous import Simultaneous, SimultaneousOptions
 from tests.conftest import network_errors
 
 LOADS = SelfWeight(density=2000.0, thickness=0.1)
@@ -125,6 +127,30 @@ def test_warm_start_reproduces_the_solution(scene, result):
     assert again.iterations < result.iterations
     diag = np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0))
     assert np.abs(again.network.vertices - result.network.vertices).max() < 1e-6 * diag
+
+
+def test_a_warm_start_from_an_ipopt_optimum_starts_the_barrier_low_and_stays_there():
+    """Warm-started from its own converged result, the solve starts IPOPT's barrier low
+    (``warm_barrier`` "auto" on an ``ipopt`` result) and converges in fewer iterations than the
+    cold solve took, at the same network (1e-6 of the span); with IPOPT's own barrier (μ from
+    0.1, variables pushed into their bounds) the same start takes over ten times as many (on this
+    100-vertex dome: 16 against 625). A plain network as the start keeps IPOPT's own barrier."""
+    problem = api.problem(make_shape("dome", n_vertices=100))
+    cold = Simultaneous().solve(problem)
+    auto = api.solve(problem.scene, method="ipopt", warm_start=cold)
+    own = Simultaneous().solve(problem, warm_start=cold, warm_barrier="default")
+    span = np.linalg.norm(np.ptp(problem.scene.mesh.vertices, axis=0))
+    assert cold.status == auto.status == own.status == "converged"
+    assert auto.iterations < cold.iterations and own.iterations > 10 * auto.iterations
+    for r in (auto, own):
+        assert np.abs(r.network.vertices - cold.network.vertices).max() < 1e-6 * span
+    name = Simultaneous.name
+    assert SimultaneousOptions.of(warm_start=cold).low_barrier_first(name)
+    assert not SimultaneousOptions.of(warm_start=cold).low_barrier_first("another method")
+    assert not SimultaneousOptions.of(warm_start=cold.network).low_barrier_first(name)
+    assert SimultaneousOptions.of(warm_start=cold.network, warm_barrier="low").low_barrier_first(name)
+    with pytest.raises(InputError, match="warm_barrier 'high'"):
+        SimultaneousOptions.of(warm_barrier="high")
 
 
 def test_user_objective_in_si_units_equals_default(scene, result):
