@@ -604,7 +604,8 @@ def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
 
     The mesh is built from ``vertices`` (``check`` judges the geometry as it is stored);
     ``reference_vertices`` / ``reference_faces`` are kept in ``meta``, and so is the whole network
-    (``meta["stored_network"]``, weights included) when the file is one: a solve takes the
+    (``meta["stored_network"]``, weights included) when the file is one, with the status,
+    method and backend of the solve that wrote it (``meta["stored_result"]``): a solve takes the
     stored reference as its design and starts from the stored network
     (:func:`selfsupport.api.design_of`). A file with ``weights`` or ``edges`` must be a complete,
     consistent network (:func:`read_network`'s errors otherwise).
@@ -622,5 +623,8 @@ def read_json_scene(path: str | Path, up: str | None = None) -> LoadedMesh:
         meta["reference_faces"] = ref_f
     if _is_network(d):
         meta["stored_network"] = _network_of(src, d)
+        record = {k: d[k] for k in ("status", "method", "backend") if isinstance(d.get(k), str)}
+        if {"status", "method"} <= record.keys():  # (a solve wrote it: what its result was)
+            meta["stored_result"] = record
     return LoadedMesh(mesh, supports=_mask(src, d, "supports", len(v)), handles=_mask(src, d, "handles", len(v)),
                       meta=meta)

@@ -11,7 +11,7 @@ import numpy as np
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.mesh import PolyMesh
-from selfsupport.core.result import Network
+from selfsupport.core.result import Network, SolveResult
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
 from selfsupport.io import read_scene
@@ -75,10 +75,10 @@ def as_scene(obj: Scene | Network | PolyMesh | str | os.PathLike, *, supports: A
 
 
 #: scene.meta keys of a network file's stored reference and network (see design_of)
-_STORED_KEYS = ("reference_vertices", "reference_faces", "stored_network")
+_STORED_KEYS = ("reference_vertices", "reference_faces", "stored_network", "stored_result")
 
 
-def design_of(scene: Scene) -> tuple[Scene, Network | None]:
+def design_of(scene: Scene) -> tuple[Scene, Network | SolveResult | None]:
     """The design a solve of ``scene`` is for, and the network to start it from.
 
     A network file written by ``selfsupport solve`` stores the reference it was solved for
@@ -95,10 +95,12 @@ def design_of(scene: Scene) -> tuple[Scene, Network | None]:
 
     Returns
     -------
-    (Scene, Network or None)
+    (Scene, Network, SolveResult or None)
         The scene with the stored reference as its mesh (same supports, handles and extras:
         they index the same vertices) and ``meta["design"]`` saying what was used; and the
-        stored network with its weights, or ``None`` when there is nothing to start from (no
+        stored network with its weights — as a :class:`SolveResult` with the status, method and
+        backend of the solve that wrote the file, where it records them (a method can tell its own
+        optimum: IPOPT then keeps its barrier low) — or ``None`` when there is nothing to start from (no
         stored reference, or a hand-made file without weights: the solve then starts from
         the reference). A stored reference with another vertex count than the network
         cannot carry its supports: the network's vertices stay the reference, and
@@ -117,6 +119,11 @@ def design_of(scene: Scene) -> tuple[Scene, Network | None]:
         return replace(scene, meta={**rest, "design": {"reference": "stored network", "note": note}}), None
     reference = PolyMesh.from_faces(ref_v, meta["reference_faces"])
     stored = meta.get("stored_network")
+    record = meta.get("stored_result")
+    if stored is not None and record is not None:
+        stored = SolveResult(network=stored, status=record["status"], method=record["method"],
+                             backend=record.get("backend", ""), iterations=0, wall_time=0.0,
+                             message=f"the network {source} stores")
     design = {"reference": "stored reference_vertices",
               "start": "stored network" if stored is not None else "reference (the file stores no weights)"}
     return replace(scene, mesh=reference, meta={**rest, "design": design}), stored

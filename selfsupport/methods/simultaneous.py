@@ -186,8 +186,9 @@ class SimultaneousOptions:
         How IPOPT's barrier starts in the first round of a warm-started solve: ``"low"``
         (:attr:`Simultaneous.low_barrier`: the start kept), ``"default"`` (IPOPT's own: μ from
         0.1, variables pushed 1e-2 into their bounds — a start moved off its bounds first), or
-        ``"auto"``: low when the start is this method's optimum (a converged result of it; a
-        plain network, a file's included, carries no such record), IPOPT's own otherwise. The
+        ``"auto"``: low when the start is this method's optimum (a converged result of it, or
+        the network file one wrote: :func:`~selfsupport.io.scenes.design_of`), IPOPT's own
+        otherwise (a plain network carries no such record). The
         stages of a regulariser homotopy (``continuation``) keep IPOPT's own unless "low".
     """
 
