@@ -15,7 +15,7 @@ from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.scene import Scene
 from selfsupport.core.shapes import make_shape
 from selfsupport.remesh.streamlines import MERGE, remesh
-from tests.conftest import independent_check, requires_checker
+from tests.conftest import independent_check, load_factor, requires_checker
 
 
 def diagonal_gaps(mesh: PolyMesh, supports: np.ndarray | None = None) -> np.ndarray:
@@ -456,8 +456,9 @@ def test_an_unfinished_pq_run_says_why_on_stderr(tmp_path, dome, capsys):
 def test_pq_time_limit_holds_for_the_whole_command(tmp_path):
     """``--time-limit`` bounds the command, the reading and the remesh included, and nothing
     slow runs after it: on a 1000-vertex dome, cut 0.5 s after what its remesh takes (unlimited,
-    its planar solve takes longer), the call returns within 0.4 s of the limit (before: the
-    remesh not counted, and each planarity report rebuilt the face list once per face)."""
+    its planar solve takes longer), the call ends by the limit (exit 5, whichever of its runs the
+    limit cut) and returns within 0.4 s of it on an idle machine (stretched by the load; before:
+    the remesh not counted, and each planarity report rebuilt the face list once per face)."""
     import time
 
     from selfsupport import cli
@@ -473,7 +474,7 @@ def test_pq_time_limit_holds_for_the_whole_command(tmp_path):
     code = cli.main(["pq", str(src), "--out", str(tmp_path / "pq.json"), "--time-limit", f"{limit:.3f}"])
     wall = time.perf_counter() - t0
     assert code == cli.EXIT_CODES["limit"]  # (cut by the limit: the solve was not done by then)
-    assert wall <= limit + 0.4
+    assert wall <= limit + 0.4 * load_factor()
 
 
 def test_a_planar_homotopy_cut_by_its_deadline_says_time_limit_wherever_the_cut_falls(monkeypatch):
