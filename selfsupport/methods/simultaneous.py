@@ -188,8 +188,8 @@ class SimultaneousOptions:
         0.1, variables pushed 1e-2 into their bounds — a start moved off its bounds first), or
         ``"auto"``: low when the start is this method's optimum (a converged result of it, or
         the network file one wrote: :func:`~selfsupport.io.scenes.design_of`), IPOPT's own
-        otherwise (a plain network carries no such record). The
-        stages of a regulariser homotopy (``continuation``) keep IPOPT's own unless "low".
+        otherwise (a plain network carries no such record). The stages of a regulariser
+        homotopy (``continuation``) after the first keep IPOPT's own unless "low".
     """
 
     tol: float = 1e-9
