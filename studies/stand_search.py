@@ -35,7 +35,8 @@ with it, then the joint polish) with ``--time-limit`` seconds of its own. The st
 in 10–35 s on vault-pillar, well inside ``--time-limit``: with a higher one the time limit ends
 them); ``--eps`` states the lower weight bound (zero or below, e.g. ``--eps=-1e12``: tension
 allowed; no case is then carried by another's scaled weights, and the checker runs with
-``--allow-tension``).
+``--allow-tension``); ``--warm-barrier low`` starts IPOPT's barrier low from every start (the
+method's ``warm_barrier``: the start kept rather than first pushed off its bounds).
 ``--control`` runs the same starts on a design that is known to stand under the cases
 (:func:`write_control`): how far IPOPT's verdicts from these starts can be trusted.
 
@@ -68,7 +69,7 @@ from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.io.sss import write_scene_sss
 from selfsupport.methods.base import proportional_members
-from selfsupport.methods.simultaneous import COLD_START_FACTOR, Simultaneous
+from selfsupport.methods.simultaneous import COLD_START_FACTOR, WARM_BARRIERS, Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.staggered.cases import FINISH_SHARE
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, vault_pillar_layout, write_csv, write_markdown
@@ -227,11 +228,11 @@ def start_error(start: SolveResult | Network | None) -> float | None:
 
 
 def run_start(problem: Problem, start: SolveResult | Network | None, nearest: bool, time_limit: float,
-              max_iter: int | None = None) -> SolveResult:
+              max_iter: int | None = None, warm_barrier: str = "auto") -> SolveResult:
     """IPOPT over ``problem``'s cases from ``start`` (the simultaneous method; ``max_iter``: its
-    iteration limit per load round, ``None`` its default)."""
+    iteration limit per load round, ``None`` its default; ``warm_barrier``: its option)."""
     opts = {"warm_start": start, "time_limit": time_limit, "nearest_to_start": nearest,
-            **({} if max_iter is None else {"max_iter": max_iter})}
+            "warm_barrier": warm_barrier, **({} if max_iter is None else {"max_iter": max_iter})}
     return Simultaneous().solve(problem, opts)
 
 
@@ -261,17 +262,22 @@ def row_of(res: SolveResult, scene: Any, net: Path, checker: Path | None, flags:
     return row
 
 
-def run_tag(max_iter: int | None, eps: float | None) -> str:
-    """The file names' tag of a run's options beyond the defaults."""
-    return ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}")
+def run_tag(max_iter: int | None, eps: float | None, warm_barrier: str = "auto") -> str:
+    """The file names' tag of a run's options beyond the defaults.
+
+    >>> run_tag(None, None), run_tag(5000, -1e12, "low")
+    ('', '-it5000-eps-1e+12-barrier_low')
+    """
+    return ("" if max_iter is None else f"-it{max_iter}") + ("" if eps is None else f"-eps{eps:g}") + \
+        ("" if warm_barrier == "auto" else f"-barrier_{warm_barrier}")
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, time_limit: float,
           seeds: tuple[int, ...] = SEEDS, max_iter: int | None = None,
-          eps: float | None = None) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+          eps: float | None = None, warm_barrier: str = "auto") -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Every start of one scene at one share: its rows and what building the starts measured.
     ``eps``: the lower weight bound [N/m] (``None``: the default; zero or below: tension allowed,
-    the checker run with ``--allow-tension``)."""
+    the checker run with ``--allow-tension``); ``warm_barrier``: the simultaneous method's option."""
     name = path.stem
     v, weight = highest_free_and_weight(path)
     cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
@@ -283,11 +289,11 @@ def study(path: Path, out: Path, checker: Path | None, share: float, time_limit:
     stamp, rows = run_stamp(), []
     runs, info = starts(path, toml, problem, seeds, eps)
     flags = ("--allow-tension",) if eps is not None and eps <= 0 else ()
-    tag = run_tag(max_iter, eps)
+    tag = run_tag(max_iter, eps, warm_barrier)
     info.update(cases=cases, ipopt_cases=[n for c, n in enumerate(names) if c not in members],
                 proportional={names[c]: {"of": names[r], "factor": k} for c, (r, k) in members.items()})
     for label, start, nearest in runs:
-        res = run_start(problem, start, nearest, time_limit, max_iter)
+        res = run_start(problem, start, nearest, time_limit, max_iter, warm_barrier)
         stem = f"{name}-{share:g}{tag}-{label.replace(', ', '-').replace(' ', '_')}"
         row = {"scene": name, "point_share": share, "start": label, "start_error": start_error(start),
                **row_of(res, scene, out / f"{stem}.json", checker, flags), **stamp}
@@ -309,6 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eps", type=float, default=None,
                     help="lower weight bound [N/m] (default: the scale-free default; <= 0: tension allowed)")
     ap.add_argument("--seeds", type=int, nargs="*", default=list(SEEDS), help="seeds of the perturbed starts")
+    ap.add_argument("--warm-barrier", choices=WARM_BARRIERS, default="auto",
+                    help="how IPOPT's barrier starts from a start (the simultaneous method's warm_barrier)")
     ap.add_argument("--control", action="store_true",
                     help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
@@ -321,14 +329,15 @@ def main(argv: list[str] | None = None) -> int:
     if not path.is_file():
         ap.error(f"no scene {path}: give --scenes the folder of the paper's scenes")
     rows, info = study(path, a.out, a.checker if a.checker.is_file() else None, a.share, a.time_limit, tuple(a.seeds),
-                       a.max_iter, a.eps)
-    stem = f"stand_search-{a.only}-{a.share:g}" + run_tag(a.max_iter, a.eps)
+                       a.max_iter, a.eps, a.warm_barrier)
+    stem = f"stand_search-{a.only}-{a.share:g}" + run_tag(a.max_iter, a.eps, a.warm_barrier)
     write_csv(a.out / f"{stem}.csv", rows, COLUMNS)
     (a.out / f"{stem}.json").write_text(json.dumps({"starts": info, "rows": rows}, indent=1, default=str))
     found = [r for r in rows if r.get("stands")]
     verdict = (f"stands from {len(found)} of {len(rows)} starts" if found else
                f"no start of {len(rows)} found a network that stands (every case ≤ {STANDS_TOL:g}, checker-clean)")
-    it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps={a.eps:g}")
+    it = ("" if a.max_iter is None else f" --max-iter {a.max_iter}") + ("" if a.eps is None else f" --eps={a.eps:g}") + \
+        ("" if a.warm_barrier == "auto" else f" --warm-barrier {a.warm_barrier}")
     which = "--control" if a.control else f"--only {a.only}"
     notes = [f"`python -m studies.stand_search {which} --share {a.share:g} --time-limit {a.time_limit:g}{it}`",
              f"cases {info['cases']}; IPOPT over {info['ipopt_cases']}; proportional: {info['proportional']}",
