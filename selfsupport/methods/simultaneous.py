@@ -363,12 +363,13 @@ class Simultaneous:
     }
     #: Extra IPOPT options for the first round of a solve warm-started from an IPOPT optimum
     #: (``warm_barrier``): the barrier of :attr:`near_start_defaults`, its objective as stated.
-    #: IPOPT's defaults move such a start off its bounds first and may not come back: from its own
-    #: optimum, structural ran 1,580 iterations to the 150 s limit (max relative error 5.4e3) and
-    #: twocirc-3 568 (28 s), where the low barrier converges in 38 and 35 at the same network;
-    #: with 2 % of the self-weight added at one vertex, structural's 3,000 iterations ended at 1.7e6
-    #: and twocirc-3 hit the limit, where the low barrier converged in 54 and 97. Where both converge
-    #: the optimum can differ: the vault after that edit, 4 % nearer the reference with IPOPT's own.
+    #: IPOPT's defaults move such a start off its bounds first and may not come back
+    #: (``python -m studies.ipopt_warm``): from its own optimum structural ran to the 120 s limit
+    #: (max relative error 5.5e3) and twocirc-3 took 568 iterations, where the low barrier
+    #: converges in 38 and 35 at the same network; after a point load of 2 % of the self-weight
+    #: structural again ran to the limit and twocirc-3 took 2,180, the low barrier 54 and 97. The
+    #: low barrier keeps the optimum near the start: after that edit the vault ended 6.6 % farther
+    #: from the reference than with IPOPT's own, which converged there too.
     low_barrier: dict[str, Any] = {k: v for k, v in near_start_defaults.items() if k != "obj_scaling_factor"}
 
     #: Weight of the regulariser ``mean((w / scale)²)`` in the objective; ``None``:
