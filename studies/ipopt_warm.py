@@ -36,13 +36,13 @@ from typing import Any
 import numpy as np
 
 from formulations import Problem
-from selfsupport.core.loads import SelfWeight
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 
 from .common import STAMP_COLUMNS, Column, read_study_scene, run_stamp, study_scenes_or_exit, write_csv, write_markdown
+from .load_cases import highest_free_and_weight
 
 #: The scenes run without ``--only``: Table 1's whose cold IPOPT solve converges within the
 #: default limit on a 2-core machine (twocirc-3 in about 135 s; cas ran to it, 1,829 iterations).
@@ -63,9 +63,8 @@ COLUMNS = (Column("scene", "scene"), Column("start", "start"), Column("barrier",
 
 def highest_free_load(scene: Any, share: float) -> dict[int, float]:
     """``--point-loads`` of the edit: ``share`` of the self-weight [N] at the highest free vertex."""
-    V, free = scene.mesh.vertices, np.flatnonzero(scene.free)
-    weight = -float(SelfWeight().nodal(scene.mesh, V).sum())
-    return {int(free[np.argmax(V[free, 2])]): share * weight}
+    v, weight = highest_free_and_weight(scene)
+    return {v: share * weight}
 
 
 def row(scene_name: str, start: str, barrier: str, res: SolveResult, seconds: float,

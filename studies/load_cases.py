@@ -45,6 +45,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,12 +81,13 @@ SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "
                                                "plan_self_stresses", "carry_residual"))
 
 
-def highest_free_and_weight(path: Path) -> tuple[int, float]:
-    """The highest free vertex of a scene and its self-weight [N] (the project's defaults)."""
+def highest_free_and_weight(path: Path | Any) -> tuple[int, float]:
+    """The highest free vertex of a scene (a file or a scene) and its self-weight [N] (the
+    project's defaults)."""
     from selfsupport import api
     from selfsupport.core.loads import SelfWeight
 
-    scene = api.as_scene(str(path))
+    scene = api.as_scene(str(path)) if isinstance(path, (str, Path)) else path
     V, free = scene.mesh.vertices, np.flatnonzero(scene.free)
     return int(free[np.argmax(V[free, 2])]), -float(SelfWeight().nodal(scene.mesh, V).sum())
 
