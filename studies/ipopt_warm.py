@@ -40,6 +40,7 @@ from selfsupport.core.result import Network, SolveResult
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
+from selfsupport.methods.warm import as_warm_start
 
 from .common import STAMP_COLUMNS, Column, read_study_scene, run_stamp, study_scenes_or_exit, write_csv, write_markdown
 from .load_cases import highest_free_and_weight
@@ -86,10 +87,9 @@ def run_scene(scenes_dir: Path, name: str, time_limit: float, share: float) -> l
 
     def timed(start: str, problem: Problem, warm: SolveResult | Network | None, barrier: str = "") -> SolveResult:
         t0 = time.perf_counter()
-        opts = {"time_limit": time_limit} if warm is None else \
-            {"time_limit": time_limit, "warm_start": warm, "warm_barrier": barrier}
-        res = Simultaneous().solve(problem, opts)
-        begun = None if warm is None else (warm.network if isinstance(warm, SolveResult) else warm).vertices
+        warm_kw = {} if warm is None else {"warm_start": warm, "warm_barrier": barrier}
+        res = Simultaneous().solve(problem, {"time_limit": time_limit, **warm_kw})
+        begun = None if warm is None else as_warm_start(warm).network.vertices
         rows.append(row(name, start, barrier, res, time.perf_counter() - t0, begun))
         print(json.dumps(rows[-1], default=str), flush=True)
         return res
