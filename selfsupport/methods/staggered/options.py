@@ -8,6 +8,7 @@ import numpy as np
 
 from selfsupport.core.errors import InputError
 from selfsupport.core.options import check_options, check_range
+from selfsupport.methods.staggered.step3 import STEP_RTOL
 
 #: The objective when the problem leaves it to the method: distance to the reference surface
 #: (with the weak tangential hold τ of :data:`formulations.terms.TANGENTIAL`).
@@ -37,6 +38,8 @@ class StaggeredOptions:
     # else "stalled" (schedule.fit_stalls)
     smoothing: float = _setting(100.0, "[0, inf)")  # γ/α: Step 3's smooth-displacement term (the Fairness
     # term on v − v_ref, the original tool's smoothing; docs/theory/staggered.md)
+    step_rtol: float = _setting(STEP_RTOL, "(0, 1)")  # Step 3's conjugate gradients stop at this residual,
+    # relative to the step's own (step3.STEP_RTOL)
     reproject_every: int = _setting(1, "[0, inf)")  # closest-point re-projection onto the reference (0: never)
     prox_w: float = _setting(1e-8, "(0, inf)")  # proximal weight of the Step-2 fit relative to its diagonal:
     # makes the weights unique (A has more columns than rows) and reproducible during the iteration

@@ -231,7 +231,7 @@ class _Run:
             pinned = _hull_faces(self.hull, X, active) if active.size else None
             Xt = _position_step(self.top, X, weights=cur.w, loads=cur.L, objective=self.step3_terms, alpha=alpha,
                                 beta=beta, coupling=coupling, workspace=self.step3, fixed_xy=self.fixed_xy,
-                                pinned=pinned, deadline=self.deadline)
+                                pinned=pinned, deadline=self.deadline, rtol=self.opt.step_rtol)
             if self.hull is None:
                 return Xt
             s = self.hull.signed_distance(Xt)
