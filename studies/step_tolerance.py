@@ -11,16 +11,21 @@ tolerance, the tolerances alternating within each repeat so that the machine's d
 all of them alike. Each row: status, outer iterations, Step 3's CG iterations summed over the
 run, the solve's CPU seconds (fastest and median of the repeats), max relative error, mean
 distance to the reference over the bounding-box diagonal and its change against the tightest
-tolerance, and the CPU time relative to the tightest tolerance's (medians). Writes
+tolerance, the CPU time relative to the tightest tolerance's (medians), and the largest
+difference between the network and that of the scene turned by :data:`TURN` rad about the
+vertical, turned back, over the diagonal (round-off where the solve is invariant). Writes
 ``step_tolerance.csv`` and ``.md`` to ``--out``, each row stamped (:func:`studies.common.run_stamp`).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from selfsupport import api
 
@@ -30,6 +35,8 @@ from .common import STAMP_COLUMNS, Column, read_study_scene, run_stamp, study_sc
 TOLERANCES = (1e-7, 1e-5, 1e-4, 1e-3)
 #: Solves per scene and tolerance.
 REPEAT = 5
+#: The turn of the invariance check [rad] about the vertical.
+TURN = 0.3
 
 COLUMNS = (Column("scene", "scene"), Column("step_rtol", "step_rtol", "{:g}"), Column("status", "status"),
            Column("iterations", "iterations"), Column("cg_iterations", "CG iterations"),
@@ -37,7 +44,8 @@ COLUMNS = (Column("scene", "scene"), Column("step_rtol", "step_rtol", "{:g}"), C
            Column("cpu_ratio", "CPU / tightest's", "{:.2f}"),
            Column("max_relative_error", "max rel. error", "{:.1e}"),
            Column("distance_mean", "mean distance / diag", "{:.6e}"),
-           Column("distance_change", "distance change", "{:+.2e}"), *STAMP_COLUMNS)
+           Column("distance_change", "distance change", "{:+.2e}"),
+           Column("turned", "turned input: largest difference / diag", "{:.1e}"), *STAMP_COLUMNS)
 
 
 def run_scene(scenes_dir: Path, name: str, tolerances: tuple[float, ...], repeat: int) -> list[dict[str, Any]]:
@@ -50,16 +58,22 @@ def run_scene(scenes_dir: Path, name: str, tolerances: tuple[float, ...], repeat
             t0 = time.process_time()
             last[r] = api.solve(scene, options={"step_rtol": r})
             cpu[r].append(time.process_time() - t0)
+    c, s = np.cos(TURN), np.sin(TURN)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    turned = dataclasses.replace(scene, mesh=scene.mesh.with_vertices(scene.mesh.vertices @ R.T))
+    diag = float(np.linalg.norm(np.ptp(scene.mesh.vertices, axis=0)))
     ref = tolerances[0]
     rows = []
     for r in tolerances:
         res = last[r]
         cg = sum(h["cg_iterations"] for h in res.history if isinstance(h.get("cg_iterations"), int))
+        back = api.solve(turned, options={"step_rtol": r}).network.vertices @ R
         rows.append({"scene": name, "step_rtol": r, "status": res.status, "iterations": res.iterations,
                      "cg_iterations": cg, "cpu_min": min(cpu[r]), "cpu_median": statistics.median(cpu[r]),
                      "cpu_ratio": statistics.median(cpu[r]) / statistics.median(cpu[ref]),
                      "max_relative_error": res.max_relative_error, "distance_mean": res.distance_mean,
-                     "distance_change": res.distance_mean / last[ref].distance_mean - 1.0})
+                     "distance_change": res.distance_mean / last[ref].distance_mean - 1.0,
+                     "turned": float(np.abs(back - res.network.vertices).max()) / diag})
     return rows
 
 

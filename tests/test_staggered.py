@@ -386,19 +386,19 @@ def test_step3_cg_equals_the_direct_3n_solve(b0, b1):
 
 
 def test_step3s_cg_tolerance_is_the_step_rtol_option_and_a_looser_one_leaves_the_network_in_place(pillar):
-    """``step_rtol`` reaches Step 3's conjugate gradients: solved to 1e-10 instead of the default,
-    the same scene takes more CG iterations, the same outer iterations and ends as close to the
-    reference (Step 3 is a linearised model; solving it more exactly buys nothing)."""
+    """``step_rtol`` reaches Step 3's conjugate gradients: solved to 1e-4 instead of the default,
+    the same scene takes fewer CG iterations, the same outer iterations and ends as close to the
+    reference (Step 3 is a linearised model of the fit error)."""
     from selfsupport.core.errors import InputError
     from selfsupport.methods.staggered import StaggeredOptions, parse_option
 
-    scene, default = pillar
-    tight = StaggeredLinearization(step_rtol=1e-10).solve(scene, SelfWeight(density=2000, thickness=0.1))
+    scene, tight = pillar
+    default = StaggeredLinearization(step_rtol=1e-4).solve(scene, SelfWeight(density=2000, thickness=0.1))
 
     def cg(res):
         return sum(h["cg_iterations"] for h in res.history if isinstance(h.get("cg_iterations"), int))
 
-    assert StaggeredOptions().step_rtol > 1e-10
+    assert StaggeredOptions().step_rtol < 1e-4
     assert tight.status == default.status == "converged"
     assert cg(default) < cg(tight)
     assert default.iterations == tight.iterations
