@@ -17,9 +17,10 @@ from selfsupport.methods.deadline import DeadlineReached, out_of_time
 #: Weight of the hull's face pins in Step 3, relative to the objective's unit (a quasi-equality).
 HULL_PIN = 1e6
 #: Conjugate gradients solve Step 3 for the step (not the positions) to this relative residual
-#: (option ``step_rtol``): a turned input then gives the turned network to round-off. Looser is
-#: not faster enough to give that up: 1e-4 halves the CG iterations, saves about 5% of the solve
-#: and moves a turned input's network by ~1e-6 of its diagonal (``python -m studies.step_tolerance``).
+#: (option ``step_rtol``), tighter than the step needs, for reproducibility: a pillar vault turned
+#: by 0.3 rad gives the turned network to 4e-10 of its diagonal (tests/test_invariance.py), at 1e-4
+#: to 3e-6. 1e-4 would halve the CG iterations and save about 5% of the solve (the median over the
+#: paper's scenes, ``python -m studies.step_tolerance``).
 STEP_RTOL = 1e-7
 
 
