@@ -19,7 +19,7 @@ HULL_PIN = 1e6
 #: Conjugate gradients solve Step 3 for the step (not the positions) to this relative residual
 #: (option ``step_rtol``), tighter than the step needs, for reproducibility: a pillar vault turned
 #: by 0.3 rad gives the turned network to 4e-10 of its diagonal (tests/test_invariance.py), at 1e-4
-#: to 3e-6. 1e-4 would halve the CG iterations and save about 5% of the solve (the median over the
+#: to 3e-6. 1e-4 would about halve the CG iterations and save about 5% of the solve (the median over the
 #: paper's scenes, ``python -m studies.step_tolerance``).
 STEP_RTOL = 1e-7
 
