@@ -18,9 +18,9 @@ from selfsupport.methods.deadline import DeadlineReached, out_of_time
 HULL_PIN = 1e6
 #: Conjugate gradients solve Step 3 for the step (not the positions) to this relative residual
 #: (option ``step_rtol``), tighter than the step needs, for reproducibility: a pillar vault turned
-#: by 0.3 rad gives the turned network to 4e-10 of its diagonal (tests/test_invariance.py), at 1e-4
-#: to 3e-6. 1e-4 would about halve the CG iterations and save about 5% of the solve (the median over the
-#: paper's scenes, ``python -m studies.step_tolerance``).
+#: by 0.3 rad gives the turned network to 2e-10 of its diagonal, at 1e-4 to 3e-7, past the 1e-7 of
+#: tests/test_invariance.py. 1e-4 would about halve the CG iterations and save about 5% of the solve
+#: (the median over the paper's scenes, ``python -m studies.step_tolerance``).
 STEP_RTOL = 1e-7
 
 
