@@ -392,17 +392,17 @@ def test_step3s_cg_tolerance_is_the_step_rtol_option_and_a_looser_one_leaves_the
     from selfsupport.core.errors import InputError
     from selfsupport.methods.staggered import StaggeredOptions, parse_option
 
-    scene, tight = pillar
-    default = StaggeredLinearization(step_rtol=1e-4).solve(scene, SelfWeight(density=2000, thickness=0.1))
+    scene, tight = pillar  # (the default tolerance)
+    loose = StaggeredLinearization(step_rtol=1e-4).solve(scene, SelfWeight(density=2000, thickness=0.1))
 
     def cg(res):
         return sum(h["cg_iterations"] for h in res.history if isinstance(h.get("cg_iterations"), int))
 
     assert StaggeredOptions().step_rtol < 1e-4
-    assert tight.status == default.status == "converged"
-    assert cg(default) < cg(tight)
-    assert default.iterations == tight.iterations
-    assert default.distance_mean == pytest.approx(tight.distance_mean, rel=1e-3)
+    assert tight.status == loose.status == "converged"
+    assert cg(loose) < cg(tight)
+    assert loose.iterations == tight.iterations
+    assert loose.distance_mean == pytest.approx(tight.distance_mean, rel=1e-3)
     with pytest.raises(InputError):
         parse_option("step_rtol=1")
 
