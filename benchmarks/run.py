@@ -129,6 +129,9 @@ STUDIES: tuple[Study, ...] = (
     # several load cases on the paper's scenes (the load-cases guide's measurements)
     Study("load_cases", "studies.load_cases", (("load_cases.csv", "load_cases.csv"),),
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), *_checker(s)], _no_scenes),
+    # how little bracing the quad designs that stall under those cases need
+    Study("bracing", "studies.bracing", (("bracing.csv", "bracing.csv"),),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), *_checker(s)], _no_scenes),
     # the theory pages' "why not" measurements on generated shapes
     Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
           lambda s, out: ["--out", str(out)], lambda s: ""),

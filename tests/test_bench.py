@@ -12,6 +12,7 @@ import pytest
 
 from benchmarks import report, run
 from studies import (
+    bracing,
     common,
     design_latency,
     destruction,
@@ -181,7 +182,7 @@ def test_every_study_of_the_bench_writes_the_stamp_columns():
     for columns in (table1.COLUMNS, scaling.COLUMNS, scaling.FIT_COLUMNS, peers.ORIGINAL_CSV_COLUMNS,
                     warm_resolve.COLUMNS, design_latency.COLUMNS, planarity.CSV_COLUMNS, pq.CSV_COLUMNS,
                     stability_dome.CSV_COLUMNS, stability_dome.MAX_LOAD_COLUMNS, destruction.CSV_COLUMNS,
-                    koebe.PUBLISHED_COLUMNS, theory_whys.COLUMNS, load_cases.COLUMNS):
+                    koebe.PUBLISHED_COLUMNS, theory_whys.COLUMNS, load_cases.COLUMNS, bracing.COLUMNS):
         assert {c.key for c in common.STAMP_COLUMNS} <= {c.key for c in columns}
 
 
