@@ -15,7 +15,9 @@ load of ``--share`` of the self-weight at the highest free vertex. The steps, ea
   diagonal weight over the cases;
 * ``diagonals ≤ f·D0`` for each of ``--fractions`` (falling): the diagonals' weights bounded to
   ``[0, f·D0]`` [N/m] (the design's own edges keep the default bounds), the staggered method
-  warm-started from the last step that stood;
+  warm-started from the last step that stood. A step that does not stand is retried halfway (on a
+  log scale) from the last bound that stood, at most ``--refine`` times (:data:`REFINE`), and the
+  target again after one that stands; where that does not reach it, the continuation stops;
 * ``quads, staggered`` and ``quads, IPOPT``: the design itself, started from the last step that
   stood with its diagonals dropped (:func:`studies.stand_search.quad_weights`): the staggered
   method, and IPOPT nearest that start (the simultaneous method).
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -56,6 +59,9 @@ from studies.stand_search import STANDS_TOL, quad_weights, write_control
 FRACTIONS = (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001)
 #: The quad designs of the paper whose three cases stall (:mod:`studies.load_cases`).
 SCENES = ("vault-pillar", "cas")
+#: Steps halfway (on a log scale) to a bound after a step that does not stand, before the
+#: continuation stops.
+REFINE = 2
 #: A diagonal "at its bound" carries at least this share of it.
 AT_BOUND = 0.99
 
@@ -109,7 +115,7 @@ def quads_start(res: SolveResult, scene: Any, split_edges: np.ndarray, names: tu
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, fractions: tuple[float, ...],
-          time_limit: float = TIME_LIMIT, log: Any = print) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+          time_limit: float = TIME_LIMIT, refine: int = REFINE, log: Any = print) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The continuation's rows for the scene at ``path`` and what it found at the last step that
     stood (module docstring)."""
     name = path.stem
@@ -144,17 +150,24 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
     info["D0"] = d0
     if not row("split", None, last, diag)["stands"]:
         return rows, {**info, "verdict": "the split design does not stand: no continuation"}
-    last_bound = None
-    for f in fractions:
-        lower, upper = np.full(len(diag), np.nan), np.full(len(diag), np.nan)
-        lower[diag], upper[diag] = 0.0, f * d0
-        res = staggered(split, lower, upper, last)
-        if row(f"diagonals ≤ {f:g}·D0", f * d0, res, diag)["stands"]:
-            last, last_bound = res, f * d0
+    last_f, stopped = 1.0, None  # (the split network's diagonals are within 1·D0)
+    for target in fractions:
+        f, failed = target, 0
+        while last_f > target and stopped is None:
+            lower, upper = np.full(len(diag), np.nan), np.full(len(diag), np.nan)
+            lower[diag], upper[diag] = 0.0, f * d0
+            res = staggered(split, lower, upper, last)
+            if row(f"diagonals ≤ {f:.3g}·D0", f * d0, res, diag)["stands"]:
+                last, last_f, f = res, f, target
+            elif failed < refine:
+                failed, f = failed + 1, math.sqrt(last_f * f)  # halfway, on a log scale
+            else:
+                stopped = target
+    last_bound = None if last_f == 1.0 else last_f * d0
     if last_bound is not None:
         info["at_bound"] = {n: split.mesh.edges[diag][net.weights[diag] >= AT_BOUND * last_bound].tolist()
                             for n, net in last.case_networks}
-    info["last_standing_bound"] = last_bound
+    info["last_standing_bound"], info["stopped_at"] = last_bound, stopped
     start = quads_start(last, scene, split.mesh.edges, tuple(n for n, _ in last.case_networks))
     row("quads, staggered", None, staggered(scene, start=start), None)
     prob = build_problem(scene, load_cases=str(toml))
@@ -175,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fractions", default=",".join(f"{f:g}" for f in FRACTIONS),
                     help="the diagonals' bounds over the split network's largest diagonal weight, falling")
     ap.add_argument("--time-limit", type=float, default=TIME_LIMIT, help="seconds per solve")
+    ap.add_argument("--refine", type=int, default=REFINE,
+                    help="steps halfway to a bound after one that does not stand, before stopping")
     ap.add_argument("--control", action="store_true",
                     help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
@@ -189,16 +204,17 @@ def main(argv: list[str] | None = None) -> int:
     rows, infos = [], {}
     for path in paths:
         scene_rows, infos[path.stem] = study(path, a.out, a.checker if a.checker.is_file() else None, a.share,
-                                             fractions, a.time_limit)
+                                             fractions, a.time_limit, a.refine)
         rows += scene_rows
     write_csv(a.out / "bracing.csv", rows, COLUMNS)
     (a.out / "bracing.json").write_text(json.dumps({"info": infos, "rows": rows}, indent=1, default=str))
     which = "--control" if a.control else f"--only {a.only}"
-    notes = [f"`python -m studies.bracing {which} --share {a.share:g} --fractions {a.fractions}`"]
+    notes = [f"`python -m studies.bracing {which} --share {a.share:g} --fractions {a.fractions} --refine {a.refine}`"]
     for name, info in infos.items():
         ends = ", ".join(f"{r['step']} {r['status']}" for r in rows if r["scene"] == name and r["step"].startswith("quads"))
         notes.append(f"{name}: {info['diagonals']} diagonals added to {info['edges']} edges, D0 = {info['D0']:.4g} N/m; "
-                     f"last step that stood: diagonals ≤ {info.get('last_standing_bound')} N/m; from there {ends}")
+                     f"last step that stood: diagonals ≤ {info.get('last_standing_bound')} N/m (stopped at "
+                     f"{info.get('stopped_at')}·D0); from there {ends}")
     print(write_markdown(a.out / "bracing.md", f"How little bracing the quad designs need at {a.share:.0%}", notes,
                          [("", rows, COLUMNS)]))
     return 0
