@@ -5,7 +5,8 @@ alone.
 ::
 
     python -m studies.bracing --scenes ../shared/paper-scenes/scenes --out out/bracing \\
-        [--only vault-pillar,cas] [--share 0.05] [--fractions 0.5,0.1,0.01,0.001] [--checker PATH] [--control]
+        [--only vault-pillar,cas] [--share 0.05] [--fractions 0.5,0.1,0.01,0.001] [--steps ipopt]
+        [--refine 2] [--time-limit 120] [--step-time-limit 600] [--checker PATH] [--control]
 
 The cases are those of :mod:`studies.load_cases`: empty; snow 80 kg/m² on all faces; a point
 load of ``--share`` of the self-weight at the highest free vertex. The steps, each a row:
@@ -14,10 +15,12 @@ load of ``--share`` of the self-weight at the highest free vertex. The steps, ea
   (:func:`selfsupport.api.triangulated_design`), the diagonals unbounded: ``D0`` is the largest
   diagonal weight over the cases;
 * ``diagonals ≤ f·D0`` for each of ``--fractions`` (falling): the diagonals' weights bounded to
-  ``[0, f·D0]`` [N/m] (the design's own edges keep the default bounds), the staggered method
-  warm-started from the last step that stood. A step that does not stand is retried halfway (on a
-  log scale) from the last bound that stood, at most ``--refine`` times (:data:`REFINE`), and the
-  target again after one that stands; where that does not reach it, the continuation stops;
+  ``[0, f·D0]`` [N/m] (the design's own edges keep the default bounds), solved from the last step
+  that stood: by IPOPT nearest it (``--steps ipopt``, the default: the simultaneous method), or by
+  the staggered method warm-started there (``--steps staggered``). A step that does not stand is
+  retried halfway (on a log scale) from the last bound that stood, at most ``--refine`` times
+  (:data:`REFINE`), and the target again after one that stands; where that does not reach it, the
+  continuation stops;
 * ``quads, staggered`` and ``quads, IPOPT``: the design itself, started from the last step that
   stood with its diagonals dropped (:func:`studies.stand_search.quad_weights`): the staggered
   method, and IPOPT nearest that start (the simultaneous method).
@@ -25,7 +28,7 @@ load of ``--share`` of the self-weight at the highest free vertex. The steps, ea
 A step stands when every case's max relative error (loads of its geometry) is at most
 :data:`~studies.stand_search.STANDS_TOL`; with ``--checker`` the independent checker then confirms it.
 
-Per row: status; the worst case's max relative error; the diagonals' share of the load (per case
+Per row: the method and its status; the worst case's max relative error; the diagonals' share of the load (per case
 the sum of ``|w| · length`` over the diagonals over the case's total load, the largest over the
 cases); the largest weight; the shortest edge of the design over its length in the reference (a
 shrinking edge is the network turning its quads into triangles); iterations and seconds. The JSON
@@ -38,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -56,17 +58,22 @@ from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, tom
 from studies.stand_search import STANDS_TOL, quad_weights, write_control
 
 #: The diagonals' bounds as fractions of the split network's largest diagonal weight.
-FRACTIONS = (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001)
+FRACTIONS = (0.3, 0.1, 0.03, 0.01, 0.003, 0.001)
+#: Seconds per bounded step (IPOPT takes about 300 s a step on cas, 20 on vault-pillar).
+STEP_TIME_LIMIT = 600.0
 #: The quad designs of the paper whose three cases stall (:mod:`studies.load_cases`).
 SCENES = ("vault-pillar", "cas")
 #: Steps halfway (on a log scale) to a bound after a step that does not stand, before the
 #: continuation stops.
 REFINE = 2
+#: The methods of the bounded steps: IPOPT nearest the last step that stood, or the staggered
+#: method from there.
+STEP_METHODS = ("ipopt", "staggered")
 #: A diagonal "at its bound" carries at least this share of it.
 AT_BOUND = 0.99
 
 COLUMNS = (Column("scene", "scene"), Column("point_share", "point share", "{:.0%}"), Column("step", "step"),
-           Column("bound", "diagonal bound [N/m]", "{:.4g}"), Column("status", "status"),
+           Column("bound", "diagonal bound [N/m]", "{:.4g}"), Column("method", "method"), Column("status", "status"),
            Column("worst_error", "worst case: max rel. error", "{:.1e}"),
            Column("checker", "checker", "{:.1e}"),
            Column("diagonal_share", "diagonals' share of the load", "{:.2e}"),
@@ -96,7 +103,7 @@ def measure(res: SolveResult, design_edges: np.ndarray, reference: np.ndarray, d
         float(np.abs(n.weights[diagonals]) @ length[diagonals]) / float(np.abs(n.loads).sum()) for n in nets.values())
     De = np.asarray(design_edges)
     ref_len = np.linalg.norm(reference[De[:, 0]] - reference[De[:, 1]], axis=1)
-    return {"status": res.status, "worst_error": max(n.max_relative_error() for n in nets.values()),
+    return {"method": res.method, "status": res.status, "worst_error": max(n.max_relative_error() for n in nets.values()),
             "diagonal_share": share, "weight_max": max(float(n.weights.max()) for n in nets.values()),
             "shortest_edge": float((np.linalg.norm(V[De[:, 0]] - V[De[:, 1]], axis=1) / ref_len).min()),
             "iterations": res.iterations, "seconds": round(res.wall_time, 1),
@@ -115,9 +122,11 @@ def quads_start(res: SolveResult, scene: Any, split_edges: np.ndarray, names: tu
 
 
 def study(path: Path, out: Path, checker: Path | None, share: float, fractions: tuple[float, ...],
-          time_limit: float = TIME_LIMIT, refine: int = REFINE, log: Any = print) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+          time_limit: float = TIME_LIMIT, refine: int = REFINE, steps: str = STEP_METHODS[0],
+          step_time_limit: float = STEP_TIME_LIMIT, log: Any = print) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The continuation's rows for the scene at ``path`` and what it found at the last step that
-    stood (module docstring)."""
+    stood (module docstring): ``time_limit`` seconds for the split design and for each solve of the
+    design itself, ``step_time_limit`` for each bounded step."""
     name = path.stem
     v, weight = highest_free_and_weight(path)
     cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
@@ -141,9 +150,17 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
                                           "seconds")}, default=str))
         return r
 
-    def staggered(mesh_scene: Any, lower: Any = None, upper: Any = None, start: Any = None) -> SolveResult:
+    def staggered(mesh_scene: Any, lower: Any = None, upper: Any = None, start: Any = None,
+                  limit: float = time_limit) -> SolveResult:
         prob = build_problem(mesh_scene, load_cases=str(toml), bounds=None if lower is None else Bounds(lower, upper))
-        return StaggeredLinearization().solve(prob, {"time_limit": time_limit}, warm_start=start)
+        return StaggeredLinearization().solve(prob, {"time_limit": limit}, warm_start=start)
+
+    def ipopt(mesh_scene: Any, lower: Any = None, upper: Any = None, start: Any = None,
+              limit: float = time_limit) -> SolveResult:
+        prob = build_problem(mesh_scene, load_cases=str(toml), bounds=None if lower is None else Bounds(lower, upper))
+        return Simultaneous().solve(prob, {"warm_start": start, "time_limit": limit, "nearest_to_start": True})
+
+    step = {"staggered": staggered, "ipopt": ipopt}[steps]
 
     last = staggered(split)
     d0 = max(float(n.weights[diag].max()) for _, n in last.case_networks)
@@ -156,7 +173,7 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
         while last_f > target and stopped is None:
             lower, upper = np.full(len(diag), np.nan), np.full(len(diag), np.nan)
             lower[diag], upper[diag] = 0.0, f * d0
-            res = staggered(split, lower, upper, last)
+            res = step(split, lower, upper, last, step_time_limit)
             if row(f"diagonals ≤ {f:.3g}·D0", f * d0, res, diag)["stands"]:
                 last, last_f, f = res, f, target
             elif failed < refine:
@@ -170,11 +187,7 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
     info["last_standing_bound"], info["stopped_at"] = last_bound, stopped
     start = quads_start(last, scene, split.mesh.edges, tuple(n for n, _ in last.case_networks))
     row("quads, staggered", None, staggered(scene, start=start), None)
-    prob = build_problem(scene, load_cases=str(toml))
-    t0 = time.perf_counter()
-    res = Simultaneous().solve(prob, {"warm_start": start, "time_limit": time_limit, "nearest_to_start": True})
-    info["ipopt_seconds"] = round(time.perf_counter() - t0, 1)
-    row("quads, IPOPT", None, res, None)
+    row("quads, IPOPT", None, ipopt(scene, start=start), None)
     return rows, info
 
 
@@ -187,9 +200,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--share", type=float, default=0.05, help="point load's share of the self-weight")
     ap.add_argument("--fractions", default=",".join(f"{f:g}" for f in FRACTIONS),
                     help="the diagonals' bounds over the split network's largest diagonal weight, falling")
-    ap.add_argument("--time-limit", type=float, default=TIME_LIMIT, help="seconds per solve")
+    ap.add_argument("--time-limit", type=float, default=TIME_LIMIT,
+                    help="seconds for the split design and for each solve of the design itself")
+    ap.add_argument("--step-time-limit", type=float, default=STEP_TIME_LIMIT, help="seconds per bounded step")
     ap.add_argument("--refine", type=int, default=REFINE,
                     help="steps halfway to a bound after one that does not stand, before stopping")
+    ap.add_argument("--steps", choices=STEP_METHODS, default=STEP_METHODS[0],
+                    help="the method of the bounded steps (each from the last step that stood)")
     ap.add_argument("--control", action="store_true",
                     help="instead of --only: the tests' free-edged quad vault, which stands under the cases")
     a = ap.parse_args(argv)
@@ -204,12 +221,13 @@ def main(argv: list[str] | None = None) -> int:
     rows, infos = [], {}
     for path in paths:
         scene_rows, infos[path.stem] = study(path, a.out, a.checker if a.checker.is_file() else None, a.share,
-                                             fractions, a.time_limit, a.refine)
+                                             fractions, a.time_limit, a.refine, a.steps, a.step_time_limit)
         rows += scene_rows
     write_csv(a.out / "bracing.csv", rows, COLUMNS)
     (a.out / "bracing.json").write_text(json.dumps({"info": infos, "rows": rows}, indent=1, default=str))
     which = "--control" if a.control else f"--only {a.only}"
-    notes = [f"`python -m studies.bracing {which} --share {a.share:g} --fractions {a.fractions} --refine {a.refine}`"]
+    notes = [f"`python -m studies.bracing {which} --share {a.share:g} --fractions {a.fractions} --steps {a.steps} "
+             f"--refine {a.refine} --time-limit {a.time_limit:g} --step-time-limit {a.step_time_limit:g}`"]
     for name, info in infos.items():
         ends = ", ".join(f"{r['step']} {r['status']}" for r in rows if r["scene"] == name and r["step"].startswith("quads"))
         notes.append(f"{name}: {info['diagonals']} diagonals added to {info['edges']} edges, D0 = {info['D0']:.4g} N/m; "
