@@ -58,7 +58,7 @@ from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, tom
 from studies.stand_search import STANDS_TOL, quad_weights, write_control
 
 #: The diagonals' bounds as fractions of the split network's largest diagonal weight.
-FRACTIONS = (0.3, 0.1, 0.03, 0.01, 0.003, 0.001)
+FRACTIONS = (0.3, 0.1, 0.03, 0.01, 0.003, 0.001, 3e-4, 1e-4, 3e-5, 1e-5)
 #: Seconds per bounded step (IPOPT takes about 300 s a step on cas, 20 on vault-pillar).
 STEP_TIME_LIMIT = 600.0
 #: The quad designs of the paper whose three cases stall (:mod:`studies.load_cases`).
