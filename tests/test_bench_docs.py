@@ -500,3 +500,35 @@ def test_problem_cas_quads_plan_is_blocked_over_a_fixed_plan():
     assert quads["plan_self_stresses"] == quads["result_self_stresses"] == int(m[1])
     assert quads["result_self_stresses"] < quads["fixed_plan_needed"] == int(m[2])
     assert_shown(m[3], quads["fixed_plan_residual"], "cas quads: the least squares over the result's plan")
+
+
+def test_problem_vault_pillar_bracing_goes_down_to_a_collapsing_edge_not_to_quads():
+    m = sentence(PROBLEM, r"On vault-pillar at (\d+)% the diagonals go down to (\S+) `D0`, carrying (\S+)% of the load, "
+                          r"every case to (\S+) by the independent checker; on the way the network shrinks its shortest "
+                          r"edge to (\S+)% of its length and its largest weight grows from (\S+) to (\S+) N/m\. Every "
+                          r"lower bound tried ends at IPOPT's iteration limit, its shortest edge shrinking further \(to "
+                          r"(\S+)%\), and from the last network that stood the quads alone stall at (\S+) \(the staggered "
+                          r"method, as from the reference\) while IPOPT ends at its iteration limit")
+    table = [r for r in rows("bracing.csv") if r["scene"] == "vault-pillar"]
+    assert {round(100 * r["point_share"]) for r in table} == {int(m[1])}
+    split, steps = table[0], [r for r in table if r["step"].startswith("diagonals")]
+    stood = [r for r in steps if r["status"] == "converged"]
+    last = stood[-1]
+    assert split["step"] == "split" and split["status"] == "converged"
+    assert last["step"] == f"diagonals ≤ {m[2]}·D0" and last["method"] == "ipopt"
+    assert_shown(m[3], 100 * last["diagonal_share"], "vault-pillar bracing: the diagonals' share")
+    assert_shown(m[4], last["checker"], "vault-pillar bracing: the last step's error by the checker")
+    assert_shown(m[5], 100 * last["shortest_edge"], "vault-pillar bracing: the shortest edge")
+    assert_shown(m[6], split["weight_max"], "vault-pillar bracing: the split network's largest weight")
+    assert_shown(m[7], last["weight_max"], "vault-pillar bracing: the last step's largest weight")
+    after = steps[steps.index(last) + 1:]
+    assert after and all(r["status"] == "iteration_limit" and r["bound"] < last["bound"] for r in after)
+    assert_shown(m[8], 100 * min(r["shortest_edge"] for r in after), "vault-pillar bracing: the edge shrinking further")
+    quads = {r["step"]: r for r in table if r["step"].startswith("quads")}
+    assert quads["quads, staggered"]["status"] == "stalled"
+    assert_shown(m[9], quads["quads, staggered"]["worst_error"], "vault-pillar bracing: the quads' stall")
+    assert quads["quads, IPOPT"]["status"] == "iteration_limit"
+    # (the quads' stall from the reference: the load-cases study's default row)
+    (default,) = [r for r in rows("load_cases.csv") if r["scene"] == "vault-pillar" and r["variant"] == "default"
+                  and round(100 * r["point_share"]) == int(m[1])]
+    assert_shown(m[9], default["worst_error"], "vault-pillar: the default stall at the same share")
