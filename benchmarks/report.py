@@ -233,18 +233,18 @@ SECTIONS: tuple[Section, ...] = (
              Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:.0f}"),
              Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"))),
     Section("bracing.csv", "How little bracing the quad designs need",
-            "The quad designs whose three cases (as above, point load 5%) stall, split into triangles and solved, "
-            "then the diagonals' weights bounded to [0, f·D0] (D0: the split network's largest diagonal weight), "
-            "each step IPOPT nearest the last step that stood (a step that does not stand retried halfway); then "
-            "the design itself from there, its "
-            "diagonals dropped, by the staggered method and by IPOPT. *diagonals' share*: per case the diagonals' "
-            "forces (weight × length) over the case's total load, the largest; *shortest edge*: the design's "
-            "shortest edge over its length in the reference (a shrinking edge turns quads into triangles).",
+            "vault-pillar, whose three cases (as above, point load 5%) stall as quads: split into triangles and "
+            "solved, then its diagonals' weights bounded to [0, f·D0] (D0: the split network's largest diagonal "
+            "weight), each step IPOPT nearest the last step that stood (a step that does not stand retried "
+            "halfway); then the design itself from there, its diagonals dropped, by the staggered method and by "
+            "IPOPT. *diagonals' share*: per case the diagonals' forces (weight × length) over the case's total "
+            "load, the largest; *shortest edge*: the design's shortest edge over its length in the reference (a "
+            "shrinking edge turns quads into triangles).",
             "python -m studies.bracing --scenes $SCENES --out OUT",
             (Column("scene", "scene"), Column("step", "step"), Column("bound", "diagonal bound [N/m]", "{:.4g}"),
-             Column("method", "method"), Column("status", "status"), Column("worst_error", "worst case: max rel. error", "{:.1e}"),
-             Column("checker", "checker", "{:.1e}"), Column("diagonal_share", "diagonals' share", "{:.2e}"),
-             Column("weight_max", "largest weight [N/m]", "{:.4g}"),
+             Column("method", "method"), Column("status", "status"),
+             Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
+             Column("diagonal_share", "diagonals' share", "{:.2e}"), Column("weight_max", "largest weight [N/m]", "{:.4g}"),
              Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))),
     Section("theory_whys.csv", "Why not: the theory pages' measurements",
             "What the theory pages' *why not* paragraphs quote, on generated shapes: the weight fit's Gram "

@@ -19,7 +19,8 @@ def test_the_diagonals_bound_holds_at_every_step_and_the_quads_stand_from_the_la
     itself, started from the last step with its diagonals dropped, stands by both methods."""
     path = write_control(tmp_path, n=6)
     design_edges = api.as_scene(str(path)).mesh.edges
-    rows, info = study(path, tmp_path, None, 0.05, (0.1, 0.001), time_limit=60.0, step_time_limit=60.0, steps=steps, log=lambda _: None)
+    rows, info = study(path, tmp_path, None, 0.05, (0.1, 0.001), time_limit=60.0, step_time_limit=60.0, steps=steps,
+                       log=lambda _: None)
     assert [r["step"] for r in rows] == ["split", "diagonals ≤ 0.1·D0", "diagonals ≤ 0.001·D0",
                                          "quads, staggered", "quads, IPOPT"]
     assert all(r["stands"] and r["worst_error"] <= STANDS_TOL for r in rows)
