@@ -44,3 +44,14 @@ def test_bracing_docstring_examples():
 
     result = doctest.testmod(bracing, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 1 and result.failed == 0
+
+
+def test_bounds_that_do_not_fall_or_a_missing_scene_are_refused_before_any_solve(tmp_path, capsys):
+    from studies.bracing import main
+
+    with pytest.raises(SystemExit):
+        main(["--control", "--out", str(tmp_path), "--fractions", "0.1,0.5"])
+    assert "--fractions: positive numbers, falling" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--scenes", str(tmp_path), "--only", "absent", "--out", str(tmp_path / "o")])
+    assert "no scene" in capsys.readouterr().err and not (tmp_path / "o" / "bracing.csv").exists()
