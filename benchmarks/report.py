@@ -246,6 +246,15 @@ SECTIONS: tuple[Section, ...] = (
              Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
              Column("diagonal_share", "diagonals' share", "{:.2e}"), Column("weight_max", "largest weight [N/m]", "{:.4g}"),
              Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))),
+    Section("bracing_finer.csv", "How little bracing: another path",
+            "The same continuation through finer bounds (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001 of "
+            "D0): where it ends depends on the path.",
+            "python -m studies.bracing --scenes $SCENES --out OUT --fractions 0.5,0.2,0.1,0.05,0.02,0.01,0.005,0.002,0.001",
+            (Column("scene", "scene"), Column("step", "step"), Column("bound", "diagonal bound [N/m]", "{:.4g}"),
+             Column("method", "method"), Column("status", "status"),
+             Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
+             Column("diagonal_share", "diagonals' share", "{:.2e}"), Column("weight_max", "largest weight [N/m]", "{:.4g}"),
+             Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))),
     Section("theory_whys.csv", "Why not: the theory pages' measurements",
             "What the theory pages' *why not* paragraphs quote, on generated shapes: the weight fit's Gram "
             "matrix on its structural pattern against scipy's product, and the coupled position step's cost "

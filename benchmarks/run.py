@@ -34,6 +34,8 @@ WORK = ROOT / "benchmarks" / "out"
 
 #: The Table 1 variants whose numbers the docs quote: the default method, its refinement, IPOPT.
 TABLE1_METHODS = ("staggered/active-set", "staggered-refine/active-set", "simultaneous/ipopt")
+#: The bracing continuation's second path: finer bounds than its default ones, down to 0.001.
+BRACING_FINER = "0.5,0.2,0.1,0.05,0.02,0.01,0.005,0.002,0.001"
 
 
 @dataclass(frozen=True)
@@ -132,6 +134,9 @@ STUDIES: tuple[Study, ...] = (
     # how little bracing the quad designs that stall under those cases need
     Study("bracing", "studies.bracing", (("bracing.csv", "bracing.csv"),),
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), *_checker(s)], _no_scenes),
+    Study("bracing_finer", "studies.bracing", (("bracing.csv", "bracing_finer.csv"),),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), "--fractions", BRACING_FINER, *_checker(s)],
+          _no_scenes),
     # the theory pages' "why not" measurements on generated shapes
     Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
           lambda s, out: ["--out", str(out)], lambda s: ""),

@@ -532,3 +532,24 @@ def test_problem_vault_pillar_bracing_goes_down_to_a_collapsing_edge_not_to_quad
     (default,) = [r for r in rows("load_cases.csv") if r["scene"] == "vault-pillar" and r["variant"] == "default"
                   and round(100 * r["point_share"]) == int(m[1])]
     assert_shown(m[9], default["worst_error"], "vault-pillar: the default stall at the same share")
+
+
+def test_problem_vault_pillar_bracing_by_finer_steps_ends_where_ipopt_reports_infeasible():
+    m = sentence(PROBLEM, r"through finer bounds \(`--fractions (\S+)`\) the diagonals go down to (\S+) `D0`, carrying "
+                          r"(\S+)% of the load, its shortest edge at (\d+)% of its length; bounded to (\S+) `D0` from "
+                          r"there, IPOPT reports the problem infeasible \(`Infeasible_Problem_Detected`, a local "
+                          r"verdict\), and the quads alone stall at (\S+) once more")
+    from benchmarks.run import BRACING_FINER
+
+    assert m[1] == BRACING_FINER
+    table = [r for r in rows("bracing_finer.csv") if r["scene"] == "vault-pillar"]
+    steps = [r for r in table if r["step"].startswith("diagonals")]
+    last = [r for r in steps if r["status"] == "converged"][-1]
+    assert last["step"] == f"diagonals ≤ {m[2]}·D0" and last["checker"] <= 1e-8
+    assert_shown(m[3], 100 * last["diagonal_share"], "vault-pillar finer bracing: the diagonals' share")
+    assert_shown(m[4], 100 * last["shortest_edge"], "vault-pillar finer bracing: the shortest edge")
+    final = steps[-1]
+    assert final["step"] == f"diagonals ≤ {m[5]}·D0" and final["status"] == "infeasible"
+    (quads,) = [r for r in table if r["step"] == "quads, staggered"]
+    assert quads["status"] == "stalled"
+    assert_shown(m[6], quads["worst_error"], "vault-pillar finer bracing: the quads' stall")
