@@ -56,6 +56,14 @@ def typed(rows: Sequence[Mapping[str, str]]) -> list[dict[str, float | int | str
     return [{k: (math.nan if v == "" else _num(v)) for k, v in r.items()} for r in rows]
 
 
+#: The columns of the two bracing paths' sections.
+_BRACING_COLUMNS = (Column("scene", "scene"), Column("step", "step"), Column("bound", "diagonal bound [N/m]", "{:.4g}"),
+                    Column("method", "method"), Column("status", "status"),
+                    Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
+                    Column("diagonal_share", "diagonals' share", "{:.2e}"),
+                    Column("weight_max", "largest weight [N/m]", "{:.4g}"),
+                    Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))
+
 SECTIONS: tuple[Section, ...] = (
     Section("table1.csv", "Table 1: the paper's scenes",
             "Each Table 1 scene of the paper solved by the default method (staggered, active-set weight fit), "
@@ -241,20 +249,12 @@ SECTIONS: tuple[Section, ...] = (
             "load, the largest; *shortest edge*: the design's shortest edge over its length in the reference (a "
             "shrinking edge turns quads into triangles).",
             "python -m studies.bracing --scenes $SCENES --out OUT",
-            (Column("scene", "scene"), Column("step", "step"), Column("bound", "diagonal bound [N/m]", "{:.4g}"),
-             Column("method", "method"), Column("status", "status"),
-             Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
-             Column("diagonal_share", "diagonals' share", "{:.2e}"), Column("weight_max", "largest weight [N/m]", "{:.4g}"),
-             Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))),
+            _BRACING_COLUMNS),
     Section("bracing_finer.csv", "How little bracing: another path",
             "The same continuation through finer bounds (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001 of "
             "D0): where it ends depends on the path.",
             "python -m studies.bracing --scenes $SCENES --out OUT --fractions 0.5,0.2,0.1,0.05,0.02,0.01,0.005,0.002,0.001",
-            (Column("scene", "scene"), Column("step", "step"), Column("bound", "diagonal bound [N/m]", "{:.4g}"),
-             Column("method", "method"), Column("status", "status"),
-             Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
-             Column("diagonal_share", "diagonals' share", "{:.2e}"), Column("weight_max", "largest weight [N/m]", "{:.4g}"),
-             Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))),
+            _BRACING_COLUMNS),
     Section("theory_whys.csv", "Why not: the theory pages' measurements",
             "What the theory pages' *why not* paragraphs quote, on generated shapes: the weight fit's Gram "
             "matrix on its structural pattern against scipy's product, and the coupled position step's cost "
