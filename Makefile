@@ -7,7 +7,7 @@
 #   make test-slow   run the tests marked slow
 #   make fuzz        property-based fuzzing with the large hypothesis profile
 #   make bench       run the studies behind the documentation's numbers -> benchmarks/results/*.csv and the
-#                    generated page docs/benchmarks.md (40-60 minutes; BENCH_SIZES=1000,4000,16000,64000 for
+#                    generated page docs/benchmarks.md (50-70 minutes; BENCH_SIZES=1000,4000,16000,64000 for
 #                    the big scaling sizes, BENCH_ONLY=table1,pq for some studies)
 #   make lock        re-resolve requirements/*.lock from pyproject.toml's ranges (newest releases)
 #   make test-latest run the fast suite against the newest releases (.venv-latest) and list what moved
