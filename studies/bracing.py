@@ -22,7 +22,7 @@ load of ``--share`` of the self-weight at the highest free vertex. The steps, ea
   (:data:`REFINE`), and the target again after one that stands; where that does not reach it, the
   continuation stops;
 * ``quads, staggered`` and ``quads, IPOPT``: the design itself, started from the last step that
-  stood with its diagonals dropped (:func:`studies.stand_search.quad_weights`): the staggered
+  stood with its diagonals dropped (:func:`studies.stand_search.quads_start`): the staggered
   method, and IPOPT nearest that start (the simultaneous method).
 
 A step stands when every case's max relative error (loads of its geometry) is at most
@@ -48,14 +48,14 @@ import numpy as np
 
 from formulations.problem import Bounds
 from selfsupport import api
-from selfsupport.core.result import Network, SolveResult
+from selfsupport.core.result import SolveResult
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, write_csv, write_markdown
 from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, toml_text
-from studies.stand_search import STANDS_TOL, quad_weights, write_control
+from studies.stand_search import STANDS_TOL, quads_start, write_control
 
 #: The diagonals' bounds as fractions of the split network's largest diagonal weight.
 FRACTIONS = (0.3, 0.1, 0.03, 0.01, 0.003, 0.001, 3e-4, 1e-4, 3e-5, 1e-5)
@@ -111,17 +111,6 @@ def measure(res: SolveResult, design_edges: np.ndarray, reference: np.ndarray, d
             "errors": {k: n.max_relative_error() for k, n in nets.items()}}
 
 
-def quads_start(res: SolveResult, scene: Any, split_edges: np.ndarray, names: tuple[str, ...]) -> SolveResult:
-    """The design's start from a split network: its positions, each case's weights on the
-    design's edges (the diagonals dropped) and its loads."""
-    nets = dict(res.case_networks)
-    mesh = scene.mesh.with_vertices(res.network.vertices)
-    cases = tuple((n, Network(mesh=mesh, weights=quad_weights(split_edges, nets[n].weights, scene.mesh.edges),
-                              loads=nets[n].loads, supports=scene.supports, reference=scene.mesh)) for n in names)
-    return SolveResult.build(cases[0][1], cases=cases, status=res.status, method=res.method, backend="",
-                             iterations=0, wall_time=0.0)
-
-
 def study(path: Path, out: Path, checker: Path | None, share: float, fractions: tuple[float, ...],
           time_limit: float = TIME_LIMIT, refine: int = REFINE, steps: str = STEP_METHODS[0],
           step_time_limit: float = STEP_TIME_LIMIT, log: Any = print) -> tuple[list[dict[str, Any]], dict[str, Any]]:
@@ -151,15 +140,17 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
                                           "seconds")}, default=str))
         return r
 
+    def problem(mesh_scene: Any, lower: Any, upper: Any) -> Any:
+        return build_problem(mesh_scene, load_cases=str(toml), bounds=None if lower is None else Bounds(lower, upper))
+
     def staggered(mesh_scene: Any, lower: Any = None, upper: Any = None, start: Any = None,
                   limit: float = time_limit) -> SolveResult:
-        prob = build_problem(mesh_scene, load_cases=str(toml), bounds=None if lower is None else Bounds(lower, upper))
-        return StaggeredLinearization().solve(prob, {"time_limit": limit}, warm_start=start)
+        return StaggeredLinearization().solve(problem(mesh_scene, lower, upper), {"time_limit": limit}, warm_start=start)
 
     def ipopt(mesh_scene: Any, lower: Any = None, upper: Any = None, start: Any = None,
               limit: float = time_limit) -> SolveResult:
-        prob = build_problem(mesh_scene, load_cases=str(toml), bounds=None if lower is None else Bounds(lower, upper))
-        return Simultaneous().solve(prob, {"warm_start": start, "time_limit": limit, "nearest_to_start": True})
+        return Simultaneous().solve(problem(mesh_scene, lower, upper),
+                                    {"warm_start": start, "time_limit": limit, "nearest_to_start": True})
 
     step = {"staggered": staggered, "ipopt": ipopt}[steps]
 

@@ -132,6 +132,18 @@ def quad_weights(split_edges: np.ndarray, split_weights: np.ndarray, edges: np.n
     return np.asarray(split_weights, float)[..., [index[p] for p in pairs]]
 
 
+def quads_start(res: SolveResult, scene: Any, split_edges: np.ndarray, names: tuple[str, ...]) -> SolveResult:
+    """A start on the design ``scene`` from a network ``res`` of its split mesh (edges
+    ``split_edges``): its positions, and each of the cases ``names``' weights on the design's edges
+    (:func:`quad_weights`, the diagonals dropped) with that case's loads."""
+    nets = dict(res.case_networks)
+    mesh = scene.mesh.with_vertices(res.network.vertices)
+    cases = tuple((n, Network(mesh=mesh, weights=quad_weights(split_edges, nets[n].weights, scene.mesh.edges),
+                              loads=nets[n].loads, supports=scene.supports, reference=scene.mesh)) for n in names)
+    return SolveResult.build(cases[0][1], cases=cases, status=res.status, method=res.method, backend="",
+                             iterations=0, wall_time=0.0)
+
+
 def write_control(folder: Path, n: int = 10, span: float = 3.0) -> Path:
     """The control: the tests' free-edged quad vault (``tests/test_load_continuation.py``: an
     ``n`` × ``n`` grid over a paraboloid of rise 1 m, the paper's vault-pillar layout of
@@ -179,13 +191,7 @@ def triangulated_start(path: Path, toml: Path, scene: Any, problem: Problem, tim
     res = StaggeredLinearization().solve(build_problem(tri, load_cases=str(toml), eps=eps), {"time_limit": time_limit})
     info = {"status": res.status, "max_relative_error": res.max_relative_error,
             "seconds": round(time.perf_counter() - t0, 1)}
-    nets = dict(res.case_networks)
-    mesh = scene.mesh.with_vertices(res.network.vertices)
-    cases = tuple((name, Network(mesh=mesh, weights=quad_weights(tri.mesh.edges, nets[name].weights, scene.mesh.edges),
-                                 loads=nets[name].loads, supports=scene.supports, reference=scene.mesh))
-                  for name in problem.loads.names)
-    return SolveResult.build(cases[0][1], cases=cases, status=res.status, method="staggered", backend="",
-                             iterations=0, wall_time=0.0), info
+    return quads_start(res, scene, tri.mesh.edges, problem.loads.names), info
 
 
 def starts(path: Path, toml: Path, problem: Problem, seeds: tuple[int, ...], eps: float | None = None,
