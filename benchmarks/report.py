@@ -62,7 +62,9 @@ _BRACING_COLUMNS = (Column("scene", "scene"), Column("step", "step"), Column("bo
                     Column("worst_error", "worst case: max rel. error", "{:.1e}"), Column("checker", "checker", "{:.1e}"),
                     Column("diagonal_share", "diagonals' share", "{:.2e}"),
                     Column("weight_max", "largest weight [N/m]", "{:.4g}"),
-                    Column("shortest_edge", "shortest edge / reference", "{:.3g}"), Column("seconds", "time [s]", "{:.0f}"))
+                    Column("shortest_edge", "shortest edge / reference", "{:.3g}"),
+                    Column("star_degeneracy", "peel: smallest star degeneracy", "{:.1e}"),
+                    Column("seconds", "time [s]", "{:.0f}"))
 
 SECTIONS: tuple[Section, ...] = (
     Section("table1.csv", "Table 1: the paper's scenes",
@@ -231,7 +233,10 @@ SECTIONS: tuple[Section, ...] = (
             "and no weights of either sign carry cases that are not proportional); *any weights carry the "
             "difference*: at the result's geometry, the relative residual of the best change of the weights "
             "(either sign, unbounded) carrying the cases' load differences (well above round-off: the "
-            "geometry blocks, not the bounds).",
+            "geometry blocks, not the bounds); *the peel reaches the point load*: from the free vertices with "
+            "three edges or fewer, the weights' difference between the point case and the empty one is forced "
+            "to zero on every edge of the loaded vertex (the mesh alone decides it): then only a network with a "
+            "degenerate vertex star carries both.",
             "python -m studies.load_cases --scenes $SCENES --out OUT --csv benchmarks/results/load_cases.csv",
             (Column("scene", "scene"), Column("cases", "cases"), Column("point_share", "point share", "{:.0%}"),
              Column("variant", "variant"), Column("status", "status"), Column("wall_s", "wall [s]", "{:.0f}"),
@@ -239,7 +244,21 @@ SECTIONS: tuple[Section, ...] = (
              Column("ipopt_status", "IPOPT from the staggered network"),
              Column("plan_count", "plan: edges − horizontal equations", "{:.0f}"),
              Column("plan_self_stresses", "self-stresses of the envelope's plan", "{:.0f}"),
-             Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"))),
+             Column("carry_residual", "any weights carry the difference: residual", "{:.1e}"),
+             Column("peel_blocks", "the peel reaches the point load"))),
+    Section("peel.csv", "The peel from the free edges: which meshes rule out a point-load case",
+            "Every scene file, the point load at its highest free vertex, the empty case beside it: from the "
+            "free vertices with three edges or fewer, the weights' difference between the two cases is forced "
+            "to zero edge by edge ([theory](theory/load-cases.md)). Where it *reaches the loaded vertex*, only a "
+            "network with a degenerate vertex star (two edges on a line, three in a plane, an edge of zero "
+            "length) carries both cases, whatever the weights' sign or bounds. The mesh alone decides it; the "
+            "degeneracy is measured at the scene's own positions.",
+            "python -m studies.peel --scenes $SCENES --out OUT",
+            (Column("scene", "scene"), Column("faces", "faces"), Column("free", "free vertices", "{:.0f}"),
+             Column("peel_starts", "free vertices with ≤ 3 edges", "{:.0f}"), Column("edges", "edges", "{:.0f}"),
+             Column("loaded", "loaded vertex", "{:.0f}"), Column("steps", "peel steps", "{:.0f}"),
+             Column("forced", "forced edges", "{:.0f}"), Column("reaches", "reaches the loaded vertex"),
+             Column("degeneracy", "smallest star degeneracy", "{:.1e}"))),
     Section("bracing.csv", "How little bracing the quad designs need",
             "vault-pillar, whose three cases (as above, point load 5%) stall as quads: split into triangles and "
             "solved, then its diagonals' weights bounded to [0, f·D0] (D0: the split network's largest diagonal "
@@ -247,7 +266,9 @@ SECTIONS: tuple[Section, ...] = (
             "halfway); then the design itself from there, its diagonals dropped, by the staggered method and by "
             "IPOPT. *diagonals' share*: per case the diagonals' forces (weight × length) over the case's total "
             "load, the largest; *shortest edge*: the design's shortest edge over its length in the reference (a "
-            "shrinking edge turns quads into triangles).",
+            "shrinking edge turns quads into triangles); *peel: smallest star degeneracy*: at the row's "
+            "positions, the smallest singular value of the edge directions of the stars the design's peel of the "
+            "point load passes (0: degenerate, where alone the quads can carry the cases).",
             "python -m studies.bracing --scenes $SCENES --out OUT",
             _BRACING_COLUMNS),
     Section("bracing_finer.csv", "How little bracing: another path",

@@ -137,6 +137,9 @@ STUDIES: tuple[Study, ...] = (
     Study("bracing_finer", "studies.bracing", (("bracing.csv", "bracing_finer.csv"),),
           lambda s, out: ["--scenes", str(s.scenes), "--out", str(out), "--fractions", BRACING_FINER, *_checker(s)],
           _no_scenes),
+    # which scenes' meshes rule out a point-load case beside the empty one (no solve)
+    Study("peel", "studies.peel", (("peel.csv", "peel.csv"),),
+          lambda s, out: ["--scenes", str(s.scenes), "--out", str(out)], _no_scenes),
     # the theory pages' "why not" measurements on generated shapes
     Study("theory_whys", "studies.theory_whys", (("theory_whys.csv", "theory_whys.csv"),),
           lambda s, out: ["--out", str(out)], lambda s: ""),

@@ -31,8 +31,10 @@ A step stands when every case's max relative error (loads of its geometry) is at
 Per row: the method and its status; the worst case's max relative error; the diagonals' share of
 the load (per case the sum of ``|w| · length`` over the diagonals over the case's total load, the
 largest over the cases); the largest weight; the shortest edge of the design over its length in
-the reference (a shrinking edge is the network turning its quads into triangles); iterations and
-seconds. The JSON also lists, for the last step that stood, the diagonals at their bound in each
+the reference (a shrinking edge is the network turning its quads into triangles); the smallest
+degeneracy, at the row's positions, of the stars of the design's peel of the point load
+(:mod:`selfsupport.analysis.peel`: where that peel reaches the loaded vertex, the quads alone carry
+the cases only where it is zero); iterations and seconds. The JSON also lists, for the last step that stood, the diagonals at their bound in each
 case (the faces that still need bracing there). Writes ``bracing.csv``, ``bracing.md``,
 ``bracing.json`` and each row's network (``SCENE-SHARE-stepK.json``) into ``--out``.
 """
@@ -48,13 +50,14 @@ import numpy as np
 
 from formulations.problem import Bounds
 from selfsupport import api
+from selfsupport.analysis.peel import DifferencePeel, star_degeneracy
 from selfsupport.core.result import SolveResult
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, write_csv, write_markdown
-from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, toml_text
+from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, point_peel, toml_text
 from studies.stand_search import STANDS_TOL, quads_start, write_control
 
 #: The diagonals' bounds as fractions of the split network's largest diagonal weight.
@@ -80,6 +83,7 @@ COLUMNS = (Column("scene", "scene"), Column("point_share", "point share", "{:.0%
            Column("diagonal_share", "diagonals' share of the load", "{:.2e}"),
            Column("weight_max", "largest weight [N/m]", "{:.4g}"),
            Column("shortest_edge", "shortest edge / its reference length", "{:.3g}"),
+           Column("star_degeneracy", "the point load's peel: smallest star degeneracy", "{:.1e}"),
            Column("iterations", "iterations", "{:d}"), Column("seconds", "seconds", "{:.1f}"), *STAMP_COLUMNS)
 
 
@@ -93,10 +97,11 @@ def diagonal_mask(split_edges: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return np.array([(int(min(a, b)), int(max(a, b))) not in kept for a, b in np.asarray(split_edges)], bool)
 
 
-def measure(res: SolveResult, design_edges: np.ndarray, reference: np.ndarray, diagonals: np.ndarray | None
-            ) -> dict[str, Any]:
+def measure(res: SolveResult, design_edges: np.ndarray, reference: np.ndarray, diagonals: np.ndarray | None,
+            peel: DifferencePeel) -> dict[str, Any]:
     """A row's measurements of ``res`` (module docstring); ``diagonals`` marks the diagonals among
-    its mesh's edges (``None``: the design itself, no diagonals)."""
+    its mesh's edges (``None``: the design itself, no diagonals); ``peel`` is the design's peel of
+    the point load (:func:`studies.load_cases.point_peel`)."""
     V, E = res.network.vertices, res.network.edges
     nets = dict(res.case_networks)
     length = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
@@ -107,6 +112,7 @@ def measure(res: SolveResult, design_edges: np.ndarray, reference: np.ndarray, d
     return {"method": res.method, "status": res.status, "worst_error": max(n.max_relative_error() for n in nets.values()),
             "diagonal_share": share, "weight_max": max(float(n.weights.max()) for n in nets.values()),
             "shortest_edge": float((np.linalg.norm(V[De[:, 0]] - V[De[:, 1]], axis=1) / ref_len).min()),
+            "star_degeneracy": star_degeneracy(peel, V).smallest if peel.steps else None,
             "iterations": res.iterations, "seconds": round(res.wall_time, 1),
             "errors": {k: n.max_relative_error() for k, n in nets.items()}}
 
@@ -124,11 +130,12 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
     toml.write_text(toml_text(cases))
     scene, split = api.as_scene(str(path)), api.triangulated_design(str(path))
     diag = diagonal_mask(split.mesh.edges, scene.mesh.edges)
+    peel = point_peel(scene, v)
     stamp, rows, info = run_stamp(), [], {"cases": cases, "diagonals": int(diag.sum()), "edges": len(scene.mesh.edges)}
 
     def row(step: str, bound: float | None, res: SolveResult, diagonals: np.ndarray | None) -> dict[str, Any]:
         r = {"scene": name, "point_share": share, "step": step, "bound": bound,
-             **measure(res, scene.mesh.edges, scene.mesh.vertices, diagonals), **stamp}
+             **measure(res, scene.mesh.edges, scene.mesh.vertices, diagonals, peel), **stamp}
         net = out / f"{name}-{share:g}-step{len(rows)}.json"
         write_network(net, res)
         if checker is not None and r["worst_error"] <= STANDS_TOL:

@@ -49,6 +49,8 @@ from typing import Any
 
 import numpy as np
 
+from selfsupport.analysis.peel import difference_peel, star_degeneracy
+from selfsupport.io import read_network
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, markdown_table, run_stamp, write_csv
 
 TIME_LIMIT = 120.0
@@ -74,11 +76,13 @@ COLUMNS = (Column("scene", "scene"), Column("cases", "cases"), Column("point_sha
            Column("blocked_case", "the continuation's blocked case"),
            Column("compression_lp", "within the bounds at its last network (LP)"),
            Column("tension_share", "least tension there / the case's load", "{:.2g}"),
+           Column("peel_blocks", "the peel from the free edges reaches the point load"),
+           Column("star_degeneracy", "its stars' smallest degeneracy at the result", "{:.1e}"),
            Column("errors", "error per case (checker)")) + STAMP_COLUMNS
 #: The benchmark page's columns (benchmarks/report.py): the table kept short.
 SHORT = tuple(c for c in COLUMNS if c.key in ("scene", "cases", "point_share", "variant", "status", "wall_s",
                                                "worst_case", "worst_error", "ipopt_status", "plan_count",
-                                               "plan_self_stresses", "carry_residual"))
+                                               "plan_self_stresses", "carry_residual", "peel_blocks"))
 
 
 def highest_free_and_weight(path: Path | Any) -> tuple[int, float]:
@@ -120,14 +124,23 @@ def checked(path: Path, checker: Path, flags: list[str]) -> dict[str, float]:
     return out
 
 
-def plan_count(path: Path, *, triangulate: bool = False) -> int:
-    """Edges that carry a weight less twice the free vertices (the plan's horizontal equations),
-    of the scene at ``path`` or (``triangulate``) of its design split into triangles as
+def design(path: Path, *, triangulate: bool = False) -> Any:
+    """The scene at ``path`` or (``triangulate``) its design split into triangles as
     ``selfsupport solve --triangulate`` splits it."""
     from selfsupport import api
 
-    scene = api.triangulated_design(str(path)) if triangulate else api.as_scene(str(path))
+    return api.triangulated_design(str(path)) if triangulate else api.as_scene(str(path))
+
+
+def plan_count(scene: Any) -> int:
+    """Edges that carry a weight less twice the free vertices (the plan's horizontal equations)."""
     return int(np.count_nonzero(scene.active_edges)) - 2 * int(np.count_nonzero(~scene.supports))
+
+
+def point_peel(scene: Any, vertex: int) -> Any:
+    """The peel from the free edges (:func:`selfsupport.analysis.peel.difference_peel`) of the
+    cases' one difference, the point load at ``vertex``."""
+    return difference_peel(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports, [vertex])
 
 
 def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...],
@@ -138,10 +151,12 @@ def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...],
     for name in names:
         path = scenes / f"{name}.sss"
         v, weight = highest_free_and_weight(path)
+        scene = design(path)
+        split = design(path, triangulate=True) if "triangulated" in variants else None
         for share in shares:
             cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
             base = {"scene": name, "path": path, "point_share": share, "cases": cases,
-                    "plan_count": plan_count(path)}
+                    "plan_count": plan_count(scene), "peel": point_peel(scene, v)}
             if "default" in variants:
                 result.append({**base, "variant": "default", "extra": [], "flags": []})
             if share != max(shares):
@@ -151,7 +166,7 @@ def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...],
                     continue
                 job = {**base, "variant": label, "cases": {k: cases[k] for k in kept}, "extra": extra, "flags": flags}
                 if "--triangulate" in extra:
-                    job["plan_count"] = plan_count(path, triangulate=True)
+                    job.update(plan_count=plan_count(split), peel=point_peel(split, v))
                 result.append(job)
     return result
 
@@ -190,6 +205,8 @@ def run(job: dict, out: Path, checker: Path) -> dict:
                fixed_plan_needed=fp.get("needed"), fixed_plan_residual=fp.get("residual"),
                carry_residual=max((c["max_relative_residual"] for c in carry.values()), default=None),
                blocked_case=block.get("case"), compression_lp=lp.get("status"), tension_share=lp.get("tension_share"),
+               peel_blocks="yes" if job["peel"].blocked else "no",
+               star_degeneracy=star_degeneracy(job["peel"], read_network(net).vertices).smallest if job["peel"].steps else None,
                message=d.get("message"))
     return row
 

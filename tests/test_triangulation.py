@@ -316,4 +316,4 @@ def test_the_load_case_study_triangulates_by_the_solve_option(tmp_path):
     quad_edges = _edge_set(scene.mesh)
     added = np.array([tuple(e) not in quad_edges for e in split.mesh.edges.tolist()])
     assert 0 < int((added & split.active_edges).sum()) < scene.mesh.n_faces
-    assert job["plan_count"] == study.plan_count(tmp_path / "vault.sss") + int((added & split.active_edges).sum())
+    assert job["plan_count"] == study.plan_count(study.design(tmp_path / "vault.sss")) + int((added & split.active_edges).sum())

@@ -94,6 +94,7 @@ import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
+from selfsupport.analysis.peel import difference_peel, loads_differ, star_degeneracy
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods import find_method, method_class
@@ -237,13 +238,31 @@ def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
     ``A(X) (w_c − w_1) = L_c − L_1`` holds exactly in any network that carries both: a residual
     well above round-off says this geometry cannot carry them with any weights (the geometry
     blocks, not the bounds); near round-off, weights of some sign exist here, and the bounds or
-    the iteration's reach are what is missing."""
+    the iteration's reach are what is missing.
+
+    Each case's entry also holds its ``peel`` (:func:`case_peel`): whether the mesh alone rules out
+    every network whose stars are not degenerate."""
     (first_name, first), *rest = result.case_networks
     top = _active_topology(first)
     A = weight_matrix(top, first.vertices).tocsc()
     free_idx = np.flatnonzero(top.free)
-    return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx)}
+    return {name: {"from": first_name, **_carried(top, A, other.loads - first.loads, other.loads, free_idx),
+                   "peel": case_peel(top, first.vertices, first.loads, other.loads)}
             for name, other in rest}
+
+
+def case_peel(top: Topology, X: np.ndarray, first: np.ndarray, other: np.ndarray) -> dict[str, Any]:
+    """:func:`~selfsupport.analysis.peel.difference_peel` of two cases' nodal loads at the positions
+    ``X``: the vertices where they differ, those the peel from the free edges reaches
+    (``blocked_at``: then no network of this mesh carries both unless a star the peel passes is
+    degenerate), its steps, and the smallest degeneracy of those stars at ``X`` and its vertex."""
+    loaded = loads_differ(first, other, top.free)
+    peel = difference_peel(top.n, top.edges, ~top.free, loaded)
+    deg = star_degeneracy(peel, X)
+    return {"loaded": [int(v) for v in loaded[:REPORTED]], "n_loaded": int(loaded.size),
+            "blocked_at": [int(v) for v in peel.blocked_at[:REPORTED]], "steps": peel.steps,
+            "forced_edges": int(peel.forced.sum()), "smallest_degeneracy": deg.smallest if peel.steps else None,
+            "degenerate_vertex": deg.vertex}
 
 
 def least_tension(top: Topology, X: np.ndarray, L: np.ndarray, lower: Any, upper: Any, *,
@@ -842,9 +861,22 @@ def carry_note(carry: dict[str, dict[str, Any]]) -> str:
     if c["max_relative_residual"] > BLOCKED_RESIDUAL:
         return (f"at this network no change of the weights, of either sign and unbounded, carries case {name!r}'s "
                 f"load difference from case {c['from']!r} (relative residual {c['max_relative_residual']:.2e}, at "
-                f"vertices {c['vertices']}): the geometry blocks, not the weights' bounds")
+                f"vertices {c['vertices']}): the geometry blocks, not the weights' bounds" + peel_note(name, c))
     return (f"at this network weights of either sign carry every case's load difference from case {c['from']!r} "
             f"(relative residual at most {c['max_relative_residual']:.1e}): the weights' bounds, or the "
             "iteration's reach, block it")
 
 
+def peel_note(name: str, c: dict[str, Any]) -> str:
+    """:func:`case_peel` of ``any_weights_carry``'s case ``c`` in a clause, where the peel blocks it."""
+    p = c.get("peel") or {}
+    if not p.get("blocked_at"):
+        return ""
+    deg = p["smallest_degeneracy"]
+    return (f"; nor does any network of this mesh without a degenerate vertex star: case {name!r} differs from "
+            f"{c['from']!r} only at vertices {p['loaded']}, and from the free vertices with three edges or fewer, "
+            f"{p['steps']} vertices in turn force the weights' difference to zero on {p['forced_edges']} edges, "
+            f"every edge at vertex {p['blocked_at'][0]} among them (selfsupport.analysis.peel); only where some of "
+            f"those stars degenerate (two edges on a line, three in a plane, an edge of zero length; here the "
+            f"smallest singular value of their directions is {deg:.1e}, at vertex {p['degenerate_vertex']}) can one "
+            f"geometry carry both: split the quads into triangles (solve --triangulate) or support the free edges")
