@@ -251,7 +251,7 @@ SECTIONS: tuple[Section, ...] = (
             "free vertices with three edges or fewer, the weights' difference between the two cases is forced "
             "to zero edge by edge ([theory](theory/load-cases.md)). Where it *reaches the loaded vertex*, only a "
             "network with a degenerate vertex star (two edges on a line, three in a plane, an edge of zero "
-            "length) carries both cases, whatever the weights' sign or bounds. The mesh alone decides it; the "
+            "length) can carry both cases, whatever the weights' sign or bounds. The mesh alone decides it; the "
             "degeneracy is measured at the scene's own positions.",
             "python -m studies.peel --scenes $SCENES --out OUT",
             (Column("scene", "scene"), Column("faces", "faces"), Column("free", "free vertices", "{:.0f}"),
@@ -268,7 +268,7 @@ SECTIONS: tuple[Section, ...] = (
             "load, the largest; *shortest edge*: the design's shortest edge over its length in the reference (a "
             "shrinking edge turns quads into triangles); *peel: smallest star degeneracy*: at the row's "
             "positions, the smallest singular value of the edge directions of the stars the design's peel of the "
-            "point load passes (0: degenerate, where alone the quads can carry the cases).",
+            "point load passes (0: degenerate; only there could the quads alone carry the cases).",
             "python -m studies.bracing --scenes $SCENES --out OUT",
             _BRACING_COLUMNS),
     Section("bracing_finer.csv", "How little bracing: another path",

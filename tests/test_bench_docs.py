@@ -553,3 +553,44 @@ def test_problem_vault_pillar_bracing_by_finer_steps_ends_where_ipopt_reports_in
     (quads,) = [r for r in table if r["step"] == "quads, staggered"]
     assert quads["status"] == "stalled"
     assert_shown(m[6], quads["worst_error"], "vault-pillar finer bracing: the quads' stall")
+
+
+def test_problem_the_peel_reaches_the_point_load_on_vault_pillar_and_cas_and_not_on_lilium():
+    sentence(PROBLEM, r"on vault-pillar and cas this \*peel\* reaches every edge of the loaded vertex")
+    sentence(PROBLEM, r"lilium, a triangle mesh, is not peeled at all")
+    peel = {r["scene"]: r for r in rows("peel.csv")}
+    assert peel["vault-pillar"]["reaches"] == peel["cas"]["reaches"] == "yes"
+    assert peel["lilium"]["reaches"] == "no" and peel["lilium"]["steps"] == 0
+    # the same verdict where the load-cases study solved them
+    for r in rows("load_cases.csv"):
+        assert r["peel_blocks"] == ("yes" if r["scene"] in ("vault-pillar", "cas") and r["variant"] != "triangulated"
+                                    else "no"), (r["scene"], r["variant"])
+
+
+# ------------------------------------------------------------------------ docs/theory/load-cases.md
+LOAD_CASES = "docs/theory/load-cases.md"
+
+
+def test_load_cases_theory_which_scenes_the_peel_rules_out():
+    m = sentence(LOAD_CASES, r"the peel reaches the loaded vertex on ([\w\-, ]+?), and on none of ([\w\-, ]+?)\. "
+                             r"The first five are meshes of quads \(structural has (\d+) triangles among them\); cas has only (\d+) free vertices with three edges or "
+                             r"fewer, and its peel still forces all (\d+) of its edges")
+    names = lambda text: set(re.split(r", | and ", text))  # noqa: E731
+    peel = {r["scene"]: r for r in rows("peel.csv")}
+    assert {s for s, r in peel.items() if r["reaches"] == "yes"} == names(m[1])
+    assert {s for s, r in peel.items() if r["reaches"] == "no"} == names(m[2])
+    assert all("quads" in peel[s]["faces"] for s in names(m[1]))
+    assert peel["structural"]["faces"].startswith(f"{m[3]} triangles, ")
+    assert peel["cas"]["peel_starts"] == int(m[4]) and peel["cas"]["forced"] == peel["cas"]["edges"] == int(m[5])
+
+
+def test_problem_vault_pillar_bracing_approaches_a_degenerate_star():
+    m = sentence(PROBLEM, r"From (\S+) `D0` on, the smallest degeneracy of the peel's stars falls with every bound, "
+                          r"from (\S+) to (\S+) at the last network that stood")
+    table = [r for r in rows("bracing.csv") if r["scene"] == "vault-pillar"]
+    stood = [r for r in table if r["step"].startswith("diagonals") and r["status"] == "converged"]
+    first = next(i for i, r in enumerate(stood) if r["step"] == f"diagonals ≤ {m[1]}·D0")
+    falling = [r["star_degeneracy"] for r in stood[first:]]
+    assert len(falling) >= 3 and all(b < a for a, b in zip(falling, falling[1:]))
+    assert_shown(m[2], falling[0], "vault-pillar bracing: the degeneracy at the first falling step")
+    assert_shown(m[3], falling[-1], "vault-pillar bracing: the degeneracy at the last step that stood")
