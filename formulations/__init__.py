@@ -6,6 +6,8 @@
 * :mod:`formulations.terms` — one class per objective term (``TERMS`` registry), each with a
   CasADi residual and a numeric Gauss–Newton linearization;
 * :mod:`formulations.loadcases` — :class:`LoadCases`, the named set of load cases;
+* :mod:`formulations.peel` — which meshes carry two cases on one geometry only at a degenerate
+  vertex star (the peel of their weights' difference from the free edges);
 * :mod:`formulations.scaling` — the scale-free units;
 * :mod:`formulations.nlp` — :class:`ThrustNetworkProblem`, the NLP handed to IPOPT / nlopt.
 """

@@ -33,7 +33,7 @@ the load (per case the sum of ``|w| · length`` over the diagonals over the case
 largest over the cases); the largest weight; the shortest edge of the design over its length in
 the reference (a shrinking edge is the network turning its quads into triangles); the smallest
 degeneracy, at the row's positions, of the stars of the design's peel of the point load
-(:mod:`selfsupport.analysis.peel`: where that peel reaches the loaded vertex, the quads alone carry
+(:mod:`formulations.peel`: where that peel reaches the loaded vertex, the quads alone carry
 the cases only where it is zero); iterations and seconds. The JSON also lists, for the last step that stood, the diagonals at their bound in each
 case (the faces that still need bracing there). Writes ``bracing.csv``, ``bracing.md``,
 ``bracing.json`` and each row's network (``SCENE-SHARE-stepK.json``) into ``--out``.
@@ -48,9 +48,9 @@ from typing import Any
 
 import numpy as np
 
+from formulations.peel import DifferencePeel, star_degeneracy
 from formulations.problem import Bounds
 from selfsupport import api
-from selfsupport.analysis.peel import DifferencePeel, star_degeneracy
 from selfsupport.core.result import SolveResult
 from selfsupport.io.network_json import write_network
 from selfsupport.io.problem import problem as build_problem

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from selfsupport.analysis.peel import difference_peel, star_degeneracy
+from formulations.peel import difference_peel, star_degeneracy
 from selfsupport.io import read_network
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, markdown_table, run_stamp, write_csv
 
@@ -138,7 +138,7 @@ def plan_count(scene: Any) -> int:
 
 
 def point_peel(scene: Any, vertex: int) -> Any:
-    """The peel from the free edges (:func:`selfsupport.analysis.peel.difference_peel`) of the
+    """The peel from the free edges (:func:`formulations.peel.difference_peel`) of the
     cases' one difference, the point load at ``vertex``."""
     return difference_peel(scene.mesh.n_vertices, scene.mesh.edges[scene.active_edges], scene.supports, [vertex])
 

@@ -1,5 +1,5 @@
 """Which of the scenes can carry a point-load case beside the empty one without a degenerate
-vertex star: the peel from the free edges (:mod:`selfsupport.analysis.peel`), per scene.
+vertex star: the peel from the free edges (:mod:`formulations.peel`), per scene.
 
 ::
 
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from selfsupport.analysis.peel import MAX_PEELED, star_degeneracy
+from formulations.peel import MAX_PEELED, star_degeneracy
 from studies.common import SCENE_SUFFIXES, STAMP_COLUMNS, Column, markdown_table, read_study_scene, run_stamp, write_csv
 from studies.load_cases import point_peel
 

@@ -1,4 +1,4 @@
-"""The peel from the free edges (selfsupport/analysis/peel.py): where two load cases on one
+"""The peel from the free edges (formulations/peel.py): where two load cases on one
 geometry can differ in their weights."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import scipy.linalg as sla
 
 from formulations import Problem
 from formulations.equilibrium import Topology, weight_matrix
-from selfsupport.analysis.peel import difference_peel, loads_differ, star_degeneracy
+from formulations.peel import difference_peel, loads_differ, star_degeneracy
 from selfsupport.core.mesh import PolyMesh
 from selfsupport.core.shapes import make_shape
 from selfsupport.methods.staggered import StaggeredLinearization
@@ -177,3 +177,23 @@ def test_the_peel_study_finds_the_free_edged_quad_vault_reached_and_a_dome_not(t
     assert vault["faces"] == "81 quads" and int(vault["edges"]) == 168 and int(vault["peel_starts"]) == 24
     assert vault["reaches"] == "no" and int(vault["forced"]) == int(peel.forced.sum()) == 167
     assert dome["faces"].endswith("triangles") and dome["reaches"] == "no" and int(dome["forced"]) == 0
+
+
+def test_the_command_line_says_the_mesh_blocks_the_cases_and_what_to_change(tmp_path, capsys):
+    """``selfsupport solve`` on the tests' free-edged quad vault with a point-load case at vertex
+    27: it does not converge, the summary says the peel reaches vertex 27 and the last line names
+    the mesh, not another method, as what to change."""
+    from selfsupport import cli
+    from studies.stand_search import write_control
+
+    path = write_control(tmp_path)
+    toml = tmp_path / "cases.toml"
+    toml.write_text('[cases.empty]\n\n[cases.point]\npoint_loads = { "27" = 5000.0 }\n')
+    code = cli.main(["solve", str(path), "--load-cases", str(toml), "--time-limit", "30", "--out", str(tmp_path / "o.json")])
+    out, err = capsys.readouterr()
+    assert code != 0
+    assert "case 'point' shares a geometry with case 'empty' on this mesh only at a degenerate vertex star (the peel " \
+           "from the free edges reaches vertex 27)" in " ".join(out.split())
+    last = err.strip().splitlines()[-1]
+    assert last.endswith("the mesh blocks these load cases: split the quads into triangles (--triangulate), or "
+                         "support the free edges") and "try --method" not in last.rsplit(";", 1)[-1]

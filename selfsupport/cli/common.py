@@ -368,6 +368,9 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
     for name, case in result.cases:
         rows.append((f"load case {name}", f"max relative error {case.max_relative_error():.3e}, "
                                           f"total load {float(case.loads.sum()):.6g} N"))
+    blocked = peel_line(result)
+    if blocked:
+        rows.append(("load cases", blocked))
     hull = result.parameters.get("hull")
     if hull:
         from selfsupport.methods.hull_search import stands_line
@@ -376,6 +379,21 @@ def summary_rows(result, scene) -> list[tuple[str, str]]:
                                      f"(max excess {hull['max_excess']:.3g} m)"))
         rows.append(("verdict", stands_line(result.parameters)))
     return rows
+
+
+#: What to change where the peel blocks a case: the mesh, not the method or its settings.
+PEEL_HINT = "split the quads into triangles (--triangulate), or support the free edges"
+
+
+def peel_line(result) -> str | None:
+    """The peel's verdict of a stalled solve over several cases (``any_weights_carry``'s ``peel``,
+    :mod:`formulations.peel`) in a line, where it blocks a case; else None."""
+    for name, c in (result.parameters.get("any_weights_carry") or {}).items():
+        at = (c.get("peel") or {}).get("blocked_at")
+        if at:
+            return (f"case {name!r} shares a geometry with case {c['from']!r} on this mesh only at a degenerate "
+                    f"vertex star (the peel from the free edges reaches vertex {at[0]}): {PEEL_HINT}")
+    return None
 
 
 def tension_rows(result) -> list[tuple[str, str]]:
@@ -416,7 +434,9 @@ def _not_converged_line(result) -> str:
             # (a single level can stall far from equilibrium at this size where the levels converge)
             hint = (f"try --method {find_method(levels=True)} (a mesh this large, e.g. a subdivided design); "
                     f"otherwise {hint}")
-    if caps is not None and caps.simultaneous:  # (IPOPT or nlopt ran already: the other one to try is staggered)
+    if peel_line(result):  # (the mesh blocks the cases: no method or setting helps)
+        hint = f"the mesh blocks these load cases: {PEEL_HINT}"
+    elif caps is not None and caps.simultaneous:  # (IPOPT or nlopt ran already: the other one to try is staggered)
         hint = hint.replace("--method ipopt", "--method staggered")
     elif n > IPOPT_HINT_MAX:
         for phrase, instead in _NO_IPOPT:

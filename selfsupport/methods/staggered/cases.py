@@ -94,7 +94,7 @@ import scipy.sparse as sp
 
 from formulations import Bounds, LoadCases, Problem
 from formulations.equilibrium import Topology, load_vector, position_blocks, residual, weight_matrix
-from selfsupport.analysis.peel import difference_peel, loads_differ, star_degeneracy
+from formulations.peel import difference_peel, loads_differ, star_degeneracy
 from selfsupport.core.loads import LoadCase
 from selfsupport.core.result import Network, SolveResult
 from selfsupport.methods import find_method, method_class
@@ -252,7 +252,7 @@ def any_weights_carry(result: SolveResult) -> dict[str, dict[str, Any]]:
 
 
 def case_peel(top: Topology, X: np.ndarray, first: np.ndarray, other: np.ndarray) -> dict[str, Any]:
-    """:func:`~selfsupport.analysis.peel.difference_peel` of two cases' nodal loads at the positions
+    """:func:`~formulations.peel.difference_peel` of two cases' nodal loads at the positions
     ``X``: the vertices where they differ, those the peel from the free edges reaches
     (``blocked_at``: then no network of this mesh carries both unless a star the peel passes is
     degenerate), its steps, and the smallest degeneracy of those stars at ``X`` and its vertex."""
@@ -876,7 +876,7 @@ def peel_note(name: str, c: dict[str, Any]) -> str:
     return (f"; nor does any network of this mesh without a degenerate vertex star: case {name!r} differs from "
             f"{c['from']!r} only at vertices {p['loaded']}, and from the free vertices with three edges or fewer, "
             f"{p['steps']} vertices in turn force the weights' difference to zero on {p['forced_edges']} edges, "
-            f"every edge at vertex {p['blocked_at'][0]} among them (selfsupport.analysis.peel); only where some of "
+            f"every edge at vertex {p['blocked_at'][0]} among them (formulations.peel); only where some of "
             f"those stars degenerate (two edges on a line, three in a plane, an edge of zero length; here the "
             f"smallest singular value of their directions is {deg:.1e}, at vertex {p['degenerate_vertex']}) can one "
             f"geometry carry both: split the quads into triangles (solve --triangulate) or support the free edges")
