@@ -216,12 +216,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", type=Path, default=Path("../shared/paper-scenes/scenes"))
     ap.add_argument("--out", type=Path, default=Path("out/load_cases"), help="networks, TOML files, runs.json")
     ap.add_argument("--csv", type=Path, default=None, help="the CSV (default: OUT/load_cases.csv)")
-    ap.add_argument("--only", nargs="+", default=list(SCENES), choices=SCENES, help="these scenes only")
+    ap.add_argument("--only", nargs="+", default=list(SCENES),
+                    help=f"these scenes (file stems of .sss files in --scenes; default: {' '.join(SCENES)})")
     ap.add_argument("--shares", nargs="+", type=float, default=list(SHARES), help="point load shares of the self-weight")
     ap.add_argument("--variants", nargs="+", default=["default", *VARIANTS], choices=["default", *VARIANTS],
                     help="these variants only (default: all)")
     ap.add_argument("--checker", type=Path, default=DEFAULT_CHECKER)
     a = ap.parse_args(argv)
+    missing = [str(a.scenes / f"{n}.sss") for n in a.only if not (a.scenes / f"{n}.sss").is_file()]
+    if missing:
+        ap.error(f"no scene {', '.join(missing)}: give --scenes the folder of the scenes")
     a.out.mkdir(parents=True, exist_ok=True)
     a.csv = a.out / "load_cases.csv" if a.csv is None else a.csv
     stamp, rows = run_stamp(), []

@@ -793,3 +793,17 @@ def test_the_sparse_self_stress_basis_spans_numpys_null_space_of_the_plan(monkey
     assert np.abs(S.T @ S - np.identity(k)).max() < 1e-12
     assert np.abs(H @ S).max() <= 1e-7 * np.abs(H).max()
     assert np.linalg.svd(N.T @ S, compute_uv=False).min() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_load_cases_study_takes_any_scene_in_its_folder_and_refuses_a_missing_one(tmp_path, capsys):
+    """``--only`` names any ``.sss`` scene of ``--scenes`` (a scene of the same kind not among the
+    paper's three gets the same cases); a missing one ends the study with one line, before any solve."""
+    scene, _ = _free_edged_quad_vault()
+    from selfsupport.io.sss import write_scene_sss
+
+    write_scene_sss(tmp_path / "other-vault.sss", scene)
+    jobs = study.jobs(tmp_path, ("other-vault",), (0.05,), ("default",))
+    assert [j["scene"] for j in jobs] == ["other-vault"] and jobs[0]["peel"].blocked is False
+    with pytest.raises(SystemExit) as e:
+        study.main(["--scenes", str(tmp_path), "--only", "missing", "--out", str(tmp_path / "out")])
+    assert e.value.code == 2 and "no scene" in capsys.readouterr().err and not (tmp_path / "out").exists()
