@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class DifferencePeel:
 
     @property
     def blocked(self) -> bool:
-        """Whether only a network with a degenerate peeled star carries both cases."""
+        """Whether only a network with a degenerate peeled star can carry both cases."""
         return self.blocked_at.size > 0
 
     @property
@@ -92,7 +93,8 @@ class StarDegeneracy:
     vertex: int | None
 
 
-def difference_peel(n_vertices: int, edges: np.ndarray, supports: np.ndarray, loaded) -> DifferencePeel:
+def difference_peel(n_vertices: int, edges: np.ndarray, supports: np.ndarray,
+                    loaded: Sequence[int] | np.ndarray) -> DifferencePeel:
     """The peel from the free vertices with at most three edges (module docstring).
 
     Parameters

@@ -33,8 +33,9 @@ the load (per case the sum of ``|w| · length`` over the diagonals over the case
 largest over the cases); the largest weight; the shortest edge of the design over its length in
 the reference (a shrinking edge is the network turning its quads into triangles); the smallest
 degeneracy, at the row's positions, of the stars of the design's peel of the point load
-(:mod:`formulations.peel`: where that peel reaches the loaded vertex, the quads alone carry
-the cases only where it is zero); iterations and seconds. The JSON also lists, for the last step that stood, the diagonals at their bound in each
+(:mod:`formulations.peel`: where that peel reaches the loaded vertex, the quads alone can carry
+the cases only where it is zero); iterations and seconds. The JSON also lists, for the last step
+that stood, the diagonals at their bound in each
 case (the faces that still need bracing there). Writes ``bracing.csv``, ``bracing.md``,
 ``bracing.json`` and each row's network (``SCENE-SHARE-stepK.json``) into ``--out``.
 """

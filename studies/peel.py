@@ -9,7 +9,7 @@ Every scene file in ``--scenes`` (all of them, not only Table 1's), the point lo
 free vertex, as in :mod:`studies.load_cases`. Per scene: its faces by size, its free vertices and
 those with three edges or fewer (where the peel starts), the edges that carry a weight, the
 peel's steps and forced edges, whether it reaches the loaded vertex (then only a network with a
-degenerate star carries both cases, with weights of either sign), and the smallest degeneracy of
+degenerate star can carry both cases, with weights of either sign), and the smallest degeneracy of
 its stars at the scene's own positions. The mesh alone decides the peel: no solve, seconds in
 all. Writes ``peel.csv`` (stamped: :func:`studies.common.run_stamp`) and prints it.
 """

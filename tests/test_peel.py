@@ -18,8 +18,8 @@ N = 10
 
 
 def _vault(seed: int, split: tuple[int, int] | None = None) -> tuple[PolyMesh, np.ndarray, np.ndarray]:
-    """The vault-pillar layout over a paraboloid, every vertex moved at random by up to ~3 cm (a
-    generic geometry), the quads with both grid indices in ``split`` divided into triangles; the
+    """The vault-pillar layout over a paraboloid, every coordinate moved by a random normal offset
+    (3 cm standard deviation: a generic geometry), the quads with both grid indices in ``split`` divided into triangles; the
     mesh, its supports and its edges that enter an equation (not between two supports)."""
     sup, quads = vault_pillar_layout(N)
     t = np.linspace(-1.5, 1.5, N)
