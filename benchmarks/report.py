@@ -250,9 +250,9 @@ SECTIONS: tuple[Section, ...] = (
             "Every scene file, the point load at its highest free vertex, the empty case beside it: from the "
             "free vertices with three edges or fewer, the weights' difference between the two cases is forced "
             "to zero edge by edge ([theory](theory/load-cases.md)). Where it *reaches the loaded vertex*, only a "
-            "network with a degenerate vertex star (two edges on a line, three in a plane, an edge of zero "
-            "length) can carry both cases, whatever the weights' sign or bounds. The mesh alone decides it; the "
-            "degeneracy is measured at the scene's own positions.",
+            "network with a degenerate vertex star (two edges on a line or three in a plane) can carry both "
+            "cases, whatever the weights' sign or bounds. The mesh alone decides it; the degeneracy is measured "
+            "at the scene's own positions, in the peel's own order.",
             "python -m studies.peel --scenes $SCENES --out OUT",
             (Column("scene", "scene"), Column("faces", "faces"), Column("free", "free vertices", "{:.0f}"),
              Column("peel_starts", "free vertices with ≤ 3 edges", "{:.0f}"), Column("edges", "edges", "{:.0f}"),

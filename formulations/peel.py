@@ -7,20 +7,25 @@ free vertex where the cases' loads agree, the differences balance in space, with
 A free vertex with at most three edges on which ``d`` may still be nonzero, their directions
 linearly independent, balances only ``d = 0`` on them. Starting at the free vertices that have three
 edges or fewer (a quad mesh's free edges) and repeating on the vertices this leaves with three
-or fewer, the *peel* marks the edges ``d`` must vanish on. It depends on the mesh alone, and so
-does its conclusion:
+or fewer, the *peel* marks the edges ``d`` must vanish on. The set of marked (*forced*) edges
+depends on the mesh alone, not on the order the vertices are taken in: a vertex one maximal
+order peels has at most three edges outside another's forced set, so that one has forced them too.
 
-**If the peel takes every edge of a vertex where the loads differ, no network carries both
-cases, with weights of either sign and any bounds, unless one of the stars the peel passed is
-degenerate**: its remaining edges at that step two on one line, three in one plane, or one of them
-of zero length. (Induction along the peel: at a step whose edges are independent, the edges
-peeled before are zero, so these are too; at the loaded vertex every edge is then zero, against
-its load difference.) A quad mesh with free edges and a point load away from the supports is such
-a mesh; a triangle mesh (six edges at a vertex) is not peeled at all.
+**If the peel forces every edge of a vertex where the loads differ, no network carries both
+cases, with weights of either sign and any bounds, unless a star the peel passes is degenerate**:
+its remaining edges at that step two on one line or three in one plane. (Induction along the
+peel, in any one order: at a step whose edges of nonzero length are independent, the edges peeled
+before carry no difference of force, so these carry none either; at the loaded vertex no edge
+then does, against its load difference. An edge of zero length carries no force whatever its
+weight, so it is no way out.) Quad meshes with
+free edges are often such meshes (``python -m studies.peel``); on a triangle mesh the peel stops
+where vertices have six edges, a band along its free edges at most.
 
-:func:`star_degeneracy` measures how far a geometry is from that exception: the smallest singular
-value of each step's unit edge directions (0: degenerate). Near zero, the weights that carry the
-difference grow like its inverse.
+:func:`star_degeneracy` measures the exception at given positions: the smallest singular value of
+each step's unit edge directions, in the peel's own order (0: degenerate). Since the proof holds
+in any order, a positive smallest value certifies that those positions carry no such difference;
+near zero, the weights that would carry it grow like its inverse. The value itself depends on
+the order the vertices are numbered in.
 
 Example
 -------
@@ -62,8 +67,8 @@ class DifferencePeel:
     are not degenerate. ``vertices[k]`` is the free vertex of step ``k``, its edges
     ``step_edges[step_offsets[k]:step_offsets[k + 1]]`` (at most three: those not forced before).
     ``loaded`` are the vertices where the cases' loads differ (not peeled), ``blocked_at`` those of
-    them whose every edge is forced. Edges between two supports enter no equation and are never
-    forced. ``edges`` are the edges the peel was built on."""
+    them whose every edge is forced (an edgeless one too: it carries no difference). Edges between
+    two supports enter no equation and are never forced (their ends are never peeled). ``edges`` are the edges the peel was built on."""
 
     edges: np.ndarray
     forced: np.ndarray
@@ -75,7 +80,8 @@ class DifferencePeel:
 
     @property
     def blocked(self) -> bool:
-        """Whether only a network with a degenerate peeled star can carry both cases."""
+        """Whether only a network with a degenerate peeled star can carry both cases (whatever the
+        order of the peel)."""
         return self.blocked_at.size > 0
 
     @property
@@ -149,11 +155,8 @@ def difference_peel(n_vertices: int, edges: np.ndarray, supports: np.ndarray,
             count[u] -= 1
             if peelable[u] and 0 < count[u] <= MAX_PEELED:
                 queue.append(int(u))
-    forced = ~alive
-    both_supported = sup[E].all(axis=1)
-    forced &= ~both_supported
-    blocked = np.array([v for v in loaded if count[v] == 0 and offsets[v + 1] > offsets[v]], np.int64)
-    return DifferencePeel(edges=E, forced=forced, vertices=np.asarray(vertices, np.int64),
+    blocked = np.array([v for v in loaded if count[v] == 0], np.int64)
+    return DifferencePeel(edges=E, forced=~alive, vertices=np.asarray(vertices, np.int64),
                           step_offsets=np.asarray(step_offsets, np.int64), step_edges=np.asarray(step_edges, np.int64),
                           loaded=loaded, blocked_at=blocked)
 
@@ -169,9 +172,10 @@ def star_degeneracy(peel: DifferencePeel, vertices: np.ndarray) -> StarDegenerac
     Returns
     -------
     StarDegeneracy
-        Per step the smallest singular value of the ``r × 3`` matrix of its ``r ≤ 3`` unit edge
-        directions (an edge of zero length counts as a zero row): 1 for one edge or orthogonal
-        edges, 0 for a degenerate star.
+        Per step the smallest singular value of the ``r × 3`` matrix of the unit directions of its
+        ``r ≤ 3`` edges of nonzero length (an edge of zero length carries no force and is left
+        out; a step with none counts 1): 1 for one edge or orthogonal edges, 0 for a degenerate
+        star.
     """
     E = peel.edges
     X = np.asarray(vertices, float)
@@ -187,7 +191,8 @@ def star_degeneracy(peel: DifferencePeel, vertices: np.ndarray) -> StarDegenerac
     M = np.zeros((k, MAX_PEELED, 3))
     M[step, slot] = unit
     s = np.linalg.svd(M, compute_uv=False)
-    sigma = s[np.arange(k), r - 1]
+    nonzero = np.bincount(step, weights=length > 0, minlength=k).astype(np.int64)
+    sigma = np.where(nonzero > 0, s[np.arange(k), np.maximum(nonzero, 1) - 1], 1.0)
     i = int(np.argmin(sigma))
     return StarDegeneracy(sigma=sigma, smallest=float(sigma[i]), vertex=int(peel.vertices[i]))
 

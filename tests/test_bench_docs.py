@@ -582,10 +582,12 @@ def test_load_cases_theory_which_scenes_the_peel_rules_out():
     assert all("quads" in peel[s]["faces"] for s in names(m[1]))
     assert peel["structural"]["faces"].startswith(f"{m[3]} triangles, ")
     assert peel["cas"]["peel_starts"] == int(m[4]) and peel["cas"]["forced"] == peel["cas"]["edges"] == int(m[5])
+    m = sentence(LOAD_CASES, r"It forces at most a band along the free edges: (\d+) of dome2's (\d+) edges, none of lilium's")
+    assert (peel["dome2"]["forced"], peel["dome2"]["edges"]) == (int(m[1]), int(m[2])) and peel["lilium"]["forced"] == 0
 
 
 def test_problem_vault_pillar_bracing_approaches_a_degenerate_star():
-    m = sentence(PROBLEM, r"From (\S+) `D0` on, the smallest degeneracy of the peel's stars falls with every bound, "
+    m = sentence(PROBLEM, r"From (\S+) `D0` on, the smallest degeneracy of the peel's stars \(in its own order\) falls with every bound, "
                           r"from (\S+) to (\S+) at the last network that stood")
     table = [r for r in rows("bracing.csv") if r["scene"] == "vault-pillar"]
     stood = [r for r in table if r["step"].startswith("diagonals") and r["status"] == "converged"]

@@ -434,8 +434,8 @@ def _not_converged_line(result) -> str:
             # (a single level can stall far from equilibrium at this size where the levels converge)
             hint = (f"try --method {find_method(levels=True)} (a mesh this large, e.g. a subdivided design); "
                     f"otherwise {hint}")
-    if peel_line(result):  # (the mesh blocks the cases: no method or setting helps)
-        hint = f"the mesh blocks these load cases: {PEEL_HINT}"
+    if peel_line(result):  # (the mesh rules out every network without a degenerate star)
+        hint = f"this mesh carries these load cases only at a degenerate vertex star: {PEEL_HINT}"
     elif caps is not None and caps.simultaneous:  # (IPOPT or nlopt ran already: the other one to try is staggered)
         hint = hint.replace("--method ipopt", "--method staggered")
     elif n > IPOPT_HINT_MAX:

@@ -877,6 +877,6 @@ def peel_note(name: str, c: dict[str, Any]) -> str:
             f"{c['from']!r} only at vertices {p['loaded']}, and from the free vertices with three edges or fewer, "
             f"{p['steps']} vertices in turn force the weights' difference to zero on {p['forced_edges']} edges, "
             f"every edge at vertex {p['blocked_at'][0]} among them (formulations.peel); only where some of "
-            f"those stars degenerate (two edges on a line, three in a plane, an edge of zero length; here the "
-            f"smallest singular value of their directions is {deg:.1e}, at vertex {p['degenerate_vertex']}) can one "
-            f"geometry carry both: split the quads into triangles (solve --triangulate) or support the free edges")
+            f"those stars degenerate (two edges on a line or three in a plane; here the smallest singular value "
+            f"of their directions is {deg:.1e}, at vertex {p['degenerate_vertex']}) can one geometry carry both: "
+            f"split the quads into triangles (solve --triangulate) or support the free edges")
