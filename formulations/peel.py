@@ -17,9 +17,9 @@ its remaining edges at that step two on one line or three in one plane. (Inducti
 peel, in any one order: at a step whose edges of nonzero length are independent, the edges peeled
 before carry no difference of force, so these carry none either; at the loaded vertex no edge
 then does, against its load difference. An edge of zero length carries no force whatever its
-weight, so it is no way out.) Quad meshes with
-free edges are often such meshes (``python -m studies.peel``); on a triangle mesh the peel stops
-where vertices have six edges, a band along its free edges at most.
+weight, so it is no way out.) Quad meshes with free edges are often such meshes (``python -m
+studies.peel``); on a triangle mesh the peel stops where vertices have six edges, a band along its
+free edges at most.
 
 :func:`star_degeneracy` measures the exception at given positions: the smallest singular value of
 each step's unit edge directions, in the peel's own order (0: degenerate). Since the proof holds
@@ -63,12 +63,13 @@ MAX_PEELED = 3
 class DifferencePeel:
     """The peel of :func:`difference_peel`.
 
-    ``forced[e]``: edge ``e``'s weight difference vanishes at every network whose peeled stars
+    ``forced[e]``: edge ``e`` carries no difference of force at any network whose peeled stars
     are not degenerate. ``vertices[k]`` is the free vertex of step ``k``, its edges
     ``step_edges[step_offsets[k]:step_offsets[k + 1]]`` (at most three: those not forced before).
     ``loaded`` are the vertices where the cases' loads differ (not peeled), ``blocked_at`` those of
     them whose every edge is forced (an edgeless one too: it carries no difference). Edges between
-    two supports enter no equation and are never forced (their ends are never peeled). ``edges`` are the edges the peel was built on."""
+    two supports enter no equation and are never forced (their ends are never peeled). ``edges``
+    are the edges the peel was built on."""
 
     edges: np.ndarray
     forced: np.ndarray
@@ -116,7 +117,7 @@ def difference_peel(n_vertices: int, edges: np.ndarray, supports: np.ndarray,
     -------
     DifferencePeel
         The forced edges and the steps; the set of forced edges does not depend on the order in
-        which the vertices are taken (peeling one only lowers its neighbours' counts).
+        which the vertices are taken (module docstring), the steps do.
 
     Examples
     --------
