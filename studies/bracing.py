@@ -58,7 +58,7 @@ from selfsupport.io.problem import problem as build_problem
 from selfsupport.methods.simultaneous import Simultaneous
 from selfsupport.methods.staggered import StaggeredLinearization
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, write_csv, write_markdown
-from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, point_peel, toml_text
+from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, point_peel, three_cases, toml_text
 from studies.stand_search import STANDS_TOL, quads_start, write_control
 
 #: The diagonals' bounds as fractions of the split network's largest diagonal weight.
@@ -125,11 +125,11 @@ def study(path: Path, out: Path, checker: Path | None, share: float, fractions: 
     stood (module docstring): ``time_limit`` seconds for the split design and for each solve of the
     design itself, ``step_time_limit`` for each bounded step."""
     name = path.stem
-    v, weight = highest_free_and_weight(path)
-    cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
+    scene, split = api.as_scene(str(path)), api.triangulated_design(str(path))
+    v, weight = highest_free_and_weight(scene)
+    cases = three_cases(v, weight, share)
     toml = out / f"{name}-{share:g}.toml"
     toml.write_text(toml_text(cases))
-    scene, split = api.as_scene(str(path)), api.triangulated_design(str(path))
     diag = diagonal_mask(split.mesh.edges, scene.mesh.edges)
     peel = point_peel(scene, v)
     stamp, rows, info = run_stamp(), [], {"cases": cases, "diagonals": int(diag.sum()), "edges": len(scene.mesh.edges)}

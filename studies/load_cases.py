@@ -96,6 +96,16 @@ def highest_free_and_weight(path: Path | Any) -> tuple[int, float]:
     return int(free[np.argmax(V[free, 2])]), -float(SelfWeight().nodal(scene.mesh, V).sum())
 
 
+def three_cases(vertex: int, weight: float, share: float) -> dict[str, dict]:
+    """The study's cases (``--load-cases`` TOML tables): empty; snow 80 kg/m² on all faces; a
+    point load of ``share`` of the self-weight ``weight`` [N] at ``vertex``.
+
+    >>> three_cases(7, 1000.0, 0.05)["point"]
+    {'point_loads': {7: 50.0}}
+    """
+    return {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {vertex: round(share * weight, 2)}}}
+
+
 def toml_text(cases: dict[str, dict]) -> str:
     """Load cases as the ``--load-cases`` TOML (:mod:`selfsupport.io.loadcases`)."""
     out = []
@@ -150,11 +160,11 @@ def jobs(scenes: Path, names: tuple[str, ...], shares: tuple[float, ...],
     result = []
     for name in names:
         path = scenes / f"{name}.sss"
-        v, weight = highest_free_and_weight(path)
         scene = design(path)
+        v, weight = highest_free_and_weight(scene)
         split = design(path, triangulate=True) if "triangulated" in variants else None
         for share in shares:
-            cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
+            cases = three_cases(v, weight, share)
             base = {"scene": name, "path": path, "point_share": share, "cases": cases,
                     "plan_count": plan_count(scene), "peel": point_peel(scene, v)}
             if "default" in variants:

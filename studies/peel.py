@@ -24,7 +24,7 @@ import numpy as np
 
 from formulations.peel import MAX_PEELED, star_degeneracy
 from studies.common import SCENE_SUFFIXES, STAMP_COLUMNS, Column, markdown_table, read_study_scene, run_stamp, write_csv
-from studies.load_cases import point_peel
+from studies.load_cases import highest_free_and_weight, point_peel
 
 COLUMNS = (Column("scene", "scene"), Column("faces", "faces"), Column("free", "free vertices", "{:d}"),
            Column("peel_starts", "free vertices with ≤ 3 edges", "{:d}"), Column("edges", "edges", "{:d}"),
@@ -47,7 +47,7 @@ def faces_text(sizes: np.ndarray) -> str:
 def measure(scene: Any) -> dict[str, Any]:
     """One scene's row (module docstring)."""
     V, free = scene.mesh.vertices, np.flatnonzero(scene.free)
-    v = int(free[np.argmax(V[free, 2])])
+    v = highest_free_and_weight(scene)[0]
     edges = scene.mesh.edges[scene.active_edges]
     valence = np.bincount(edges.ravel(), minlength=scene.mesh.n_vertices)
     peel = point_peel(scene, v)

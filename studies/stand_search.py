@@ -73,7 +73,7 @@ from selfsupport.methods.simultaneous import COLD_START_FACTOR, WARM_BARRIERS, S
 from selfsupport.methods.staggered import StaggeredLinearization
 from selfsupport.methods.staggered.cases import FINISH_SHARE
 from studies.common import DEFAULT_CHECKER, STAMP_COLUMNS, Column, run_stamp, vault_pillar_layout, write_csv, write_markdown
-from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, toml_text
+from studies.load_cases import TIME_LIMIT, checked, highest_free_and_weight, three_cases, toml_text
 
 #: Largest height change of a perturbed start, relative to the span (the bounding box's largest
 #: horizontal side).
@@ -285,11 +285,11 @@ def study(path: Path, out: Path, checker: Path | None, share: float, time_limit:
     ``eps``: the lower weight bound [N/m] (``None``: the default; zero or below: tension allowed,
     the checker run with ``--allow-tension``); ``warm_barrier``: the simultaneous method's option."""
     name = path.stem
-    v, weight = highest_free_and_weight(path)
-    cases = {"empty": {}, "snow": {"uniform_mass": 80.0}, "point": {"point_loads": {v: round(share * weight, 2)}}}
-    toml = out / f"{name}-{share:g}.toml"
-    toml.write_text(toml_text(cases))
     scene = api.as_scene(str(path))
+    v, weight = highest_free_and_weight(scene)
+    toml = out / f"{name}-{share:g}.toml"
+    cases = three_cases(v, weight, share)
+    toml.write_text(toml_text(cases))
     problem = build_problem(scene, load_cases=str(toml), eps=eps)
     members, names = proportional_members(problem), problem.loads.names
     stamp, rows = run_stamp(), []
